@@ -1,0 +1,357 @@
+//! The background grid: a regular Cartesian grid of cubic cells (paper Section 1), in one
+//! of two modes (paper Section 4, "Load balance"):
+//!
+//! * [`GridMode::Fixed`]: the grid given by the scenario (for the Taylor bar exactly the
+//!   cell and node counts of Table 2). A particle leaving it is an error.
+//! * [`GridMode::Adaptive`]: every step the grid is re-fitted to the particles' current
+//!   bounding box with the same cell size. Nodes stay on one lattice (anchored at the
+//!   scenario's grid origin), so walls keep falling on node layers.
+//!
+//! Node arrays are contiguous and indexed `i + (nx+1) (j + (ny+1) k)`. They only grow: a
+//! smaller grid reuses the capacity, so steady-state steps do not allocate.
+
+use crate::math::Vec3;
+use crate::shape::{self, Shape};
+use serde::Serialize;
+
+/// How the grid follows the particles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum GridMode {
+    /// The scenario's grid, unchanged.
+    #[default]
+    Fixed,
+    /// Re-fitted to the particles' bounding box every step.
+    Adaptive,
+}
+
+impl GridMode {
+    /// Stable name (`fixed` / `adaptive`).
+    pub fn name(self) -> &'static str {
+        match self {
+            GridMode::Fixed => "fixed",
+            GridMode::Adaptive => "adaptive",
+        }
+    }
+}
+
+impl std::str::FromStr for GridMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "fixed" => Ok(GridMode::Fixed),
+            "adaptive" => Ok(GridMode::Adaptive),
+            _ => Err(format!(
+                "unknown grid mode '{s}': use 'fixed' or 'adaptive'"
+            )),
+        }
+    }
+}
+
+/// The grid a scenario asks for.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GridSpec {
+    /// Cell size (m).
+    pub dx: f64,
+    /// A point of the node lattice (the fixed grid's lowest corner).
+    pub anchor: Vec3,
+    /// Cells of the fixed grid per axis, starting at `anchor`.
+    pub cells: [usize; 3],
+}
+
+/// Geometry of the grid during one step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridGeom {
+    /// Cell size (m).
+    pub dx: f64,
+    /// `1 / dx`.
+    pub inv_dx: f64,
+    /// Lowest corner (m).
+    pub origin: Vec3,
+    /// Cells per axis.
+    pub cells: [usize; 3],
+    /// Lattice index of node `(0, 0, 0)` relative to the anchor.
+    pub start: [i64; 3],
+}
+
+impl GridGeom {
+    /// The fixed grid of `spec`.
+    pub fn fixed(spec: &GridSpec) -> Self {
+        Self {
+            dx: spec.dx,
+            inv_dx: 1.0 / spec.dx,
+            origin: spec.anchor,
+            cells: spec.cells,
+            start: [0; 3],
+        }
+    }
+
+    /// The smallest grid on `spec`'s lattice whose cells contain every point of `[lo, hi]`.
+    pub fn fit(spec: &GridSpec, lo: Vec3, hi: Vec3) -> Self {
+        let inv = 1.0 / spec.dx;
+        let mut start = [0i64; 3];
+        let mut cells = [0usize; 3];
+        let mut origin = [0.0; 3];
+        for d in 0..3 {
+            let s = ((lo[d] - spec.anchor[d]) * inv).floor() as i64;
+            let e = ((hi[d] - spec.anchor[d]) * inv).floor() as i64 + 1;
+            start[d] = s;
+            cells[d] = (e - s).max(1) as usize;
+            origin[d] = spec.anchor[d] + s as f64 * spec.dx;
+        }
+        Self {
+            dx: spec.dx,
+            inv_dx: inv,
+            origin,
+            cells,
+            start,
+        }
+    }
+
+    /// Nodes per axis (`cells + 1`).
+    pub fn node_dims(&self) -> [usize; 3] {
+        [self.cells[0] + 1, self.cells[1] + 1, self.cells[2] + 1]
+    }
+
+    /// Number of nodes.
+    pub fn num_nodes(&self) -> usize {
+        let n = self.node_dims();
+        n[0] * n[1] * n[2]
+    }
+
+    /// Number of cells.
+    pub fn num_cells(&self) -> usize {
+        self.cells[0] * self.cells[1] * self.cells[2]
+    }
+
+    /// Linear index of node `(i, j, k)`.
+    #[inline(always)]
+    pub fn node_index(&self, i: usize, j: usize, k: usize) -> usize {
+        let n = self.node_dims();
+        i + n[0] * (j + n[1] * k)
+    }
+
+    /// Position of node `(i, j, k)`.
+    pub fn node_position(&self, i: usize, j: usize, k: usize) -> Vec3 {
+        [
+            self.origin[0] + i as f64 * self.dx,
+            self.origin[1] + j as f64 * self.dx,
+            self.origin[2] + k as f64 * self.dx,
+        ]
+    }
+
+    /// Shape functions of the cell containing `x` (paper's `S_ip`, `G_ip`).
+    #[inline(always)]
+    pub fn shape(&self, x: Vec3) -> Shape {
+        shape::evaluate(x, self.origin, self.inv_dx, self.cells)
+    }
+
+    /// The cell containing `x` (clamped like [`GridGeom::shape`]).
+    #[inline(always)]
+    pub fn shape_cell(&self, x: Vec3) -> [usize; 3] {
+        shape::cell_of(x, self.origin, self.inv_dx, self.cells)
+    }
+
+    /// Whether `x` lies in a cell of this grid.
+    #[inline(always)]
+    pub fn contains(&self, x: Vec3) -> bool {
+        (0..3).all(|d| {
+            let xi = (x[d] - self.origin[d]) * self.inv_dx;
+            xi >= 0.0 && xi < self.cells[d] as f64
+        })
+    }
+
+    /// Node layer index along `axis` of the plane `axis = coord`, if it is a node layer of
+    /// this grid.
+    pub fn layer_of(&self, axis: usize, coord: f64) -> Option<usize> {
+        let l = ((coord - self.origin[axis]) * self.inv_dx).round();
+        let on_lattice = (self.origin[axis] + l * self.dx - coord).abs() <= 1e-9 * self.dx;
+        (on_lattice && l >= 0.0 && l <= self.cells[axis] as f64).then_some(l as usize)
+    }
+}
+
+/// What a wall does to the nodes on it (paper Eq. 6: momentum and force are zeroed).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum WallKind {
+    /// Frictionless: the normal component is zeroed.
+    #[default]
+    Slip,
+    /// Sticking: every component is zeroed.
+    Stick,
+}
+
+impl std::str::FromStr for WallKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "slip" | "frictionless" => Ok(WallKind::Slip),
+            "stick" | "sticking" => Ok(WallKind::Stick),
+            _ => Err(format!(
+                "unknown wall kind '{s}': use 'frictionless' or 'sticking'"
+            )),
+        }
+    }
+}
+
+/// A rigid planar wall `x[axis] = position`, acting on the node layer in that plane.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Wall {
+    /// Normal axis (0, 1, 2).
+    pub axis: usize,
+    /// Plane coordinate (m); must lie on the grid lattice.
+    pub position: f64,
+    /// Slip or stick.
+    pub kind: WallKind,
+}
+
+impl Wall {
+    /// Component mask (1 = free, 0 = zeroed) of the nodes on the wall.
+    pub fn mask(&self) -> Vec3 {
+        match self.kind {
+            WallKind::Stick => [0.0; 3],
+            WallKind::Slip => {
+                let mut m = [1.0; 3];
+                m[self.axis] = 0.0;
+                m
+            }
+        }
+    }
+}
+
+/// The walls resolved to node layers of the current grid.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct WallLayers {
+    /// `(axis, layer, mask)` for every wall that meets the grid.
+    layers: Vec<(usize, usize, Vec3)>,
+}
+
+impl WallLayers {
+    pub fn with_capacity(n: usize) -> Self {
+        Self {
+            layers: Vec::with_capacity(n),
+        }
+    }
+
+    /// Resolve `walls` on `geom` (no allocation once capacity is reserved).
+    pub fn resolve(&mut self, walls: &[Wall], geom: &GridGeom) {
+        self.layers.clear();
+        for w in walls {
+            if let Some(l) = geom.layer_of(w.axis, w.position) {
+                self.layers.push((w.axis, l, w.mask()));
+            }
+        }
+    }
+
+    /// Mask of the node row `(j, k)` from walls normal to y and z.
+    #[inline]
+    pub fn row_mask(&self, j: usize, k: usize) -> Vec3 {
+        let mut m = [1.0; 3];
+        for &(axis, l, mask) in &self.layers {
+            if (axis == 1 && l == j) || (axis == 2 && l == k) {
+                for d in 0..3 {
+                    m[d] *= mask[d];
+                }
+            }
+        }
+        m
+    }
+
+    /// Walls normal to x: `(layer, mask)`.
+    #[inline]
+    pub fn x_layers(&self) -> impl Iterator<Item = (usize, Vec3)> + '_ {
+        self.layers.iter().filter(|l| l.0 == 0).map(|l| (l.1, l.2))
+    }
+
+    /// Mask of node `i` in a row with mask `row`.
+    #[inline(always)]
+    pub fn node_mask(&self, row: Vec3, i: usize, has_x: bool) -> Vec3 {
+        if !has_x {
+            return row;
+        }
+        let mut m = row;
+        for (l, mask) in self.x_layers() {
+            if l == i {
+                for d in 0..3 {
+                    m[d] *= mask[d];
+                }
+            }
+        }
+        m
+    }
+}
+
+/// Nodal arrays of the global grid.
+#[derive(Clone, Debug, Default)]
+pub struct NodeArrays {
+    /// `[m, p_x, p_y, p_z, f_x, f_y, f_z]` per node: the scatter of Eqs. 1-5.
+    pub p2g: Vec<[f64; 7]>,
+    /// `[v_x, v_y, v_z, a_x, a_y, a_z]` per node after Eq. 6: `v = p(k+1)/m`, `a = f/m`.
+    pub kin: Vec<[f64; 6]>,
+    /// Re-mapped momentum of Eq. 11, turned into the re-mapped velocity in place.
+    pub remap: Vec<[f64; 3]>,
+}
+
+impl NodeArrays {
+    /// Resize to `n` nodes, growing capacity only when needed.
+    pub fn resize(&mut self, n: usize) {
+        self.p2g.resize(n, [0.0; 7]);
+        self.kin.resize(n, [0.0; 6]);
+        self.remap.resize(n, [0.0; 3]);
+    }
+
+    /// Bytes held (by capacity).
+    pub fn bytes(&self) -> usize {
+        self.p2g.capacity() * 56 + self.kin.capacity() * 48 + self.remap.capacity() * 24
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fit_stays_on_the_lattice_and_contains_the_box() {
+        let spec = GridSpec {
+            dx: 0.5,
+            anchor: [-1.0, -1.0, 0.0],
+            cells: [4, 4, 4],
+        };
+        let g = GridGeom::fit(&spec, [0.1, -0.9, 0.0], [1.4, 0.0, 3.0]);
+        assert_eq!(g.start, [2, 0, 0]);
+        assert_eq!(g.origin, [0.0, -1.0, 0.0]);
+        assert_eq!(g.cells, [3, 3, 7]);
+        assert!(g.contains([1.4, 0.0, 3.0]));
+        assert!(g.contains([0.1, -0.9, 0.0]));
+        assert_eq!(g.layer_of(2, 0.0), Some(0));
+        assert_eq!(g.layer_of(2, 0.2), None);
+    }
+
+    #[test]
+    fn wall_masks_combine() {
+        let spec = GridSpec {
+            dx: 1.0,
+            anchor: [0.0; 3],
+            cells: [2, 2, 2],
+        };
+        let g = GridGeom::fixed(&spec);
+        let walls = [
+            Wall {
+                axis: 2,
+                position: 0.0,
+                kind: WallKind::Slip,
+            },
+            Wall {
+                axis: 0,
+                position: 2.0,
+                kind: WallKind::Slip,
+            },
+        ];
+        let mut wl = WallLayers::with_capacity(2);
+        wl.resolve(&walls, &g);
+        let row = wl.row_mask(1, 0);
+        assert_eq!(row, [1.0, 1.0, 0.0]);
+        assert_eq!(wl.node_mask(row, 2, true), [0.0, 1.0, 0.0]);
+        assert_eq!(wl.node_mask(wl.row_mask(1, 1), 0, true), [1.0; 3]);
+    }
+}

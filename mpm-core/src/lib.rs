@@ -1,0 +1,54 @@
+//! # mpm-core
+//!
+//! An explicit material point method (MPM) solver built to reproduce Huang, Zhang, Ma and
+//! Wang, "Shared Memory OpenMP Parallelization of Explicit MPM and Its Application to
+//! Hypervelocity Impact" (CMES 38(2), 2008). Equation numbers in the docs are the paper's.
+//!
+//! * the MUSL step (Eqs. 1-15) with trilinear shape functions and the Jaumann stress rate:
+//!   [`solver`];
+//! * J2 plasticity with hardening `A + B eps_p^n`, the Mie-Grüneisen EOS (the paper's form
+//!   and the LS-DYNA form) and failure: [`material`];
+//! * the three ways to do the nodal scatter, serial, array expansion and domain
+//!   decomposition, which is all that differs between them: [`strategy`];
+//! * the Taylor bar Models 1-4: [`scenario::taylor`].
+//!
+//! Units are SI throughout. The crate has no OS-specific code and starts no threads: the
+//! caller passes the [`rayon::ThreadPool`] to run in (and pins its workers if it wants to).
+//!
+//! ```
+//! use mpm_core::{scenario::taylor::TaylorBar, SimConfig, Simulation, Strategy};
+//!
+//! let setup = TaylorBar { model: 1, ..Default::default() }.setup()?;
+//! assert_eq!(setup.particles.len(), 56_056);
+//! let config = SimConfig { strategy: Strategy::DomainDecomposition, threads: 2, ..Default::default() };
+//! let mut sim = Simulation::new(setup, config)?;
+//! let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+//! for _ in 0..3 {
+//!     sim.step(&pool, f64::INFINITY)?;
+//! }
+//! assert!(sim.diagnostics().kinetic < sim.initial().kinetic);
+//! println!("grid stage {:.3} s, particle stage {:.3} s", sim.times().grid_stage(), sim.times().particle_stage());
+//! # Ok::<(), mpm_core::SimError>(())
+//! ```
+
+pub mod disjoint;
+pub mod energy;
+pub mod error;
+pub mod grid;
+pub mod material;
+pub mod math;
+pub mod particles;
+pub mod scenario;
+pub mod shape;
+pub mod solver;
+pub mod strategy;
+pub mod timers;
+
+pub use error::SimError;
+pub use grid::{GridGeom, GridMode, GridSpec, Wall, WallKind};
+pub use material::{Material, MgForm};
+pub use particles::Particles;
+pub use scenario::Setup;
+pub use solver::{Diagnostics, SimConfig, Simulation, DEFAULT_CFL};
+pub use strategy::Strategy;
+pub use timers::{StageTimes, Substage};

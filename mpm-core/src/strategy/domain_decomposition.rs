@@ -1,0 +1,575 @@
+//! Domain decomposition (DD, paper Section 4).
+//!
+//! The grid's cells are cut into `px x py x pz` uniform patches, one per thread (layouts
+//! 1x1x1, 2x1x1, 2x2x1, 2x1x3, 2x2x2 for 1, 2, 4, 6, 8 threads; other counts get the
+//! factorisation with the fewest duplicated nodes, see [`patch_layout`]). Every step:
+//!
+//! 1. **Binning**, in parallel ([`Binning`]): the particles are split into `T` contiguous
+//!    groups; thread `t` counts its particles per patch, `patnp_th(t, j)`; the column sums
+//!    are `patnp(j)`; `max(patnp)` sizes the index table `Pindex`; with prefix sums over
+//!    `patnp_th` each thread writes its particles' ids into `Pindex(:, j)` without conflicts.
+//!    `Pindex(i, j)` is the (1-based) id of the particle with local id `i` in patch `j`, and 0
+//!    marks an empty slot, exactly as in the paper.
+//! 2. **Scatter**: thread `j` scatters only patch `j`'s particles, only into sub-grid `j`,
+//!    which holds every node of the patch's cells, including the nodes on faces shared with
+//!    neighbouring patches. Local node `s` of patch `j` is global node `globalnode(s, j)`;
+//!    [`Patch::subnodefun`] is the reverse map.
+//! 3. **Assembly**: for each patch in turn, a parallel loop over its local nodes adds the
+//!    sub-grid into the global arrays (within one patch every local node is a distinct global
+//!    node, so the loop has no race).
+//!
+//! The MUSL re-map (Eq. 11) reuses the same binning, sub-grids and assembly. With the
+//! adaptive grid the patches are re-cut over the particles' current bounding box every step,
+//! which is the paper's load balance.
+
+use super::{Contribution, Exec, NodeBox};
+use crate::disjoint::{partition, DisjointSlice};
+use crate::grid::GridGeom;
+use crate::math::Vec3;
+
+/// The patch layout `[px, py, pz]` for `threads` patches over a grid of `cells`.
+///
+/// 1, 2, 4, 6 and 8 threads use the paper's layouts (1x1x1, 2x1x1, 2x2x1, 2x1x3, 2x2x2).
+/// Other counts use the factorisation `px py pz = threads` that duplicates the fewest nodes
+/// (the smallest total area of internal cuts), ties broken towards cutting z, then y.
+pub fn patch_layout(threads: usize, cells: [usize; 3]) -> [usize; 3] {
+    match threads {
+        1 => [1, 1, 1],
+        2 => [2, 1, 1],
+        4 => [2, 2, 1],
+        6 => [2, 1, 3],
+        8 => [2, 2, 2],
+        t => {
+            let [nx, ny, nz] = cells.map(|c| c as u128 + 1);
+            let mut best = ([1, 1, t], u128::MAX);
+            for px in 1..=t {
+                if t % px != 0 {
+                    continue;
+                }
+                for py in 1..=t / px {
+                    if (t / px) % py != 0 {
+                        continue;
+                    }
+                    let pz = t / px / py;
+                    let cost = (px as u128 - 1) * ny * nz
+                        + (py as u128 - 1) * nx * nz
+                        + (pz as u128 - 1) * nx * ny;
+                    if cost < best.1 || (cost == best.1 && [pz, py] > [best.0[2], best.0[1]]) {
+                        best = ([px, py, pz], cost);
+                    }
+                }
+            }
+            best.0
+        }
+    }
+}
+
+/// One patch: a box of cells and its sub-grid of nodes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Patch {
+    /// First cell (and first node) of the patch, in the grid's numbering.
+    pub cell_lo: [usize; 3],
+    /// Cells per axis (0 when the grid has fewer cells than patches along an axis).
+    pub cells: [usize; 3],
+}
+
+impl Patch {
+    /// Nodes per axis of the sub-grid.
+    pub fn node_dims(&self) -> [usize; 3] {
+        self.cells.map(|c| c + 1)
+    }
+
+    /// Nodes in the sub-grid.
+    pub fn num_nodes(&self) -> usize {
+        let d = self.node_dims();
+        d[0] * d[1] * d[2]
+    }
+
+    pub(crate) fn node_box(&self) -> NodeBox {
+        NodeBox {
+            lo: self.cell_lo,
+            dims: self.node_dims(),
+        }
+    }
+
+    /// The paper's `globalnode(s, j)`: global node index of local node `s`.
+    pub fn globalnode(&self, s: usize, geom: &GridGeom) -> usize {
+        let d = self.node_dims();
+        let (i, j, k) = (s % d[0], (s / d[0]) % d[1], s / (d[0] * d[1]));
+        geom.node_index(
+            self.cell_lo[0] + i,
+            self.cell_lo[1] + j,
+            self.cell_lo[2] + k,
+        )
+    }
+
+    /// The paper's `subnodefun(i, j)`: local id of global node `g`, if the sub-grid has it.
+    pub fn subnodefun(&self, g: usize, geom: &GridGeom) -> Option<usize> {
+        let n = geom.node_dims();
+        let (i, j, k) = (g % n[0], (g / n[0]) % n[1], g / (n[0] * n[1]));
+        let d = self.node_dims();
+        let l = [i, j, k];
+        let mut local = [0usize; 3];
+        for a in 0..3 {
+            if l[a] < self.cell_lo[a] || l[a] >= self.cell_lo[a] + d[a] {
+                return None;
+            }
+            local[a] = l[a] - self.cell_lo[a];
+        }
+        Some(local[0] + d[0] * (local[1] + d[1] * local[2]))
+    }
+}
+
+/// The paper's particle binning tables.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Binning {
+    threads: usize,
+    patches: usize,
+    /// Patch of every particle (filled by the counting pass, read by the writing pass).
+    patch_of: Vec<u32>,
+    /// `patnp_th(t, j)`, row-major by thread.
+    patnp_th: Vec<u32>,
+    /// Running write positions per thread and patch (prefix sums of `patnp_th`).
+    cursor: Vec<u32>,
+    /// `patnp(j)`.
+    patnp: Vec<u32>,
+    /// Rows of `Pindex` (= `max(patnp)`).
+    rows: usize,
+    /// `Pindex(i, j)`, column-major, 1-based particle ids, 0 = empty slot.
+    pindex: Vec<u32>,
+}
+
+impl Binning {
+    /// Bin `n` particles into `patches` patches with `exec.workers` threads; `patch(p)` is
+    /// particle `p`'s patch.
+    pub(crate) fn build<F>(&mut self, exec: &Exec<'_>, n: usize, patches: usize, patch: &F)
+    where
+        F: Fn(usize) -> usize + Sync,
+    {
+        assert!(n < u32::MAX as usize, "more than 2^32 - 1 particles");
+        let t = exec.workers;
+        self.threads = t;
+        self.patches = patches;
+        self.patch_of.resize(n, 0);
+        self.patnp_th.resize(t * patches, 0);
+        self.cursor.resize(t * patches, 0);
+        self.patnp.resize(patches, 0);
+
+        // Counting pass: thread t counts its particles per patch.
+        {
+            let patch_of = DisjointSlice::new(&mut self.patch_of[..]);
+            let counts = DisjointSlice::new(&mut self.patnp_th[..]);
+            exec.run(|w| {
+                let r = partition(n, t, w);
+                // SAFETY: particle group w and row w of patnp_th belong to worker w only.
+                let (mine, row) = unsafe {
+                    (
+                        patch_of.range_mut(r.clone()),
+                        counts.range_mut(w * patches..(w + 1) * patches),
+                    )
+                };
+                row.fill(0);
+                for (slot, p) in mine.iter_mut().zip(r) {
+                    let j = patch(p);
+                    *slot = j as u32;
+                    row[j] += 1;
+                }
+            });
+        }
+
+        // patnp = column sums; write cursors = exclusive prefix sums down each column.
+        for j in 0..patches {
+            let mut acc = 0u32;
+            for w in 0..t {
+                self.cursor[w * patches + j] = acc;
+                acc += self.patnp_th[w * patches + j];
+            }
+            self.patnp[j] = acc;
+        }
+        self.rows = self.patnp.iter().copied().max().unwrap_or(0) as usize;
+        let rows = self.rows;
+        self.pindex.resize(rows * patches, 0);
+        for j in 0..patches {
+            self.pindex[j * rows + self.patnp[j] as usize..(j + 1) * rows].fill(0);
+        }
+
+        // Writing pass: every thread writes its particles' ids in its own rows.
+        {
+            let pindex = DisjointSlice::new(&mut self.pindex[..]);
+            let cursor = DisjointSlice::new(&mut self.cursor[..]);
+            let patch_of = &self.patch_of;
+            exec.run(|w| {
+                // SAFETY: row w of the cursor table belongs to worker w only.
+                let cur = unsafe { cursor.range_mut(w * patches..(w + 1) * patches) };
+                for p in partition(n, t, w) {
+                    let j = patch_of[p] as usize;
+                    let slot = j * rows + cur[j] as usize;
+                    cur[j] += 1;
+                    // SAFETY: worker w's slots in column j are rows
+                    // [sum_{t<w} patnp_th(t, j), sum_{t<=w} patnp_th(t, j)), disjoint from
+                    // every other worker's, and each is written once.
+                    unsafe { *pindex.get_mut(slot) = p as u32 + 1 };
+                }
+            });
+        }
+    }
+
+    /// `patnp_th(t, j)`.
+    pub fn patnp_th(&self, t: usize, j: usize) -> u32 {
+        self.patnp_th[t * self.patches + j]
+    }
+
+    /// `patnp(j)`: particles in patch `j`.
+    pub fn patnp(&self, j: usize) -> u32 {
+        self.patnp[j]
+    }
+
+    /// Rows of `Pindex` (`max(patnp)`).
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+
+    /// `Pindex(i, j)`: 1-based id of the particle with local id `i` in patch `j`, 0 if empty.
+    pub fn pindex(&self, i: usize, j: usize) -> u32 {
+        self.pindex[j * self.rows + i]
+    }
+
+    /// The filled part of column `j` of `Pindex`.
+    pub fn column(&self, j: usize) -> &[u32] {
+        &self.pindex[j * self.rows..j * self.rows + self.patnp[j] as usize]
+    }
+
+    fn bytes(&self) -> usize {
+        4 * (self.patch_of.capacity()
+            + self.patnp_th.capacity()
+            + self.cursor.capacity()
+            + self.patnp.capacity()
+            + self.pindex.capacity())
+    }
+}
+
+/// Domain-decomposition state: patches of the current grid, their sub-grid offsets and the
+/// binning.
+#[derive(Clone, Debug)]
+pub struct DomainDecomposition {
+    threads: usize,
+    layout: [usize; 3],
+    cut_for: Option<GridGeom>,
+    patches: Vec<Patch>,
+    /// Start of each patch's sub-grid in the scatter buffer (`patches + 1` entries).
+    offsets: Vec<usize>,
+    /// Patch part along each axis for each cell of the grid.
+    part_of_cell: [Vec<u32>; 3],
+    binning: Binning,
+}
+
+impl DomainDecomposition {
+    /// State for `threads` patches (one per thread).
+    pub fn new(threads: usize) -> Self {
+        Self {
+            threads,
+            layout: [1, 1, 1],
+            cut_for: None,
+            patches: Vec::with_capacity(threads),
+            offsets: Vec::with_capacity(threads + 1),
+            part_of_cell: Default::default(),
+            binning: Binning::default(),
+        }
+    }
+
+    /// The patch layout in use.
+    pub fn layout(&self) -> [usize; 3] {
+        self.layout
+    }
+
+    /// The patches of the current grid.
+    pub fn patches(&self) -> &[Patch] {
+        &self.patches
+    }
+
+    /// The binning of the current step.
+    pub fn binning(&self) -> &Binning {
+        &self.binning
+    }
+
+    /// Cut `geom` into uniform patches (no allocation once capacities are reached).
+    pub fn cut(&mut self, geom: &GridGeom) {
+        if self.cut_for == Some(*geom) {
+            return;
+        }
+        self.layout = patch_layout(self.threads, geom.cells);
+        let starts = |d: usize, q: usize| q * geom.cells[d] / self.layout[d];
+        for d in 0..3 {
+            let parts = self.layout[d];
+            let v = &mut self.part_of_cell[d];
+            v.clear();
+            for q in 0..parts {
+                let n = starts(d, q + 1) - starts(d, q);
+                v.extend(std::iter::repeat_n(q as u32, n));
+            }
+        }
+        self.patches.clear();
+        self.offsets.clear();
+        let mut off = 0;
+        self.offsets.push(0);
+        for qz in 0..self.layout[2] {
+            for qy in 0..self.layout[1] {
+                for qx in 0..self.layout[0] {
+                    let q = [qx, qy, qz];
+                    let lo: [usize; 3] = std::array::from_fn(|d| starts(d, q[d]));
+                    let cells: [usize; 3] = std::array::from_fn(|d| starts(d, q[d] + 1) - lo[d]);
+                    let p = Patch { cell_lo: lo, cells };
+                    off += p.num_nodes();
+                    self.patches.push(p);
+                    self.offsets.push(off);
+                }
+            }
+        }
+        self.cut_for = Some(*geom);
+    }
+
+    /// Patch of the cell `c`.
+    #[inline(always)]
+    pub fn patch_of_cell(&self, c: [usize; 3]) -> usize {
+        let [px, py, _] = self.layout;
+        let q = [
+            self.part_of_cell[0][c[0]] as usize,
+            self.part_of_cell[1][c[1]] as usize,
+            self.part_of_cell[2][c[2]] as usize,
+        ];
+        q[0] + px * (q[1] + py * q[2])
+    }
+
+    pub(crate) fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
+        self.cut(geom);
+        let g = *geom;
+        let mut binning = std::mem::take(&mut self.binning);
+        {
+            let this = &*self;
+            let patch = |p: usize| this.patch_of_cell(g.shape_cell(x[p]));
+            binning.build(exec, x.len(), self.patches.len(), &patch);
+        }
+        self.binning = binning;
+    }
+
+    /// Thread `j` zeroes sub-grid `j` and scatters patch `j`'s particles into it.
+    pub(crate) fn scatter<const K: usize, F>(
+        &self,
+        exec: &Exec<'_>,
+        buf: &mut Vec<[f64; K]>,
+        kernel: &F,
+    ) where
+        F: Fn(usize) -> Contribution<K> + Sync,
+    {
+        buf.resize(*self.offsets.last().unwrap_or(&0), [0.0; K]);
+        let subgrids = DisjointSlice::new(&mut buf[..]);
+        exec.run(|j| {
+            // SAFETY: sub-grid j (offsets[j]..offsets[j+1]) is touched only by worker j.
+            let sub = unsafe { subgrids.range_mut(self.offsets[j]..self.offsets[j + 1]) };
+            sub.fill([0.0; K]);
+            let bx = self.patches[j].node_box();
+            for &id in self.binning.column(j) {
+                bx.add(sub, &kernel(id as usize - 1));
+            }
+        });
+    }
+
+    /// Zero `global`, then for each patch in turn add its sub-grid, parallel over the
+    /// patch's local node rows.
+    pub(crate) fn assemble<const K: usize>(
+        &self,
+        exec: &Exec<'_>,
+        geom: &GridGeom,
+        global: &mut [[f64; K]],
+        buf: &[[f64; K]],
+    ) {
+        let t = exec.workers;
+        let nn = global.len();
+        let out = DisjointSlice::new(global);
+        exec.run(|w| {
+            // SAFETY: partition ranges are disjoint and each worker index runs once.
+            unsafe { out.range_mut(partition(nn, t, w)) }.fill([0.0; K]);
+        });
+        for (j, patch) in self.patches.iter().enumerate() {
+            let d = patch.node_dims();
+            let rows = d[1] * d[2];
+            let sub = &buf[self.offsets[j]..self.offsets[j + 1]];
+            exec.run(|w| {
+                for r in partition(rows, t, w) {
+                    let (lj, lk) = (r % d[1], r / d[1]);
+                    let g0 = geom.node_index(
+                        patch.cell_lo[0],
+                        patch.cell_lo[1] + lj,
+                        patch.cell_lo[2] + lk,
+                    );
+                    // SAFETY: within one patch, distinct local rows are distinct global
+                    // rows (globalnode is injective), workers take disjoint local rows, and
+                    // patches are assembled one broadcast after another.
+                    let dst = unsafe { out.range_mut(g0..g0 + d[0]) };
+                    for (a, b) in dst.iter_mut().zip(&sub[r * d[0]..(r + 1) * d[0]]) {
+                        for k in 0..K {
+                            a[k] += b[k];
+                        }
+                    }
+                }
+            });
+        }
+    }
+
+    /// Nodes in all sub-grids together.
+    pub fn subgrid_nodes(&self) -> usize {
+        *self.offsets.last().unwrap_or(&0)
+    }
+
+    pub(crate) fn bytes(&self) -> usize {
+        self.binning.bytes()
+            + self
+                .part_of_cell
+                .iter()
+                .map(|v| v.capacity() * 4)
+                .sum::<usize>()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::GridSpec;
+    use crate::strategy::Strategy;
+
+    /// The paper's worked example: 16 particles, 4 patches, 4 threads.
+    #[test]
+    fn reproduces_the_papers_binning_example() {
+        let membership: [&[usize]; 4] = [
+            &[2, 3, 5, 11],
+            &[1, 6, 7, 16],
+            &[8, 10, 14],
+            &[4, 9, 12, 13, 15],
+        ];
+        let patch_of = |p: usize| {
+            membership
+                .iter()
+                .position(|m| m.contains(&(p + 1)))
+                .unwrap()
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(4)
+            .build()
+            .unwrap();
+        let exec = Exec::new(&pool, Strategy::DomainDecomposition);
+        let mut b = Binning::default();
+        b.build(&exec, 16, 4, &patch_of);
+
+        let patnp_th: Vec<Vec<u32>> = (0..4)
+            .map(|t| (0..4).map(|j| b.patnp_th(t, j)).collect())
+            .collect();
+        assert_eq!(
+            patnp_th,
+            vec![
+                vec![2, 1, 0, 1],
+                vec![1, 2, 1, 0],
+                vec![1, 0, 1, 2],
+                vec![0, 1, 1, 2]
+            ]
+        );
+        assert_eq!(
+            (0..4).map(|j| b.patnp(j)).collect::<Vec<_>>(),
+            vec![4, 4, 3, 5]
+        );
+        assert_eq!(b.rows(), 5);
+        let pindex: Vec<Vec<u32>> = (0..5)
+            .map(|i| (0..4).map(|j| b.pindex(i, j)).collect())
+            .collect();
+        assert_eq!(
+            pindex,
+            vec![
+                vec![2, 1, 8, 4],
+                vec![3, 6, 10, 9],
+                vec![5, 7, 14, 12],
+                vec![11, 16, 0, 13],
+                vec![0, 0, 0, 15]
+            ]
+        );
+    }
+
+    #[test]
+    fn binning_lists_every_particle_once_for_any_thread_count() {
+        for threads in [1, 2, 3, 5, 8] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let exec = Exec::new(&pool, Strategy::DomainDecomposition);
+            let mut b = Binning::default();
+            let n = 10_007;
+            let patch = |p: usize| (p * 7919) % threads;
+            b.build(&exec, n, threads, &patch);
+            let mut seen = vec![0u8; n];
+            for j in 0..threads {
+                let col = b.column(j);
+                assert!(
+                    col.windows(2).all(|w| w[0] < w[1]),
+                    "ids ascend within a patch"
+                );
+                for &id in col {
+                    assert_eq!(patch(id as usize - 1), j);
+                    seen[id as usize - 1] += 1;
+                }
+            }
+            assert!(seen.iter().all(|&s| s == 1));
+        }
+    }
+
+    #[test]
+    fn paper_layouts_and_factorisations() {
+        let cells = [32, 32, 48];
+        assert_eq!(patch_layout(6, cells), [2, 1, 3]);
+        assert_eq!(patch_layout(8, cells), [2, 2, 2]);
+        assert_eq!(patch_layout(3, cells), [1, 1, 3]);
+        assert_eq!(
+            patch_layout(12, [10, 10, 100]).iter().product::<usize>(),
+            12
+        );
+    }
+
+    #[test]
+    fn patches_cover_the_grid_and_node_maps_are_inverse() {
+        let spec = GridSpec {
+            dx: 1.0,
+            anchor: [0.0; 3],
+            cells: [5, 3, 7],
+        };
+        let geom = GridGeom::fixed(&spec);
+        for threads in [1, 2, 3, 4, 6, 8] {
+            let mut dd = DomainDecomposition::new(threads);
+            dd.cut(&geom);
+            assert_eq!(dd.patches().len(), threads);
+            let cells: usize = dd
+                .patches()
+                .iter()
+                .map(|p| p.cells.iter().product::<usize>())
+                .sum();
+            assert_eq!(cells, geom.num_cells());
+            let mut covered = vec![false; geom.num_nodes()];
+            for p in dd.patches() {
+                for s in 0..p.num_nodes() {
+                    let g = p.globalnode(s, &geom);
+                    assert_eq!(p.subnodefun(g, &geom), Some(s));
+                    covered[g] = true;
+                }
+            }
+            assert!(covered.iter().all(|&c| c));
+            // Every cell's patch contains the cell.
+            for k in 0..7 {
+                for j in 0..3 {
+                    for i in 0..5 {
+                        let p = dd.patches()[dd.patch_of_cell([i, j, k])];
+                        for (d, c) in [i, j, k].into_iter().enumerate() {
+                            assert!(c >= p.cell_lo[d] && c < p.cell_lo[d] + p.cells[d]);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}

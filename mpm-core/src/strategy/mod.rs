@@ -1,0 +1,235 @@
+//! How the nodal scatter is made race-free (paper Section 4). This is the only thing that
+//! differs between the three solvers; every kernel (what a particle adds to its 8 nodes)
+//! is shared.
+//!
+//! | strategy | scatter of a particle goes to | assembly into the global arrays | extra memory |
+//! |---|---|---|---|
+//! | [`Strategy::Serial`] | the global arrays | none | none |
+//! | [`Strategy::ArrayExpansion`] | copy `j` of every nodal array (thread `j`'s particle chunk) | `A = sum_j A_j`, parallel over nodes (Eq. 16) | `(T - 1) x` the nodal arrays |
+//! | [`Strategy::DomainDecomposition`] | sub-grid of the particle's patch (thread `j` = patch `j`) | patch by patch, parallel over the patch's local nodes | shared faces only |
+//!
+//! Both parallel strategies split the particle stage by loop splitting (thread `j` owns
+//! particle chunk `j`) and reduce energies per thread in a fixed order. Every parallel phase
+//! is one [`rayon::ThreadPool::broadcast`], so worker `j` always gets share `j`: results
+//! depend on the thread count, never on work stealing, and a given strategy and thread count
+//! reproduces bitwise.
+
+pub mod array_expansion;
+pub mod domain_decomposition;
+pub mod serial;
+
+use crate::grid::GridGeom;
+use crate::timers::{Lap, StageTimes, Substage};
+use rayon::ThreadPool;
+use serde::Serialize;
+
+pub use domain_decomposition::{patch_layout, Binning, DomainDecomposition, Patch};
+
+/// Which scatter strategy the solver uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Default)]
+pub enum Strategy {
+    /// One thread, scatter straight into the global arrays (the oracle).
+    #[default]
+    #[serde(rename = "serial")]
+    Serial,
+    /// Array expansion: one copy of every nodal array per thread.
+    #[serde(rename = "ae")]
+    ArrayExpansion,
+    /// Domain decomposition: one patch (sub-grid) per thread.
+    #[serde(rename = "dd")]
+    DomainDecomposition,
+}
+
+impl Strategy {
+    /// Short name: `serial`, `ae`, `dd`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Strategy::Serial => "serial",
+            Strategy::ArrayExpansion => "ae",
+            Strategy::DomainDecomposition => "dd",
+        }
+    }
+}
+
+impl std::fmt::Display for Strategy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Strategy {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "serial" => Ok(Strategy::Serial),
+            "ae" | "array-expansion" => Ok(Strategy::ArrayExpansion),
+            "dd" | "domain-decomposition" => Ok(Strategy::DomainDecomposition),
+            _ => Err(format!(
+                "unknown strategy '{s}': use 'serial', 'ae' or 'dd'"
+            )),
+        }
+    }
+}
+
+/// What one particle adds to the 8 nodes of its cell (node order of [`crate::shape`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Contribution<const K: usize> {
+    /// The cell, in the global grid's numbering.
+    pub cell: [usize; 3],
+    /// Per node, `K` values.
+    pub c: [[f64; K]; 8],
+}
+
+/// A box of nodes with its own contiguous numbering: the global grid, an AE copy (the same
+/// box) or a DD sub-grid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct NodeBox {
+    /// Global index of the box's first node (also its first cell).
+    pub lo: [usize; 3],
+    /// Nodes per axis.
+    pub dims: [usize; 3],
+}
+
+impl NodeBox {
+    /// The whole grid.
+    pub fn grid(geom: &GridGeom) -> Self {
+        Self {
+            lo: [0; 3],
+            dims: geom.node_dims(),
+        }
+    }
+
+    /// Add a particle's contribution (its cell must lie in the box).
+    #[inline(always)]
+    pub fn add<const K: usize>(&self, data: &mut [[f64; K]], con: &Contribution<K>) {
+        let (sy, sz) = (self.dims[0], self.dims[0] * self.dims[1]);
+        let base = (con.cell[0] - self.lo[0])
+            + sy * (con.cell[1] - self.lo[1])
+            + sz * (con.cell[2] - self.lo[2]);
+        let idx = [
+            base,
+            base + 1,
+            base + sy,
+            base + sy + 1,
+            base + sz,
+            base + sz + 1,
+            base + sz + sy,
+            base + sz + sy + 1,
+        ];
+        for q in 0..8 {
+            let d = &mut data[idx[q]];
+            for k in 0..K {
+                d[k] += con.c[q][k];
+            }
+        }
+    }
+}
+
+/// Runs a phase on every worker: `f(j)` once for each `j` in `0..workers`.
+pub(crate) struct Exec<'a> {
+    pool: &'a ThreadPool,
+    /// Number of workers (shares).
+    pub workers: usize,
+    parallel: bool,
+}
+
+impl<'a> Exec<'a> {
+    pub fn new(pool: &'a ThreadPool, strategy: Strategy) -> Self {
+        match strategy {
+            Strategy::Serial => Self {
+                pool,
+                workers: 1,
+                parallel: false,
+            },
+            _ => Self {
+                pool,
+                workers: pool.current_num_threads(),
+                parallel: true,
+            },
+        }
+    }
+
+    /// Run `f(j)` for every worker `j`, worker `j` on pool thread `j`.
+    #[inline]
+    pub fn run<F: Fn(usize) + Sync>(&self, f: F) {
+        if self.parallel {
+            self.pool.broadcast(|ctx| f(ctx.index()));
+        } else {
+            f(0);
+        }
+    }
+}
+
+/// The strategy's per-simulation state.
+#[derive(Debug)]
+pub(crate) enum Engine {
+    Serial,
+    Ae,
+    Dd(Box<DomainDecomposition>),
+}
+
+impl Engine {
+    pub fn new(strategy: Strategy, threads: usize) -> Self {
+        match strategy {
+            Strategy::Serial => Engine::Serial,
+            Strategy::ArrayExpansion => Engine::Ae,
+            Strategy::DomainDecomposition => {
+                Engine::Dd(Box::new(DomainDecomposition::new(threads)))
+            }
+        }
+    }
+
+    /// Per-step preparation: DD re-cuts its patches when the grid changed and bins the
+    /// particles (`patch_of_point` gives a position's patch).
+    pub fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[crate::math::Vec3]) {
+        if let Engine::Dd(dd) = self {
+            dd.prepare(exec, geom, x);
+        }
+    }
+
+    /// Scatter every particle's `kernel(p)` into `global` (zeroed first), using `buf` for
+    /// the per-thread copies or sub-grids, and charge the scatter and assembly times.
+    #[allow(clippy::too_many_arguments)]
+    pub fn scatter<const K: usize, F>(
+        &self,
+        exec: &Exec<'_>,
+        geom: &GridGeom,
+        n: usize,
+        global: &mut [[f64; K]],
+        buf: &mut Vec<[f64; K]>,
+        kernel: &F,
+        times: &mut StageTimes,
+        lap: &mut Lap,
+        stages: (Substage, Substage),
+    ) where
+        F: Fn(usize) -> Contribution<K> + Sync,
+    {
+        match self {
+            Engine::Serial => {
+                serial::scatter(geom, n, global, kernel);
+                lap.lap(times, stages.0);
+                lap.lap(times, stages.1);
+            }
+            Engine::Ae => {
+                array_expansion::scatter(exec, geom, n, buf, kernel);
+                lap.lap(times, stages.0);
+                array_expansion::assemble(exec, global, buf);
+                lap.lap(times, stages.1);
+            }
+            Engine::Dd(dd) => {
+                dd.scatter(exec, buf, kernel);
+                lap.lap(times, stages.0);
+                dd.assemble(exec, geom, global, buf);
+                lap.lap(times, stages.1);
+            }
+        }
+    }
+
+    /// Bytes held by the strategy's own index structures (not the scatter buffers).
+    pub fn bytes(&self) -> usize {
+        match self {
+            Engine::Dd(dd) => dd.bytes(),
+            _ => 0,
+        }
+    }
+}
