@@ -6,28 +6,13 @@ use mpm_core::{
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().collect();
     let model: u8 = a.get(1).map_or(Ok(1), |s| s.parse())?;
-    let strategy = a
-        .get(2)
-        .map_or(Ok(mpm_core::Strategy::Serial), |s| s.parse())?;
+    let strategy = a.get(2).map_or(Ok(mpm_core::Strategy::Serial), |s| s.parse())?;
     let threads: usize = a.get(3).map_or(Ok(1), |s| s.parse())?;
     let max_steps: u64 = a.get(4).map_or(Ok(u64::MAX), |s| s.parse())?;
-    let setup = TaylorBar {
-        model,
-        ..Default::default()
-    }
-    .setup()?;
+    let setup = TaylorBar { model, ..Default::default() }.setup()?;
     let spacing = setup.spacing;
-    let mut sim = Simulation::new(
-        setup,
-        SimConfig {
-            strategy,
-            threads,
-            ..Default::default()
-        },
-    )?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()?;
+    let mut sim = Simulation::new(setup, SimConfig { strategy, threads, ..Default::default() })?;
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
     let t = std::time::Instant::now();
     while sim.time() < 40e-6 * (1.0 - 1e-12) && sim.steps() < max_steps {
         sim.step(&pool, 40e-6 - sim.time())?;

@@ -44,11 +44,7 @@ unsafe impl<T: Send> Send for DisjointSlice<'_, T> {}
 impl<'a, T> DisjointSlice<'a, T> {
     /// Borrow `slice` exclusively for the phase.
     pub fn new(slice: &'a mut [T]) -> Self {
-        Self {
-            ptr: slice.as_mut_ptr(),
-            len: slice.len(),
-            _borrow: PhantomData,
-        }
+        Self { ptr: slice.as_mut_ptr(), len: slice.len(), _borrow: PhantomData }
     }
 
     /// Number of elements.
@@ -69,14 +65,9 @@ impl<'a, T> DisjointSlice<'a, T> {
     #[inline]
     #[allow(clippy::mut_from_ref)]
     pub unsafe fn range_mut(&self, range: Range<usize>) -> &'a mut [T] {
-        assert!(
-            range.start <= range.end && range.end <= self.len,
-            "range out of bounds"
-        );
+        assert!(range.start <= range.end && range.end <= self.len, "range out of bounds");
         // SAFETY: in bounds (checked above); exclusivity is the caller's contract.
-        unsafe {
-            std::slice::from_raw_parts_mut(self.ptr.add(range.start), range.end - range.start)
-        }
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.add(range.start), range.end - range.start) }
     }
 
     /// Element `i`.
@@ -114,10 +105,7 @@ mod tests {
 
     #[test]
     fn workers_writing_their_parts_fill_the_slice_once() {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(5)
-            .build()
-            .unwrap();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(5).build().unwrap();
         let mut data = vec![0u32; 1001];
         {
             let shared = DisjointSlice::new(&mut data);
@@ -131,9 +119,7 @@ mod tests {
             });
         }
         for (i, v) in data.iter().enumerate() {
-            let owner = (0..5)
-                .find(|&j| partition(1001, 5, j).contains(&i))
-                .unwrap();
+            let owner = (0..5).find(|&j| partition(1001, 5, j).contains(&i)).unwrap();
             assert_eq!(*v, 1 + owner as u32);
         }
     }

@@ -9,10 +9,7 @@ use crate::math::Vec3;
 
 /// `sum_p 1/2 m_p |v_p|^2` (J).
 pub fn kinetic(mass: &[f64], v: &[Vec3]) -> f64 {
-    mass.iter()
-        .zip(v)
-        .map(|(m, v)| 0.5 * m * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
-        .sum()
+    mass.iter().zip(v).map(|(m, v)| 0.5 * m * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])).sum()
 }
 
 /// `sum_p m_p e_p` (J), with `e_p` the specific internal energy.
@@ -22,13 +19,18 @@ pub fn internal(mass: &[f64], e: &[f64]) -> f64 {
 
 /// Per-worker partial sums of one step's particle update, added in worker order.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct Partial {
+pub struct Partial {
+    /// Kinetic energy (J).
     pub kinetic: f64,
+    /// Internal energy (J).
     pub internal: f64,
+    /// Linear momentum (kg m/s).
     pub momentum: Vec3,
     /// Largest `c_p + |v_p|` (m/s), for the next time step.
     pub max_speed: f64,
+    /// Smallest coordinates of the updated positions.
     pub lo: Vec3,
+    /// Largest coordinates of the updated positions.
     pub hi: Vec3,
     /// Particles with a non-finite position, velocity, stress or energy.
     pub non_finite: u64,

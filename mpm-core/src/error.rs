@@ -59,8 +59,6 @@ pub enum SimError {
         limit: usize,
     },
     /// The simulation failed earlier and cannot continue.
-    #[error(
-        "the simulation stopped with an error at step {0} and cannot continue; start a new one"
-    )]
+    #[error("the simulation stopped with an error at step {0} and cannot continue; start a new one")]
     Poisoned(u64),
 }

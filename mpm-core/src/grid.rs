@@ -41,9 +41,7 @@ impl std::str::FromStr for GridMode {
         match s {
             "fixed" => Ok(GridMode::Fixed),
             "adaptive" => Ok(GridMode::Adaptive),
-            _ => Err(format!(
-                "unknown grid mode '{s}': use 'fixed' or 'adaptive'"
-            )),
+            _ => Err(format!("unknown grid mode '{s}': use 'fixed' or 'adaptive'")),
         }
     }
 }
@@ -77,13 +75,7 @@ pub struct GridGeom {
 impl GridGeom {
     /// The fixed grid of `spec`.
     pub fn fixed(spec: &GridSpec) -> Self {
-        Self {
-            dx: spec.dx,
-            inv_dx: 1.0 / spec.dx,
-            origin: spec.anchor,
-            cells: spec.cells,
-            start: [0; 3],
-        }
+        Self { dx: spec.dx, inv_dx: 1.0 / spec.dx, origin: spec.anchor, cells: spec.cells, start: [0; 3] }
     }
 
     /// The smallest grid on `spec`'s lattice whose cells contain every point of `[lo, hi]`.
@@ -99,13 +91,7 @@ impl GridGeom {
             cells[d] = (e - s).max(1) as usize;
             origin[d] = spec.anchor[d] + s as f64 * spec.dx;
         }
-        Self {
-            dx: spec.dx,
-            inv_dx: inv,
-            origin,
-            cells,
-            start,
-        }
+        Self { dx: spec.dx, inv_dx: inv, origin, cells, start }
     }
 
     /// Nodes per axis (`cells + 1`).
@@ -133,11 +119,7 @@ impl GridGeom {
 
     /// Position of node `(i, j, k)`.
     pub fn node_position(&self, i: usize, j: usize, k: usize) -> Vec3 {
-        [
-            self.origin[0] + i as f64 * self.dx,
-            self.origin[1] + j as f64 * self.dx,
-            self.origin[2] + k as f64 * self.dx,
-        ]
+        [self.origin[0] + i as f64 * self.dx, self.origin[1] + j as f64 * self.dx, self.origin[2] + k as f64 * self.dx]
     }
 
     /// Shape functions of the cell containing `x` (paper's `S_ip`, `G_ip`).
@@ -187,9 +169,7 @@ impl std::str::FromStr for WallKind {
         match s {
             "slip" | "frictionless" => Ok(WallKind::Slip),
             "stick" | "sticking" => Ok(WallKind::Stick),
-            _ => Err(format!(
-                "unknown wall kind '{s}': use 'frictionless' or 'sticking'"
-            )),
+            _ => Err(format!("unknown wall kind '{s}': use 'frictionless' or 'sticking'")),
         }
     }
 }
@@ -221,16 +201,15 @@ impl Wall {
 
 /// The walls resolved to node layers of the current grid.
 #[derive(Clone, Debug, Default)]
-pub(crate) struct WallLayers {
+pub struct WallLayers {
     /// `(axis, layer, mask)` for every wall that meets the grid.
     layers: Vec<(usize, usize, Vec3)>,
 }
 
 impl WallLayers {
+    /// Room for `n` walls.
     pub fn with_capacity(n: usize) -> Self {
-        Self {
-            layers: Vec::with_capacity(n),
-        }
+        Self { layers: Vec::with_capacity(n) }
     }
 
     /// Resolve `walls` on `geom` (no allocation once capacity is reserved).
@@ -312,11 +291,7 @@ mod tests {
 
     #[test]
     fn fit_stays_on_the_lattice_and_contains_the_box() {
-        let spec = GridSpec {
-            dx: 0.5,
-            anchor: [-1.0, -1.0, 0.0],
-            cells: [4, 4, 4],
-        };
+        let spec = GridSpec { dx: 0.5, anchor: [-1.0, -1.0, 0.0], cells: [4, 4, 4] };
         let g = GridGeom::fit(&spec, [0.1, -0.9, 0.0], [1.4, 0.0, 3.0]);
         assert_eq!(g.start, [2, 0, 0]);
         assert_eq!(g.origin, [0.0, -1.0, 0.0]);
@@ -329,23 +304,11 @@ mod tests {
 
     #[test]
     fn wall_masks_combine() {
-        let spec = GridSpec {
-            dx: 1.0,
-            anchor: [0.0; 3],
-            cells: [2, 2, 2],
-        };
+        let spec = GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [2, 2, 2] };
         let g = GridGeom::fixed(&spec);
         let walls = [
-            Wall {
-                axis: 2,
-                position: 0.0,
-                kind: WallKind::Slip,
-            },
-            Wall {
-                axis: 0,
-                position: 2.0,
-                kind: WallKind::Slip,
-            },
+            Wall { axis: 2, position: 0.0, kind: WallKind::Slip },
+            Wall { axis: 0, position: 2.0, kind: WallKind::Slip },
         ];
         let mut wl = WallLayers::with_capacity(2);
         wl.resolve(&walls, &g);

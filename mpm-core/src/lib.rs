@@ -43,6 +43,7 @@ pub mod shape;
 pub mod solver;
 pub mod strategy;
 pub mod timers;
+pub mod transfer;
 
 pub use error::SimError;
 pub use grid::{GridGeom, GridMode, GridSpec, Wall, WallKind};

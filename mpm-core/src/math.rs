@@ -72,14 +72,7 @@ pub fn jaumann(s: &Sym, w: Vec3) -> Sym {
     let m21 = wzx * sxy - wyz * syy;
     let m22 = wzx * szx - wyz * syz;
     // W S - S W = M + M^T (since S W = -(W S)^T for antisymmetric W)
-    [
-        2.0 * m00,
-        2.0 * m11,
-        2.0 * m22,
-        m12 + m21,
-        m20 + m02,
-        m01 + m10,
-    ]
+    [2.0 * m00, 2.0 * m11, 2.0 * m22, m12 + m21, m20 + m02, m01 + m10]
 }
 
 #[cfg(test)]

@@ -19,16 +19,16 @@
 //! has reached its largest size (rayon's `broadcast` allocates one job list of `T` entries
 //! per parallel phase; the count of such allocations does not depend on the problem size).
 
-use crate::disjoint::{partition, DisjointSlice};
 use crate::energy::Partial;
 use crate::error::SimError;
 use crate::grid::{GridGeom, GridMode, GridSpec, NodeArrays, Wall, WallLayers};
-use crate::material::{update_point, Eos, Material, PointConsts, PointState, PressureModel};
-use crate::math::{norm, sym_mul_vec, Vec3};
+use crate::material::{Eos, Material, PointConsts};
+use crate::math::{norm, Vec3};
 use crate::particles::Particles;
 use crate::scenario::Setup;
-use crate::strategy::{Contribution, Engine, Exec, Strategy};
+use crate::strategy::{Engine, Exec, Strategy};
 use crate::timers::{Lap, StageTimes, Substage};
+use crate::transfer;
 use rayon::ThreadPool;
 use serde::Serialize;
 
@@ -124,21 +124,12 @@ impl Simulation {
             )));
         }
         if !(config.cfl > 0.0 && config.cfl <= 1.0) {
-            return Err(SimError::Config(format!(
-                "CFL number must be in (0, 1], got {}",
-                config.cfl
-            )));
+            return Err(SimError::Config(format!("CFL number must be in (0, 1], got {}", config.cfl)));
         }
         if setup.particles.is_empty() {
             return Err(SimError::Config("the scenario has no particles".into()));
         }
-        let Setup {
-            particles,
-            material,
-            grid: spec,
-            walls,
-            ..
-        } = setup;
+        let Setup { particles, material, grid: spec, walls, .. } = setup;
         let bbox = particles.bounding_box();
         let geom = match config.grid_mode {
             GridMode::Fixed => GridGeom::fixed(&spec),
@@ -160,12 +151,7 @@ impl Simulation {
             internal: particles.internal_energy(),
             momentum: particles.momentum(),
         };
-        let max_speed = particles
-            .sound
-            .iter()
-            .zip(&particles.v)
-            .map(|(c, v)| c + norm(*v))
-            .fold(0.0, f64::max);
+        let max_speed = particles.sound.iter().zip(&particles.v).map(|(c, v)| c + norm(*v)).fold(0.0, f64::max);
         let dt = config.cfl * spec.dx / max_speed;
         Ok(Self {
             engine: Engine::new(config.strategy, config.threads),
@@ -301,10 +287,7 @@ impl Simulation {
         }
         let want = self.config.threads;
         if self.config.strategy != Strategy::Serial && pool.current_num_threads() != want {
-            return Err(SimError::PoolSize {
-                got: pool.current_num_threads(),
-                want,
-            });
+            return Err(SimError::PoolSize { got: pool.current_num_threads(), want });
         }
         let result = pool.install(|| self.step_inner(pool, dt_max));
         if result.is_err() {
@@ -343,37 +326,8 @@ impl Simulation {
         let geom = self.geom;
         let n = self.particles.len();
         {
-            let Particles {
-                x,
-                v,
-                mass,
-                rho,
-                stress,
-                ..
-            } = &self.particles;
-            let bf = self.config.body_force;
-            let p2g = |p: usize| {
-                let s = geom.shape(x[p]);
-                let m = mass[p];
-                let vol = m / rho[p];
-                let vp = v[p];
-                let mut c = [[0.0; 7]; 8];
-                for q in 0..8 {
-                    let w = s.w[q];
-                    let t = sym_mul_vec(&stress[p], s.g[q]);
-                    let mw = m * w;
-                    c[q] = [
-                        mw,
-                        mw * vp[0],
-                        mw * vp[1],
-                        mw * vp[2],
-                        mw * bf[0] - vol * t[0],
-                        mw * bf[1] - vol * t[1],
-                        mw * bf[2] - vol * t[2],
-                    ];
-                }
-                Contribution { cell: s.cell, c }
-            };
+            let (particles, bf) = (&self.particles, self.config.body_force);
+            let p2g = |p: usize| transfer::p2g(&geom, particles, bf, p);
             self.engine.scatter(
                 &exec,
                 &geom,
@@ -386,36 +340,15 @@ impl Simulation {
                 (Substage::Scatter, Substage::Assembly),
             );
         }
-        grid_update(
-            &exec,
-            &geom,
-            &self.wall_layers,
-            &mut self.nodes,
-            dt,
-            self.mass_tol,
-        );
+        transfer::grid_update(&exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::GridUpdate);
 
         // ---- particle stage --------------------------------------------------------
-        gather(
-            &exec,
-            &geom,
-            &self.nodes.kin,
-            &self.particles.x,
-            &mut self.particles.v,
-            dt,
-        );
+        transfer::gather(&exec, &geom, &self.nodes.kin, &self.particles.x, &mut self.particles.v, dt);
         lap.lap(&mut self.times, Substage::Gather);
         {
-            let Particles { x, v, mass, .. } = &self.particles;
-            let remap = |p: usize| {
-                let s = geom.shape(x[p]);
-                let mv = [mass[p] * v[p][0], mass[p] * v[p][1], mass[p] * v[p][2]];
-                Contribution {
-                    cell: s.cell,
-                    c: s.w.map(|w| [mv[0] * w, mv[1] * w, mv[2] * w]),
-                }
-            };
+            let particles = &self.particles;
+            let remap = |p: usize| transfer::remap(&geom, particles, p);
             self.engine.scatter(
                 &exec,
                 &geom,
@@ -428,39 +361,16 @@ impl Simulation {
                 (Substage::RemapScatter, Substage::RemapAssembly),
             );
         }
-        remap_velocity(
-            &exec,
-            &geom,
-            &self.wall_layers,
-            &mut self.nodes,
-            self.mass_tol,
-        );
+        transfer::remap_velocity(&exec, &geom, &self.wall_layers, &mut self.nodes, self.mass_tol);
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
         let fixed = self.config.grid_mode == GridMode::Fixed;
+        let (nodes, particles, consts, partials) = (&self.nodes, &mut self.particles, &self.consts, &mut self.partials);
         match self.material.eos {
-            Eos::MieGruneisen(ref m) => update_pass(
-                &exec,
-                &geom,
-                &self.nodes,
-                &mut self.particles,
-                &self.consts,
-                m,
-                dt,
-                fixed,
-                &mut self.partials,
-            ),
-            Eos::Linear(ref l) => update_pass(
-                &exec,
-                &geom,
-                &self.nodes,
-                &mut self.particles,
-                &self.consts,
-                l,
-                dt,
-                fixed,
-                &mut self.partials,
-            ),
+            Eos::MieGruneisen(ref m) => {
+                transfer::update(&exec, &geom, nodes, particles, consts, m, dt, fixed, partials)
+            }
+            Eos::Linear(ref l) => transfer::update(&exec, &geom, nodes, particles, consts, l, dt, fixed, partials),
         }
         let mut total = Partial::default();
         for p in &self.partials[..exec.workers] {
@@ -470,11 +380,7 @@ impl Simulation {
 
         // ---- checks and bookkeeping ------------------------------------------------
         if total.non_finite > 0 || !(total.kinetic + total.internal).is_finite() {
-            return Err(SimError::NonFinite {
-                step: step_no,
-                count: total.non_finite.max(1),
-                cfl: self.config.cfl,
-            });
+            return Err(SimError::NonFinite { step: step_no, count: total.non_finite.max(1), cfl: self.config.cfl });
         }
         if total.outside > 0 {
             let first = total.first_outside.unwrap_or(0);
@@ -488,276 +394,13 @@ impl Simulation {
         let e0 = self.initial.kinetic + self.initial.internal;
         let e = total.kinetic + total.internal;
         if e0 > 0.0 && e > self.config.blowup_factor * e0 {
-            return Err(SimError::EnergyBlowUp {
-                step: step_no,
-                ratio: e / e0,
-                cfl: self.config.cfl,
-            });
+            return Err(SimError::EnergyBlowUp { step: step_no, ratio: e / e0, cfl: self.config.cfl });
         }
-        self.last = Diagnostics {
-            kinetic: total.kinetic,
-            internal: total.internal,
-            momentum: total.momentum,
-        };
+        self.last = Diagnostics { kinetic: total.kinetic, internal: total.internal, momentum: total.momentum };
         self.bbox = (total.lo, total.hi);
         self.time += dt;
         self.steps = step_no;
         self.dt_next = self.config.cfl * geom.dx / total.max_speed;
         Ok(())
     }
-}
-
-/// Node strides `[1, sy, sz]` and the 8 node offsets of a cell, in shape-function order.
-#[inline(always)]
-fn cell_nodes(geom: &GridGeom, cell: [usize; 3]) -> [usize; 8] {
-    let n = geom.node_dims();
-    let (sy, sz) = (n[0], n[0] * n[1]);
-    let b = cell[0] + sy * cell[1] + sz * cell[2];
-    [
-        b,
-        b + 1,
-        b + sy,
-        b + sy + 1,
-        b + sz,
-        b + sz + 1,
-        b + sz + sy,
-        b + sz + sy + 1,
-    ]
-}
-
-/// Eq. 6 and the walls: `p += f dt`; wall nodes lose the constrained components of `p`
-/// and `f`; `v = p/m`, `a = f/m` (zero on massless nodes). Parallel over node rows.
-fn grid_update(
-    exec: &Exec<'_>,
-    geom: &GridGeom,
-    walls: &WallLayers,
-    nodes: &mut NodeArrays,
-    dt: f64,
-    tol: f64,
-) {
-    let d = geom.node_dims();
-    let rows = d[1] * d[2];
-    let has_x = walls.x_layers().next().is_some();
-    let p2g = &nodes.p2g;
-    let kin = DisjointSlice::new(&mut nodes.kin[..]);
-    exec.run(|w| {
-        let r = partition(rows, exec.workers, w);
-        // SAFETY: workers own disjoint row ranges, hence disjoint node ranges.
-        let out = unsafe { kin.range_mut(r.start * d[0]..r.end * d[0]) };
-        for (ri, row) in r.clone().enumerate() {
-            let mask_row = walls.row_mask(row % d[1], row / d[1]);
-            for i in 0..d[0] {
-                let a = &p2g[row * d[0] + i];
-                let mask = walls.node_mask(mask_row, i, has_x);
-                let m = a[0];
-                let o = &mut out[ri * d[0] + i];
-                if m > tol {
-                    let inv = 1.0 / m;
-                    for k in 0..3 {
-                        let f = a[4 + k] * mask[k];
-                        let p = (a[1 + k] + a[4 + k] * dt) * mask[k];
-                        o[k] = p * inv;
-                        o[3 + k] = f * inv;
-                    }
-                } else {
-                    *o = [0.0; 6];
-                }
-            }
-        }
-    });
-}
-
-/// Eq. 11, second half: `v_i = p_i / m_i` with the walls applied again, in place.
-fn remap_velocity(
-    exec: &Exec<'_>,
-    geom: &GridGeom,
-    walls: &WallLayers,
-    nodes: &mut NodeArrays,
-    tol: f64,
-) {
-    let d = geom.node_dims();
-    let rows = d[1] * d[2];
-    let has_x = walls.x_layers().next().is_some();
-    let p2g = &nodes.p2g;
-    let remap = DisjointSlice::new(&mut nodes.remap[..]);
-    exec.run(|w| {
-        let r = partition(rows, exec.workers, w);
-        // SAFETY: workers own disjoint row ranges, hence disjoint node ranges.
-        let out = unsafe { remap.range_mut(r.start * d[0]..r.end * d[0]) };
-        for (ri, row) in r.clone().enumerate() {
-            let mask_row = walls.row_mask(row % d[1], row / d[1]);
-            for i in 0..d[0] {
-                let m = p2g[row * d[0] + i][0];
-                let mask = walls.node_mask(mask_row, i, has_x);
-                let o = &mut out[ri * d[0] + i];
-                if m > tol {
-                    let inv = 1.0 / m;
-                    for k in 0..3 {
-                        o[k] *= inv * mask[k];
-                    }
-                } else {
-                    *o = [0.0; 3];
-                }
-            }
-        }
-    });
-}
-
-/// Eqs. 8, 10: `v_p += dt sum_i S_ip a_i`, by loop splitting.
-fn gather(exec: &Exec<'_>, geom: &GridGeom, kin: &[[f64; 6]], x: &[Vec3], v: &mut [Vec3], dt: f64) {
-    let n = x.len();
-    let vs = DisjointSlice::new(v);
-    exec.run(|w| {
-        let r = partition(n, exec.workers, w);
-        // SAFETY: workers own disjoint particle chunks.
-        let vw = unsafe { vs.range_mut(r.clone()) };
-        for (vp, xp) in vw.iter_mut().zip(&x[r]) {
-            let s = geom.shape(*xp);
-            let idx = cell_nodes(geom, s.cell);
-            let mut acc = [0.0; 3];
-            for q in 0..8 {
-                let a = &kin[idx[q]];
-                for k in 0..3 {
-                    acc[k] += s.w[q] * a[3 + k];
-                }
-            }
-            for k in 0..3 {
-                vp[k] += dt * acc[k];
-            }
-        }
-    });
-}
-
-/// Eqs. 7, 9, 12-15 and the reductions, by loop splitting: positions from the updated
-/// nodal velocities, strain and spin increments from the re-mapped ones, then the material
-/// update; worker `w` writes its sums to `partials[w]`.
-#[allow(clippy::too_many_arguments)]
-fn update_pass<E: PressureModel + Sync>(
-    exec: &Exec<'_>,
-    geom: &GridGeom,
-    nodes: &NodeArrays,
-    particles: &mut Particles,
-    consts: &PointConsts,
-    eos: &E,
-    dt: f64,
-    fixed: bool,
-    partials: &mut [Partial],
-) {
-    let n = particles.len();
-    let Particles {
-        x,
-        v,
-        mass,
-        rho,
-        stress,
-        eps_p,
-        e_int,
-        sound,
-        failed,
-    } = particles;
-    let (v, mass) = (&v[..], &mass[..]);
-    let xs = DisjointSlice::new(&mut x[..]);
-    let rhos = DisjointSlice::new(&mut rho[..]);
-    let stresses = DisjointSlice::new(&mut stress[..]);
-    let eps = DisjointSlice::new(&mut eps_p[..]);
-    let es = DisjointSlice::new(&mut e_int[..]);
-    let sounds = DisjointSlice::new(&mut sound[..]);
-    let fails = DisjointSlice::new(&mut failed[..]);
-    let parts = DisjointSlice::new(partials);
-    let (kin, remap) = (&nodes.kin, &nodes.remap);
-    let half_dt = 0.5 * dt;
-    exec.run(|w| {
-        let r = partition(n, exec.workers, w);
-        // SAFETY: worker w owns particle chunk r of every array and partial slot w.
-        let (x, rho, stress, eps_p, e_int, sound, failed, acc) = unsafe {
-            (
-                xs.range_mut(r.clone()),
-                rhos.range_mut(r.clone()),
-                stresses.range_mut(r.clone()),
-                eps.range_mut(r.clone()),
-                es.range_mut(r.clone()),
-                sounds.range_mut(r.clone()),
-                fails.range_mut(r.clone()),
-                parts.get_mut(w),
-            )
-        };
-        let mut sum = Partial::default();
-        for k in 0..r.len() {
-            let p = r.start + k;
-            let s = geom.shape(x[k]);
-            let idx = cell_nodes(geom, s.cell);
-            let mut vx = [0.0; 3];
-            let mut l = [[0.0; 3]; 3];
-            for q in 0..8 {
-                let vn = &kin[idx[q]];
-                let vr = &remap[idx[q]];
-                let g = s.g[q];
-                for a in 0..3 {
-                    vx[a] += s.w[q] * vn[a];
-                    for b in 0..3 {
-                        l[a][b] += vr[a] * g[b];
-                    }
-                }
-            }
-            let de = [
-                dt * l[0][0],
-                dt * l[1][1],
-                dt * l[2][2],
-                half_dt * (l[1][2] + l[2][1]),
-                half_dt * (l[2][0] + l[0][2]),
-                half_dt * (l[0][1] + l[1][0]),
-            ];
-            let dw = [
-                half_dt * (l[1][2] - l[2][1]),
-                half_dt * (l[2][0] - l[0][2]),
-                half_dt * (l[0][1] - l[1][0]),
-            ];
-            update_point(
-                consts,
-                eos,
-                &de,
-                dw,
-                PointState {
-                    stress: &mut stress[k],
-                    eps_p: &mut eps_p[k],
-                    e_int: &mut e_int[k],
-                    rho: &mut rho[k],
-                    sound: &mut sound[k],
-                    failed: &mut failed[k],
-                },
-            );
-            let xp = &mut x[k];
-            for a in 0..3 {
-                xp[a] += dt * vx[a];
-            }
-            let vp = v[p];
-            let m = mass[p];
-            let v2 = vp[0] * vp[0] + vp[1] * vp[1] + vp[2] * vp[2];
-            sum.kinetic += 0.5 * m * v2;
-            sum.internal += m * e_int[k];
-            for a in 0..3 {
-                sum.momentum[a] += m * vp[a];
-                sum.lo[a] = sum.lo[a].min(xp[a]);
-                sum.hi[a] = sum.hi[a].max(xp[a]);
-            }
-            sum.max_speed = sum.max_speed.max(sound[k] + v2.sqrt());
-            let finite = (xp[0]
-                + xp[1]
-                + xp[2]
-                + v2
-                + stress[k][0]
-                + stress[k][1]
-                + stress[k][2]
-                + e_int[k])
-                .is_finite();
-            if !finite {
-                sum.non_finite += 1;
-            }
-            if fixed && !geom.contains(*xp) {
-                sum.outside += 1;
-                sum.first_outside.get_or_insert(p);
-            }
-        }
-        *acc = sum;
-    });
 }

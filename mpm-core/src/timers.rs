@@ -61,11 +61,7 @@ impl Substage {
     pub fn is_grid_stage(self) -> bool {
         matches!(
             self,
-            Substage::GridFit
-                | Substage::Binning
-                | Substage::Scatter
-                | Substage::Assembly
-                | Substage::GridUpdate
+            Substage::GridFit | Substage::Binning | Substage::Scatter | Substage::Assembly | Substage::GridUpdate
         )
     }
 }
@@ -89,20 +85,12 @@ impl StageTimes {
 
     /// The paper's grid-node stage (Eqs. 1-6), seconds.
     pub fn grid_stage(&self) -> f64 {
-        Substage::ALL
-            .iter()
-            .filter(|s| s.is_grid_stage())
-            .map(|&s| self.get(s))
-            .sum()
+        Substage::ALL.iter().filter(|s| s.is_grid_stage()).map(|&s| self.get(s)).sum()
     }
 
     /// The paper's particle stage (Eqs. 7-15), seconds.
     pub fn particle_stage(&self) -> f64 {
-        Substage::ALL
-            .iter()
-            .filter(|s| !s.is_grid_stage())
-            .map(|&s| self.get(s))
-            .sum()
+        Substage::ALL.iter().filter(|s| !s.is_grid_stage()).map(|&s| self.get(s)).sum()
     }
 
     /// Both stages, seconds.
@@ -112,9 +100,7 @@ impl StageTimes {
 
     /// `self - earlier`, per sub-stage (for excluding warm-up steps).
     pub fn since(&self, earlier: &StageTimes) -> StageTimes {
-        StageTimes {
-            seconds: std::array::from_fn(|i| self.seconds[i] - earlier.seconds[i]),
-        }
+        StageTimes { seconds: std::array::from_fn(|i| self.seconds[i] - earlier.seconds[i]) }
     }
 
     /// `(name, seconds)` for every sub-stage.
@@ -141,9 +127,7 @@ pub(crate) struct Lap {
 
 impl Lap {
     pub fn start() -> Self {
-        Self {
-            last: Instant::now(),
-        }
+        Self { last: Instant::now() }
     }
 
     /// Charge the time since the previous lap to `s`.

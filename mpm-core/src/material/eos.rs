@@ -91,10 +91,7 @@ impl MieGruneisen {
             }
         };
         // d/dmu [f / d^2] = f'/d^2 + 2 (s - 1) f / d^3
-        (
-            k0 * f * inv_d2,
-            k0 * (df * inv_d2 + 2.0 * (self.s - 1.0) * f * inv_d2 / d),
-        )
+        (k0 * f * inv_d2, k0 * (df * inv_d2 + 2.0 * (self.s - 1.0) * f * inv_d2 / d))
     }
 
     /// Pressure at compression `mu` and internal energy per initial volume `e_vol` (Eq. 18).
@@ -160,13 +157,7 @@ mod tests {
     use super::*;
 
     fn lead(form: MgForm) -> MieGruneisen {
-        MieGruneisen {
-            rho0: 11350.0,
-            c0: 2092.0,
-            s: 1.45,
-            gamma0: 2.0,
-            form,
-        }
+        MieGruneisen { rho0: 11350.0, c0: 2092.0, s: 1.45, gamma0: 2.0, form }
     }
 
     #[test]

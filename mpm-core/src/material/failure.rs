@@ -27,10 +27,7 @@ mod tests {
 
     #[test]
     fn thresholds() {
-        let f = Failure {
-            eps_f: 3.0,
-            p_min: -1500e6,
-        };
+        let f = Failure { eps_f: 3.0, p_min: -1500e6 };
         assert!(!f.fails(2.99, -1499e6));
         assert!(f.fails(3.0, 0.0));
         assert!(f.fails(0.0, -1501e6));

@@ -75,11 +75,7 @@ mod tests {
 
     #[test]
     fn elastic_trial_is_unchanged() {
-        let h = Hardening {
-            a: 100.0,
-            b: 10.0,
-            n: 1.0,
-        };
+        let h = Hardening { a: 100.0, b: 10.0, n: 1.0 };
         let s = [10.0, -5.0, -5.0, 0.0, 0.0, 1.0];
         assert_eq!(radial_return(s, 0.0, 1e3, &h), (s, 0.0));
     }
@@ -87,11 +83,7 @@ mod tests {
     #[test]
     fn return_lands_on_the_hardened_surface_linear_and_power_law() {
         for n in [1.0, 0.5, 0.26] {
-            let h = Hardening {
-                a: 157e6,
-                b: 425e6,
-                n,
-            };
+            let h = Hardening { a: 157e6, b: 425e6, n };
             let g = 43.3e9;
             let s = [900e6, -300e6, -600e6, 50e6, -20e6, 400e6];
             let (s_new, ep) = radial_return(s, 0.02, g, &h);

@@ -48,18 +48,8 @@ impl Material {
             density,
             youngs: 117.0e9,
             poisson: 0.35,
-            hardening: Hardening {
-                a: 157.0e6,
-                b: 425.0e6,
-                n: 1.0,
-            },
-            eos: Eos::MieGruneisen(MieGruneisen {
-                rho0: density,
-                c0: 3940.0,
-                s: 1.49,
-                gamma0: 1.96,
-                form,
-            }),
+            hardening: Hardening { a: 157.0e6, b: 425.0e6, n: 1.0 },
+            eos: Eos::MieGruneisen(MieGruneisen { rho0: density, c0: 3940.0, s: 1.49, gamma0: 1.96, form }),
             failure: None,
         }
     }
@@ -72,22 +62,9 @@ impl Material {
             density,
             youngs: 22.4e9,
             poisson: 0.42,
-            hardening: Hardening {
-                a: 12.0e6,
-                b: 125.0e6,
-                n: 1.0,
-            },
-            eos: Eos::MieGruneisen(MieGruneisen {
-                rho0: density,
-                c0: 2092.0,
-                s: 1.45,
-                gamma0: 2.0,
-                form,
-            }),
-            failure: Some(Failure {
-                eps_f: 3.0,
-                p_min: -1500.0e6,
-            }),
+            hardening: Hardening { a: 12.0e6, b: 125.0e6, n: 1.0 },
+            eos: Eos::MieGruneisen(MieGruneisen { rho0: density, c0: 2092.0, s: 1.45, gamma0: 2.0, form }),
+            failure: Some(Failure { eps_f: 3.0, p_min: -1500.0e6 }),
         }
     }
 
@@ -100,11 +77,7 @@ impl Material {
             density,
             youngs,
             poisson,
-            hardening: Hardening {
-                a: f64::INFINITY,
-                b: 0.0,
-                n: 1.0,
-            },
+            hardening: Hardening { a: f64::INFINITY, b: 0.0, n: 1.0 },
             eos: Eos::Linear(LinearEos { bulk }),
             failure: None,
         }
@@ -133,7 +106,8 @@ impl Material {
         ((k + 4.0 / 3.0 * self.shear_modulus()) / self.density).sqrt()
     }
 
-    pub(crate) fn consts(&self) -> PointConsts {
+    /// The constants the stress update needs, precomputed.
+    pub fn consts(&self) -> PointConsts {
         let g = self.shear_modulus();
         PointConsts {
             g,
@@ -148,23 +122,34 @@ impl Material {
 
 /// Per-material constants used in the hot loop.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct PointConsts {
+pub struct PointConsts {
+    /// Shear modulus (Pa).
     pub g: f64,
+    /// Reference density (kg/m^3).
     pub rho0: f64,
+    /// Yield stress law.
     pub hardening: Hardening,
+    /// Failure thresholds.
     pub failure: Option<Failure>,
+    /// `4 G / 3` (Pa).
     pub four_thirds_g: f64,
     /// Sound speed kept by a failed particle (it still limits the time step).
     pub c_failed: f64,
 }
 
 /// State of one particle touched by the stress update.
-pub(crate) struct PointState<'a> {
+pub struct PointState<'a> {
+    /// Cauchy stress (Pa).
     pub stress: &'a mut Sym,
+    /// Effective plastic strain.
     pub eps_p: &'a mut f64,
+    /// Specific internal energy (J/kg).
     pub e_int: &'a mut f64,
+    /// Density (kg/m^3).
     pub rho: &'a mut f64,
+    /// Sound speed (m/s).
     pub sound: &'a mut f64,
+    /// Failure flag.
     pub failed: &'a mut bool,
 }
 
@@ -172,13 +157,7 @@ pub(crate) struct PointState<'a> {
 /// particle for the strain increment `de` and spin increment `dw` (`[w_yz, w_zx, w_xy]`)
 /// of Eqs. 12-13 (paper Eqs. 14, 15, 17, 18).
 #[inline(always)]
-pub(crate) fn update_point<E: PressureModel>(
-    c: &PointConsts,
-    eos: &E,
-    de: &Sym,
-    dw: Vec3,
-    st: PointState<'_>,
-) {
+pub fn update_point<E: PressureModel>(c: &PointConsts, eos: &E, de: &Sym, dw: Vec3, st: PointState<'_>) {
     let rho_old = *st.rho;
     let rho_new = rho_old / (1.0 + de[0] + de[1] + de[2]); // Eq. 14
     *st.rho = rho_new;
@@ -226,14 +205,7 @@ pub(crate) fn update_point<E: PressureModel>(
             return;
         }
     }
-    *st.stress = [
-        s_new[0] - p_new,
-        s_new[1] - p_new,
-        s_new[2] - p_new,
-        s_new[3],
-        s_new[4],
-        s_new[5],
-    ];
+    *st.stress = [s_new[0] - p_new, s_new[1] - p_new, s_new[2] - p_new, s_new[3], s_new[4], s_new[5]];
 }
 
 #[cfg(test)]
@@ -258,9 +230,7 @@ mod tests {
     fn elastic_uniaxial_strain_gives_lame_stresses() {
         let m = Material::elastic("e", 8930.0, 117e9, 0.35);
         let c = m.consts();
-        let Eos::Linear(eos) = m.eos else {
-            unreachable!()
-        };
+        let Eos::Linear(eos) = m.eos else { unreachable!() };
         let (mut s, mut ep, mut e, mut rho, mut snd, mut f) = state();
         let eps = -1e-5;
         update_point(
@@ -280,14 +250,8 @@ mod tests {
         let k = m.bulk_modulus();
         let g = m.shear_modulus();
         // sigma_zz = (K + 4G/3) eps (to first order), sigma_xx = (K - 2G/3) eps
-        assert!(
-            (s[2] / ((k + 4.0 / 3.0 * g) * eps) - 1.0).abs() < 1e-4,
-            "{s:?}"
-        );
-        assert!(
-            (s[0] / ((k - 2.0 / 3.0 * g) * eps) - 1.0).abs() < 1e-4,
-            "{s:?}"
-        );
+        assert!((s[2] / ((k + 4.0 / 3.0 * g) * eps) - 1.0).abs() < 1e-4, "{s:?}");
+        assert!((s[0] / ((k - 2.0 / 3.0 * g) * eps) - 1.0).abs() < 1e-4, "{s:?}");
         // Stored energy 1/2 sigma eps per volume.
         let w = 0.5 * (k + 4.0 / 3.0 * g) * eps * eps / 8930.0;
         assert!((e / w - 1.0).abs() < 1e-3, "{e} vs {w}");
@@ -298,9 +262,7 @@ mod tests {
     fn plastic_shear_lands_on_the_hardened_surface() {
         let m = Material::ofhc_copper(MgForm::Paper);
         let c = m.consts();
-        let Eos::MieGruneisen(eos) = m.eos else {
-            unreachable!()
-        };
+        let Eos::MieGruneisen(eos) = m.eos else { unreachable!() };
         let (mut s, mut ep, mut e, mut rho, mut snd, mut f) = state();
         for _ in 0..20 {
             update_point(
@@ -322,10 +284,7 @@ mod tests {
         let j = von_mises(&deviator(&s));
         let y = m.hardening.yield_stress(ep);
         assert!((j - y).abs() / y < 1e-12, "J={j} yield={y}");
-        assert!(
-            trace(&s).abs() < 1e-3 * y,
-            "pure shear keeps the pressure ~0"
-        );
+        assert!(trace(&s).abs() < 1e-3 * y, "pure shear keeps the pressure ~0");
         assert!(e > 0.0, "plastic work heats the material");
     }
 
@@ -333,9 +292,7 @@ mod tests {
     fn lead_fails_in_tension_below_p_min_and_then_carries_no_stress() {
         let m = Material::lead(MgForm::Paper);
         let c = m.consts();
-        let Eos::MieGruneisen(eos) = m.eos else {
-            unreachable!()
-        };
+        let Eos::MieGruneisen(eos) = m.eos else { unreachable!() };
         let (mut s, mut ep, mut e, _, mut snd, mut f) = state();
         let mut rho = 11350.0;
         // 3 % volumetric expansion: p = rho0 c0^2 mu ~ -1.5 GPa at mu ~ -0.03.

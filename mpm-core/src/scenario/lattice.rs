@@ -10,11 +10,8 @@ pub fn cell_centred(lo: Vec3, h: Vec3, n: [usize; 3], keep: impl Fn(Vec3) -> boo
     for k in 0..n[2] {
         for j in 0..n[1] {
             for i in 0..n[0] {
-                let p = [
-                    lo[0] + (i as f64 + 0.5) * h[0],
-                    lo[1] + (j as f64 + 0.5) * h[1],
-                    lo[2] + (k as f64 + 0.5) * h[2],
-                ];
+                let p =
+                    [lo[0] + (i as f64 + 0.5) * h[0], lo[1] + (j as f64 + 0.5) * h[1], lo[2] + (k as f64 + 0.5) * h[2]];
                 if keep(p) {
                     out.push(p);
                 }

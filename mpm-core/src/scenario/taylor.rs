@@ -58,51 +58,17 @@ pub struct ModelSpec {
 impl ModelSpec {
     /// Models 1-4 of Table 2.
     pub const ALL: [ModelSpec; 4] = [
-        ModelSpec {
-            model: 1,
-            nz: 48,
-            nxy: 32,
-            n_diameter: 28,
-            n_layers: 91,
-            table2_particles: 56_056,
-        },
-        ModelSpec {
-            model: 2,
-            nz: 72,
-            nxy: 48,
-            n_diameter: 45,
-            n_layers: 153,
-            table2_particles: 244_524,
-        },
-        ModelSpec {
-            model: 3,
-            nz: 132,
-            nxy: 88,
-            n_diameter: 76,
-            n_layers: 254,
-            table2_particles: 1_155_192,
-        },
-        ModelSpec {
-            model: 4,
-            nz: 264,
-            nxy: 176,
-            n_diameter: 168,
-            n_layers: 560,
-            table2_particles: 12_416_320,
-        },
+        ModelSpec { model: 1, nz: 48, nxy: 32, n_diameter: 28, n_layers: 91, table2_particles: 56_056 },
+        ModelSpec { model: 2, nz: 72, nxy: 48, n_diameter: 45, n_layers: 153, table2_particles: 244_524 },
+        ModelSpec { model: 3, nz: 132, nxy: 88, n_diameter: 76, n_layers: 254, table2_particles: 1_155_192 },
+        ModelSpec { model: 4, nz: 264, nxy: 176, n_diameter: 168, n_layers: 560, table2_particles: 12_416_320 },
     ];
 
     /// Model `m` (1-4).
     pub fn get(m: u8) -> Result<ModelSpec, SimError> {
-        Self::ALL
-            .iter()
-            .find(|s| s.model == m)
-            .copied()
-            .ok_or_else(|| {
-                SimError::Config(format!(
-                    "unknown Taylor bar model {m}: the paper defines models 1, 2, 3 and 4"
-                ))
-            })
+        Self::ALL.iter().find(|s| s.model == m).copied().ok_or_else(|| {
+            SimError::Config(format!("unknown Taylor bar model {m}: the paper defines models 1, 2, 3 and 4"))
+        })
     }
 
     /// Cell size (m).
@@ -139,12 +105,9 @@ impl ModelSpec {
     fn layer_points(&self) -> Vec<Vec3> {
         let r = 0.5 * DIAMETER;
         let h = self.spacing();
-        lattice::cell_centred(
-            [-r, -r, 0.0],
-            [h[0], h[1], 1.0],
-            [self.n_diameter, self.n_diameter, 1],
-            |p| p[0] * p[0] + p[1] * p[1] <= r * r,
-        )
+        lattice::cell_centred([-r, -r, 0.0], [h[0], h[1], 1.0], [self.n_diameter, self.n_diameter, 1], |p| {
+            p[0] * p[0] + p[1] * p[1] <= r * r
+        })
     }
 }
 
@@ -163,12 +126,7 @@ pub struct TaylorBar {
 
 impl Default for TaylorBar {
     fn default() -> Self {
-        Self {
-            model: 1,
-            velocity: DEFAULT_VELOCITY,
-            eos: MgForm::Paper,
-            wall: WallKind::Slip,
-        }
+        Self { model: 1, velocity: DEFAULT_VELOCITY, eos: MgForm::Paper, wall: WallKind::Slip }
     }
 }
 
@@ -193,13 +151,7 @@ impl TaylorBar {
         for k in 0..spec.n_layers {
             let z = (k as f64 + 0.5) * h[2];
             for p in &layer {
-                particles.push(
-                    [p[0], p[1], z],
-                    [0.0, 0.0, -self.velocity],
-                    mass,
-                    material.density,
-                    c,
-                );
+                particles.push([p[0], p[1], z], [0.0, 0.0, -self.velocity], mass, material.density, c);
             }
         }
         let dx = spec.dx();
@@ -209,16 +161,8 @@ impl TaylorBar {
             model: format!("Model{}", spec.model),
             particles,
             material,
-            grid: GridSpec {
-                dx,
-                anchor: [-half, -half, 0.0],
-                cells: [spec.nxy, spec.nxy, spec.nz],
-            },
-            walls: vec![Wall {
-                axis: 2,
-                position: 0.0,
-                kind: self.wall,
-            }],
+            grid: GridSpec { dx, anchor: [-half, -half, 0.0], cells: [spec.nxy, spec.nxy, spec.nz] },
+            walls: vec![Wall { axis: 2, position: 0.0, kind: self.wall }],
             spacing: h,
         })
     }
@@ -238,16 +182,8 @@ pub struct TaylorFigures {
 pub fn measure(particles: &Particles, spacing: Vec3) -> TaylorFigures {
     let (lo, hi) = particles.bounding_box();
     let band = lo[2] + 0.5 * spacing[2];
-    let r2 = particles
-        .x
-        .iter()
-        .filter(|x| x[2] <= band)
-        .map(|x| x[0] * x[0] + x[1] * x[1])
-        .fold(0.0, f64::max);
-    TaylorFigures {
-        length: hi[2] - lo[2] + spacing[2],
-        face_diameter: 2.0 * r2.sqrt() + spacing[0],
-    }
+    let r2 = particles.x.iter().filter(|x| x[2] <= band).map(|x| x[0] * x[0] + x[1] * x[1]).fold(0.0, f64::max);
+    TaylorFigures { length: hi[2] - lo[2] + spacing[2], face_diameter: 2.0 * r2.sqrt() + spacing[0] }
 }
 
 #[cfg(test)]
@@ -283,21 +219,12 @@ mod tests {
         assert!((mass / expect - 1.0).abs() < 1e-12);
         let f = measure(&s.particles, s.spacing);
         assert!((f.length - LENGTH).abs() < 1e-12);
-        assert!(
-            (f.face_diameter - DIAMETER).abs() < 0.02 * DIAMETER,
-            "{}",
-            f.face_diameter
-        );
+        assert!((f.face_diameter - DIAMETER).abs() < 0.02 * DIAMETER, "{}", f.face_diameter);
     }
 
     #[test]
     fn unknown_model_is_a_clear_error() {
-        let e = TaylorBar {
-            model: 5,
-            ..Default::default()
-        }
-        .setup()
-        .unwrap_err();
+        let e = TaylorBar { model: 5, ..Default::default() }.setup().unwrap_err();
         assert!(e.to_string().contains("models 1, 2, 3 and 4"));
     }
 }

@@ -51,9 +51,7 @@ pub fn patch_layout(threads: usize, cells: [usize; 3]) -> [usize; 3] {
                         continue;
                     }
                     let pz = t / px / py;
-                    let cost = (px as u128 - 1) * ny * nz
-                        + (py as u128 - 1) * nx * nz
-                        + (pz as u128 - 1) * nx * ny;
+                    let cost = (px as u128 - 1) * ny * nz + (py as u128 - 1) * nx * nz + (pz as u128 - 1) * nx * ny;
                     if cost < best.1 || (cost == best.1 && [pz, py] > [best.0[2], best.0[1]]) {
                         best = ([px, py, pz], cost);
                     }
@@ -86,21 +84,14 @@ impl Patch {
     }
 
     pub(crate) fn node_box(&self) -> NodeBox {
-        NodeBox {
-            lo: self.cell_lo,
-            dims: self.node_dims(),
-        }
+        NodeBox { lo: self.cell_lo, dims: self.node_dims() }
     }
 
     /// The paper's `globalnode(s, j)`: global node index of local node `s`.
     pub fn globalnode(&self, s: usize, geom: &GridGeom) -> usize {
         let d = self.node_dims();
         let (i, j, k) = (s % d[0], (s / d[0]) % d[1], s / (d[0] * d[1]));
-        geom.node_index(
-            self.cell_lo[0] + i,
-            self.cell_lo[1] + j,
-            self.cell_lo[2] + k,
-        )
+        geom.node_index(self.cell_lo[0] + i, self.cell_lo[1] + j, self.cell_lo[2] + k)
     }
 
     /// The paper's `subnodefun(i, j)`: local id of global node `g`, if the sub-grid has it.
@@ -162,12 +153,8 @@ impl Binning {
             exec.run(|w| {
                 let r = partition(n, t, w);
                 // SAFETY: particle group w and row w of patnp_th belong to worker w only.
-                let (mine, row) = unsafe {
-                    (
-                        patch_of.range_mut(r.clone()),
-                        counts.range_mut(w * patches..(w + 1) * patches),
-                    )
-                };
+                let (mine, row) =
+                    unsafe { (patch_of.range_mut(r.clone()), counts.range_mut(w * patches..(w + 1) * patches)) };
                 row.fill(0);
                 for (slot, p) in mine.iter_mut().zip(r) {
                     let j = patch(p);
@@ -353,12 +340,8 @@ impl DomainDecomposition {
     }
 
     /// Thread `j` zeroes sub-grid `j` and scatters patch `j`'s particles into it.
-    pub(crate) fn scatter<const K: usize, F>(
-        &self,
-        exec: &Exec<'_>,
-        buf: &mut Vec<[f64; K]>,
-        kernel: &F,
-    ) where
+    pub(crate) fn scatter<const K: usize, F>(&self, exec: &Exec<'_>, buf: &mut Vec<[f64; K]>, kernel: &F)
+    where
         F: Fn(usize) -> Contribution<K> + Sync,
     {
         buf.resize(*self.offsets.last().unwrap_or(&0), [0.0; K]);
@@ -397,11 +380,7 @@ impl DomainDecomposition {
             exec.run(|w| {
                 for r in partition(rows, t, w) {
                     let (lj, lk) = (r % d[1], r / d[1]);
-                    let g0 = geom.node_index(
-                        patch.cell_lo[0],
-                        patch.cell_lo[1] + lj,
-                        patch.cell_lo[2] + lk,
-                    );
+                    let g0 = geom.node_index(patch.cell_lo[0], patch.cell_lo[1] + lj, patch.cell_lo[2] + lk);
                     // SAFETY: within one patch, distinct local rows are distinct global
                     // rows (globalnode is injective), workers take disjoint local rows, and
                     // patches are assembled one broadcast after another.
@@ -422,12 +401,7 @@ impl DomainDecomposition {
     }
 
     pub(crate) fn bytes(&self) -> usize {
-        self.binning.bytes()
-            + self
-                .part_of_cell
-                .iter()
-                .map(|v| v.capacity() * 4)
-                .sum::<usize>()
+        self.binning.bytes() + self.part_of_cell.iter().map(|v| v.capacity() * 4).sum::<usize>()
     }
 }
 
@@ -440,65 +414,28 @@ mod tests {
     /// The paper's worked example: 16 particles, 4 patches, 4 threads.
     #[test]
     fn reproduces_the_papers_binning_example() {
-        let membership: [&[usize]; 4] = [
-            &[2, 3, 5, 11],
-            &[1, 6, 7, 16],
-            &[8, 10, 14],
-            &[4, 9, 12, 13, 15],
-        ];
-        let patch_of = |p: usize| {
-            membership
-                .iter()
-                .position(|m| m.contains(&(p + 1)))
-                .unwrap()
-        };
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(4)
-            .build()
-            .unwrap();
+        let membership: [&[usize]; 4] = [&[2, 3, 5, 11], &[1, 6, 7, 16], &[8, 10, 14], &[4, 9, 12, 13, 15]];
+        let patch_of = |p: usize| membership.iter().position(|m| m.contains(&(p + 1))).unwrap();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
         let exec = Exec::new(&pool, Strategy::DomainDecomposition);
         let mut b = Binning::default();
         b.build(&exec, 16, 4, &patch_of);
 
-        let patnp_th: Vec<Vec<u32>> = (0..4)
-            .map(|t| (0..4).map(|j| b.patnp_th(t, j)).collect())
-            .collect();
-        assert_eq!(
-            patnp_th,
-            vec![
-                vec![2, 1, 0, 1],
-                vec![1, 2, 1, 0],
-                vec![1, 0, 1, 2],
-                vec![0, 1, 1, 2]
-            ]
-        );
-        assert_eq!(
-            (0..4).map(|j| b.patnp(j)).collect::<Vec<_>>(),
-            vec![4, 4, 3, 5]
-        );
+        let patnp_th: Vec<Vec<u32>> = (0..4).map(|t| (0..4).map(|j| b.patnp_th(t, j)).collect()).collect();
+        assert_eq!(patnp_th, vec![vec![2, 1, 0, 1], vec![1, 2, 1, 0], vec![1, 0, 1, 2], vec![0, 1, 1, 2]]);
+        assert_eq!((0..4).map(|j| b.patnp(j)).collect::<Vec<_>>(), vec![4, 4, 3, 5]);
         assert_eq!(b.rows(), 5);
-        let pindex: Vec<Vec<u32>> = (0..5)
-            .map(|i| (0..4).map(|j| b.pindex(i, j)).collect())
-            .collect();
+        let pindex: Vec<Vec<u32>> = (0..5).map(|i| (0..4).map(|j| b.pindex(i, j)).collect()).collect();
         assert_eq!(
             pindex,
-            vec![
-                vec![2, 1, 8, 4],
-                vec![3, 6, 10, 9],
-                vec![5, 7, 14, 12],
-                vec![11, 16, 0, 13],
-                vec![0, 0, 0, 15]
-            ]
+            vec![vec![2, 1, 8, 4], vec![3, 6, 10, 9], vec![5, 7, 14, 12], vec![11, 16, 0, 13], vec![0, 0, 0, 15]]
         );
     }
 
     #[test]
     fn binning_lists_every_particle_once_for_any_thread_count() {
         for threads in [1, 2, 3, 5, 8] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             let exec = Exec::new(&pool, Strategy::DomainDecomposition);
             let mut b = Binning::default();
             let n = 10_007;
@@ -507,10 +444,7 @@ mod tests {
             let mut seen = vec![0u8; n];
             for j in 0..threads {
                 let col = b.column(j);
-                assert!(
-                    col.windows(2).all(|w| w[0] < w[1]),
-                    "ids ascend within a patch"
-                );
+                assert!(col.windows(2).all(|w| w[0] < w[1]), "ids ascend within a patch");
                 for &id in col {
                     assert_eq!(patch(id as usize - 1), j);
                     seen[id as usize - 1] += 1;
@@ -526,29 +460,18 @@ mod tests {
         assert_eq!(patch_layout(6, cells), [2, 1, 3]);
         assert_eq!(patch_layout(8, cells), [2, 2, 2]);
         assert_eq!(patch_layout(3, cells), [1, 1, 3]);
-        assert_eq!(
-            patch_layout(12, [10, 10, 100]).iter().product::<usize>(),
-            12
-        );
+        assert_eq!(patch_layout(12, [10, 10, 100]).iter().product::<usize>(), 12);
     }
 
     #[test]
     fn patches_cover_the_grid_and_node_maps_are_inverse() {
-        let spec = GridSpec {
-            dx: 1.0,
-            anchor: [0.0; 3],
-            cells: [5, 3, 7],
-        };
+        let spec = GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [5, 3, 7] };
         let geom = GridGeom::fixed(&spec);
         for threads in [1, 2, 3, 4, 6, 8] {
             let mut dd = DomainDecomposition::new(threads);
             dd.cut(&geom);
             assert_eq!(dd.patches().len(), threads);
-            let cells: usize = dd
-                .patches()
-                .iter()
-                .map(|p| p.cells.iter().product::<usize>())
-                .sum();
+            let cells: usize = dd.patches().iter().map(|p| p.cells.iter().product::<usize>()).sum();
             assert_eq!(cells, geom.num_cells());
             let mut covered = vec![false; geom.num_nodes()];
             for p in dd.patches() {

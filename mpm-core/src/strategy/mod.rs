@@ -64,16 +64,14 @@ impl std::str::FromStr for Strategy {
             "serial" => Ok(Strategy::Serial),
             "ae" | "array-expansion" => Ok(Strategy::ArrayExpansion),
             "dd" | "domain-decomposition" => Ok(Strategy::DomainDecomposition),
-            _ => Err(format!(
-                "unknown strategy '{s}': use 'serial', 'ae' or 'dd'"
-            )),
+            _ => Err(format!("unknown strategy '{s}': use 'serial', 'ae' or 'dd'")),
         }
     }
 }
 
 /// What one particle adds to the 8 nodes of its cell (node order of [`crate::shape`]).
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct Contribution<const K: usize> {
+pub struct Contribution<const K: usize> {
     /// The cell, in the global grid's numbering.
     pub cell: [usize; 3],
     /// Per node, `K` values.
@@ -93,29 +91,16 @@ pub(crate) struct NodeBox {
 impl NodeBox {
     /// The whole grid.
     pub fn grid(geom: &GridGeom) -> Self {
-        Self {
-            lo: [0; 3],
-            dims: geom.node_dims(),
-        }
+        Self { lo: [0; 3], dims: geom.node_dims() }
     }
 
     /// Add a particle's contribution (its cell must lie in the box).
     #[inline(always)]
     pub fn add<const K: usize>(&self, data: &mut [[f64; K]], con: &Contribution<K>) {
         let (sy, sz) = (self.dims[0], self.dims[0] * self.dims[1]);
-        let base = (con.cell[0] - self.lo[0])
-            + sy * (con.cell[1] - self.lo[1])
-            + sz * (con.cell[2] - self.lo[2]);
-        let idx = [
-            base,
-            base + 1,
-            base + sy,
-            base + sy + 1,
-            base + sz,
-            base + sz + 1,
-            base + sz + sy,
-            base + sz + sy + 1,
-        ];
+        let base = (con.cell[0] - self.lo[0]) + sy * (con.cell[1] - self.lo[1]) + sz * (con.cell[2] - self.lo[2]);
+        let idx =
+            [base, base + 1, base + sy, base + sy + 1, base + sz, base + sz + 1, base + sz + sy, base + sz + sy + 1];
         for q in 0..8 {
             let d = &mut data[idx[q]];
             for k in 0..K {
@@ -126,36 +111,35 @@ impl NodeBox {
 }
 
 /// Runs a phase on every worker: `f(j)` once for each `j` in `0..workers`.
-pub(crate) struct Exec<'a> {
-    pool: &'a ThreadPool,
+pub struct Exec<'a> {
+    pool: Option<&'a ThreadPool>,
     /// Number of workers (shares).
     pub workers: usize,
-    parallel: bool,
 }
 
 impl<'a> Exec<'a> {
+    /// The executor of `strategy` in `pool`: one share on the calling thread for the serial
+    /// strategy, one share per pool thread otherwise.
     pub fn new(pool: &'a ThreadPool, strategy: Strategy) -> Self {
         match strategy {
-            Strategy::Serial => Self {
-                pool,
-                workers: 1,
-                parallel: false,
-            },
-            _ => Self {
-                pool,
-                workers: pool.current_num_threads(),
-                parallel: true,
-            },
+            Strategy::Serial => Self::serial(),
+            _ => Self { pool: Some(pool), workers: pool.current_num_threads() },
         }
+    }
+
+    /// One share, run on the calling thread.
+    pub fn serial() -> Self {
+        Self { pool: None, workers: 1 }
     }
 
     /// Run `f(j)` for every worker `j`, worker `j` on pool thread `j`.
     #[inline]
     pub fn run<F: Fn(usize) + Sync>(&self, f: F) {
-        if self.parallel {
-            self.pool.broadcast(|ctx| f(ctx.index()));
-        } else {
-            f(0);
+        match self.pool {
+            Some(pool) => {
+                pool.broadcast(|ctx| f(ctx.index()));
+            }
+            None => f(0),
         }
     }
 }
@@ -173,9 +157,7 @@ impl Engine {
         match strategy {
             Strategy::Serial => Engine::Serial,
             Strategy::ArrayExpansion => Engine::Ae,
-            Strategy::DomainDecomposition => {
-                Engine::Dd(Box::new(DomainDecomposition::new(threads)))
-            }
+            Strategy::DomainDecomposition => Engine::Dd(Box::new(DomainDecomposition::new(threads))),
         }
     }
 

@@ -5,12 +5,8 @@ use super::{Contribution, NodeBox};
 use crate::grid::GridGeom;
 
 /// Zero `global` and add `kernel(p)` for every particle in order.
-pub(crate) fn scatter<const K: usize, F>(
-    geom: &GridGeom,
-    n: usize,
-    global: &mut [[f64; K]],
-    kernel: &F,
-) where
+pub(crate) fn scatter<const K: usize, F>(geom: &GridGeom, n: usize, global: &mut [[f64; K]], kernel: &F)
+where
     F: Fn(usize) -> Contribution<K>,
 {
     global.fill([0.0; K]);

@@ -1,0 +1,262 @@
+//! The per-particle and per-node kernels of the MUSL step (Eqs. 1-15), shared by every
+//! strategy. The scatter kernels ([`p2g`], [`remap`]) say what one particle adds to its 8
+//! nodes; the strategy decides where that goes. The other passes are split across workers
+//! by loop splitting (particles) or by node rows (nodes), through an [`Exec`].
+//!
+//! They are public so that benchmarks measure exactly the code the solver runs.
+
+use crate::disjoint::{partition, DisjointSlice};
+use crate::energy::Partial;
+use crate::grid::{GridGeom, NodeArrays, WallLayers};
+use crate::material::{update_point, PointConsts, PointState, PressureModel};
+use crate::math::{sym_mul_vec, Vec3};
+use crate::particles::Particles;
+use crate::strategy::{Contribution, Exec};
+
+/// Eqs. 1-5 for particle `p`: mass `m_p S_ip`, momentum `m_p v_p S_ip` and force
+/// `-V_p sigma_p . G_ip + m_p S_ip b` at its 8 nodes, as `[m, p_x, p_y, p_z, f_x, f_y, f_z]`.
+#[inline(always)]
+pub fn p2g(geom: &GridGeom, particles: &Particles, body_force: Vec3, p: usize) -> Contribution<7> {
+    let s = geom.shape(particles.x[p]);
+    let m = particles.mass[p];
+    let vol = m / particles.rho[p];
+    let vp = particles.v[p];
+    let stress = &particles.stress[p];
+    let mut c = [[0.0; 7]; 8];
+    for q in 0..8 {
+        let t = sym_mul_vec(stress, s.g[q]);
+        let mw = m * s.w[q];
+        c[q] = [
+            mw,
+            mw * vp[0],
+            mw * vp[1],
+            mw * vp[2],
+            mw * body_force[0] - vol * t[0],
+            mw * body_force[1] - vol * t[1],
+            mw * body_force[2] - vol * t[2],
+        ];
+    }
+    Contribution { cell: s.cell, c }
+}
+
+/// Eq. 11 for particle `p`: momentum `m_p v_p(k+1) S_ip` at its 8 nodes.
+#[inline(always)]
+pub fn remap(geom: &GridGeom, particles: &Particles, p: usize) -> Contribution<3> {
+    let s = geom.shape(particles.x[p]);
+    let m = particles.mass[p];
+    let v = particles.v[p];
+    let mv = [m * v[0], m * v[1], m * v[2]];
+    Contribution { cell: s.cell, c: s.w.map(|w| [mv[0] * w, mv[1] * w, mv[2] * w]) }
+}
+
+/// Global indices of the 8 nodes of `cell`, in shape-function order.
+#[inline(always)]
+pub fn cell_nodes(geom: &GridGeom, cell: [usize; 3]) -> [usize; 8] {
+    let n = geom.node_dims();
+    let (sy, sz) = (n[0], n[0] * n[1]);
+    let b = cell[0] + sy * cell[1] + sz * cell[2];
+    [b, b + 1, b + sy, b + sy + 1, b + sz, b + sz + 1, b + sz + sy, b + sz + sy + 1]
+}
+
+/// Eq. 6 and the walls: `p += f dt`; wall nodes lose the constrained components of `p`
+/// and `f`; `v = p/m`, `a = f/m` (zero on massless nodes). Parallel over node rows.
+pub fn grid_update(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: &mut NodeArrays, dt: f64, tol: f64) {
+    let d = geom.node_dims();
+    let rows = d[1] * d[2];
+    let has_x = walls.x_layers().next().is_some();
+    let p2g = &nodes.p2g;
+    let kin = DisjointSlice::new(&mut nodes.kin[..]);
+    exec.run(|w| {
+        let r = partition(rows, exec.workers, w);
+        // SAFETY: workers own disjoint row ranges, hence disjoint node ranges.
+        let out = unsafe { kin.range_mut(r.start * d[0]..r.end * d[0]) };
+        for (ri, row) in r.clone().enumerate() {
+            let mask_row = walls.row_mask(row % d[1], row / d[1]);
+            for i in 0..d[0] {
+                let a = &p2g[row * d[0] + i];
+                let mask = walls.node_mask(mask_row, i, has_x);
+                let m = a[0];
+                let o = &mut out[ri * d[0] + i];
+                if m > tol {
+                    let inv = 1.0 / m;
+                    for k in 0..3 {
+                        let f = a[4 + k] * mask[k];
+                        let p = (a[1 + k] + a[4 + k] * dt) * mask[k];
+                        o[k] = p * inv;
+                        o[3 + k] = f * inv;
+                    }
+                } else {
+                    *o = [0.0; 6];
+                }
+            }
+        }
+    });
+}
+
+/// Eq. 11, second half: `v_i = p_i / m_i` with the walls applied again, in place.
+pub fn remap_velocity(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: &mut NodeArrays, tol: f64) {
+    let d = geom.node_dims();
+    let rows = d[1] * d[2];
+    let has_x = walls.x_layers().next().is_some();
+    let p2g = &nodes.p2g;
+    let remap = DisjointSlice::new(&mut nodes.remap[..]);
+    exec.run(|w| {
+        let r = partition(rows, exec.workers, w);
+        // SAFETY: workers own disjoint row ranges, hence disjoint node ranges.
+        let out = unsafe { remap.range_mut(r.start * d[0]..r.end * d[0]) };
+        for (ri, row) in r.clone().enumerate() {
+            let mask_row = walls.row_mask(row % d[1], row / d[1]);
+            for i in 0..d[0] {
+                let m = p2g[row * d[0] + i][0];
+                let mask = walls.node_mask(mask_row, i, has_x);
+                let o = &mut out[ri * d[0] + i];
+                if m > tol {
+                    let inv = 1.0 / m;
+                    for k in 0..3 {
+                        o[k] *= inv * mask[k];
+                    }
+                } else {
+                    *o = [0.0; 3];
+                }
+            }
+        }
+    });
+}
+
+/// Eqs. 8, 10: `v_p += dt sum_i S_ip a_i`, by loop splitting.
+pub fn gather(exec: &Exec<'_>, geom: &GridGeom, kin: &[[f64; 6]], x: &[Vec3], v: &mut [Vec3], dt: f64) {
+    let n = x.len();
+    let vs = DisjointSlice::new(v);
+    exec.run(|w| {
+        let r = partition(n, exec.workers, w);
+        // SAFETY: workers own disjoint particle chunks.
+        let vw = unsafe { vs.range_mut(r.clone()) };
+        for (vp, xp) in vw.iter_mut().zip(&x[r]) {
+            let s = geom.shape(*xp);
+            let idx = cell_nodes(geom, s.cell);
+            let mut acc = [0.0; 3];
+            for q in 0..8 {
+                let a = &kin[idx[q]];
+                for k in 0..3 {
+                    acc[k] += s.w[q] * a[3 + k];
+                }
+            }
+            for k in 0..3 {
+                vp[k] += dt * acc[k];
+            }
+        }
+    });
+}
+
+/// Eqs. 7, 9, 12-15 and the reductions, by loop splitting: positions from the updated
+/// nodal velocities, strain and spin increments from the re-mapped ones, then the material
+/// update; worker `w` writes its sums to `partials[w]`.
+#[allow(clippy::too_many_arguments)]
+pub fn update<E: PressureModel + Sync>(
+    exec: &Exec<'_>,
+    geom: &GridGeom,
+    nodes: &NodeArrays,
+    particles: &mut Particles,
+    consts: &PointConsts,
+    eos: &E,
+    dt: f64,
+    fixed: bool,
+    partials: &mut [Partial],
+) {
+    let n = particles.len();
+    let Particles { x, v, mass, rho, stress, eps_p, e_int, sound, failed } = particles;
+    let (v, mass) = (&v[..], &mass[..]);
+    let xs = DisjointSlice::new(&mut x[..]);
+    let rhos = DisjointSlice::new(&mut rho[..]);
+    let stresses = DisjointSlice::new(&mut stress[..]);
+    let eps = DisjointSlice::new(&mut eps_p[..]);
+    let es = DisjointSlice::new(&mut e_int[..]);
+    let sounds = DisjointSlice::new(&mut sound[..]);
+    let fails = DisjointSlice::new(&mut failed[..]);
+    let parts = DisjointSlice::new(partials);
+    let (kin, remap) = (&nodes.kin, &nodes.remap);
+    let half_dt = 0.5 * dt;
+    exec.run(|w| {
+        let r = partition(n, exec.workers, w);
+        // SAFETY: worker w owns particle chunk r of every array and partial slot w.
+        let (x, rho, stress, eps_p, e_int, sound, failed, acc) = unsafe {
+            (
+                xs.range_mut(r.clone()),
+                rhos.range_mut(r.clone()),
+                stresses.range_mut(r.clone()),
+                eps.range_mut(r.clone()),
+                es.range_mut(r.clone()),
+                sounds.range_mut(r.clone()),
+                fails.range_mut(r.clone()),
+                parts.get_mut(w),
+            )
+        };
+        let mut sum = Partial::default();
+        for k in 0..r.len() {
+            let p = r.start + k;
+            let s = geom.shape(x[k]);
+            let idx = cell_nodes(geom, s.cell);
+            let mut vx = [0.0; 3];
+            let mut l = [[0.0; 3]; 3];
+            for q in 0..8 {
+                let vn = &kin[idx[q]];
+                let vr = &remap[idx[q]];
+                let g = s.g[q];
+                for a in 0..3 {
+                    vx[a] += s.w[q] * vn[a];
+                    for b in 0..3 {
+                        l[a][b] += vr[a] * g[b];
+                    }
+                }
+            }
+            let de = [
+                dt * l[0][0],
+                dt * l[1][1],
+                dt * l[2][2],
+                half_dt * (l[1][2] + l[2][1]),
+                half_dt * (l[2][0] + l[0][2]),
+                half_dt * (l[0][1] + l[1][0]),
+            ];
+            let dw = [half_dt * (l[1][2] - l[2][1]), half_dt * (l[2][0] - l[0][2]), half_dt * (l[0][1] - l[1][0])];
+            update_point(
+                consts,
+                eos,
+                &de,
+                dw,
+                PointState {
+                    stress: &mut stress[k],
+                    eps_p: &mut eps_p[k],
+                    e_int: &mut e_int[k],
+                    rho: &mut rho[k],
+                    sound: &mut sound[k],
+                    failed: &mut failed[k],
+                },
+            );
+            let xp = &mut x[k];
+            for a in 0..3 {
+                xp[a] += dt * vx[a];
+            }
+            let vp = v[p];
+            let m = mass[p];
+            let v2 = vp[0] * vp[0] + vp[1] * vp[1] + vp[2] * vp[2];
+            sum.kinetic += 0.5 * m * v2;
+            sum.internal += m * e_int[k];
+            for a in 0..3 {
+                sum.momentum[a] += m * vp[a];
+                sum.lo[a] = sum.lo[a].min(xp[a]);
+                sum.hi[a] = sum.hi[a].max(xp[a]);
+            }
+            sum.max_speed = sum.max_speed.max(sound[k] + v2.sqrt());
+            let finite =
+                (xp[0] + xp[1] + xp[2] + v2 + stress[k][0] + stress[k][1] + stress[k][2] + e_int[k]).is_finite();
+            if !finite {
+                sum.non_finite += 1;
+            }
+            if fixed && !geom.contains(*xp) {
+                sum.outside += 1;
+                sum.first_outside.get_or_insert(p);
+            }
+        }
+        *acc = sum;
+    });
+}
