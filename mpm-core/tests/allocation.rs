@@ -1,0 +1,67 @@
+//! The time step does not allocate in steady state. A counting global allocator checks it:
+//! the serial step allocates nothing at all; the parallel steps allocate only rayon's
+//! per-broadcast job lists, a count that does not depend on the problem size.
+
+use mpm_core::scenario::taylor::TaylorBar;
+use mpm_core::{GridMode, SimConfig, Simulation, Strategy};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+struct Counting;
+
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: forwards to the system allocator unchanged; only counts calls.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations_per_step(model: u8, strategy: Strategy, threads: usize, grid: GridMode) -> f64 {
+    let setup = TaylorBar { model, ..Default::default() }.setup().unwrap();
+    let config = SimConfig { strategy, threads, grid_mode: grid, ..Default::default() };
+    let mut sim = Simulation::new(setup, config).unwrap();
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+    for _ in 0..5 {
+        sim.step(&pool, f64::INFINITY).unwrap();
+    }
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let steps = 10;
+    for _ in 0..steps {
+        sim.step(&pool, f64::INFINITY).unwrap();
+    }
+    (ALLOCATIONS.load(Ordering::Relaxed) - before) as f64 / steps as f64
+}
+
+#[test]
+fn steady_state_steps_do_not_allocate() {
+    // Fixed and adaptive grids, serial: not a single allocation.
+    assert_eq!(allocations_per_step(1, Strategy::Serial, 1, GridMode::Fixed), 0.0);
+    assert_eq!(allocations_per_step(1, Strategy::Serial, 1, GridMode::Adaptive), 0.0);
+    // Parallel: bounded by the broadcasts per step (AE 7, DD 9 + 2 patches), independent of
+    // the model size.
+    for (strategy, threads) in
+        [(Strategy::ArrayExpansion, 2), (Strategy::DomainDecomposition, 2), (Strategy::DomainDecomposition, 4)]
+    {
+        let small = allocations_per_step(1, strategy, threads, GridMode::Fixed);
+        let large = allocations_per_step(2, strategy, threads, GridMode::Fixed);
+        println!("{strategy} x{threads}: {small} allocations/step (Model 1), {large} (Model 2)");
+        assert!(small <= 2.0 * (9 + 2 * threads) as f64, "{strategy} x{threads}: {small} allocations per step");
+        assert_eq!(small, large, "allocations must not scale with the problem");
+    }
+}

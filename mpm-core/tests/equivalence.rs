@@ -1,0 +1,103 @@
+//! Every parallel strategy against the serial oracle at every thread count, and bitwise
+//! reproducibility for a fixed strategy and thread count. Runs with more threads than this
+//! machine has cores too (oversubscription must work).
+
+mod common;
+
+use common::*;
+use mpm_core::scenario::taylor::TaylorBar;
+use mpm_core::{GridMode, Particles, Setup, SimConfig, Simulation, Strategy};
+
+const THREADS: [usize; 6] = [1, 2, 3, 4, 6, 8];
+
+fn run(setup: &Setup, strategy: Strategy, threads: usize, grid_mode: GridMode, steps: usize) -> Simulation {
+    let config = SimConfig { strategy, threads, grid_mode, ..Default::default() };
+    let mut sim = Simulation::new(setup.clone(), config).unwrap();
+    let pool = pool(threads);
+    for _ in 0..steps {
+        sim.step(&pool, f64::INFINITY).unwrap();
+    }
+    sim
+}
+
+/// Largest difference over the largest magnitude, per field.
+fn rel_diff<const N: usize>(a: &[[f64; N]], b: &[[f64; N]]) -> f64 {
+    let scale = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs())).max(f64::MIN_POSITIVE);
+    let diff = a.iter().flatten().zip(b.iter().flatten()).fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+    diff / scale
+}
+
+fn assert_close(oracle: &Particles, other: &Particles, what: &str) {
+    let dx = rel_diff(&oracle.x, &other.x);
+    let dv = rel_diff(&oracle.v, &other.v);
+    let ds = rel_diff(&oracle.stress, &other.stress);
+    println!("{what}: positions {dx:.1e} velocities {dv:.1e} stresses {ds:.1e}");
+    assert!(dx < 1e-9 && dv < 1e-9 && ds < 1e-9, "{what}: x {dx:e} v {dv:e} sigma {ds:e}");
+    assert_eq!(oracle.failed, other.failed, "{what}: failure flags");
+}
+
+fn check_all(setup: &Setup, grid_mode: GridMode, steps: usize) {
+    let oracle = run(setup, Strategy::Serial, 1, grid_mode, steps);
+    for strategy in [Strategy::ArrayExpansion, Strategy::DomainDecomposition] {
+        for threads in THREADS {
+            let sim = run(setup, strategy, threads, grid_mode, steps);
+            assert_eq!(sim.steps(), oracle.steps());
+            assert!((sim.time() / oracle.time() - 1.0).abs() < 1e-9);
+            assert_close(oracle.particles(), sim.particles(), &format!("{} {strategy} x{threads}", setup.model));
+        }
+    }
+}
+
+#[test]
+fn ae_and_dd_match_serial_on_taylor_model1_after_50_steps() {
+    let setup = TaylorBar::default().setup().unwrap();
+    check_all(&setup, GridMode::Fixed, 50);
+}
+
+#[test]
+fn ae_and_dd_match_serial_on_taylor_model1_with_the_adaptive_grid() {
+    let setup = TaylorBar::default().setup().unwrap();
+    check_all(&setup, GridMode::Adaptive, 20);
+}
+
+#[test]
+fn ae_and_dd_match_serial_on_a_free_flight_impact_after_50_steps() {
+    let setup = mini_impact();
+    let oracle = run(&setup, Strategy::Serial, 1, GridMode::Adaptive, 50);
+    assert!(oracle.particles().failed_count() > 0, "the impact should fail some particles");
+    check_all(&setup, GridMode::Adaptive, 50);
+}
+
+#[test]
+fn same_strategy_and_thread_count_reproduce_bitwise() {
+    let setup = mini_impact();
+    for (strategy, threads) in
+        [(Strategy::ArrayExpansion, 3), (Strategy::DomainDecomposition, 4), (Strategy::DomainDecomposition, 8)]
+    {
+        let a = run(&setup, strategy, threads, GridMode::Adaptive, 30);
+        let b = run(&setup, strategy, threads, GridMode::Adaptive, 30);
+        assert!(a.particles() == b.particles(), "{strategy} x{threads} is not bitwise reproducible");
+        assert_eq!(a.diagnostics(), b.diagnostics());
+    }
+}
+
+#[test]
+fn dd_patches_follow_the_adaptive_grid() {
+    let setup = mini_impact();
+    let sim = run(&setup, Strategy::DomainDecomposition, 6, GridMode::Adaptive, 10);
+    let dd = sim.domain_decomposition().unwrap();
+    assert_eq!(dd.layout(), [2, 1, 3]);
+    let cells: usize = dd.patches().iter().map(|p| p.cells.iter().product::<usize>()).sum();
+    assert_eq!(cells, sim.geom().num_cells());
+    let binned: u32 = (0..6).map(|j| dd.binning().patnp(j)).sum();
+    assert_eq!(binned as usize, sim.particles().len());
+}
+
+#[test]
+fn a_pool_of_the_wrong_size_is_an_error() {
+    let setup = TaylorBar::default().setup().unwrap();
+    let config = SimConfig { strategy: Strategy::ArrayExpansion, threads: 4, ..Default::default() };
+    let mut sim = Simulation::new(setup, config).unwrap();
+    let err = sim.step(&pool(2), f64::INFINITY).unwrap_err();
+    assert!(err.to_string().contains("num_threads(4)"), "{err}");
+}

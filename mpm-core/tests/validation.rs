@@ -1,0 +1,224 @@
+//! Physics validation against analytical solutions and conservation laws. Run optimised:
+//! `cargo test --profile o3 -p mpm-core --test validation`.
+
+mod common;
+
+use common::*;
+use mpm_core::scenario::taylor::{measure, TaylorBar};
+use mpm_core::{GridMode, SimConfig, SimError, Simulation, Strategy};
+
+/// Layer-averaged z-velocity of the particles whose z lies in `[z - h/2, z + h/2)`.
+fn layer_velocity(sim: &Simulation, z: f64, h: f64) -> f64 {
+    let p = sim.particles();
+    let (mut s, mut n) = (0.0, 0);
+    for (x, v) in p.x.iter().zip(&p.v) {
+        if (x[2] - z).abs() < 0.5 * h {
+            s += v[2];
+            n += 1;
+        }
+    }
+    s / n as f64
+}
+
+#[test]
+fn elastic_wave_speed_in_a_confined_bar_is_within_2_percent_of_theory() {
+    let m = elastic_copper();
+    let c_theory = m.p_wave_speed(); // 4586 m/s
+    let (dx, h) = (0.5e-3, 60e-3);
+    let v0 = 1.0;
+    let setup = confined_column(m, 2.0 * dx, h, dx, |_| [0.0, 0.0, -v0]);
+    let mut sim = Simulation::new(setup, SimConfig { cfl: 0.2, ..Default::default() }).unwrap();
+    let pool = pool(1);
+    let (z1, z2) = (15e-3, 45e-3);
+    let (mut t1, mut t2) = (None, None);
+    let (mut prev1, mut prev2, mut prev_t) = (-v0, -v0, 0.0);
+    while t2.is_none() && sim.time() < 2.0 * h / c_theory {
+        sim.step(&pool, f64::INFINITY).unwrap();
+        let (a, b, t) = (layer_velocity(&sim, z1, dx / 2.0), layer_velocity(&sim, z2, dx / 2.0), sim.time());
+        // The compression front brings the bar to rest: the arrival time is when the layer's
+        // velocity crosses -v0/2 (linear interpolation between steps).
+        let half = -0.5 * v0;
+        if t1.is_none() && a >= half {
+            t1 = Some(prev_t + (half - prev1) / (a - prev1) * (t - prev_t));
+        }
+        if t2.is_none() && b >= half {
+            t2 = Some(prev_t + (half - prev2) / (b - prev2) * (t - prev_t));
+        }
+        (prev1, prev2, prev_t) = (a, b, t);
+    }
+    let c = (z2 - z1) / (t2.unwrap() - t1.unwrap());
+    let err = (c / c_theory - 1.0).abs();
+    println!("wave speed {c:.1} m/s, theory {c_theory:.1} m/s, error {:.3} %", 100.0 * err);
+    assert!(err < 0.02, "wave speed {c} vs {c_theory}");
+}
+
+#[test]
+fn vibrating_bar_period_is_within_2_percent_of_theory() {
+    // First mode of a bar fixed at z = 0 and free at z = L: v(z) = v0 sin(pi z / 2L),
+    // period T = 4 L / c with c the (uniaxial-strain) wave speed.
+    let m = elastic_copper();
+    let c = m.p_wave_speed();
+    let (dx, l, v0) = (1.0e-3, 25e-3, 0.5);
+    let setup =
+        confined_column(m, 2.0 * dx, l, dx, |x| [0.0, 0.0, v0 * (std::f64::consts::PI * x[2] / (2.0 * l)).sin()]);
+    let mut sim = Simulation::new(setup, SimConfig { cfl: 0.3, ..Default::default() }).unwrap();
+    let pool = pool(1);
+    let period = 4.0 * l / c;
+    let mut crossings = Vec::new();
+    let mut prev = (sim.initial().momentum[2], 0.0);
+    while crossings.len() < 3 && sim.time() < 2.0 * period {
+        sim.step(&pool, f64::INFINITY).unwrap();
+        let (p, t) = (sim.diagnostics().momentum[2], sim.time());
+        if (p > 0.0) != (prev.0 > 0.0) {
+            crossings.push(prev.1 + prev.0 / (prev.0 - p) * (t - prev.1));
+        }
+        prev = (p, t);
+    }
+    assert_eq!(crossings.len(), 3, "momentum should change sign three times in two periods");
+    let measured = crossings[2] - crossings[0];
+    let err = (measured / period - 1.0).abs();
+    println!("period {measured:.4e} s, theory {period:.4e} s, error {:.3} %", 100.0 * err);
+    assert!(err < 0.02);
+}
+
+#[test]
+fn colliding_elastic_spheres_conserve_total_energy_within_2_percent() {
+    let m = mpm_core::Material::elastic("soft", 1000.0, 1.0e6, 0.3);
+    let (r, dx, v) = (0.1, 0.02, 1.0);
+    let setup = two_spheres(m, r, dx, v, 2);
+    let config = SimConfig { grid_mode: GridMode::Adaptive, cfl: 0.4, ..Default::default() };
+    let mut sim = Simulation::new(setup, config).unwrap();
+    let pool = pool(1);
+    let e0 = sim.initial().kinetic;
+    let (mut worst, mut min_ke, mut rebounded) = (0.0f64, f64::INFINITY, false);
+    while sim.time() < 0.12 {
+        sim.step(&pool, f64::INFINITY).unwrap();
+        let d = sim.diagnostics();
+        worst = worst.max(((d.kinetic + d.internal) / e0 - 1.0).abs());
+        min_ke = min_ke.min(d.kinetic);
+        // Rebound: the left sphere moves left again.
+        let p = sim.particles();
+        let left: f64 =
+            p.x.iter().zip(&p.v).zip(&p.mass).filter(|((x, _), _)| x[0] < 0.0).map(|((_, v), m)| m * v[0]).sum();
+        rebounded |= left < 0.0;
+    }
+    println!("energy drift {:.3} %, min KE/E0 {:.3}", 100.0 * worst, min_ke / e0);
+    assert!(min_ke < 0.5 * e0, "the spheres must collide and store strain energy");
+    assert!(rebounded, "the spheres must rebound");
+    assert!(worst < 0.02, "total energy drift {worst}");
+}
+
+#[test]
+fn momentum_is_conserved_to_round_off_in_free_flight() {
+    // A spinning, translating, pre-stressed block in free flight on the adaptive grid.
+    let m = elastic_copper();
+    let dx = 1e-3;
+    let mut setup = two_spheres(m, 3e-3, dx, 0.0, 2);
+    let ps = &mut setup.particles;
+    for i in 0..ps.len() {
+        let x = ps.x[i];
+        ps.v[i] = [3.0 - 800.0 * x[1], 1.0 + 800.0 * x[0], -2.0 + 50.0 * (x[0] * 300.0).sin()];
+        ps.stress[i] = [1e7 * (x[1] * 500.0).cos(), -2e6, 3e6, 1e6, 0.0, 5e5 * x[0] * 1e3];
+    }
+    for strategy in [Strategy::Serial, Strategy::DomainDecomposition, Strategy::ArrayExpansion] {
+        let threads = if strategy == Strategy::Serial { 1 } else { 2 };
+        let config = SimConfig { strategy, threads, grid_mode: GridMode::Adaptive, ..Default::default() };
+        let mut sim = Simulation::new(setup.clone(), config).unwrap();
+        let pool = pool(threads);
+        let p0 = sim.initial().momentum;
+        let scale = sim.particles().total_mass() * 10.0;
+        for _ in 0..100 {
+            sim.step(&pool, f64::INFINITY).unwrap();
+        }
+        let p = sim.diagnostics().momentum;
+        for d in 0..3 {
+            let rel = (p[d] - p0[d]).abs() / scale;
+            assert!(rel < 1e-12, "{strategy}: momentum component {d} drifted by {rel:e}");
+        }
+    }
+}
+
+#[test]
+fn taylor_bar_model1_final_length_and_rest() {
+    let setup = TaylorBar::default().setup().unwrap();
+    let spacing = setup.spacing;
+    let mut sim = Simulation::new(setup, SimConfig::default()).unwrap();
+    let pool = pool(1);
+    let end = 40e-6;
+    while sim.time() < end * (1.0 - 1e-12) {
+        sim.step(&pool, end - sim.time()).unwrap();
+    }
+    assert!((sim.time() - end).abs() < 1e-15);
+    let f = measure(sim.particles(), spacing);
+    let ke = sim.diagnostics().kinetic / sim.initial().kinetic;
+    let e = (sim.diagnostics().kinetic + sim.diagnostics().internal) / sim.initial().kinetic;
+    println!(
+        "Model1: {} steps, final length {:.3} mm, face diameter {:.3} mm, KE/KE0 {:.4}, E/E0 {:.4}",
+        sim.steps(),
+        f.length * 1e3,
+        f.face_diameter * 1e3,
+        ke,
+        e
+    );
+    assert!(f.length > 24.2e-3 && f.length < 24.8e-3, "final length {} mm", f.length * 1e3);
+    assert!(ke < 0.05, "the bar should be nearly at rest, KE/KE0 = {ke}");
+    assert!(f.face_diameter > 7.6e-3, "the impact face mushrooms");
+    assert!((e - 1.0).abs() < 0.02, "energy balance {e}");
+}
+
+#[test]
+fn nan_is_reported_with_its_step_number() {
+    let setup = TaylorBar::default().setup().unwrap();
+    let mut sim = Simulation::new(setup, SimConfig::default()).unwrap();
+    let pool = pool(1);
+    for _ in 0..3 {
+        sim.step(&pool, f64::INFINITY).unwrap();
+    }
+    sim.particles_mut().v[1234] = [f64::NAN, 0.0, 0.0];
+    let err = sim.step(&pool, f64::INFINITY).unwrap_err();
+    assert!(matches!(err, SimError::NonFinite { step: 4, .. }), "{err:?}");
+    assert!(err.to_string().contains("step 4"));
+    // The simulation refuses to continue.
+    assert!(matches!(sim.step(&pool, f64::INFINITY), Err(SimError::Poisoned(4))));
+}
+
+#[test]
+fn energy_blow_up_is_reported_with_its_step_number() {
+    let setup = TaylorBar::default().setup().unwrap();
+    let config = SimConfig { body_force: [0.0, 0.0, 1e12], ..Default::default() };
+    let mut sim = Simulation::new(setup, config).unwrap();
+    let pool = pool(1);
+    let mut result = Ok(());
+    for _ in 0..50 {
+        result = sim.step(&pool, f64::INFINITY);
+        if result.is_err() {
+            break;
+        }
+    }
+    match result {
+        Err(e @ (SimError::EnergyBlowUp { .. } | SimError::LeftGrid { .. } | SimError::NonFinite { .. })) => {
+            assert!(e.to_string().contains("step "), "{e}");
+        }
+        other => panic!("expected a blow-up error, got {other:?}"),
+    }
+}
+
+#[test]
+fn leaving_the_fixed_grid_is_an_error_not_a_clamp() {
+    let setup = TaylorBar { velocity: 0.0, ..Default::default() }.setup().unwrap();
+    let mut sim = Simulation::new(setup, SimConfig::default()).unwrap();
+    // The top layer flies upwards out of the grid (z > L0).
+    let n = sim.particles().len();
+    for v in &mut sim.particles_mut().v[n - 616..] {
+        *v = [0.0, 0.0, 2000.0];
+    }
+    let pool = pool(1);
+    let mut err = None;
+    for _ in 0..20 {
+        if let Err(e) = sim.step(&pool, f64::INFINITY) {
+            err = Some(e);
+            break;
+        }
+    }
+    assert!(matches!(err, Some(SimError::LeftGrid { .. })), "{err:?}");
+}
