@@ -111,6 +111,11 @@ impl Patch {
     }
 }
 
+/// Row padding (in `u32`) of the per-thread tables: one 64-byte cache line, so that threads
+/// incrementing their own counters never share a line (measured: without it, binning at 2
+/// threads was 1.5x slower than at 1).
+const ROW_STRIDE: usize = 16;
+
 /// The paper's particle binning tables.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Binning {
@@ -118,8 +123,10 @@ pub struct Binning {
     patches: usize,
     /// Patch of every particle (filled by the counting pass, read by the writing pass).
     patch_of: Vec<u32>,
-    /// `patnp_th(t, j)`, row-major by thread.
+    /// `patnp_th(t, j)`, row-major by thread, rows padded to [`ROW_STRIDE`] multiples.
     patnp_th: Vec<u32>,
+    /// Distance between two threads' rows in `patnp_th` and `cursor`.
+    stride: usize,
     /// Running write positions per thread and patch (prefix sums of `patnp_th`).
     cursor: Vec<u32>,
     /// `patnp(j)`.
@@ -139,11 +146,13 @@ impl Binning {
     {
         assert!(n < u32::MAX as usize, "more than 2^32 - 1 particles");
         let t = exec.workers;
+        let stride = patches.div_ceil(ROW_STRIDE) * ROW_STRIDE;
         self.threads = t;
         self.patches = patches;
+        self.stride = stride;
         self.patch_of.resize(n, 0);
-        self.patnp_th.resize(t * patches, 0);
-        self.cursor.resize(t * patches, 0);
+        self.patnp_th.resize(t * stride, 0);
+        self.cursor.resize(t * stride, 0);
         self.patnp.resize(patches, 0);
 
         // Counting pass: thread t counts its particles per patch.
@@ -154,7 +163,7 @@ impl Binning {
                 let r = partition(n, t, w);
                 // SAFETY: particle group w and row w of patnp_th belong to worker w only.
                 let (mine, row) =
-                    unsafe { (patch_of.range_mut(r.clone()), counts.range_mut(w * patches..(w + 1) * patches)) };
+                    unsafe { (patch_of.range_mut(r.clone()), counts.range_mut(w * stride..w * stride + patches)) };
                 row.fill(0);
                 for (slot, p) in mine.iter_mut().zip(r) {
                     let j = patch(p);
@@ -168,8 +177,8 @@ impl Binning {
         for j in 0..patches {
             let mut acc = 0u32;
             for w in 0..t {
-                self.cursor[w * patches + j] = acc;
-                acc += self.patnp_th[w * patches + j];
+                self.cursor[w * stride + j] = acc;
+                acc += self.patnp_th[w * stride + j];
             }
             self.patnp[j] = acc;
         }
@@ -187,7 +196,7 @@ impl Binning {
             let patch_of = &self.patch_of;
             exec.run(|w| {
                 // SAFETY: row w of the cursor table belongs to worker w only.
-                let cur = unsafe { cursor.range_mut(w * patches..(w + 1) * patches) };
+                let cur = unsafe { cursor.range_mut(w * stride..w * stride + patches) };
                 for p in partition(n, t, w) {
                     let j = patch_of[p] as usize;
                     let slot = j * rows + cur[j] as usize;
@@ -203,7 +212,7 @@ impl Binning {
 
     /// `patnp_th(t, j)`.
     pub fn patnp_th(&self, t: usize, j: usize) -> u32 {
-        self.patnp_th[t * self.patches + j]
+        self.patnp_th[t * self.stride + j]
     }
 
     /// `patnp(j)`: particles in patch `j`.
