@@ -9,13 +9,8 @@ use crate::disjoint::{partition, DisjointSlice};
 use crate::grid::GridGeom;
 
 /// Scatter particle chunk `j` into column `j` of `buf` (sized `N x T`, column-major).
-pub(crate) fn scatter<const K: usize, F>(
-    exec: &Exec<'_>,
-    geom: &GridGeom,
-    n: usize,
-    buf: &mut Vec<[f64; K]>,
-    kernel: &F,
-) where
+pub fn scatter<const K: usize, F>(exec: &Exec<'_>, geom: &GridGeom, n: usize, buf: &mut Vec<[f64; K]>, kernel: &F)
+where
     F: Fn(usize) -> Contribution<K> + Sync,
 {
     let nn = geom.num_nodes();
@@ -35,7 +30,7 @@ pub(crate) fn scatter<const K: usize, F>(
 }
 
 /// Eq. 16: `global[i] = sum_j buf[j][i]`, summed in thread order, parallel over nodes.
-pub(crate) fn assemble<const K: usize>(exec: &Exec<'_>, global: &mut [[f64; K]], buf: &[[f64; K]]) {
+pub fn assemble<const K: usize>(exec: &Exec<'_>, global: &mut [[f64; K]], buf: &[[f64; K]]) {
     let nn = global.len();
     let t = exec.workers;
     let out = DisjointSlice::new(global);

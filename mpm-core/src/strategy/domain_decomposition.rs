@@ -140,7 +140,7 @@ pub struct Binning {
 impl Binning {
     /// Bin `n` particles into `patches` patches with `exec.workers` threads; `patch(p)` is
     /// particle `p`'s patch.
-    pub(crate) fn build<F>(&mut self, exec: &Exec<'_>, n: usize, patches: usize, patch: &F)
+    pub fn build<F>(&mut self, exec: &Exec<'_>, n: usize, patches: usize, patch: &F)
     where
         F: Fn(usize) -> usize + Sync,
     {
@@ -336,7 +336,8 @@ impl DomainDecomposition {
         q[0] + px * (q[1] + py * q[2])
     }
 
-    pub(crate) fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
+    /// Cut the patches for `geom` (if it changed) and bin the particles at `x`.
+    pub fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
         self.cut(geom);
         let g = *geom;
         let mut binning = std::mem::take(&mut self.binning);
@@ -349,7 +350,7 @@ impl DomainDecomposition {
     }
 
     /// Thread `j` zeroes sub-grid `j` and scatters patch `j`'s particles into it.
-    pub(crate) fn scatter<const K: usize, F>(&self, exec: &Exec<'_>, buf: &mut Vec<[f64; K]>, kernel: &F)
+    pub fn scatter<const K: usize, F>(&self, exec: &Exec<'_>, buf: &mut Vec<[f64; K]>, kernel: &F)
     where
         F: Fn(usize) -> Contribution<K> + Sync,
     {
@@ -368,7 +369,7 @@ impl DomainDecomposition {
 
     /// Zero `global`, then for each patch in turn add its sub-grid, parallel over the
     /// patch's local node rows.
-    pub(crate) fn assemble<const K: usize>(
+    pub fn assemble<const K: usize>(
         &self,
         exec: &Exec<'_>,
         geom: &GridGeom,

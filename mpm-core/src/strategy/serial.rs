@@ -5,7 +5,7 @@ use super::{Contribution, NodeBox};
 use crate::grid::GridGeom;
 
 /// Zero `global` and add `kernel(p)` for every particle in order.
-pub(crate) fn scatter<const K: usize, F>(geom: &GridGeom, n: usize, global: &mut [[f64; K]], kernel: &F)
+pub fn scatter<const K: usize, F>(geom: &GridGeom, n: usize, global: &mut [[f64; K]], kernel: &F)
 where
     F: Fn(usize) -> Contribution<K>,
 {

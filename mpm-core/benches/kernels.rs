@@ -1,0 +1,86 @@
+//! Criterion micro-benchmarks of the solver's kernels on the Taylor bar:
+#![allow(missing_docs)] // criterion_group! generates undocumented items
+//! P2G scatter, G2P gather, stress update (serial, Model 1), and the parallel strategies'
+//! own work: AE assembly, DD binning and DD assembly (Model 2, 2 threads).
+//!
+//! `cargo bench -p mpm-core --bench kernels` (the `bench` profile inherits `release`).
+
+use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
+use mpm_core::material::Eos;
+use mpm_core::scenario::taylor::TaylorBar;
+use mpm_core::strategy::{array_expansion, serial, DomainDecomposition, Exec};
+use mpm_core::{transfer, SimConfig, Simulation, Strategy};
+use std::hint::black_box;
+
+/// A simulation of `model` after a few steps, so nodes and stresses are not trivial.
+fn warmed(model: u8) -> Simulation {
+    let setup = TaylorBar { model, ..Default::default() }.setup().unwrap();
+    let mut sim = Simulation::new(setup, SimConfig::default()).unwrap();
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    for _ in 0..5 {
+        sim.step(&pool, f64::INFINITY).unwrap();
+    }
+    sim
+}
+
+fn serial_kernels(c: &mut Criterion) {
+    let sim = warmed(1);
+    let geom = *sim.geom();
+    let particles = sim.particles().clone();
+    let n = particles.len();
+    let mut g = c.benchmark_group("model1-serial");
+    g.throughput(Throughput::Elements(n as u64));
+    g.sample_size(20);
+
+    let mut out = vec![[0.0; 7]; geom.num_nodes()];
+    g.bench_function("p2g_scatter", |b| {
+        b.iter(|| serial::scatter(&geom, n, &mut out, &|p| transfer::p2g(&geom, &particles, [0.0; 3], p)))
+    });
+
+    let kin = sim.nodes().kin.clone();
+    let mut v = particles.v.clone();
+    g.bench_function("g2p_gather", |b| {
+        b.iter(|| transfer::gather(&Exec::serial(), &geom, black_box(&kin), &particles.x, &mut v, 0.0))
+    });
+
+    let consts = sim.material().consts();
+    let Eos::MieGruneisen(eos) = sim.material().eos else { unreachable!("copper uses Mie-Grüneisen") };
+    let mut partials = vec![Default::default(); 1];
+    g.bench_function("stress_update", |b| {
+        b.iter_batched_ref(
+            || particles.clone(),
+            |p| transfer::update(&Exec::serial(), &geom, sim.nodes(), p, &consts, &eos, 1e-9, true, &mut partials),
+            BatchSize::LargeInput,
+        )
+    });
+    g.finish();
+}
+
+fn strategy_kernels(c: &mut Criterion) {
+    let sim = warmed(2);
+    let geom = *sim.geom();
+    let x = sim.particles().x.clone();
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+    let nn = geom.num_nodes();
+    let mut g = c.benchmark_group("model2-2threads");
+    g.sample_size(20);
+
+    let exec = Exec::new(&pool, Strategy::ArrayExpansion);
+    let copies = vec![[1.0; 7]; 2 * nn];
+    let mut global = vec![[0.0; 7]; nn];
+    g.throughput(Throughput::Elements(nn as u64));
+    g.bench_function("ae_assembly", |b| b.iter(|| array_expansion::assemble(&exec, &mut global, black_box(&copies))));
+
+    let exec = Exec::new(&pool, Strategy::DomainDecomposition);
+    let mut dd = DomainDecomposition::new(2);
+    g.throughput(Throughput::Elements(x.len() as u64));
+    g.bench_function("dd_binning", |b| b.iter(|| dd.prepare(&exec, &geom, black_box(&x))));
+
+    let subgrids = vec![[1.0; 7]; dd.subgrid_nodes()];
+    g.throughput(Throughput::Elements(nn as u64));
+    g.bench_function("dd_assembly", |b| b.iter(|| dd.assemble(&exec, &geom, &mut global, black_box(&subgrids))));
+    g.finish();
+}
+
+criterion_group!(benches, serial_kernels, strategy_kernels);
+criterion_main!(benches);

@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# Install what the workspace needs on a Debian/Ubuntu machine, only what is missing:
+#   - system packages: libhwloc-dev (topology and pinning), pkg-config, a C compiler
+#   - a Rust toolchain >= 1.85 (through rustup when cargo is missing or too old)
+# Safe to run again: it does nothing when everything is present.
+set -euo pipefail
+
+need_rust="1.85.0"
+
+as_root() {
+    if [ "$(id -u)" -eq 0 ]; then "$@"
+    elif command -v sudo >/dev/null 2>&1; then sudo "$@"
+    else
+        echo "bootstrap: '$*' needs root; run this script as root or install sudo" >&2
+        exit 1
+    fi
+}
+
+missing=()
+pkg-config --exists hwloc 2>/dev/null || missing+=(libhwloc-dev)
+command -v pkg-config >/dev/null 2>&1 || missing+=(pkg-config)
+command -v cc >/dev/null 2>&1 || missing+=(gcc libc6-dev)
+command -v curl >/dev/null 2>&1 || missing+=(curl ca-certificates)
+command -v git >/dev/null 2>&1 || missing+=(git)
+if [ "${#missing[@]}" -gt 0 ]; then
+    if ! command -v apt-get >/dev/null 2>&1; then
+        echo "bootstrap: please install ${missing[*]} with your package manager (no apt-get here)" >&2
+        exit 1
+    fi
+    echo "bootstrap: installing ${missing[*]}" >&2
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
+fi
+
+version_ge() { [ "$(printf '%s\n%s\n' "$2" "$1" | sort -V | head -n1)" = "$2" ]; }
+[ -f "$HOME/.cargo/env" ] && . "$HOME/.cargo/env"
+have_rust=""
+if command -v cargo >/dev/null 2>&1; then
+    have_rust=$(rustc --version | awk '{print $2}')
+fi
+if [ -z "$have_rust" ] || ! version_ge "$have_rust" "$need_rust"; then
+    if command -v rustup >/dev/null 2>&1; then
+        echo "bootstrap: rustc ${have_rust:-missing} < $need_rust; updating the stable toolchain" >&2
+        rustup toolchain install stable --profile minimal -c clippy -c rustfmt
+        rustup default stable
+    else
+        echo "bootstrap: installing Rust (rustup, stable toolchain)" >&2
+        curl --proto '=https' --tlsv1.2 -sSf https://sh.rustup.rs | sh -s -- -y --profile minimal -c clippy -c rustfmt
+        . "$HOME/.cargo/env"
+    fi
+fi
+for c in rustfmt clippy; do
+    if ! cargo "$c" --version >/dev/null 2>&1 && command -v rustup >/dev/null 2>&1; then
+        rustup component add "$c"
+    fi
+done
