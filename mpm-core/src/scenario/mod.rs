@@ -1,6 +1,7 @@
 //! Problem set-ups: the Taylor bar Models 1-4 ([`taylor`]) and lattice seeding helpers
 //! ([`lattice`]). A scenario produces a [`Setup`]; [`crate::Simulation::new`] takes it.
 
+pub mod impact;
 pub mod lattice;
 pub mod taylor;
 
