@@ -18,6 +18,9 @@ as_root() {
 
 missing=()
 pkg-config --exists hwloc 2>/dev/null || missing+=(libhwloc-dev)
+# libhwloc links against libudev; its development symlink is needed at link time.
+[ -e /usr/lib/x86_64-linux-gnu/libudev.so ] || [ -e /usr/lib/aarch64-linux-gnu/libudev.so ] \
+    || pkg-config --exists libudev 2>/dev/null || missing+=(libudev-dev)
 command -v pkg-config >/dev/null 2>&1 || missing+=(pkg-config)
 command -v cc >/dev/null 2>&1 || missing+=(gcc libc6-dev)
 command -v curl >/dev/null 2>&1 || missing+=(curl ca-certificates)

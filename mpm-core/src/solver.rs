@@ -86,6 +86,7 @@ pub struct Diagnostics {
 /// An explicit MPM simulation: particles, grid, material, strategy state and timers.
 pub struct Simulation {
     particles: Particles,
+    spacing: Vec3,
     material: Material,
     spec: GridSpec,
     walls: Vec<Wall>,
@@ -129,7 +130,7 @@ impl Simulation {
         if setup.particles.is_empty() {
             return Err(SimError::Config("the scenario has no particles".into()));
         }
-        let Setup { particles, material, grid: spec, walls, .. } = setup;
+        let Setup { particles, material, grid: spec, walls, spacing, .. } = setup;
         let bbox = particles.bounding_box();
         let geom = match config.grid_mode {
             GridMode::Fixed => GridGeom::fixed(&spec),
@@ -153,8 +154,13 @@ impl Simulation {
         };
         let max_speed = particles.sound.iter().zip(&particles.v).map(|(c, v)| c + norm(*v)).fold(0.0, f64::max);
         let dt = config.cfl * spec.dx / max_speed;
+        // Size the strategy's buffers for the initial grid now, so that memory figures are
+        // right before the first step and the first step does not allocate either.
+        let mut engine = Engine::new(config.strategy, config.threads);
+        let scatter_nodes = engine.reserve(&geom);
         Ok(Self {
-            engine: Engine::new(config.strategy, config.threads),
+            engine,
+            spacing,
             partials: vec![Partial::default(); config.threads],
             consts: material.consts(),
             mass_tol: 1e-12 * mean_mass,
@@ -165,8 +171,8 @@ impl Simulation {
             wall_layers,
             geom,
             nodes,
-            buf7: Vec::new(),
-            buf3: Vec::new(),
+            buf7: vec![[0.0; 7]; scatter_nodes],
+            buf3: vec![[0.0; 3]; scatter_nodes],
             time: 0.0,
             steps: 0,
             dt_next: dt,
@@ -189,6 +195,11 @@ impl Simulation {
     /// Mutable particles (for tests and custom initial conditions; do not resize).
     pub fn particles_mut(&mut self) -> &mut Particles {
         &mut self.particles
+    }
+
+    /// The scenario's particle lattice spacing per axis (m).
+    pub fn spacing(&self) -> Vec3 {
+        self.spacing
     }
 
     /// The material.
@@ -279,7 +290,9 @@ impl Simulation {
 
     /// Advance one step of at most `dt_max` seconds inside `pool`.
     ///
-    /// On error the state is left as the failing step made it and further steps return
+    /// The step runs on the pool's threads (`pool.install`); a caller that steps many
+    /// times should call this from inside `pool.install` itself, which saves a hand-over
+    /// to the pool per step (100-300 µs measured). On error the state is left as the failing step made it and further steps return
     /// [`SimError::Poisoned`].
     pub fn step(&mut self, pool: &ThreadPool, dt_max: f64) -> Result<(), SimError> {
         if let Some(s) = self.poisoned {

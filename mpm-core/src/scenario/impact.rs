@@ -239,15 +239,36 @@ pub fn measure(p: &Particles, g: &ImpactGeometry) -> CloudFigures {
 
 /// A side view like a flash radiograph: particle mass projected along `y` onto the x-z
 /// plane (which contains the flight axis), binned on `nx x nz` pixels over `[x0, x1] x
-/// [z0, z1]`. Returns areal density (kg/m^2) per pixel, row-major with z rows from `z0`.
-pub fn radiograph(p: &Particles, x_range: (f64, f64), z_range: (f64, f64), nx: usize, nz: usize) -> Vec<f64> {
+/// [z0, z1]`. Each particle's mass is spread evenly over a square `footprint` wide (its
+/// lattice spacing), so a continuous body shows as a continuous density rather than as
+/// dots. Returns areal density (kg/m^2) per pixel, row-major with z rows from `z0`.
+pub fn radiograph(
+    p: &Particles,
+    x_range: (f64, f64),
+    z_range: (f64, f64),
+    nx: usize,
+    nz: usize,
+    footprint: f64,
+) -> Vec<f64> {
     let mut img = vec![0.0; nx * nz];
     let (px, pz) = ((x_range.1 - x_range.0) / nx as f64, (z_range.1 - z_range.0) / nz as f64);
+    // Sub-samples per axis: enough that the footprint covers every pixel it overlaps.
+    let s = ((footprint / px.min(pz)).ceil() as usize).clamp(1, 16);
+    let w = 1.0 / (s * s) as f64 / (px * pz);
     for (x, m) in p.x.iter().zip(&p.mass) {
-        let i = ((x[0] - x_range.0) / px).floor();
-        let k = ((x[2] - z_range.0) / pz).floor();
-        if i >= 0.0 && k >= 0.0 && (i as usize) < nx && (k as usize) < nz {
-            img[k as usize * nx + i as usize] += m / (px * pz);
+        for a in 0..s {
+            let xs = x[0] + footprint * ((a as f64 + 0.5) / s as f64 - 0.5);
+            let i = ((xs - x_range.0) / px).floor();
+            if i < 0.0 || i as usize >= nx {
+                continue;
+            }
+            for b in 0..s {
+                let zs = x[2] + footprint * ((b as f64 + 0.5) / s as f64 - 0.5);
+                let k = ((zs - z_range.0) / pz).floor();
+                if k >= 0.0 && (k as usize) < nz {
+                    img[k as usize * nx + i as usize] += m * w;
+                }
+            }
         }
     }
     img
@@ -299,7 +320,7 @@ mod tests {
     #[test]
     fn radiograph_conserves_mass_inside_the_frame() {
         let (s, _) = Impact { spacing: 2.0e-3, ..Default::default() }.setup().unwrap();
-        let img = radiograph(&s.particles, (-0.1, 0.1), (-0.05, 0.05), 80, 40);
+        let img = radiograph(&s.particles, (-0.1, 0.1), (-0.05, 0.05), 80, 40, 2.0e-3);
         let pix = (0.2 / 80.0) * (0.1 / 40.0);
         let mass: f64 = img.iter().sum::<f64>() * pix;
         assert!((mass / s.particles.total_mass() - 1.0).abs() < 1e-9);

@@ -148,7 +148,7 @@ impl<'a> Exec<'a> {
 #[derive(Debug)]
 pub(crate) enum Engine {
     Serial,
-    Ae,
+    Ae(usize),
     Dd(Box<DomainDecomposition>),
 }
 
@@ -156,8 +156,21 @@ impl Engine {
     pub fn new(strategy: Strategy, threads: usize) -> Self {
         match strategy {
             Strategy::Serial => Engine::Serial,
-            Strategy::ArrayExpansion => Engine::Ae,
+            Strategy::ArrayExpansion => Engine::Ae(threads),
             Strategy::DomainDecomposition => Engine::Dd(Box::new(DomainDecomposition::new(threads))),
+        }
+    }
+
+    /// Cut DD patches for `geom` and return the scatter buffer length the strategy needs
+    /// (nodes x threads for AE, all sub-grids for DD, 0 for serial).
+    pub fn reserve(&mut self, geom: &GridGeom) -> usize {
+        match self {
+            Engine::Serial => 0,
+            Engine::Ae(threads) => geom.num_nodes() * *threads,
+            Engine::Dd(dd) => {
+                dd.cut(geom);
+                dd.subgrid_nodes()
+            }
         }
     }
 
@@ -192,7 +205,7 @@ impl Engine {
                 lap.lap(times, stages.0);
                 lap.lap(times, stages.1);
             }
-            Engine::Ae => {
+            Engine::Ae(_) => {
                 array_expansion::scatter(exec, geom, n, buf, kernel);
                 lap.lap(times, stages.0);
                 array_expansion::assemble(exec, global, buf);

@@ -1,0 +1,322 @@
+//! `mpm-bench`: runs the MPM parallelisation study's benchmark campaigns and shows the
+//! machine's topology. See `mpm-bench --help`.
+
+use anyhow::{Context, Result};
+use clap::{Args, Parser, Subcommand};
+use mpm_bench::matrix::{self, Campaign, OptLevel, Overrides, Strategy};
+use mpm_bench::runner::{self, ExecOptions, MockRunner, ProcessRunner, Solver};
+use mpm_bench::topology::{self, Machine, PinPolicy};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Benchmark harness for the explicit MPM parallelisation study (array expansion vs domain
+/// decomposition).
+#[derive(Parser, Debug)]
+#[command(
+    name = "mpm-bench",
+    version,
+    about = "Benchmark campaigns for the explicit MPM parallelisation study (AE vs DD)",
+    long_about = "Benchmark campaigns for the explicit MPM parallelisation study.\n\n\
+        Runs the paper's matrix (Taylor bar Models 1-4 x threads x strategies AE/DD x \
+        optimisation levels O3/O0 x repetitions), each run a fresh `mpm` process pinned the \
+        way you ask, and records one CSV row per run plus a manifest of the machine and \
+        software under results/<machine-fingerprint>/<campaign-id>/.",
+    after_help = "Examples:\n  \
+        mpm-bench topology                       # this machine and where workers would go\n  \
+        mpm-bench run --preset smoke             # ~1 minute check of the whole chain\n  \
+        mpm-bench run --preset quick             # every model, few steps (~20 min on 2 cores)\n  \
+        mpm-bench run --preset paper             # the paper's full protocol (to 40 us)\n\n\
+        Run `mpm-bench <command> --help` for every flag of a command."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Subcommand, Debug)]
+enum Cmd {
+    /// Print the machine as hwloc sees it and the CPU each worker gets under each policy.
+    #[command(
+        long_about = "Print the machine as hwloc sees it (packages, NUMA nodes, cores, PUs, \
+            caches) and, for 1/2/4/6/8 threads under each pinning policy (close, spread, none, \
+            and an optional explicit list), the CPU each worker gets. Physical cores come \
+            before SMT siblings; more threads than usable PUs wrap around and are marked \
+            oversubscribed ('*').",
+        after_help = "Examples:\n  \
+            mpm-bench topology\n  \
+            mpm-bench topology --pin 1,0 --threads 1,2,3\n  \
+            mpm-bench topology --synthetic \"pack:2 core:4 pu:2\"   # the paper's 2 x quad-core, with SMT\n  \
+            mpm-bench topology --xml results/<fp>/<campaign>/topology.xml\n  \
+            mpm-bench topology --export-xml topo.xml"
+    )]
+    Topology(TopologyArgs),
+    /// Run (or resume) a benchmark campaign.
+    #[command(
+        long_about = "Run (or resume) a benchmark campaign: a preset matrix of models x threads x \
+            strategies x optimisation levels x repetitions x pinning policies, each run a \
+            fresh `mpm` child process. The `mpm` binaries are built in the Cargo profiles o3 \
+            and o0 first (or located with --no-build). Runs are shuffled with a recorded \
+            seed, repetition by repetition, so drift does not bias one cell.\n\n\
+            Results go to <out>/<machine-fingerprint>/<campaign-id>/ as runs.csv (one row per \
+            run, appended as soon as it ends), manifest.json (machine and software) and \
+            topology.xml. The campaign id is the preset name plus the overrides, so the same \
+            command resumes into the same folder: configurations already in runs.csv are \
+            skipped. Ctrl-C stops after the current run is cleaned up; every finished run is \
+            kept. Runs whose estimated memory does not fit are recorded as skipped; runs with \
+            more threads than usable PUs are flagged oversubscribed; runs whose workers were \
+            not on the requested CPUs are recorded invalid.",
+        after_help = "Examples:\n  \
+            mpm-bench run --preset smoke\n  \
+            mpm-bench run --preset quick --out /tmp/results\n  \
+            mpm-bench run --preset paper --models 1,2 --reps 5\n  \
+            mpm-bench run --preset quick --threads 1,2 --pin spread --steps 10\n  \
+            mpm-bench run --preset paper --models 4 --mem-limit 8GiB --dry-run   # the paper's 8 GB machine\n  \
+            mpm-bench run --preset configs/my.toml --seed 7"
+    )]
+    Run(RunArgs),
+}
+
+#[derive(Args, Debug)]
+struct TopologyArgs {
+    /// Thread counts to show (comma list).
+    #[arg(long, value_delimiter = ',', default_values_t = topology::PAPER_THREADS.to_vec())]
+    threads: Vec<usize>,
+    /// Also show an explicit CPU list policy, e.g. `0,1` or `0-3`.
+    #[arg(long)]
+    pin: Option<String>,
+    /// Use an hwloc synthetic topology instead of this machine, e.g. "pack:2 core:4 pu:2".
+    #[arg(long, conflicts_with = "xml")]
+    synthetic: Option<String>,
+    /// Use an hwloc XML export (e.g. a campaign's topology.xml) instead of this machine.
+    #[arg(long)]
+    xml: Option<PathBuf>,
+    /// Write this machine's hwloc XML export to FILE.
+    #[arg(long, value_name = "FILE")]
+    export_xml: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+struct RunArgs {
+    /// Preset: smoke, quick, paper (configs/<name>.toml), or a path to a TOML file.
+    #[arg(long, short = 'p', value_name = "NAME|FILE")]
+    preset: String,
+    /// Models to run, comma list of 1-4 (replaces the preset's).
+    #[arg(long, value_name = "LIST")]
+    models: Option<String>,
+    /// Thread counts, comma list (e.g. 1,2,4,6,8).
+    #[arg(long, value_name = "LIST")]
+    threads: Option<String>,
+    /// Strategies, comma list of serial, ae (array expansion), dd (domain decomposition).
+    #[arg(long, value_name = "LIST")]
+    strategies: Option<String>,
+    /// Optimisation levels, comma list of o3, o0.
+    #[arg(long, value_name = "LIST")]
+    opt: Option<String>,
+    /// Repetitions of every configuration.
+    #[arg(long, value_name = "N")]
+    reps: Option<u32>,
+    /// Pinning policy: close (fill a socket first), spread (alternate sockets), none, or a
+    /// CPU list such as 0,1 or 0-3. Repeat the flag for several policies.
+    #[arg(long, value_name = "POLICY")]
+    pin: Vec<String>,
+    /// Stop every run after N steps (replaces every budget of the preset).
+    #[arg(long, value_name = "N", conflicts_with = "end_time")]
+    steps: Option<u64>,
+    /// Stop every run at this simulated time: seconds (4e-5) or with a unit (40us).
+    #[arg(long, value_name = "TIME")]
+    end_time: Option<String>,
+    /// Warm-up steps (timed, excluded from the steady-state time per step).
+    #[arg(long, value_name = "K")]
+    warmup: Option<u64>,
+    /// Grid mode: fixed or adaptive.
+    #[arg(long, value_name = "MODE")]
+    grid: Option<String>,
+    /// Treat the machine as having at most this much memory (e.g. 8GiB) for the memory
+    /// guard: runs that would not fit are recorded as skipped.
+    #[arg(long, value_name = "SIZE")]
+    mem_limit: Option<String>,
+    /// Root folder of the results tree.
+    #[arg(long, value_name = "DIR", default_value = "results")]
+    out: PathBuf,
+    /// Seed of the shuffled run order (default: the preset's). Recorded in every row.
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
+    /// Print the runs that would run (CPUs, memory estimate, skips) and exit.
+    #[arg(long)]
+    dry_run: bool,
+    /// Run again configurations that only have failed, invalid or skipped rows.
+    #[arg(long)]
+    retry_failed: bool,
+    /// Move an existing runs.csv aside and start the campaign over.
+    #[arg(long)]
+    fresh: bool,
+    /// Do not build the solver; use the existing target/o3/mpm and target/o0/mpm
+    /// (or MPM_BENCH_SOLVER_O3 / MPM_BENCH_SOLVER_O0).
+    #[arg(long)]
+    no_build: bool,
+    /// No progress bar or per-run lines (the closing summary still prints).
+    #[arg(long, short = 'q')]
+    quiet: bool,
+    /// Use a fake solver (testing the harness itself).
+    #[arg(long, hide = true)]
+    mock: bool,
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Cmd::Topology(a) => cmd_topology(a),
+        Cmd::Run(a) => cmd_run(a),
+    };
+    if let Err(e) = result {
+        // `mpm-bench ... | head` closing the pipe is not an error worth a message.
+        let broken_pipe = e
+            .chain()
+            .any(|c| c.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe));
+        if broken_pipe {
+            std::process::exit(0);
+        }
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn cmd_topology(a: TopologyArgs) -> Result<()> {
+    if a.threads.contains(&0) {
+        anyhow::bail!("thread counts must be at least 1 (got 0)");
+    }
+    let machine = match (&a.synthetic, &a.xml) {
+        (Some(s), _) => Machine::synthetic(s)?,
+        (None, Some(x)) => Machine::from_xml_file(x)?,
+        (None, None) => Machine::detect()?,
+    };
+    use std::io::Write as _;
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{}", machine.describe())?;
+    let mut policies = vec![PinPolicy::Close, PinPolicy::Spread, PinPolicy::None];
+    if let Some(p) = &a.pin {
+        let p: PinPolicy = p.parse()?;
+        machine.check_policy(&p)?;
+        policies.insert(2, p);
+    }
+    write!(out, "{}", machine.placement_table(&a.threads, &policies)?)?;
+    if machine.is_this_system {
+        writeln!(out, "Machine fingerprint: {}", mpm_bench::manifest::fingerprint(&machine))?;
+    }
+    if let Some(path) = a.export_xml {
+        let xml = topology::export_xml()?;
+        std::fs::write(&path, xml).with_context(|| format!("cannot write {}", path.display()))?;
+        writeln!(out, "hwloc XML written to {}", path.display())?;
+    }
+    Ok(())
+}
+
+fn overrides(a: &RunArgs) -> Result<Overrides> {
+    let models = a
+        .models
+        .as_deref()
+        .map(|s| {
+            matrix::parse_list(s, "model", |m| {
+                let m = m.trim_start_matches(|c: char| c.is_ascii_alphabetic());
+                m.parse::<u32>().map_err(|_| anyhow::anyhow!("'{m}' is not a model number (1-4)"))
+            })
+        })
+        .transpose()?;
+    let threads = a
+        .threads
+        .as_deref()
+        .map(|s| {
+            matrix::parse_list(s, "thread", |t| {
+                t.parse::<usize>().map_err(|_| anyhow::anyhow!("'{t}' is not a thread count"))
+            })
+        })
+        .transpose()?;
+    let strategies =
+        a.strategies.as_deref().map(|s| matrix::parse_list(s, "strategy", |x| x.parse::<Strategy>())).transpose()?;
+    let opt =
+        a.opt.as_deref().map(|s| matrix::parse_list(s, "optimisation level", |x| x.parse::<OptLevel>())).transpose()?;
+    let pin = if a.pin.is_empty() {
+        None
+    } else {
+        Some(a.pin.iter().map(|p| p.parse::<PinPolicy>()).collect::<Result<Vec<_>>>()?)
+    };
+    Ok(Overrides {
+        models,
+        threads,
+        strategies,
+        opt,
+        reps: a.reps,
+        pin,
+        steps: a.steps,
+        end_time: a.end_time.as_deref().map(matrix::parse_seconds).transpose()?,
+        warmup: a.warmup,
+        grid: a.grid.clone(),
+        mem_limit: a.mem_limit.as_deref().map(matrix::parse_size).transpose()?,
+        seed: a.seed,
+    })
+}
+
+fn cmd_run(a: RunArgs) -> Result<()> {
+    let ov = overrides(&a)?;
+    let ws = runner::workspace_root();
+    let (preset, source) = matrix::load_preset(&a.preset, ws.as_deref())?;
+    let campaign = Campaign::resolve(preset, source, &ov)?;
+    let machine = Machine::detect()?;
+    for p in &campaign.pins {
+        machine.check_policy(p).with_context(|| format!("bad --pin {p}"))?;
+    }
+    let interrupted = runner::install_interrupt_handler();
+    let opts = ExecOptions {
+        out_root: a.out.clone(),
+        dry_run: a.dry_run,
+        retry_failed: a.retry_failed,
+        fresh: a.fresh,
+        quiet: a.quiet,
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+    };
+    if !a.dry_run {
+        check_writable(&a.out)?;
+    }
+    if !a.quiet {
+        eprintln!(
+            "campaign {} (preset {} from {}), {} runs, seed {}",
+            campaign.id,
+            campaign.preset_name,
+            campaign.preset_source,
+            campaign.expand().len(),
+            campaign.seed
+        );
+    }
+    let summary = if a.mock {
+        let solvers: Vec<Solver> =
+            campaign.opts.iter().map(|&opt| Solver { opt, path: "mock".into(), sha256: "mock".into() }).collect();
+        let delay = std::env::var("MPM_BENCH_MOCK_DELAY_MS").ok().and_then(|s| s.parse().ok()).unwrap_or(0);
+        let mut r = MockRunner {
+            delay: Duration::from_millis(delay),
+            fail_when: std::env::var("MPM_BENCH_MOCK_FAIL").ok(),
+            ..MockRunner::default()
+        };
+        runner::execute(&campaign, &machine, &solvers, &mut r, &opts, &interrupted)?
+    } else {
+        let solvers =
+            if a.dry_run { Vec::new() } else { runner::prepare_solvers(&campaign.opts, !a.no_build, a.quiet)? };
+        let mut r = ProcessRunner::new(interrupted.clone());
+        runner::execute(&campaign, &machine, &solvers, &mut r, &opts, &interrupted)?
+    };
+    if !a.dry_run {
+        eprintln!("{}", summary.report());
+    }
+    if summary.interrupted {
+        std::process::exit(130);
+    }
+    Ok(())
+}
+
+/// Fail early, with a clear message, when the results root cannot be written.
+fn check_writable(out: &std::path::Path) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create the output folder {}", out.display()))?;
+    let probe = out.join(format!(".mpm-bench-write-test-{}", std::process::id()));
+    std::fs::write(&probe, b"").with_context(|| format!("the output folder {} is not writable", out.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}

@@ -1,0 +1,349 @@
+//! `manifest.json`: what machine and software a campaign ran on, once per campaign.
+//!
+//! The *machine fingerprint* is a short, stable hash (12 hex digits of SHA-256) of the CPU
+//! model, packages, cores, PUs, memory (rounded to GiB) and operating system (name and
+//! version, not the kernel build): results of the same machine land in the same
+//! `results/<fingerprint>/` folder and are comparable; a different machine gets another.
+//!
+//! The manifest also records the software environment: rustc version, the workspace's Cargo
+//! profiles, RUSTFLAGS, the solver binaries' SHA-256, relevant environment variables
+//! (`RAYON_*`, `OMP_*`, `MPM_*`, `HWLOC_*`, `MALLOC_*`, `LD_PRELOAD`, ...), the CPU frequency
+//! governor where readable, the kernel, and the git commit with a dirty flag. Each invocation
+//! of `mpm-bench run` on the campaign adds a [`Session`] (seed, command line, counts).
+//! The hwloc topology is exported beside it as `topology.xml`.
+
+use crate::topology::{CacheLevel, Machine, NumaNode};
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::Command;
+
+/// Version of the manifest layout.
+pub const MANIFEST_VERSION: u32 = 1;
+
+/// The machine part of the manifest.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MachineInfo {
+    /// Short stable hash (see module docs).
+    pub fingerprint: String,
+    /// CPU model.
+    pub cpu_model: String,
+    /// Packages (sockets).
+    pub packages: usize,
+    /// Physical cores (usable).
+    pub cores: usize,
+    /// PUs / hardware threads (usable).
+    pub pus: usize,
+    /// PUs per core.
+    pub smt_width: usize,
+    /// NUMA nodes with local memory and CPUs.
+    pub numa_nodes: Vec<NumaNode>,
+    /// CPU caches.
+    pub caches: Vec<CacheLevel>,
+    /// Total memory, bytes.
+    pub memory_bytes: u64,
+    /// Operating system (`/etc/os-release` PRETTY_NAME).
+    pub os: String,
+    /// Kernel release.
+    pub kernel: String,
+    /// Architecture (`x86_64`, `aarch64`, ...).
+    pub arch: String,
+    /// CPU frequency governor(s), `unknown` when not readable (VMs, containers).
+    pub cpu_governor: String,
+    /// Full topology as plain data.
+    pub topology: Machine,
+}
+
+/// A solver binary.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BinaryInfo {
+    /// `o3` / `o0`.
+    pub opt_level: String,
+    /// Path.
+    pub path: String,
+    /// SHA-256, hex.
+    pub sha256: String,
+}
+
+/// Git state of the workspace.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GitInfo {
+    /// Commit hash, or `unknown`.
+    pub commit: String,
+    /// Uncommitted changes to tracked files.
+    pub dirty: bool,
+}
+
+/// The software part of the manifest.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SoftwareInfo {
+    /// `rustc -vV` first line, or `unknown`.
+    pub rustc: String,
+    /// `[profile.*]` tables of the workspace Cargo.toml.
+    pub cargo_profiles: serde_json::Value,
+    /// `RUSTFLAGS` / `CARGO_ENCODED_RUSTFLAGS` (empty when unset).
+    pub rustflags: String,
+    /// Solver binaries.
+    pub binaries: Vec<BinaryInfo>,
+    /// Relevant environment variables.
+    pub env: BTreeMap<String, String>,
+    /// hwloc API version the harness was built against (`2.9.0`).
+    pub hwloc_api: String,
+    /// Version of this harness.
+    pub harness_version: String,
+    /// Git state.
+    pub git: GitInfo,
+}
+
+/// One invocation of `mpm-bench run` on this campaign.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Session {
+    /// Start (RFC 3339 UTC).
+    pub started: String,
+    /// End (RFC 3339 UTC), empty while running or when killed.
+    pub finished: String,
+    /// Command line.
+    pub command: String,
+    /// Seed of the shuffled run order.
+    pub seed: u64,
+    /// Runs in the matrix.
+    pub planned: usize,
+    /// Runs already in the CSV at the start (resumed past).
+    pub already_done: usize,
+    /// Rows written by this session.
+    pub written: usize,
+    /// Of which ok / skipped / failed / invalid / oversubscribed.
+    pub ok: usize,
+    /// Skipped rows written.
+    pub skipped: usize,
+    /// Failed rows written.
+    pub failed: usize,
+    /// Invalid rows written.
+    pub invalid: usize,
+    /// Oversubscribed rows written.
+    pub oversubscribed: usize,
+    /// Stopped by Ctrl-C / SIGTERM.
+    pub interrupted: bool,
+    /// Binaries used (hashes may change between sessions after a rebuild).
+    pub binaries: Vec<BinaryInfo>,
+    /// Git state at the start.
+    pub git: GitInfo,
+}
+
+/// `manifest.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    /// [`MANIFEST_VERSION`].
+    pub manifest_version: u32,
+    /// Campaign id.
+    pub campaign_id: String,
+    /// The resolved campaign (matrix, budgets, overrides).
+    pub campaign: serde_json::Value,
+    /// Machine.
+    pub machine: MachineInfo,
+    /// Software environment (as of the latest session).
+    pub software: SoftwareInfo,
+    /// Every session that ran on this campaign.
+    pub sessions: Vec<Session>,
+}
+
+/// Stable fingerprint of a machine (12 hex digits).
+pub fn fingerprint(m: &Machine) -> String {
+    let mem_gib = (m.total_memory_bytes as f64 / (1u64 << 30) as f64).round() as u64;
+    let key = format!(
+        "cpu={}|packages={}|cores={}|pus={}|mem_gib={}|os={}|arch={}",
+        m.cpu_model,
+        m.num_packages(),
+        m.num_cores(),
+        m.usable_pus().len(),
+        mem_gib,
+        os_name(),
+        std::env::consts::ARCH
+    );
+    hex(&Sha256::digest(key.as_bytes()))[..12].to_string()
+}
+
+/// Machine part of the manifest for `m` (this host).
+pub fn machine_info(m: &Machine) -> MachineInfo {
+    MachineInfo {
+        fingerprint: fingerprint(m),
+        cpu_model: m.cpu_model.clone(),
+        packages: m.num_packages(),
+        cores: m.num_cores(),
+        pus: m.usable_pus().len(),
+        smt_width: m.smt_width(),
+        numa_nodes: m.numa_nodes.clone(),
+        caches: m.caches.clone(),
+        memory_bytes: m.total_memory_bytes,
+        os: os_name(),
+        kernel: read_trim("/proc/sys/kernel/osrelease").unwrap_or_else(|| "unknown".into()),
+        arch: std::env::consts::ARCH.into(),
+        cpu_governor: governor(),
+        topology: m.clone(),
+    }
+}
+
+/// Software part of the manifest.
+pub fn software_info(workspace: Option<&Path>, binaries: Vec<BinaryInfo>) -> SoftwareInfo {
+    let rustc = Command::new(std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into()))
+        .arg("-vV")
+        .output()
+        .ok()
+        .filter(|o| o.status.success())
+        .map(|o| {
+            let t = String::from_utf8_lossy(&o.stdout).to_string();
+            let first = t.lines().next().unwrap_or("").to_string();
+            let host = t.lines().find_map(|l| l.strip_prefix("host: ")).unwrap_or("");
+            if host.is_empty() {
+                first
+            } else {
+                format!("{first} (host {host})")
+            }
+        })
+        .unwrap_or_else(|| "unknown".into());
+    let cargo_profiles = workspace
+        .and_then(|w| std::fs::read_to_string(w.join("Cargo.toml")).ok())
+        .and_then(|t| t.parse::<toml::Table>().ok())
+        .and_then(|t| t.get("profile").cloned())
+        .and_then(|p| serde_json::to_value(p).ok())
+        .unwrap_or(serde_json::Value::Null);
+    let rustflags = std::env::var("RUSTFLAGS")
+        .or_else(|_| std::env::var("CARGO_ENCODED_RUSTFLAGS").map(|s| s.replace('\x1f', " ")))
+        .unwrap_or_default();
+    let api = hwlocality::hwloc_api_version();
+    SoftwareInfo {
+        rustc,
+        cargo_profiles,
+        rustflags,
+        binaries,
+        env: relevant_env(),
+        hwloc_api: format!("{}.{}.{}", api >> 16, (api >> 8) & 0xff, api & 0xff),
+        harness_version: env!("CARGO_PKG_VERSION").into(),
+        git: git_info(workspace),
+    }
+}
+
+/// Environment variables that can change a measurement.
+pub fn relevant_env() -> BTreeMap<String, String> {
+    const PREFIXES: [&str; 10] = [
+        "RAYON_",
+        "OMP_",
+        "GOMP_",
+        "KMP_",
+        "MPM_",
+        "HWLOC_",
+        "MALLOC_",
+        "CARGO_PROFILE_",
+        "CARGO_BUILD_",
+        "RUST_MIN_STACK",
+    ];
+    const EXACT: [&str; 5] =
+        ["RUSTFLAGS", "CARGO_ENCODED_RUSTFLAGS", "CARGO_TARGET_DIR", "LD_PRELOAD", "LD_LIBRARY_PATH"];
+    std::env::vars().filter(|(k, _)| PREFIXES.iter().any(|p| k.starts_with(p)) || EXACT.contains(&k.as_str())).collect()
+}
+
+/// Git commit and dirty flag of `workspace` (or the current directory).
+pub fn git_info(workspace: Option<&Path>) -> GitInfo {
+    let dir = workspace.map(Path::to_path_buf).unwrap_or_else(|| ".".into());
+    let run = |args: &[&str]| -> Option<String> {
+        Command::new("git")
+            .arg("-C")
+            .arg(&dir)
+            .args(args)
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+    };
+    match run(&["rev-parse", "HEAD"]) {
+        Some(commit) => GitInfo {
+            commit,
+            dirty: run(&["status", "--porcelain", "--untracked-files=no"]).is_some_and(|s| !s.is_empty()),
+        },
+        None => GitInfo { commit: "unknown".into(), dirty: false },
+    }
+}
+
+fn os_name() -> String {
+    std::fs::read_to_string("/etc/os-release")
+        .ok()
+        .and_then(|t| t.lines().find_map(|l| l.strip_prefix("PRETTY_NAME=").map(|v| v.trim_matches('"').to_string())))
+        .unwrap_or_else(|| std::env::consts::OS.to_string())
+}
+
+fn governor() -> String {
+    let mut govs: Vec<String> = Vec::new();
+    if let Ok(rd) = std::fs::read_dir("/sys/devices/system/cpu") {
+        for e in rd.flatten() {
+            if let Some(g) = read_trim(e.path().join("cpufreq/scaling_governor")) {
+                if !govs.contains(&g) {
+                    govs.push(g);
+                }
+            }
+        }
+    }
+    if govs.is_empty() {
+        "unknown (cpufreq not exposed)".into()
+    } else {
+        govs.sort();
+        govs.join(",")
+    }
+}
+
+fn read_trim(p: impl AsRef<Path>) -> Option<String> {
+    std::fs::read_to_string(p).ok().map(|s| s.trim().to_string()).filter(|s| !s.is_empty())
+}
+
+/// Lower-case hex.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Write `text` to `path` atomically (temporary file + rename).
+pub fn write_atomic(path: &Path, text: &str) -> Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, text).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot replace {}", path.display()))?;
+    Ok(())
+}
+
+/// Read a manifest.
+pub fn read(path: &Path) -> Result<Manifest> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("bad manifest {}", path.display()))
+}
+
+/// Write a manifest (atomically).
+pub fn write(path: &Path, m: &Manifest) -> Result<()> {
+    write_atomic(path, &serde_json::to_string_pretty(m)?)
+}
+
+/// Current time, RFC 3339 UTC (seconds).
+pub fn now_rfc3339() -> String {
+    humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fingerprint_is_stable_and_short() {
+        let m = Machine::synthetic("pack:2 core:4 pu:2").unwrap();
+        let a = fingerprint(&m);
+        assert_eq!(a.len(), 12);
+        assert_eq!(a, fingerprint(&m));
+        let other = Machine::synthetic("pack:1 core:4 pu:2").unwrap();
+        assert_ne!(a, fingerprint(&other));
+    }
+
+    #[test]
+    fn software_info_has_profiles() {
+        let ws = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+        let s = software_info(Some(ws), vec![]);
+        assert!(s.cargo_profiles.get("o0").is_some(), "{:?}", s.cargo_profiles);
+        assert!(s.hwloc_api.starts_with("2."));
+    }
+}

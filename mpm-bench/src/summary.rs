@@ -1,0 +1,580 @@
+//! The JSON summary of one `mpm run` (the interface between the solver program and the
+//! harness, scripts and people; see the spec's "The solver's JSON summary").
+//!
+//! One [`Summary`] per run, written only when the run succeeded. All figures are SI
+//! (seconds, metres, joules, bytes). Key conventions:
+//!
+//! * `wall_s` is the wall-clock time of the whole stepping loop (all steps, warm-up
+//!   included; VTU output excluded and reported as `output_s`). `grid_stage_s`,
+//!   `particle_stage_s` and `substages` cover the same steps, from the solver's own
+//!   stage timers (paper split: grid-node stage Eqs. 1-6, particle stage Eqs. 7-15).
+//! * The steady-state figures leave out the first `warmup_steps` steps:
+//!   `steady_wall_s`, `steady_grid_stage_s`, `steady_particle_stage_s`, `steady_substages`,
+//!   `steady_s_per_step`, `ns_per_particle_step = steady_wall_s / (particles x
+//!   steady_steps)` and `particle_steps_per_s` (its inverse, per second). They are `null`
+//!   when no step was left after the warm-up (for example `--steps 0`).
+//! * `peak_rss_bytes` is the process's own high-water mark `VmHWM` from
+//!   `/proc/self/status`, read when the summary is built (after the run).
+//! * Taylor bar lengths (`initial_length_m`, `final_length_m`, `face_diameter_m`) are
+//!   measured by [`mpm_core::scenario::taylor::measure`]: the length is the z-extent of the
+//!   particle centres plus one layer spacing (half a spacing beyond the end particles at each
+//!   end, so exactly `L0 = 25.4 mm` at `t = 0`); the impact-face diameter is taken from
+//!   particle centres. `length_convention` says so in the file itself.
+//! * Impact figures (`cloud_front_m`, `cloud_front_robust_m`, `cloud_width_m`,
+//!   `cloud_width_robust_m`, `hole_diameter_m`, `front_velocity_m_s`) are measured by
+//!   [`mpm_core::scenario::impact::measure`] from particle centres; the robust variants
+//!   ignore the outermost 0.1 % of the debris mass (see that module for the definitions).
+//! * `history` holds about 200 samples `{step, time, kinetic, internal}` evenly spaced in
+//!   steps, including step 0 (the initial state) and the last step.
+
+use crate::pinning::PinnedPool;
+use mpm_core::scenario::impact::{self, CloudFigures, ImpactGeometry};
+use mpm_core::scenario::taylor::{measure, TaylorFigures};
+use mpm_core::{Simulation, StageTimes};
+use serde::de::{MapAccess, Visitor};
+use serde::ser::SerializeMap;
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+/// Optimisation level of this build, `o` + Cargo's `opt-level` (`o3`, `o0`, ...).
+pub const OPT_LEVEL: &str = concat!("o", env!("MPM_OPT_LEVEL"));
+/// Cargo profile directory of this build (`o3`, `o0`, `release`, `debug`).
+pub const PROFILE: &str = env!("MPM_PROFILE");
+/// Version of this crate.
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+/// Target triple of this build.
+pub const TARGET: &str = env!("MPM_TARGET");
+
+/// How the Taylor bar lengths are measured (written into every Taylor summary).
+pub const LENGTH_CONVENTION: &str = "length: z-extent of particle centres plus one layer spacing (exactly L0 at t = 0); face diameter: from particle centres";
+
+/// Why the stepping loop stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EndReason {
+    /// The simulated time reached the end time.
+    EndTime,
+    /// The step limit was reached first.
+    StepLimit,
+}
+
+/// One sample of the energy history.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HistoryPoint {
+    /// Step number (0 = initial state).
+    pub step: u64,
+    /// Simulated time (s).
+    pub time: f64,
+    /// Kinetic energy (J).
+    pub kinetic: f64,
+    /// Internal energy (J).
+    pub internal: f64,
+}
+
+/// Records the energy history of a run of unknown length in bounded memory: keeps every
+/// `stride`-th step, doubling the stride when too many points pile up, plus the latest.
+#[derive(Clone, Debug)]
+pub struct HistoryRecorder {
+    points: Vec<HistoryPoint>,
+    stride: u64,
+    latest: Option<HistoryPoint>,
+    cap: usize,
+}
+
+impl Default for HistoryRecorder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl HistoryRecorder {
+    /// An empty recorder (keeps at most 4096 points before thinning).
+    pub fn new() -> Self {
+        Self { points: Vec::new(), stride: 1, latest: None, cap: 4096 }
+    }
+
+    /// Record a step's state (call with step 0 first, then every step in order).
+    pub fn record(&mut self, p: HistoryPoint) {
+        if p.step % self.stride == 0 {
+            self.points.push(p);
+            if self.points.len() > self.cap {
+                self.stride *= 2;
+                let s = self.stride;
+                self.points.retain(|q| q.step % s == 0);
+            }
+        }
+        self.latest = Some(p);
+    }
+
+    /// About `target` samples evenly spaced in steps, always with the first and the last
+    /// recorded step.
+    pub fn finish(&self, target: usize) -> Vec<HistoryPoint> {
+        let target = target.max(2);
+        let n = self.points.len();
+        let mut out: Vec<HistoryPoint> = if n <= target {
+            self.points.clone()
+        } else {
+            let mut v: Vec<HistoryPoint> =
+                (0..target).map(|i| self.points[(i * (n - 1) + (target - 1) / 2) / (target - 1)]).collect();
+            v.dedup_by_key(|p| p.step);
+            v
+        };
+        if let Some(l) = self.latest {
+            if out.last().map(|p| p.step) != Some(l.step) {
+                out.push(l);
+            }
+        }
+        out
+    }
+}
+
+/// Seconds per sub-stage, serialised as a JSON object in execution order
+/// (`grid_fit`, `binning`, `scatter`, `assembly`, `grid_update`, `gather`, `remap_scatter`,
+/// `remap_assembly`, `stress_update`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Substages(pub Vec<(String, f64)>);
+
+impl Substages {
+    /// From the solver's timers ([`StageTimes::named`], every [`mpm_core::Substage`]).
+    pub fn from_times(t: &StageTimes) -> Self {
+        Self(t.named().map(|(k, v)| (k.to_string(), v)).collect())
+    }
+
+    /// Seconds of sub-stage `name`, if present.
+    pub fn get(&self, name: &str) -> Option<f64> {
+        self.0.iter().find(|(k, _)| k == name).map(|(_, v)| *v)
+    }
+}
+
+impl Serialize for Substages {
+    fn serialize<S: Serializer>(&self, ser: S) -> Result<S::Ok, S::Error> {
+        let mut m = ser.serialize_map(Some(self.0.len()))?;
+        for (k, v) in &self.0 {
+            m.serialize_entry(k, v)?;
+        }
+        m.end()
+    }
+}
+
+impl<'de> Deserialize<'de> for Substages {
+    fn deserialize<D: Deserializer<'de>>(de: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = Substages;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("an object of sub-stage seconds")
+            }
+            fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Substages, A::Error> {
+                let mut v = Vec::new();
+                while let Some((k, s)) = map.next_entry::<String, f64>()? {
+                    v.push((k, s));
+                }
+                Ok(Substages(v))
+            }
+        }
+        de.deserialize_map(V)
+    }
+}
+
+/// Peak resident memory of this process (`VmHWM` in `/proc/self/status`), bytes.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    parse_vm_hwm(&status)
+}
+
+/// Parse `VmHWM:   123456 kB` out of a `/proc/<pid>/status` text, in bytes.
+pub fn parse_vm_hwm(status: &str) -> Option<u64> {
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let mut it = line["VmHWM:".len()..].split_whitespace();
+    let value: u64 = it.next()?.parse().ok()?;
+    let unit = match it.next() {
+        Some("kB") | None => 1024,
+        Some("mB") | Some("MB") => 1024 * 1024,
+        Some(_) => return None,
+    };
+    Some(value * unit)
+}
+
+/// Wall-clock figures measured by the program around the stepping loop.
+#[derive(Clone, Debug, Default)]
+pub struct Timing {
+    /// Whole stepping loop, VTU output excluded (s).
+    pub wall_s: f64,
+    /// Time spent writing VTU snapshots (s).
+    pub output_s: f64,
+    /// Steps counted as warm-up (the first ones; at most the steps taken).
+    pub warmup_steps: u64,
+    /// Loop wall time at the end of the warm-up (s).
+    pub warmup_wall_s: f64,
+    /// The solver's stage timers at the end of the warm-up.
+    pub warmup_times: StageTimes,
+}
+
+/// What the program knows about a run besides the [`Simulation`] itself.
+#[derive(Debug)]
+pub struct RunContext<'a> {
+    /// Scenario name (`taylor`, `impact`).
+    pub scenario: &'a str,
+    /// Model number (Taylor bar 1-4; 0 for the impact).
+    pub model: u8,
+    /// Impact speed (m/s).
+    pub velocity: f64,
+    /// Wall condition (`frictionless` | `sticking`).
+    pub wall: &'a str,
+    /// Cells of the initial grid.
+    pub cells: usize,
+    /// Nodes of the initial grid.
+    pub nodes: usize,
+    /// End time (s), if the run had one.
+    pub end_time: Option<f64>,
+    /// Step limit, if the run had one.
+    pub step_limit: Option<u64>,
+    /// Why the loop stopped.
+    pub end_reason: EndReason,
+    /// Loop timing.
+    pub timing: &'a Timing,
+    /// The pool and its workers' placement.
+    pub pool: &'a PinnedPool,
+    /// Cores available to the process.
+    pub available_cores: usize,
+    /// Whether the run has more workers than cores (or than distinct pinned CPUs).
+    pub oversubscribed: bool,
+    /// Energy history samples.
+    pub history: Vec<HistoryPoint>,
+    /// Model label (`Model1`, `impact-h0.53mm-dx2.12mm`, ...).
+    pub model_name: String,
+    /// Taylor bar: figures at `t = 0` and the lattice spacing to measure with.
+    pub taylor: Option<(TaylorFigures, [f64; 3])>,
+    /// Impact: which particles are the plate and where its rear face is.
+    pub impact: Option<ImpactGeometry>,
+    /// The program's arguments.
+    pub command_line: Vec<String>,
+    /// Wall-clock start of the run, seconds since the Unix epoch.
+    pub started_unix_s: f64,
+}
+
+/// The JSON summary of one run. Field names are an interface (see the module docs).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    /// Scenario name (`taylor`).
+    pub scenario: String,
+    /// Model number (Taylor bar 1-4; 0 for the impact).
+    pub model: u8,
+    /// Model label (`Model1` ... `Model4`, `impact-h0.53mm-dx2.12mm`).
+    #[serde(default)]
+    pub model_name: String,
+    /// Scatter strategy: `serial`, `ae` or `dd`.
+    pub strategy: String,
+    /// Worker threads of the pool.
+    pub threads: usize,
+    /// Optimisation level of the solver build (`o3`, `o0`).
+    pub opt_level: String,
+    /// Cargo profile of the solver build.
+    pub profile: String,
+    /// Version of the `mpm` program.
+    pub mpm_version: String,
+    /// Whether debug assertions were compiled in.
+    pub debug_assertions: bool,
+    /// Target triple of the build.
+    pub target: String,
+    /// Grid mode: `fixed` or `adaptive`.
+    pub grid_mode: String,
+    /// Equation of state, e.g. `mie-gruneisen (paper form)`.
+    pub eos: String,
+    /// Material name.
+    pub material: String,
+    /// CFL number.
+    pub cfl: f64,
+    /// Wall condition: `frictionless` or `sticking`.
+    pub wall: String,
+    /// Impact speed (m/s).
+    pub velocity_m_s: f64,
+    /// Particles.
+    pub particles: usize,
+    /// Cells of the initial grid.
+    pub cells: usize,
+    /// Nodes of the initial grid.
+    pub nodes: usize,
+    /// Mean node count over the steps (the initial count if no step was taken).
+    pub mean_nodes: f64,
+    /// Nodes of the last step's grid.
+    pub final_nodes: usize,
+    /// Cell size (m).
+    pub dx_m: f64,
+    /// Steps taken.
+    pub steps: u64,
+    /// Leading steps excluded from the steady-state figures.
+    pub warmup_steps: u64,
+    /// Steps in the steady-state figures (`steps - warmup_steps`).
+    pub steady_steps: u64,
+    /// First time step (s).
+    pub dt_first: f64,
+    /// The CFL time step after the last step (s).
+    pub dt_next: f64,
+    /// Simulated time reached (s).
+    pub sim_time: f64,
+    /// End time (s); `null` for a run limited only by `--steps`.
+    pub end_time: Option<f64>,
+    /// Step limit; `null` if none.
+    pub step_limit: Option<u64>,
+    /// Why the run stopped: `end_time` or `step_limit`.
+    pub end_reason: EndReason,
+    /// Wall time of the whole stepping loop, warm-up included, output excluded (s).
+    pub wall_s: f64,
+    /// Time spent writing VTU snapshots (s).
+    pub output_s: f64,
+    /// Grid-node stage (Eqs. 1-6), all steps (s).
+    pub grid_stage_s: f64,
+    /// Particle stage (Eqs. 7-15), all steps (s).
+    pub particle_stage_s: f64,
+    /// Seconds per sub-stage, all steps.
+    pub substages: Substages,
+    /// Wall time of the steps after the warm-up (s).
+    pub steady_wall_s: f64,
+    /// Grid-node stage after the warm-up (s).
+    pub steady_grid_stage_s: f64,
+    /// Particle stage after the warm-up (s).
+    pub steady_particle_stage_s: f64,
+    /// Sub-stages after the warm-up (s).
+    pub steady_substages: Substages,
+    /// Steady-state wall time per step (s); `null` without steady steps.
+    pub steady_s_per_step: Option<f64>,
+    /// Steady-state wall time per particle and step (ns); `null` without steady steps.
+    pub ns_per_particle_step: Option<f64>,
+    /// Steady-state particle-steps per second; `null` without steady steps.
+    pub particle_steps_per_s: Option<f64>,
+    /// Peak resident memory of the process, `VmHWM` (bytes); `null` if unreadable.
+    pub peak_rss_bytes: Option<u64>,
+    /// Bytes held by the model: particles, nodal arrays, scatter buffers, strategy tables.
+    pub model_memory_bytes: usize,
+    /// CPUs the workers were asked to run on, in worker order (empty when not pinned).
+    pub requested_cpus: Vec<usize>,
+    /// CPUs the workers were observed on, in worker order (empty when not pinned).
+    pub observed_cpus: Vec<usize>,
+    /// Each worker's affinity mask as read back by the worker.
+    pub worker_affinity: Vec<Vec<usize>>,
+    /// Whether the workers were pinned.
+    pub pinned: bool,
+    /// Pinned runs: whether every worker's mask is exactly its requested CPU and it runs
+    /// there (a `false` marks the run invalid); `null` when not pinned.
+    pub pinning_verified: Option<bool>,
+    /// More workers than available cores (or than distinct pinned CPUs).
+    pub oversubscribed: bool,
+    /// Cores available to the process.
+    pub available_cores: usize,
+    /// Kinetic energy at `t = 0` (J).
+    pub kinetic_energy_initial: f64,
+    /// Internal energy at `t = 0` (J).
+    pub internal_energy_initial: f64,
+    /// Kinetic energy at the end (J).
+    pub kinetic_energy: f64,
+    /// Internal energy at the end (J).
+    pub internal_energy: f64,
+    /// Momentum at `t = 0` (kg m/s).
+    pub momentum_initial: [f64; 3],
+    /// Momentum at the end (kg m/s).
+    pub momentum: [f64; 3],
+    /// Failed particles at the end.
+    pub failed_particles: usize,
+    /// Energy history (about 200 samples, first and last step included).
+    pub history: Vec<HistoryPoint>,
+    /// Taylor bar length at `t = 0` (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub initial_length_m: Option<f64>,
+    /// Taylor bar length at the end (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub final_length_m: Option<f64>,
+    /// Taylor bar impact-face diameter at `t = 0` (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub initial_face_diameter_m: Option<f64>,
+    /// Taylor bar impact-face diameter at the end (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub face_diameter_m: Option<f64>,
+    /// How the lengths above are measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub length_convention: Option<String>,
+    /// Impact: distance of the debris cloud's leading edge from the plate's rear face (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cloud_front_m: Option<f64>,
+    /// Impact: leading edge ignoring the foremost 0.1 % of the debris mass (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cloud_front_robust_m: Option<f64>,
+    /// Impact: largest debris diameter normal to the flight direction (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cloud_width_m: Option<f64>,
+    /// Impact: diameter containing 99.9 % of the debris mass (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cloud_width_robust_m: Option<f64>,
+    /// Impact: diameter of the hole in the plate (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hole_diameter_m: Option<f64>,
+    /// Impact: mass-weighted z-velocity of the debris beyond the robust front (m/s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub front_velocity_m_s: Option<f64>,
+    /// Impact: debris mass beyond the rear face (kg).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub debris_mass_kg: Option<f64>,
+    /// Impact: particle lattice spacing (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spacing_m: Option<f64>,
+    /// DD patch layout `[px, py, pz]` (DD only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dd_layout: Option<[usize; 3]>,
+    /// The program's arguments.
+    pub command_line: Vec<String>,
+    /// Wall-clock start of the run, seconds since the Unix epoch.
+    pub started_unix_s: f64,
+}
+
+impl Summary {
+    /// Build the summary of a finished run. Reads `VmHWM` now.
+    pub fn build(sim: &Simulation, ctx: RunContext<'_>) -> Self {
+        let cfg = sim.config();
+        let particles = sim.particles().len();
+        let steps = sim.steps();
+        let t = ctx.timing;
+        let warmup = t.warmup_steps.min(steps);
+        let steady_steps = steps - warmup;
+        let steady_times = sim.times().since(&t.warmup_times);
+        let steady_wall = (t.wall_s - t.warmup_wall_s).max(0.0);
+        let per_step = (steady_steps > 0).then(|| steady_wall / steady_steps as f64);
+        let pstep = particles as f64 * steady_steps as f64;
+        let (ns, rate) = if steady_steps > 0 && steady_wall > 0.0 {
+            (Some(steady_wall * 1e9 / pstep), Some(pstep / steady_wall))
+        } else {
+            (None, None)
+        };
+        let init = sim.initial();
+        let last = sim.diagnostics();
+        let taylor = ctx.taylor.map(|(f0, spacing)| (f0, measure(sim.particles(), spacing)));
+        let cloud: Option<CloudFigures> = ctx.impact.map(|g| impact::measure(sim.particles(), &g));
+        let dd_layout = sim.domain_decomposition().map(|dd| {
+            if steps == 0 {
+                // The patches are cut at the first step; report the layout it will use.
+                mpm_core::strategy::patch_layout(cfg.threads, sim.geom().cells)
+            } else {
+                dd.layout()
+            }
+        });
+        Self {
+            scenario: ctx.scenario.to_string(),
+            model: ctx.model,
+            model_name: ctx.model_name,
+            strategy: cfg.strategy.name().to_string(),
+            threads: ctx.pool.pool.current_num_threads(),
+            opt_level: OPT_LEVEL.to_string(),
+            profile: PROFILE.to_string(),
+            mpm_version: VERSION.to_string(),
+            debug_assertions: cfg!(debug_assertions),
+            target: TARGET.to_string(),
+            grid_mode: cfg.grid_mode.name().to_string(),
+            eos: sim.material().eos.describe(),
+            material: sim.material().name.clone(),
+            cfl: cfg.cfl,
+            wall: ctx.wall.to_string(),
+            velocity_m_s: ctx.velocity,
+            particles,
+            cells: ctx.cells,
+            nodes: ctx.nodes,
+            mean_nodes: sim.mean_nodes(),
+            final_nodes: sim.geom().num_nodes(),
+            dx_m: sim.geom().dx,
+            steps,
+            warmup_steps: warmup,
+            steady_steps,
+            dt_first: sim.dt_first(),
+            dt_next: sim.dt_next(),
+            sim_time: sim.time(),
+            end_time: ctx.end_time,
+            step_limit: ctx.step_limit,
+            end_reason: ctx.end_reason,
+            wall_s: t.wall_s,
+            output_s: t.output_s,
+            grid_stage_s: sim.times().grid_stage(),
+            particle_stage_s: sim.times().particle_stage(),
+            substages: Substages::from_times(sim.times()),
+            steady_wall_s: steady_wall,
+            steady_grid_stage_s: steady_times.grid_stage(),
+            steady_particle_stage_s: steady_times.particle_stage(),
+            steady_substages: Substages::from_times(&steady_times),
+            steady_s_per_step: per_step,
+            ns_per_particle_step: ns,
+            particle_steps_per_s: rate,
+            peak_rss_bytes: peak_rss_bytes(),
+            model_memory_bytes: sim.memory_bytes(),
+            requested_cpus: ctx.pool.requested.clone(),
+            observed_cpus: ctx.pool.observed_cpus(),
+            worker_affinity: ctx.pool.affinities(),
+            pinned: ctx.pool.pinned(),
+            pinning_verified: ctx.pool.verified(),
+            oversubscribed: ctx.oversubscribed,
+            available_cores: ctx.available_cores,
+            kinetic_energy_initial: init.kinetic,
+            internal_energy_initial: init.internal,
+            kinetic_energy: last.kinetic,
+            internal_energy: last.internal,
+            momentum_initial: init.momentum,
+            momentum: last.momentum,
+            failed_particles: sim.particles().failed_count(),
+            history: ctx.history,
+            initial_length_m: taylor.map(|(a, _)| a.length),
+            final_length_m: taylor.map(|(_, b)| b.length),
+            initial_face_diameter_m: taylor.map(|(a, _)| a.face_diameter),
+            face_diameter_m: taylor.map(|(_, b)| b.face_diameter),
+            length_convention: taylor.map(|_| LENGTH_CONVENTION.to_string()),
+            cloud_front_m: cloud.map(|c| c.cloud_front),
+            cloud_front_robust_m: cloud.map(|c| c.cloud_front_robust),
+            cloud_width_m: cloud.map(|c| c.cloud_width),
+            cloud_width_robust_m: cloud.map(|c| c.cloud_width_robust),
+            hole_diameter_m: cloud.map(|c| c.hole_diameter),
+            front_velocity_m_s: cloud.map(|c| c.front_velocity),
+            debris_mass_kg: cloud.map(|c| c.debris_mass),
+            spacing_m: ctx.impact.map(|_| sim.spacing()[0]),
+            dd_layout,
+            command_line: ctx.command_line,
+            started_unix_s: ctx.started_unix_s,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vm_hwm_is_parsed_in_bytes() {
+        let s = "Name:\tmpm\nVmPeak:\t  200 kB\nVmHWM:\t   123456 kB\nVmRSS:\t 1 kB\n";
+        assert_eq!(parse_vm_hwm(s), Some(123_456 * 1024));
+        assert_eq!(parse_vm_hwm("VmRSS: 1 kB\n"), None);
+        assert!(peak_rss_bytes().unwrap() > 0);
+    }
+
+    fn pt(step: u64) -> HistoryPoint {
+        HistoryPoint { step, time: step as f64, kinetic: 0.0, internal: 0.0 }
+    }
+
+    #[test]
+    fn history_keeps_first_and_last_and_about_the_target() {
+        for n in [0u64, 1, 5, 199, 200, 201, 1000, 12_345, 100_000] {
+            let mut h = HistoryRecorder::new();
+            for s in 0..=n {
+                h.record(pt(s));
+            }
+            let v = h.finish(200);
+            assert_eq!(v.first().unwrap().step, 0, "n={n}");
+            assert_eq!(v.last().unwrap().step, n, "n={n}");
+            assert!(v.len() <= 202, "n={n}: {}", v.len());
+            assert!(v.len() as u64 >= (n + 1).min(150), "n={n}: {}", v.len());
+            assert!(v.windows(2).all(|w| w[0].step < w[1].step));
+        }
+    }
+
+    #[test]
+    fn substages_round_trip_in_order() {
+        let s = Substages(vec![("b".into(), 1.0), ("a".into(), 2.0)]);
+        let j = serde_json::to_string(&s).unwrap();
+        assert_eq!(j, r#"{"b":1.0,"a":2.0}"#);
+        let back: Substages = serde_json::from_str(&j).unwrap();
+        assert_eq!(back, s);
+        assert_eq!(back.get("a"), Some(2.0));
+    }
+}

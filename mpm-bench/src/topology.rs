@@ -1,0 +1,696 @@
+//! The machine as hwloc sees it, and where each worker of a run is pinned.
+//!
+//! # Why `hwlocality`
+//! Topology comes from the system libhwloc (2.x) through the crate
+//! [`hwlocality`](https://docs.rs/hwlocality). The older `hwloc2` crate was evaluated and
+//! rejected: it panics on NUMA queries and has memory-safety bugs (unsound FFI wrappers), so
+//! it cannot be trusted on the multi-socket machines this harness is meant for.
+//!
+//! # What is read
+//! Packages (sockets), NUMA nodes with their memory, physical cores, processing units (PUs,
+//! i.e. hardware threads: SMT siblings share a core), and the CPU caches. Only PUs this
+//! process may run on count as *usable* (hwloc's allowed cpuset intersected with the
+//! process's affinity mask), so a `taskset`/cgroup restriction is honoured.
+//!
+//! # Placement policies (OpenMP vocabulary)
+//! Worker `j` of a run with `n` threads gets the `j`-th entry of an ordered list of PUs:
+//! * `close` (compact): fill package 0's physical cores, then package 1's, ...; the paper's
+//!   8-thread runs filled one quad-core socket before using the second.
+//! * `spread`: alternate packages: core 0 of package 0, core 0 of package 1, core 1 of
+//!   package 0, ...
+//! * an explicit CPU list (`0,2,4-7`): worker `j` gets the `j`-th listed CPU.
+//! * `none`: the workers are not pinned; the OS places them.
+//!
+//! For `close` and `spread`, every physical core gets a worker before any SMT sibling does.
+//! More threads than PUs in the list wrap around (worker `j` gets entry `j mod len`), and the
+//! placement is marked *oversubscribed*: such a run measures time sharing, not scaling.
+//!
+//! The placement logic works on the plain-data [`Machine`], so it can be tested on synthetic
+//! topologies (`mpm-bench topology --synthetic "pack:2 core:4 pu:2"`) as well as this host.
+
+use anyhow::{anyhow, bail, Context, Result};
+use hwlocality::object::attributes::ObjectAttributes;
+use hwlocality::object::types::{CacheType, ObjectType};
+use hwlocality::object::TopologyObject;
+use hwlocality::topology::builder::TypeFilter;
+use hwlocality::topology::export::xml::XMLExportFlags;
+use hwlocality::Topology;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::fmt;
+use std::fmt::Write as _;
+use std::path::Path;
+use std::str::FromStr;
+
+/// Thread counts of the paper's protocol, shown by `mpm-bench topology`.
+pub const PAPER_THREADS: [usize; 5] = [1, 2, 4, 6, 8];
+
+/// A physical core and its PUs (OS indices, SMT sibling order).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Core {
+    /// OS index of the core (`None` printed as `?` when hwloc does not know it).
+    pub os_index: Option<usize>,
+    /// OS indices of the usable PUs of this core, first hardware thread first.
+    pub pus: Vec<usize>,
+}
+
+/// A package (socket) and its cores.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Package {
+    /// OS index of the package.
+    pub os_index: Option<usize>,
+    /// Cores with at least one usable PU, in logical order.
+    pub cores: Vec<Core>,
+}
+
+/// A NUMA node.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct NumaNode {
+    /// OS index of the node.
+    pub os_index: Option<usize>,
+    /// Local memory, bytes.
+    pub memory_bytes: u64,
+    /// OS indices of the PUs local to this node.
+    pub cpus: Vec<usize>,
+}
+
+/// One level/kind of CPU cache, e.g. `L2` (unified) or `L1d`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CacheLevel {
+    /// `L1d`, `L1i`, `L2`, `L3`, ...
+    pub name: String,
+    /// Size of one instance, bytes.
+    pub size_bytes: u64,
+    /// Number of instances.
+    pub count: usize,
+    /// PUs sharing one instance.
+    pub pus_per_instance: usize,
+}
+
+/// The machine: plain data extracted from hwloc (or built synthetically for tests).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Machine {
+    /// CPU model string (hwloc's `CPUModel`, else `/proc/cpuinfo`).
+    pub cpu_model: String,
+    /// Packages (sockets) in logical order.
+    pub packages: Vec<Package>,
+    /// NUMA nodes.
+    pub numa_nodes: Vec<NumaNode>,
+    /// CPU caches, innermost first.
+    pub caches: Vec<CacheLevel>,
+    /// Total memory hwloc reports, bytes.
+    pub total_memory_bytes: u64,
+    /// Whether this describes the machine the harness runs on (not a synthetic/XML one).
+    pub is_this_system: bool,
+}
+
+/// How workers are placed on CPUs.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum PinPolicy {
+    /// Fill a package's physical cores before the next package's.
+    Close,
+    /// Alternate packages.
+    Spread,
+    /// Worker `j` gets the `j`-th CPU of the list (OS indices).
+    List(Vec<usize>),
+    /// Not pinned.
+    None,
+}
+
+impl PinPolicy {
+    /// Short label used in CSV rows and campaign ids: `close`, `spread`, `none`, or the
+    /// list itself (`0-3`, `0,2`).
+    pub fn label(&self) -> String {
+        match self {
+            PinPolicy::Close => "close".into(),
+            PinPolicy::Spread => "spread".into(),
+            PinPolicy::None => "none".into(),
+            PinPolicy::List(l) => format_cpu_list(l),
+        }
+    }
+}
+
+impl fmt::Display for PinPolicy {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.label())
+    }
+}
+
+impl FromStr for PinPolicy {
+    type Err = anyhow::Error;
+
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "close" | "compact" => Ok(PinPolicy::Close),
+            "spread" | "scatter" => Ok(PinPolicy::Spread),
+            "none" | "off" => Ok(PinPolicy::None),
+            other => {
+                let list = other.strip_prefix("list:").unwrap_or(other);
+                if list.is_empty() || !list.starts_with(|c: char| c.is_ascii_digit()) {
+                    bail!("unknown pinning policy '{s}': use close, spread, none, or a CPU list such as 0,1 or 0-3");
+                }
+                Ok(PinPolicy::List(parse_cpu_list(list)?))
+            }
+        }
+    }
+}
+
+impl Serialize for PinPolicy {
+    fn serialize<S: serde::Serializer>(&self, ser: S) -> Result<S::Ok, S::Error> {
+        ser.serialize_str(&self.label())
+    }
+}
+
+impl<'de> Deserialize<'de> for PinPolicy {
+    fn deserialize<D: serde::Deserializer<'de>>(de: D) -> Result<Self, D::Error> {
+        let s = String::deserialize(de)?;
+        s.parse().map_err(|e: anyhow::Error| serde::de::Error::custom(format!("{e:#}")))
+    }
+}
+
+/// Parse a CPU list such as `0,1,4-7` (OS indices; duplicates allowed, order kept).
+pub fn parse_cpu_list(s: &str) -> Result<Vec<usize>> {
+    let mut out = Vec::new();
+    for part in s.split(',') {
+        let part = part.trim();
+        if part.is_empty() {
+            bail!("bad CPU list '{s}': empty entry");
+        }
+        let num = |t: &str| -> Result<usize> {
+            t.trim().parse::<usize>().map_err(|_| anyhow!("bad CPU list '{s}': '{t}' is not a CPU number"))
+        };
+        if let Some((a, b)) = part.split_once('-') {
+            let (a, b) = (num(a)?, num(b)?);
+            if b < a {
+                bail!("bad CPU list '{s}': range {a}-{b} runs backwards");
+            }
+            if b - a > 4096 {
+                bail!("bad CPU list '{s}': range {a}-{b} is too long");
+            }
+            out.extend(a..=b);
+        } else {
+            out.push(num(part)?);
+        }
+    }
+    Ok(out)
+}
+
+/// Format a CPU list compactly: consecutive ascending runs of 3 or more become ranges.
+pub fn format_cpu_list(cpus: &[usize]) -> String {
+    let mut out = String::new();
+    let mut i = 0;
+    while i < cpus.len() {
+        let mut j = i;
+        while j + 1 < cpus.len() && cpus[j + 1] == cpus[j] + 1 {
+            j += 1;
+        }
+        if !out.is_empty() {
+            out.push(',');
+        }
+        if j >= i + 2 {
+            let _ = write!(out, "{}-{}", cpus[i], cpus[j]);
+            i = j + 1;
+        } else {
+            let _ = write!(out, "{}", cpus[i]);
+            i += 1;
+        }
+    }
+    out
+}
+
+/// The CPUs of one run's workers.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct Placement {
+    /// CPU (OS index) of worker `j`; empty for [`PinPolicy::None`].
+    pub cpus: Vec<usize>,
+    /// More threads than the policy's distinct CPUs or than usable PUs.
+    pub oversubscribed: bool,
+}
+
+impl Machine {
+    /// Read this host's topology through hwloc.
+    pub fn detect() -> Result<Self> {
+        let topo = builder()?.build().context("hwloc could not read this machine's topology")?;
+        Ok(Self::from_topology(&topo, process_affinity()))
+    }
+
+    /// A topology from an hwloc synthetic description, e.g. `pack:2 core:4 pu:2`.
+    pub fn synthetic(description: &str) -> Result<Self> {
+        let topo = builder()?
+            .from_synthetic(description)
+            .with_context(|| format!("bad hwloc synthetic description '{description}'"))?
+            .build()
+            .context("hwloc could not build the synthetic topology")?;
+        Ok(Self::from_topology(&topo, None))
+    }
+
+    /// A topology from an hwloc XML export (e.g. another machine's `topology.xml`).
+    pub fn from_xml_file(path: &Path) -> Result<Self> {
+        let topo = builder()?
+            .from_xml_file(path)
+            .with_context(|| format!("cannot load hwloc XML {}", path.display()))?
+            .build()
+            .context("hwloc could not build the topology from XML")?;
+        Ok(Self::from_topology(&topo, None))
+    }
+
+    /// Extract the plain data from an hwloc topology. `allowed`, when given, restricts the
+    /// usable PUs (the process's affinity mask).
+    pub fn from_topology(topo: &Topology, allowed: Option<Vec<usize>>) -> Self {
+        let usable = |pu: usize| allowed.as_ref().is_none_or(|a| a.contains(&pu));
+        let cpus_of = |o: &TopologyObject| -> Vec<usize> {
+            o.cpuset().map(|c| c.iter_set().map(usize::from).collect()).unwrap_or_default()
+        };
+        let mut packages: Vec<Package> = Vec::new();
+        let mut pkg_ids: Vec<Option<u64>> = Vec::new();
+        for core in topo.objects_with_type(ObjectType::Core) {
+            let pus: Vec<usize> = core
+                .normal_children()
+                .filter(|c| c.object_type() == ObjectType::PU)
+                .filter_map(|c| c.os_index())
+                .filter(|&p| usable(p))
+                .collect();
+            let pus = if pus.is_empty() && core.normal_arity() == 0 {
+                cpus_of(core).into_iter().filter(|&p| usable(p)).collect()
+            } else {
+                pus
+            };
+            if pus.is_empty() {
+                continue;
+            }
+            let pkg = core.first_ancestor_with_type(ObjectType::Package);
+            let id = pkg.map(|p| p.global_persistent_index());
+            let idx = match pkg_ids.iter().position(|&x| x == id) {
+                Some(i) => i,
+                None => {
+                    pkg_ids.push(id);
+                    packages.push(Package { os_index: pkg.and_then(|p| p.os_index()), cores: Vec::new() });
+                    packages.len() - 1
+                }
+            };
+            packages[idx].cores.push(Core { os_index: core.os_index(), pus });
+        }
+        if packages.is_empty() {
+            // No Core objects (unusual): one core per PU.
+            let cores = topo
+                .objects_with_type(ObjectType::PU)
+                .filter_map(|p| p.os_index())
+                .filter(|&p| usable(p))
+                .map(|p| Core { os_index: Some(p), pus: vec![p] })
+                .collect();
+            packages.push(Package { os_index: Some(0), cores });
+        }
+        let numa_nodes = topo
+            .objects_with_type(ObjectType::NUMANode)
+            .map(|n| NumaNode {
+                os_index: n.os_index(),
+                memory_bytes: match n.attributes() {
+                    Some(ObjectAttributes::NUMANode(a)) => a.local_memory().map_or(0, |m| m.get()),
+                    _ => 0,
+                },
+                cpus: cpus_of(n),
+            })
+            .collect();
+        let mut caches: BTreeMap<(usize, u8), CacheLevel> = BTreeMap::new();
+        for ty in [
+            ObjectType::L1Cache,
+            ObjectType::L1ICache,
+            ObjectType::L2Cache,
+            ObjectType::L2ICache,
+            ObjectType::L3Cache,
+            ObjectType::L3ICache,
+            ObjectType::L4Cache,
+            ObjectType::L5Cache,
+        ] {
+            for obj in topo.objects_with_type(ty) {
+                let Some(ObjectAttributes::Cache(c)) = obj.attributes() else { continue };
+                let (suffix, kind) = match c.cache_type() {
+                    CacheType::Data => ("d", 0u8),
+                    CacheType::Instruction => ("i", 1),
+                    _ => ("", 2),
+                };
+                let entry = caches.entry((c.depth(), kind)).or_insert_with(|| CacheLevel {
+                    name: format!("L{}{suffix}", c.depth()),
+                    size_bytes: c.size().map_or(0, |s| s.get()),
+                    count: 0,
+                    pus_per_instance: cpus_of(obj).len(),
+                });
+                entry.count += 1;
+            }
+        }
+        let cpu_model = topo
+            .objects_with_type(ObjectType::Package)
+            .find_map(|p| p.info("CPUModel").map(|s| s.to_string_lossy().trim().to_string()))
+            .filter(|s| !s.is_empty())
+            .or_else(|| if topo.is_this_system() { proc_cpu_model() } else { None })
+            .unwrap_or_else(|| "unknown CPU".into());
+        Machine {
+            cpu_model,
+            packages,
+            numa_nodes,
+            caches: caches.into_values().collect(),
+            total_memory_bytes: if topo.is_this_system() {
+                // Some VMs hot-plug memory that hwloc's NUMA nodes do not list: the OS's
+                // MemTotal is what a run can use.
+                topo.root_object().total_memory().max(proc_mem_total().unwrap_or(0))
+            } else {
+                topo.root_object().total_memory()
+            },
+            is_this_system: topo.is_this_system(),
+        }
+    }
+
+    /// Number of packages (sockets) with usable PUs.
+    pub fn num_packages(&self) -> usize {
+        self.packages.len()
+    }
+
+    /// Number of physical cores with usable PUs.
+    pub fn num_cores(&self) -> usize {
+        self.packages.iter().map(|p| p.cores.len()).sum()
+    }
+
+    /// Every usable PU (OS index), in logical order.
+    pub fn usable_pus(&self) -> Vec<usize> {
+        self.packages.iter().flat_map(|p| p.cores.iter().flat_map(|c| c.pus.iter().copied())).collect()
+    }
+
+    /// Largest number of PUs on one core (2 with SMT/Hyper-Threading).
+    pub fn smt_width(&self) -> usize {
+        self.packages.iter().flat_map(|p| p.cores.iter().map(|c| c.pus.len())).max().unwrap_or(1)
+    }
+
+    /// The ordered PU list of a policy (`None` for [`PinPolicy::None`]). Physical cores come
+    /// before SMT siblings for `close` and `spread`.
+    pub fn order(&self, policy: &PinPolicy) -> Option<Vec<usize>> {
+        let smt = self.smt_width();
+        match policy {
+            PinPolicy::None => None,
+            PinPolicy::List(l) => Some(l.clone()),
+            PinPolicy::Close => {
+                let mut out = Vec::new();
+                for level in 0..smt {
+                    for pkg in &self.packages {
+                        out.extend(pkg.cores.iter().filter_map(|c| c.pus.get(level).copied()));
+                    }
+                }
+                Some(out)
+            }
+            PinPolicy::Spread => {
+                let mut out = Vec::new();
+                let max_cores = self.packages.iter().map(|p| p.cores.len()).max().unwrap_or(0);
+                for level in 0..smt {
+                    for k in 0..max_cores {
+                        for pkg in &self.packages {
+                            if let Some(pu) = pkg.cores.get(k).and_then(|c| c.pus.get(level)) {
+                                out.push(*pu);
+                            }
+                        }
+                    }
+                }
+                Some(out)
+            }
+        }
+    }
+
+    /// Check that every CPU of an explicit list is a usable PU of this machine.
+    pub fn check_policy(&self, policy: &PinPolicy) -> Result<()> {
+        if let PinPolicy::List(l) = policy {
+            if l.is_empty() {
+                bail!("the CPU list is empty");
+            }
+            let usable = self.usable_pus();
+            let bad: Vec<usize> = l.iter().copied().filter(|c| !usable.contains(c)).collect();
+            if !bad.is_empty() {
+                bail!(
+                    "CPU list {} names CPU(s) {} that this process cannot use (usable: {})",
+                    format_cpu_list(l),
+                    format_cpu_list(&bad),
+                    format_cpu_list(&usable)
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// Where the `threads` workers of a run go under `policy`. Wraps around (and marks the
+    /// placement oversubscribed) when there are more threads than CPUs to give.
+    pub fn place(&self, policy: &PinPolicy, threads: usize) -> Result<Placement> {
+        if threads == 0 {
+            bail!("a run needs at least one thread");
+        }
+        self.check_policy(policy)?;
+        let usable = self.usable_pus().len().max(1);
+        match self.order(policy) {
+            None => Ok(Placement { cpus: Vec::new(), oversubscribed: threads > usable }),
+            Some(order) => {
+                if order.is_empty() {
+                    bail!("no usable CPU to pin to");
+                }
+                let mut distinct = order.clone();
+                distinct.sort_unstable();
+                distinct.dedup();
+                let cpus: Vec<usize> = (0..threads).map(|j| order[j % order.len()]).collect();
+                let mut used = cpus.clone();
+                used.sort_unstable();
+                used.dedup();
+                Ok(Placement { oversubscribed: threads > usable || used.len() < threads, cpus })
+            }
+        }
+    }
+
+    /// Human-readable description (what `mpm-bench topology` prints first).
+    pub fn describe(&self) -> String {
+        let mut s = String::new();
+        let pus = self.usable_pus().len();
+        let _ = writeln!(s, "CPU model      {}", self.cpu_model);
+        let _ = writeln!(
+            s,
+            "Summary        {} package(s), {} NUMA node(s), {} core(s), {} PU(s) usable (SMT width {}), memory {}",
+            self.num_packages(),
+            self.numa_nodes.len(),
+            self.num_cores(),
+            pus,
+            self.smt_width(),
+            human_bytes(self.total_memory_bytes)
+        );
+        let numa_total: u64 = self.numa_nodes.iter().map(|n| n.memory_bytes).sum();
+        if numa_total > 0 && numa_total < self.total_memory_bytes * 9 / 10 {
+            let _ = writeln!(
+                s,
+                "Note           the NUMA nodes list only {} of the {} the OS reports (hot-plugged memory?)",
+                human_bytes(numa_total),
+                human_bytes(self.total_memory_bytes)
+            );
+        }
+        if !self.is_this_system {
+            let _ = writeln!(s, "Source         not this host (synthetic or XML topology)");
+        }
+        for (i, n) in self.numa_nodes.iter().enumerate() {
+            let _ = writeln!(
+                s,
+                "NUMA node {}    {} local memory, CPUs {}",
+                n.os_index.unwrap_or(i),
+                human_bytes(n.memory_bytes),
+                format_cpu_list(&n.cpus)
+            );
+        }
+        for (i, p) in self.packages.iter().enumerate() {
+            let _ = writeln!(s, "Package P#{}    {} core(s)", os(p.os_index, i), p.cores.len());
+            for (k, c) in p.cores.iter().enumerate() {
+                let _ = writeln!(s, "  Core C#{:<4}  PU(s) {}", os(c.os_index, k), format_cpu_list(&c.pus));
+            }
+        }
+        if self.caches.is_empty() {
+            let _ = writeln!(s, "Caches         (hwloc reports none)");
+        } else {
+            let list: Vec<String> = self
+                .caches
+                .iter()
+                .map(|c| {
+                    format!(
+                        "{} {} x{} (shared by {} PU)",
+                        c.name,
+                        human_bytes(c.size_bytes),
+                        c.count,
+                        c.pus_per_instance
+                    )
+                })
+                .collect();
+            let _ = writeln!(s, "Caches         {}", list.join(", "));
+        }
+        s
+    }
+
+    /// Table of the CPU each worker gets for each thread count under each policy.
+    pub fn placement_table(&self, threads: &[usize], policies: &[PinPolicy]) -> Result<String> {
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "Placement: CPU (OS index) of worker 0, 1, ... ; physical cores before SMT siblings;\n\
+             '*' = oversubscribed (more threads than usable PUs: rows are flagged, not scaling)"
+        );
+        let mut cols: Vec<Vec<String>> = Vec::new();
+        for p in policies {
+            let mut col = vec![p.label()];
+            for &t in threads {
+                let pl = self.place(p, t)?;
+                let mut cell = if matches!(p, PinPolicy::None) {
+                    "(OS decides)".to_string()
+                } else {
+                    pl.cpus.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(",")
+                };
+                if pl.oversubscribed {
+                    cell.push_str(" *");
+                }
+                col.push(cell);
+            }
+            cols.push(col);
+        }
+        let widths: Vec<usize> = cols.iter().map(|c| c.iter().map(|x| x.len()).max().unwrap_or(0) + 2).collect();
+        let _ = write!(s, "{:<9}", "threads");
+        for (c, w) in cols.iter().zip(&widths) {
+            let _ = write!(s, "{:<w$}", c[0], w = *w);
+        }
+        s = s.trim_end().to_string();
+        s.push('\n');
+        for (r, t) in threads.iter().enumerate() {
+            let _ = write!(s, "{t:<9}");
+            for (c, w) in cols.iter().zip(&widths) {
+                let _ = write!(s, "{:<w$}", c[r + 1], w = *w);
+            }
+            s = s.trim_end().to_string();
+            s.push('\n');
+        }
+        Ok(s)
+    }
+}
+
+fn os(i: Option<usize>, fallback: usize) -> String {
+    i.map_or_else(|| format!("{fallback}?"), |v| v.to_string())
+}
+
+fn builder() -> Result<hwlocality::topology::builder::TopologyBuilder> {
+    Topology::builder()
+        .with_cpu_icache_type_filter(TypeFilter::KeepAll)
+        .context("hwloc refused to keep instruction caches")
+}
+
+/// This process's CPU affinity mask (OS indices), if readable.
+pub fn process_affinity() -> Option<Vec<usize>> {
+    core_affinity::get_core_ids().map(|ids| ids.into_iter().map(|c| c.id).collect())
+}
+
+/// `MemTotal` of `/proc/meminfo`, bytes.
+fn proc_mem_total() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kib: u64 = text.lines().find(|l| l.starts_with("MemTotal:"))?.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+fn proc_cpu_model() -> Option<String> {
+    let text = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    text.lines()
+        .find(|l| l.starts_with("model name"))
+        .and_then(|l| l.split_once(':'))
+        .map(|(_, v)| v.trim().to_string())
+}
+
+/// Export this host's topology as hwloc XML (for `topology.xml` beside a manifest).
+pub fn export_xml() -> Result<String> {
+    let topo = builder()?.build().context("hwloc could not read this machine's topology")?;
+    let xml = topo.export_xml(XMLExportFlags::empty()).context("hwloc XML export failed")?;
+    Ok(xml.as_str().to_string())
+}
+
+/// `1.5 GiB` style.
+pub fn human_bytes(b: u64) -> String {
+    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut v = b as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < UNITS.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{b} B")
+    } else if v >= 100.0 || v.fract() < 0.05 {
+        format!("{v:.0} {}", UNITS[u])
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cpu_lists_round_trip() {
+        assert_eq!(parse_cpu_list("0,2,4-7").unwrap(), vec![0, 2, 4, 5, 6, 7]);
+        assert_eq!(format_cpu_list(&[0, 2, 4, 5, 6, 7]), "0,2,4-7");
+        assert_eq!(format_cpu_list(&[0, 1]), "0,1");
+        assert!(parse_cpu_list("0,,1").is_err());
+        assert!(parse_cpu_list("3-1").is_err());
+        assert!(parse_cpu_list("a").is_err());
+        assert!("bogus".parse::<PinPolicy>().is_err());
+        assert_eq!("0-1".parse::<PinPolicy>().unwrap(), PinPolicy::List(vec![0, 1]));
+        assert_eq!("compact".parse::<PinPolicy>().unwrap(), PinPolicy::Close);
+    }
+
+    #[test]
+    fn two_sockets_with_smt() {
+        let m = Machine::synthetic("pack:2 core:4 pu:2").unwrap();
+        assert_eq!(m.num_packages(), 2);
+        assert_eq!(m.num_cores(), 8);
+        assert_eq!(m.usable_pus().len(), 16);
+        let close = m.place(&PinPolicy::Close, 8).unwrap();
+        let spread = m.place(&PinPolicy::Spread, 4).unwrap();
+        // Close fills package 0's four cores first; spread alternates packages.
+        let pkg_of = |pu: usize| m.packages.iter().position(|p| p.cores.iter().any(|c| c.pus.contains(&pu))).unwrap();
+        let close_pkgs: Vec<usize> = close.cpus.iter().map(|&c| pkg_of(c)).collect();
+        assert_eq!(close_pkgs, vec![0, 0, 0, 0, 1, 1, 1, 1]);
+        let spread_pkgs: Vec<usize> = spread.cpus.iter().map(|&c| pkg_of(c)).collect();
+        assert_eq!(spread_pkgs, vec![0, 1, 0, 1]);
+        // No SMT sibling before every core has a worker.
+        let core_of =
+            |pu: usize| m.packages.iter().flat_map(|p| p.cores.iter()).position(|c| c.pus.contains(&pu)).unwrap();
+        let mut cores: Vec<usize> = close.cpus.iter().map(|&c| core_of(c)).collect();
+        cores.sort_unstable();
+        cores.dedup();
+        assert_eq!(cores.len(), 8);
+        assert!(!close.oversubscribed);
+        let sixteen = m.place(&PinPolicy::Close, 16).unwrap();
+        assert!(!sixteen.oversubscribed);
+        assert!(m.place(&PinPolicy::Close, 17).unwrap().oversubscribed);
+    }
+
+    #[test]
+    fn wrap_around_marks_oversubscription() {
+        let m = Machine::synthetic("pack:1 core:2 pu:1").unwrap();
+        let p = m.place(&PinPolicy::Close, 4).unwrap();
+        assert_eq!(p.cpus.len(), 4);
+        assert_eq!(p.cpus[0], p.cpus[2]);
+        assert!(p.oversubscribed);
+        assert!(!m.place(&PinPolicy::Spread, 2).unwrap().oversubscribed);
+        assert!(m.place(&PinPolicy::None, 3).unwrap().oversubscribed);
+        assert!(m.place(&PinPolicy::None, 3).unwrap().cpus.is_empty());
+        // A list shorter than the thread count wraps too.
+        let l = m.place(&PinPolicy::List(vec![0]), 2).unwrap();
+        assert_eq!(l.cpus, vec![0, 0]);
+        assert!(l.oversubscribed);
+        assert!(m.place(&PinPolicy::List(vec![7]), 1).is_err());
+        assert!(m.place(&PinPolicy::Close, 0).is_err());
+    }
+
+    #[test]
+    fn this_host_is_readable() {
+        let m = Machine::detect().unwrap();
+        assert!(!m.usable_pus().is_empty());
+        assert!(m.is_this_system);
+        assert!(m.describe().contains("Package"));
+        assert!(export_xml().unwrap().contains("<topology"));
+        let table = m.placement_table(&PAPER_THREADS, &[PinPolicy::Close, PinPolicy::Spread, PinPolicy::None]).unwrap();
+        assert!(table.contains("close"));
+    }
+}

@@ -1,0 +1,429 @@
+//! The `mpm` program through its real binary: help, Table 2 counts, the JSON summary's keys,
+//! strategies, pinning, oversubscription, bad input and VTU output.
+
+use serde_json::Value;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const MPM: &str = env!("CARGO_BIN_EXE_mpm");
+
+fn mpm(args: &[&str]) -> Output {
+    Command::new(MPM).args(args).output().expect("cannot start the mpm binary")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// Run `mpm run taylor <args> --json <dir>/out.json` and return the parsed summary.
+fn run_json(args: &[&str]) -> (Value, Output) {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("out.json");
+    let mut all = vec!["run", "taylor"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--json", json.to_str().unwrap()]);
+    let out = mpm(&all);
+    assert!(out.status.success(), "mpm {all:?} failed\nstdout:\n{}\nstderr:\n{}", text(&out.stdout), text(&out.stderr));
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_no_temp_files(dir.path());
+    (v, out)
+}
+
+fn assert_no_temp_files(dir: &Path) {
+    let left: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with('.'))
+        .collect();
+    assert!(left.is_empty(), "temporary files left behind: {left:?}");
+}
+
+fn u(v: &Value, k: &str) -> u64 {
+    v[k].as_u64().unwrap_or_else(|| panic!("{k} is not an unsigned integer: {}", v[k]))
+}
+
+fn f(v: &Value, k: &str) -> f64 {
+    v[k].as_f64().unwrap_or_else(|| panic!("{k} is not a number: {}", v[k]))
+}
+
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+#[test]
+fn help_teaches_the_commands_and_every_flag() {
+    let top = mpm(&["--help"]);
+    assert!(top.status.success());
+    let top = text(&top.stdout);
+    assert!(top.contains("Run one explicit MPM simulation"), "{top}");
+    assert!(top.contains("run "), "{top}");
+    assert!(top.contains("mpm run taylor --model 1 --end-time 40e-6"), "{top}");
+    assert!(top.contains("--strategy dd --threads 2 --cpus 0,1"), "{top}");
+
+    let run = text(&mpm(&["run", "--help"]).stdout);
+    assert!(run.contains("taylor"), "{run}");
+
+    let out = mpm(&["run", "taylor", "--help"]);
+    assert!(out.status.success());
+    let h = text(&out.stdout);
+    // Snapshot of the flag list, in order.
+    let flags: Vec<String> = h
+        .lines()
+        // Option lines start within the first 6 columns; wrapped help text is indented more.
+        .filter(|l| {
+            let t = l.trim_start();
+            t.starts_with('-') && l.len() - t.len() <= 6
+        })
+        .map(str::trim_start)
+        .filter_map(|l| l.split([' ', ',']).find(|w| w.starts_with("--")).map(str::to_string))
+        .collect();
+    let expect = [
+        "--model",
+        "--velocity",
+        "--eos",
+        "--wall",
+        "--end-time",
+        "--steps",
+        "--grid",
+        "--cfl",
+        "--strategy",
+        "--threads",
+        "--cpus",
+        "--warmup",
+        "--json",
+        "--vtk",
+        "--every",
+        "--vtk-format",
+        "--quiet",
+        "--help",
+        "--version",
+    ];
+    assert_eq!(flags, expect, "{h}");
+    for must in [
+        "m/s",
+        "[default: 40]",
+        "[default: 0.5]",
+        "[default: paper]",
+        "[default: frictionless]",
+        "[default: fixed]",
+        "[default: serial]",
+        "[default: 100]",
+        "<SECONDS>",
+        "40e-6",
+        "Examples:",
+        "1,155,192",
+    ] {
+        assert!(h.contains(must), "help lacks {must:?}:\n{h}");
+    }
+}
+
+#[test]
+fn table2_counts_of_models_1_to_3() {
+    for (model, p, c, n) in
+        [("1", 56_056, 49_152, 53_361), ("2", 244_341, 165_888, 175_273), ("3", 1_155_192, 1_022_208, 1_053_493)]
+    {
+        let (v, _) = run_json(&["--model", model, "--steps", "0", "--quiet"]);
+        assert_eq!(u(&v, "particles"), p, "model {model}");
+        assert_eq!(u(&v, "cells"), c, "model {model}");
+        assert_eq!(u(&v, "nodes"), n, "model {model}");
+        assert_eq!(u(&v, "steps"), 0);
+        assert_eq!(v["end_reason"], "step_limit");
+        assert!(v["ns_per_particle_step"].is_null());
+        assert!((f(&v, "initial_length_m") - 25.4e-3).abs() < 1e-12);
+    }
+}
+
+/// Model 4 builds in about 9 s and 2.7 GB here.
+#[test]
+fn table2_counts_of_model_4() {
+    let (v, _) = run_json(&["--model", "4", "--steps", "0", "--quiet"]);
+    assert_eq!(u(&v, "particles"), 12_416_320);
+    assert_eq!(u(&v, "cells"), 8_177_664);
+    assert_eq!(u(&v, "nodes"), 8_302_185);
+}
+
+const REQUIRED_KEYS: &[&str] = &[
+    "scenario",
+    "model",
+    "strategy",
+    "threads",
+    "opt_level",
+    "profile",
+    "mpm_version",
+    "debug_assertions",
+    "target",
+    "grid_mode",
+    "eos",
+    "material",
+    "cfl",
+    "wall",
+    "velocity_m_s",
+    "particles",
+    "cells",
+    "nodes",
+    "mean_nodes",
+    "final_nodes",
+    "dx_m",
+    "steps",
+    "warmup_steps",
+    "steady_steps",
+    "dt_first",
+    "dt_next",
+    "sim_time",
+    "end_time",
+    "step_limit",
+    "end_reason",
+    "wall_s",
+    "output_s",
+    "grid_stage_s",
+    "particle_stage_s",
+    "substages",
+    "steady_wall_s",
+    "steady_grid_stage_s",
+    "steady_particle_stage_s",
+    "steady_substages",
+    "steady_s_per_step",
+    "ns_per_particle_step",
+    "particle_steps_per_s",
+    "peak_rss_bytes",
+    "model_memory_bytes",
+    "requested_cpus",
+    "observed_cpus",
+    "worker_affinity",
+    "pinned",
+    "pinning_verified",
+    "oversubscribed",
+    "available_cores",
+    "kinetic_energy_initial",
+    "internal_energy_initial",
+    "kinetic_energy",
+    "internal_energy",
+    "momentum_initial",
+    "momentum",
+    "failed_particles",
+    "history",
+    "initial_length_m",
+    "final_length_m",
+    "initial_face_diameter_m",
+    "face_diameter_m",
+    "length_convention",
+    "command_line",
+    "started_unix_s",
+];
+
+const SUBSTAGES: &[&str] = &[
+    "grid_fit",
+    "binning",
+    "scatter",
+    "assembly",
+    "grid_update",
+    "gather",
+    "remap_scatter",
+    "remap_assembly",
+    "stress_update",
+];
+
+fn keys(v: &Value) -> BTreeSet<String> {
+    v.as_object().unwrap().keys().cloned().collect()
+}
+
+#[test]
+fn json_has_exactly_the_golden_keys() {
+    let (v, out) = run_json(&["--model", "1", "--steps", "12", "--quiet"]);
+    let want: BTreeSet<String> = REQUIRED_KEYS.iter().map(|s| s.to_string()).collect();
+    assert_eq!(keys(&v), want);
+    assert!(out.stdout.is_empty(), "--quiet printed: {}", text(&out.stdout));
+    let sub: Vec<&str> = v["substages"].as_object().unwrap().keys().map(String::as_str).collect();
+    let mut sorted = SUBSTAGES.to_vec();
+    sorted.sort_unstable();
+    assert_eq!(sub, sorted);
+    assert_eq!(v["scenario"], "taylor");
+    assert_eq!(v["strategy"], "serial");
+    assert_eq!(u(&v, "threads"), 1);
+    // The build script exports the level this test (and so the binary) was built with.
+    assert_eq!(v["opt_level"], concat!("o", env!("MPM_OPT_LEVEL")));
+    assert_eq!(v["profile"], env!("MPM_PROFILE"));
+    assert_eq!(v["eos"], "mie-gruneisen (paper form)");
+    assert_eq!(v["wall"], "frictionless");
+    assert_eq!(v["grid_mode"], "fixed");
+    assert_eq!(u(&v, "steps"), 12);
+    assert_eq!(u(&v, "step_limit"), 12);
+    assert!(v["end_time"].is_null());
+    assert_eq!(v["end_reason"], "step_limit");
+    assert_eq!(u(&v, "warmup_steps"), 1, "default warm-up min(5, 12/10)");
+    assert_eq!(u(&v, "steady_steps"), 11);
+    assert!(f(&v, "ns_per_particle_step") > 0.0);
+    assert!(u(&v, "peak_rss_bytes") > 10_000_000);
+    assert!(v["requested_cpus"].as_array().unwrap().is_empty());
+    assert!(v["observed_cpus"].as_array().unwrap().is_empty());
+    assert_eq!(v["worker_affinity"].as_array().unwrap().len(), 1);
+    assert_eq!(v["momentum"].as_array().unwrap().len(), 3);
+    let h = v["history"].as_array().unwrap();
+    assert_eq!(h.len(), 13);
+    assert_eq!(u(&h[0], "step"), 0);
+    assert_eq!(u(&h[12], "step"), 12);
+    assert!(f(&h[12], "internal") > 0.0);
+    let k0 = f(&v, "kinetic_energy_initial");
+    assert!((k0 - 0.5 * 10.28e-3 * 40.0 * 40.0).abs() < 0.01 * k0, "{k0}");
+    assert!(f(&v, "kinetic_energy") < k0);
+}
+
+#[test]
+fn end_time_run_lands_exactly_on_the_end_time() {
+    let (v, out) = run_json(&["--model", "1", "--end-time", "1e-6"]);
+    assert_eq!(v["end_reason"], "end_time");
+    assert!((f(&v, "sim_time") - 1e-6).abs() < 1e-18, "{}", v["sim_time"]);
+    assert_eq!(f(&v, "end_time"), 1e-6);
+    assert!(v["step_limit"].is_null());
+    let s = text(&out.stdout);
+    assert!(s.contains("ns per particle-step"), "{s}");
+    assert!(s.contains("final") || s.contains("length"), "{s}");
+}
+
+#[test]
+fn dd_on_two_pinned_workers_reports_their_cpus_and_stage_times() {
+    let (v, _) =
+        run_json(&["--model", "1", "--steps", "20", "--strategy", "dd", "--threads", "2", "--cpus", "0,1", "--quiet"]);
+    assert_eq!(v["strategy"], "dd");
+    assert_eq!(u(&v, "threads"), 2);
+    assert_eq!(v["requested_cpus"], serde_json::json!([0, 1]));
+    assert_eq!(v["observed_cpus"], serde_json::json!([0, 1]));
+    assert_eq!(v["worker_affinity"], serde_json::json!([[0], [1]]));
+    assert_eq!(v["pinning_verified"], true);
+    assert_eq!(v["dd_layout"], serde_json::json!([2, 1, 1]));
+    assert!(f(&v, "grid_stage_s") > 0.0);
+    assert!(f(&v, "particle_stage_s") > 0.0);
+    for s in ["binning", "scatter", "assembly", "gather", "stress_update"] {
+        assert!(v["substages"][s].as_f64().unwrap() > 0.0, "{s}");
+    }
+    let mut want: BTreeSet<String> = REQUIRED_KEYS.iter().map(|s| s.to_string()).collect();
+    want.insert("dd_layout".into());
+    assert_eq!(keys(&v), want);
+}
+
+#[test]
+fn ae_on_two_workers_runs() {
+    let (v, _) = run_json(&["--model", "1", "--steps", "20", "--strategy", "ae", "--threads", "2", "--quiet"]);
+    assert_eq!(v["strategy"], "ae");
+    assert_eq!(u(&v, "steps"), 20);
+    assert!(f(&v, "wall_s") > 0.0);
+    assert!(v["substages"]["assembly"].as_f64().unwrap() > 0.0);
+    assert!(v.get("dd_layout").is_none());
+}
+
+#[test]
+fn more_threads_than_cores_works_and_is_flagged() {
+    let threads = (cores() + 1).max(4);
+    let t = threads.to_string();
+    let (v, out) = run_json(&["--model", "1", "--steps", "5", "--strategy", "dd", "--threads", &t, "--quiet"]);
+    assert_eq!(v["oversubscribed"], true);
+    assert_eq!(u(&v, "threads"), threads as u64);
+    let err = text(&out.stderr);
+    let line = format!("oversubscribed: {threads} threads on {} cores", cores());
+    assert!(err.contains(&line), "{err}");
+    assert_eq!(err.matches("oversubscribed").count(), 1, "{err}");
+}
+
+/// A bad invocation: non-zero exit, a message containing `says`, no panic, no JSON.
+fn rejects(args: &[&str], says: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("never.json");
+    let mut all = vec!["run", "taylor"];
+    all.extend_from_slice(args);
+    if !args.contains(&"--json") {
+        all.extend_from_slice(&["--json", json.to_str().unwrap()]);
+    }
+    let out = mpm(&all);
+    let err = text(&out.stderr);
+    assert!(!out.status.success(), "{all:?} succeeded");
+    assert!(err.contains(says), "{all:?}: stderr lacks {says:?}:\n{err}");
+    assert!(!err.contains("panicked"), "{all:?} panicked:\n{err}");
+    assert!(!json.exists(), "{all:?} wrote a summary");
+    assert_no_temp_files(dir.path());
+}
+
+#[test]
+fn bad_input_is_a_clear_error() {
+    rejects(&["--model", "5", "--steps", "0"], "--model");
+    rejects(&["--model", "5", "--steps", "0"], "1..=4");
+    rejects(&["--steps", "0"], "--model");
+    rejects(&["--model", "1", "--threads", "0"], "at least 1");
+    rejects(&["--model", "1", "--threads", "2"], "use --strategy ae or --strategy dd");
+    rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0,99"], "CPU 99 does not exist");
+    rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0"], "one CPU per worker");
+    rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0,x"], "not a CPU number");
+    rejects(&["--model", "1", "--end-time", "-1e-6"], "end time must be a positive");
+    rejects(&["--model", "1", "--cfl", "1.5"], "CFL number must be in (0, 1]");
+    rejects(&["--model", "1", "--velocity", "-3"], "impact speed");
+    rejects(&["--model", "1", "--every", "10"], "--vtk");
+    rejects(&["--model", "1", "--steps", "5", "--warmup", "5"], "no steady-state steps");
+    rejects(&["--model", "1", "--strategy", "bogus"], "invalid value 'bogus'");
+}
+
+#[test]
+fn unwritable_json_path_is_detected_before_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no/such/dir/x.json");
+    let start = std::time::Instant::now();
+    // Without the early check this would run Model 1 to 40 µs (seconds) first.
+    let out = mpm(&["run", "taylor", "--model", "1", "--json", missing.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert!(err.contains("does not exist"), "{err}");
+    assert!(!err.contains("panicked"));
+    assert!(start.elapsed().as_secs_f64() < 2.0, "the check came late");
+    assert!(!missing.exists());
+    rejects(&["--model", "1", "--json", dir.path().to_str().unwrap()], "is a directory");
+}
+
+#[test]
+fn solver_failure_prints_the_step_and_writes_no_summary() {
+    // 500 m/s with CFL 1 splashes copper out of the fixed grid within ~100 steps.
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("x.json");
+    let out = mpm(&[
+        "run",
+        "taylor",
+        "--model",
+        "1",
+        "--velocity",
+        "500",
+        "--cfl",
+        "1",
+        "--steps",
+        "400",
+        "--quiet",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("the simulation failed"), "{err}");
+    assert!(err.contains("step "), "{err}");
+    assert!(err.contains("left the fixed grid"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(!json.exists());
+    assert_no_temp_files(dir.path());
+}
+
+#[test]
+fn vtk_snapshots_and_pvd_are_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let vtk: PathBuf = dir.path().join("snaps");
+    let (v, _) =
+        run_json(&["--model", "1", "--steps", "20", "--vtk", vtk.to_str().unwrap(), "--every", "10", "--quiet"]);
+    assert!(f(&v, "output_s") > 0.0);
+    let mut names: Vec<String> =
+        std::fs::read_dir(&vtk).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    names.sort();
+    assert_eq!(names, ["taylor.pvd", "taylor_000000.vtu", "taylor_000010.vtu", "taylor_000020.vtu"]);
+    let pvd = std::fs::read_to_string(vtk.join("taylor.pvd")).unwrap();
+    assert_eq!(pvd.matches("<DataSet ").count(), 3, "{pvd}");
+    for n in ["taylor_000000.vtu", "taylor_000010.vtu", "taylor_000020.vtu"] {
+        assert!(pvd.contains(&format!("file=\"{n}\"")), "{pvd}");
+    }
+    let vtu = std::fs::read_to_string(vtk.join("taylor_000020.vtu")).unwrap();
+    assert!(vtu.contains(r#"<Piece NumberOfPoints="56056" NumberOfCells="56056">"#));
+    assert!(vtu.contains(r#"Name="CYCLE" NumberOfTuples="1" format="ascii">20<"#));
+}

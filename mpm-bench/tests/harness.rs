@@ -1,0 +1,395 @@
+//! Integration tests of the campaign harness: matrix expansion, resume, skip and
+//! oversubscription flags, the CSV header, CLI errors (all with the mock runner), and one
+//! real end-to-end smoke campaign through the `mpm-bench` binary and the real `mpm` solver.
+
+use mpm_bench::matrix::{self, Campaign, OptLevel, Overrides, Strategy};
+use mpm_bench::record::{read_rows, Row, Status};
+use mpm_bench::runner::{self, ExecOptions, MockRunner, Solver};
+use mpm_bench::topology::{Machine, PinPolicy};
+use std::collections::HashSet;
+use std::path::Path;
+use std::process::Command;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+fn campaign(name: &str, ov: &Overrides) -> Campaign {
+    let (p, src) = matrix::load_preset(name, None).unwrap();
+    Campaign::resolve(p, src, ov).unwrap()
+}
+
+fn mock_solvers(c: &Campaign) -> Vec<Solver> {
+    c.opts.iter().map(|&opt| Solver { opt, path: "mock".into(), sha256: "0123456789abcdef".into() }).collect()
+}
+
+/// A two-core, one-socket machine (like the development machine), independent of the host.
+fn laptop() -> Machine {
+    Machine::synthetic("pack:1 core:2 pu:1").unwrap()
+}
+
+fn opts(out: &Path) -> ExecOptions {
+    ExecOptions { out_root: out.to_path_buf(), quiet: true, command: "test".into(), ..ExecOptions::default() }
+}
+
+fn run_mock(c: &Campaign, m: &Machine, out: &Path, r: &mut MockRunner) -> runner::ExecSummary {
+    let flag = AtomicBool::new(false);
+    runner::execute(c, m, &mock_solvers(c), r, &opts(out), &flag).unwrap()
+}
+
+#[test]
+fn matrix_expansion_covers_every_cell() {
+    let quick = campaign("quick", &Overrides::default());
+    let runs = quick.expand();
+    assert_eq!(runs.len(), 4 * 5 * 2 * 2);
+    let keys: HashSet<_> = runs.iter().map(|r| r.key()).collect();
+    assert_eq!(keys.len(), runs.len(), "every run has its own key");
+    for m in 1..=4 {
+        for opt in [OptLevel::O3, OptLevel::O0] {
+            for s in [Strategy::Ae, Strategy::Dd] {
+                for t in [1, 2, 4, 6, 8] {
+                    assert!(runs.iter().any(|r| r.model == m && r.opt == opt && r.strategy == s && r.threads == t));
+                }
+            }
+        }
+    }
+    // Budgets: the most specific override wins; Model 4 at O0 gets the fewest steps.
+    let b40 = quick.budget_for(4, OptLevel::O0);
+    let b43 = quick.budget_for(4, OptLevel::O3);
+    let b13 = quick.budget_for(1, OptLevel::O3);
+    assert!(b40.step_limit.unwrap() <= b43.step_limit.unwrap());
+    assert!(b43.step_limit.unwrap() < b13.step_limit.unwrap());
+    assert!(b40.warmup < b40.step_limit.unwrap().max(1));
+
+    let paper = campaign("paper", &Overrides::default());
+    assert_eq!(paper.expand().len(), 4 * 5 * 2 * 2 * paper.reps as usize);
+    assert!(paper.expand().iter().all(|r| r.budget.end_time == Some(4e-5) && r.budget.step_limit.is_none()));
+
+    // Serial pairs with one thread only.
+    let ov = Overrides { strategies: Some(vec![Strategy::Serial, Strategy::Dd]), ..Overrides::default() };
+    let c = campaign("smoke", &ov);
+    assert!(c.expand().iter().all(|r| r.strategy != Strategy::Serial || r.threads == 1));
+    assert_eq!(c.expand().iter().filter(|r| r.strategy == Strategy::Serial).count(), 2);
+}
+
+#[test]
+fn overrides_change_the_campaign_id_but_not_the_seed() {
+    let plain = campaign("smoke", &Overrides::default());
+    assert_eq!(plain.id, "smoke");
+    let ov =
+        Overrides { models: Some(vec![1, 2]), threads: Some(vec![1, 2, 4]), steps: Some(3), ..Overrides::default() };
+    let c = campaign("smoke", &ov);
+    assert_eq!(c.id, "smoke_m1-2_t1-2-4_n3");
+    assert!(c.expand().iter().all(|r| r.budget.step_limit == Some(3)));
+    let seeded = campaign("smoke", &Overrides { seed: Some(99), ..Overrides::default() });
+    assert_eq!(seeded.id, "smoke");
+    assert_eq!(seeded.seed, 99);
+    // Errors are clear.
+    let (p, s) = matrix::load_preset("smoke", None).unwrap();
+    let e = Campaign::resolve(p.clone(), s.clone(), &Overrides { models: Some(vec![5]), ..Overrides::default() })
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("unknown model 5"), "{e}");
+    let e =
+        Campaign::resolve(p, s, &Overrides { threads: Some(vec![0]), ..Overrides::default() }).unwrap_err().to_string();
+    assert!(e.contains("at least 1"), "{e}");
+    let e = matrix::load_preset("nope", None).unwrap_err().to_string();
+    assert!(e.contains("unknown preset 'nope'"), "{e}");
+}
+
+#[test]
+fn order_is_seeded_interleaved_and_complete() {
+    let ov = Overrides { reps: Some(3), ..Overrides::default() };
+    let c = campaign("quick", &ov);
+    let a = c.ordered(5);
+    assert_eq!(a, c.ordered(5));
+    assert_ne!(a, c.ordered(6));
+    assert_ne!(a, c.expand());
+    let n = a.len() / 3;
+    // Repetition by repetition: every configuration once before any repeats.
+    for (i, r) in a.iter().enumerate() {
+        assert_eq!(r.rep as usize, i / n);
+    }
+    let mut sorted: Vec<_> = a.iter().map(|r| r.key()).collect();
+    sorted.sort();
+    let mut want: Vec<_> = c.expand().iter().map(|r| r.key()).collect();
+    want.sort();
+    assert_eq!(sorted, want);
+}
+
+#[test]
+fn resume_adds_nothing_and_interrupts_keep_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let m = laptop();
+    let flag = Arc::new(AtomicBool::new(false));
+    // Interrupted after 3 runs: exactly 3 valid rows.
+    let mut r = MockRunner { interrupt_after: Some((3, flag.clone())), ..MockRunner::default() };
+    let s = runner::execute(&c, &m, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
+    assert!(s.interrupted);
+    assert_eq!(s.written, 3);
+    let csv = s.dir.join("runs.csv");
+    assert_eq!(read_rows(&csv).unwrap().len(), 3);
+    // Resume: the other 5 only.
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &m, dir.path(), &mut r);
+    assert_eq!((s.already_done, s.written, r.calls.len()), (3, 5, 5));
+    let rows = read_rows(&csv).unwrap();
+    assert_eq!(rows.len(), 8);
+    let keys: HashSet<_> = rows.iter().map(Row::key).collect();
+    assert_eq!(keys.len(), 8);
+    assert!(rows.iter().all(|r| r.status == Status::Ok && r.campaign_id == "smoke"));
+    // Again: nothing to do.
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &m, dir.path(), &mut r);
+    assert_eq!((s.written, r.calls.len()), (0, 0));
+    assert_eq!(read_rows(&csv).unwrap().len(), 8);
+    // Manifest and sessions.
+    let man = mpm_bench::manifest::read(&s.dir.join("manifest.json")).unwrap();
+    assert_eq!(man.sessions.len(), 3);
+    assert_eq!(man.machine.fingerprint, mpm_bench::manifest::fingerprint(&m));
+    assert!(s.dir.starts_with(dir.path().join(&man.machine.fingerprint)));
+}
+
+#[test]
+fn memory_guard_skips_with_a_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    let ov = Overrides { mem_limit: Some(10 << 20), ..Overrides::default() };
+    let c = campaign("smoke", &ov);
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &laptop(), dir.path(), &mut r);
+    assert_eq!(r.calls.len(), 0, "skipped runs are not attempted");
+    assert_eq!(s.skipped, 8);
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    assert!(rows.iter().all(|r| r.status == Status::Skipped && r.reason.contains("memory guard")));
+    assert!(rows.iter().all(|r| r.wall_s.is_none() && r.mem_estimate_bytes > 10 << 20));
+    // AE grows with threads: with a limit between, Model 4 AE at 8 threads is skipped while DD runs.
+    let est_dd = runner::estimate_memory(4, Strategy::Dd, 8);
+    let est_ae = runner::estimate_memory(4, Strategy::Ae, 8);
+    assert!(est_ae > est_dd);
+    assert!(runner::memory_verdict(est_ae, None, Some(est_ae)).is_some());
+    assert!(runner::memory_verdict(est_dd, None, Some(est_ae)).is_none());
+}
+
+#[test]
+fn oversubscribed_invalid_and_failed_rows_are_flagged() {
+    let dir = tempfile::tempdir().unwrap();
+    let ov = Overrides { threads: Some(vec![1, 2, 4]), opt: Some(vec![OptLevel::O3]), ..Overrides::default() };
+    let c = campaign("smoke", &ov);
+    let mut r = MockRunner {
+        wrong_cpus_when: Some("dd o3 2 thr".into()),
+        fail_when: Some("ae o3 1 thr".into()),
+        ..MockRunner::default()
+    };
+    let s = run_mock(&c, &laptop(), dir.path(), &mut r);
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 6);
+    for row in &rows {
+        assert_eq!(row.oversubscribed, row.threads > 2, "{}", row.run_id);
+        if row.threads == 4 {
+            assert_eq!(row.requested_cpus, "0 1 0 1");
+        }
+    }
+    let invalid: Vec<_> = rows.iter().filter(|r| r.status == Status::Invalid).collect();
+    assert_eq!(invalid.len(), 1);
+    assert!(invalid[0].reason.contains("requested CPUs [0 1], observed [1 2]"), "{}", invalid[0].reason);
+    let failed: Vec<_> = rows.iter().filter(|r| r.status == Status::Failed).collect();
+    assert_eq!(failed.len(), 1);
+    assert!(failed[0].reason.contains("exited with code 1"), "{}", failed[0].reason);
+    assert_eq!(s.oversubscribed, 2);
+    // --retry-failed runs the two bad ones again (new attempt ids), nothing else.
+    let mut r = MockRunner::default();
+    let flag = AtomicBool::new(false);
+    let o = ExecOptions { retry_failed: true, ..opts(dir.path()) };
+    let s = runner::execute(&c, &laptop(), &mock_solvers(&c), &mut r, &o, &flag).unwrap();
+    assert_eq!(s.written, 2);
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    assert!(rows.iter().any(|r| r.run_id.ends_with("-a1")));
+}
+
+#[test]
+fn pinning_none_passes_no_cpus() {
+    let dir = tempfile::tempdir().unwrap();
+    let ov = Overrides { pin: Some(vec![PinPolicy::None]), opt: Some(vec![OptLevel::O3]), ..Overrides::default() };
+    let c = campaign("smoke", &ov);
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &laptop(), dir.path(), &mut r);
+    assert!(r.calls.iter().all(|c| c.cpus.is_none() && !c.args().contains(&"--cpus".to_string())));
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    assert!(rows.iter().all(|r| r.status == Status::Ok && r.requested_cpus.is_empty() && r.pin_policy == "none"));
+}
+
+/// Snapshot of the CSV header: changing it must be deliberate (bump SCHEMA_VERSION).
+#[test]
+fn csv_header_snapshot() {
+    assert_eq!(mpm_bench::record::SCHEMA_VERSION, 1);
+    let want = "schema_version,campaign_id,run_id,timestamp,git_commit,git_dirty,machine_id,binary_sha256,seed,\
+order_index,scenario,model,particles,cells,nodes,mean_nodes,grid_mode,strategy,opt_level,threads,pin_policy,\
+requested_cpus,observed_cpus,oversubscribed,rep,warmup_steps,step_limit,end_time_s,steps,sim_time_s,end_reason,\
+dt_first_s,wall_s,process_wall_s,grid_stage_s,particle_stage_s,sub_grid_fit_s,sub_binning_s,sub_scatter_s,\
+sub_assembly_s,sub_grid_update_s,sub_gather_s,sub_remap_scatter_s,sub_remap_assembly_s,sub_stress_update_s,\
+steady_s_per_step,ns_per_particle_step,particle_steps_per_s,peak_rss_bytes,mem_estimate_bytes,exit_code,\
+kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,final_length_m,face_diameter_m,\
+failed_particles,status,reason";
+    assert_eq!(Row::header().join(","), want);
+}
+
+#[test]
+fn resume_refuses_a_csv_with_missing_columns() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let m = laptop();
+    let d = runner::campaign_dir(dir.path(), &m, &c);
+    std::fs::create_dir_all(&d).unwrap();
+    std::fs::write(d.join("runs.csv"), "schema_version,campaign_id,model\n1,smoke,1\n").unwrap();
+    let flag = AtomicBool::new(false);
+    let e =
+        runner::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &opts(dir.path()), &flag).unwrap_err();
+    let msg = format!("{e:#}");
+    assert!(msg.contains("missing column") && msg.contains("observed_cpus"), "{msg}");
+    // The old file is untouched.
+    assert_eq!(std::fs::read_to_string(d.join("runs.csv")).unwrap(), "schema_version,campaign_id,model\n1,smoke,1\n");
+}
+
+fn bench() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_mpm-bench"))
+}
+
+fn fails_cleanly(args: &[&str], needle: &str) {
+    let out = bench().args(args).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{args:?} should fail");
+    assert!(err.contains(needle), "{args:?}: stderr {err}");
+    assert!(!err.contains("panicked"), "{args:?}: {err}");
+}
+
+#[test]
+fn cli_errors_are_clear() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    fails_cleanly(&["run", "--preset", "nope", "--mock", "--out", out], "unknown preset 'nope'");
+    fails_cleanly(&["run", "--preset", "smoke", "--models", "5", "--mock", "--out", out], "unknown model 5");
+    fails_cleanly(&["run", "--preset", "smoke", "--threads", "0,2", "--mock", "--out", out], "at least 1");
+    fails_cleanly(&["run", "--preset", "smoke", "--pin", "0,x", "--mock", "--out", out], "bad CPU list");
+    fails_cleanly(&["run", "--preset", "smoke", "--pin", "9999", "--mock", "--out", out], "cannot use");
+    fails_cleanly(&["run", "--preset", "smoke", "--mock", "--out", "/proc/no-such-dir"], "output folder");
+    fails_cleanly(&["topology", "--pin", "0,x"], "bad CPU list");
+    let help = bench().args(["run", "--help"]).output().unwrap();
+    let help = String::from_utf8_lossy(&help.stdout);
+    for flag in [
+        "--preset",
+        "--models",
+        "--threads",
+        "--strategies",
+        "--opt",
+        "--reps",
+        "--pin",
+        "--steps",
+        "--end-time",
+        "--out",
+        "--seed",
+        "--dry-run",
+        "Examples",
+    ] {
+        assert!(help.contains(flag), "help lacks {flag}");
+    }
+}
+
+#[test]
+fn cli_mock_campaign_resumes_and_topology_prints() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    let args = ["run", "--preset", "smoke", "--threads", "1,4", "--mock", "--out", out];
+    let first = bench().args(args).output().unwrap();
+    let err = String::from_utf8_lossy(&first.stderr);
+    assert!(first.status.success(), "{err}");
+    assert!(err.contains("8 rows written"), "{err}");
+    assert_eq!(err.matches("oversubscribed (time sharing").count(), 1, "said once: {err}");
+    let second = bench().args(args).output().unwrap();
+    assert!(String::from_utf8_lossy(&second.stderr).contains("0 rows written"));
+    let topo = bench().arg("topology").output().unwrap();
+    let text = String::from_utf8_lossy(&topo.stdout);
+    assert!(topo.status.success());
+    for want in ["Package", "Core", "close", "spread", "none", "Caches"] {
+        assert!(text.contains(want), "topology lacks {want}: {text}");
+    }
+}
+
+/// The one real end-to-end test: the smoke preset (Model 1, 1-2 threads, AE and DD, O3 and
+/// O0, a few steps) through the `mpm-bench` binary, which builds or finds both `mpm`
+/// binaries itself, into a temporary folder. Then a second run must add nothing.
+#[test]
+fn end_to_end_smoke_campaign_with_the_real_solver() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    let t0 = std::time::Instant::now();
+    let first = bench().args(["run", "--preset", "smoke", "--out", out, "--quiet"]).output().unwrap();
+    let err = String::from_utf8_lossy(&first.stderr);
+    assert!(first.status.success(), "smoke campaign failed: {err}");
+    eprintln!("smoke campaign (with builds): {:.1} s", t0.elapsed().as_secs_f64());
+    let m = Machine::detect().unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let d = runner::campaign_dir(dir.path(), &m, &c);
+    let rows = read_rows(&d.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), c.expand().len());
+    for r in &rows {
+        assert_eq!(r.status, Status::Ok, "{}: {}", r.run_id, r.reason);
+        assert_eq!(r.particles, Some(56_056));
+        assert_eq!(r.steps, r.step_limit, "{}", r.run_id);
+        assert_eq!(r.end_reason, "step_limit");
+        for (name, v) in [
+            ("wall_s", r.wall_s),
+            ("process_wall_s", r.process_wall_s),
+            ("grid_stage_s", r.grid_stage_s),
+            ("particle_stage_s", r.particle_stage_s),
+            ("sub_scatter_s", r.sub_scatter_s),
+            ("sub_stress_update_s", r.sub_stress_update_s),
+            ("steady_s_per_step", r.steady_s_per_step),
+            ("ns_per_particle_step", r.ns_per_particle_step),
+            ("kinetic_energy_j", r.kinetic_energy_j),
+            ("final_length_m", r.final_length_m),
+            ("face_diameter_m", r.face_diameter_m),
+        ] {
+            assert!(v.is_some_and(|x| x.is_finite() && x >= 0.0), "{}: {name} = {v:?}", r.run_id);
+        }
+        assert!(r.peak_rss_bytes.is_some_and(|b| b > 1 << 20));
+        assert!(!r.requested_cpus.is_empty() && r.requested_cpus == r.observed_cpus);
+        assert_eq!(r.binary_sha256.len(), 16);
+        assert_ne!(r.git_commit, "");
+    }
+    let opts: HashSet<_> = rows.iter().map(|r| (r.opt_level.clone(), r.binary_sha256.clone())).collect();
+    assert_eq!(opts.len(), 2, "o3 and o0 are different binaries");
+    for f in ["manifest.json", "topology.xml"] {
+        assert!(d.join(f).is_file(), "{f}");
+    }
+    let man = mpm_bench::manifest::read(&d.join("manifest.json")).unwrap();
+    assert_eq!(man.software.binaries.len(), 2);
+    // Resume: nothing added.
+    let second = bench().args(["run", "--preset", "smoke", "--out", out, "--quiet", "--no-build"]).output().unwrap();
+    assert!(second.status.success(), "{}", String::from_utf8_lossy(&second.stderr));
+    assert_eq!(read_rows(&d.join("runs.csv")).unwrap().len(), rows.len());
+}
+
+/// Ctrl-C (SIGINT) in the middle of a campaign leaves a valid CSV with every finished run,
+/// and the same command later completes the campaign.
+#[test]
+fn sigint_leaves_a_valid_csv_and_the_campaign_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    let args = ["run", "--preset", "smoke", "--mock", "--out", out, "--quiet"];
+    let child = bench().args(args).env("MPM_BENCH_MOCK_DELAY_MS", "400").spawn().unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let killed = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(killed.success());
+    let status = child.wait_with_output().unwrap().status;
+    assert_eq!(status.code(), Some(130), "an interrupted campaign exits 130");
+    let c = campaign("smoke", &Overrides::default());
+    let d = runner::campaign_dir(dir.path(), &Machine::detect().unwrap(), &c);
+    let rows = read_rows(&d.join("runs.csv")).unwrap();
+    assert!(!rows.is_empty() && rows.len() < 8, "{} rows", rows.len());
+    let man = mpm_bench::manifest::read(&d.join("manifest.json")).unwrap();
+    assert!(man.sessions[0].interrupted);
+    let again = bench().args(args).output().unwrap();
+    assert!(again.status.success());
+    let rows = read_rows(&d.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 8);
+    assert_eq!(rows.iter().map(Row::key).collect::<HashSet<_>>().len(), 8);
+}
