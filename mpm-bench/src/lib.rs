@@ -7,15 +7,26 @@
 //! * `mpm-bench` ([`topology`], [`matrix`], [`runner`], [`record`], [`manifest`]): runs
 //!   campaigns of `mpm` processes over models x threads x strategies x optimisation levels,
 //!   pinned the way the user asks, and records every run to CSV.
+//! * analysis ([`stats`], [`figures`], [`claims`], [`regress`], [`report`], [`bandwidth`]):
+//!   medians with bootstrap intervals, speedup and efficiency (paper Eqs. 19-20), the paper's
+//!   Figures 7-14, a verdict on each of its claims C1-C6, a CI gate on parallel efficiency,
+//!   hardware comparison reports and the STREAM-triad bandwidth ceiling.
+//! * [`picture`]: the embedded font and the radiograph-style view of the debris cloud.
 //!
 //! Pinning and measurement policy live here; the solver crate `mpm-core` has no OS code.
 
+pub mod bandwidth;
+pub mod claims;
+pub mod figures;
 pub mod manifest;
 pub mod matrix;
 pub mod picture;
 pub mod pinning;
 pub mod record;
+pub mod regress;
+pub mod report;
 pub mod runner;
+pub mod stats;
 pub mod summary;
 pub mod topology;
 pub mod vtk;

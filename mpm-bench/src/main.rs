@@ -25,7 +25,11 @@ use std::time::Duration;
         mpm-bench topology                       # this machine and where workers would go\n  \
         mpm-bench run --preset smoke             # ~1 minute check of the whole chain\n  \
         mpm-bench run --preset quick             # every model, few steps (~20 min on 2 cores)\n  \
-        mpm-bench run --preset paper             # the paper's full protocol (to 40 us)\n\n\
+        mpm-bench run --preset paper             # the paper's full protocol (to 40 us)\n  \
+        mpm-bench figures --results results/     # Figures 7-14 of the newest campaign -> paper-figures/\n  \
+        mpm-bench claims --results results/      # the paper's claims C1-C6 on this machine\n  \
+        mpm-bench regress --baseline A --current B   # CI gate on parallel efficiency\n  \
+        mpm-bench report A B --out compare.md    # compare machines\n\n\
         Run `mpm-bench <command> --help` for every flag of a command."
 )]
 struct Cli {
@@ -74,21 +78,31 @@ enum Cmd {
             mpm-bench run --preset configs/my.toml --seed 7"
     )]
     Run(RunArgs),
+    /// Regenerate the paper's Figures 7-14 (and a memory figure) from a campaign.
+    Figures(mpm_bench::figures::FiguresArgs),
+    /// Check the paper's claims C1-C6 on a campaign: holds / does not hold / cannot tell.
+    Claims(mpm_bench::claims::ClaimsArgs),
+    /// Compare a campaign with a baseline; exit 1 when efficiency or time per step regressed.
+    Regress(mpm_bench::regress::RegressArgs),
+    /// Hardware comparison report (Markdown + figures) over two or more campaigns.
+    Report(mpm_bench::report::ReportArgs),
+    /// Measure the memory-bandwidth ceiling (STREAM triad) per thread count and pinning.
+    Bandwidth(mpm_bench::bandwidth::BandwidthArgs),
 }
 
 #[derive(Args, Debug)]
 struct TopologyArgs {
     /// Thread counts to show (comma list).
-    #[arg(long, value_delimiter = ',', default_values_t = topology::PAPER_THREADS.to_vec())]
+    #[arg(long, value_name = "LIST", value_delimiter = ',', default_values_t = topology::PAPER_THREADS.to_vec())]
     threads: Vec<usize>,
     /// Also show an explicit CPU list policy, e.g. `0,1` or `0-3`.
-    #[arg(long)]
+    #[arg(long, value_name = "LIST")]
     pin: Option<String>,
     /// Use an hwloc synthetic topology instead of this machine, e.g. "pack:2 core:4 pu:2".
-    #[arg(long, conflicts_with = "xml")]
+    #[arg(long, value_name = "DESCRIPTION", conflicts_with = "xml")]
     synthetic: Option<String>,
     /// Use an hwloc XML export (e.g. a campaign's topology.xml) instead of this machine.
-    #[arg(long)]
+    #[arg(long, value_name = "FILE")]
     xml: Option<PathBuf>,
     /// Write this machine's hwloc XML export to FILE.
     #[arg(long, value_name = "FILE")]
@@ -167,6 +181,15 @@ fn main() {
     let result = match cli.command {
         Cmd::Topology(a) => cmd_topology(a),
         Cmd::Run(a) => cmd_run(a),
+        Cmd::Figures(a) => mpm_bench::figures::run(a),
+        Cmd::Claims(a) => mpm_bench::claims::run(a),
+        Cmd::Regress(a) => mpm_bench::regress::run(a).map(|code| {
+            if code != 0 {
+                std::process::exit(code);
+            }
+        }),
+        Cmd::Report(a) => mpm_bench::report::run(a),
+        Cmd::Bandwidth(a) => mpm_bench::bandwidth::run(a),
     };
     if let Err(e) = result {
         // `mpm-bench ... | head` closing the pipe is not an error worth a message.
@@ -305,6 +328,9 @@ fn cmd_run(a: RunArgs) -> Result<()> {
     };
     if !a.dry_run {
         eprintln!("{}", summary.report());
+        // Machine-readable (scripts/reproduce.sh reads it): where the results are.
+        let dir = std::fs::canonicalize(&summary.dir).unwrap_or(summary.dir.clone());
+        println!("campaign folder: {}", dir.display());
     }
     if summary.interrupted {
         std::process::exit(130);

@@ -47,10 +47,11 @@ use std::time::Duration;
 
 /// Presets shipped with the harness (embedded; `configs/<name>.toml` in the workspace wins
 /// when present, so edits there apply without rebuilding).
-pub const BUILTIN_PRESETS: [(&str, &str); 3] = [
+pub const BUILTIN_PRESETS: [(&str, &str); 4] = [
     ("smoke", include_str!("../../configs/smoke.toml")),
     ("quick", include_str!("../../configs/quick.toml")),
     ("paper", include_str!("../../configs/paper.toml")),
+    ("impact", include_str!("../../configs/impact.toml")),
 ];
 
 /// Models of the Taylor bar benchmark.
@@ -324,6 +325,9 @@ pub struct RunBudget {
 /// One run of the matrix.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct RunSpec {
+    /// Scenario: `taylor` (models 1-4 = Table 2) or `impact` (models 1-4 = the paper's
+    /// variants, see [`crate::runner::impact_variant`]).
+    pub scenario: String,
     /// Model.
     pub model: u32,
     /// Strategy.
@@ -345,8 +349,9 @@ pub struct RunSpec {
 impl RunSpec {
     /// Short human description: `Model4 ae o0 8 threads pin close rep 0`.
     pub fn describe(&self) -> String {
+        let kind = if self.scenario == "impact" { "Impact" } else { "Model" };
         format!(
-            "Model{} {} {} {} thr pin {} rep {}",
+            "{kind}{} {} {} {} thr pin {} rep {}",
             self.model, self.strategy, self.opt, self.threads, self.pin, self.rep
         )
     }
@@ -508,8 +513,8 @@ impl Campaign {
         if grid != "fixed" && grid != "adaptive" {
             bail!("unknown grid mode '{grid}' (known: fixed, adaptive)");
         }
-        if preset.scenario != "taylor" {
-            bail!("unknown scenario '{}' (the campaign harness runs: taylor)", preset.scenario);
+        if preset.scenario != "taylor" && preset.scenario != "impact" {
+            bail!("unknown scenario '{}' (the campaign harness runs: taylor, impact)", preset.scenario);
         }
         let mem_limit = match (overrides.mem_limit, &preset.mem_limit) {
             (Some(m), _) => Some(m),
@@ -615,6 +620,7 @@ impl Campaign {
                             }
                             for pin in &self.pins {
                                 out.push(RunSpec {
+                                    scenario: self.scenario.clone(),
                                     model,
                                     strategy,
                                     opt,

@@ -168,6 +168,10 @@ pub struct Row {
     pub final_length_m: Option<f64>,
     /// Taylor bar: impact-face diameter (m).
     pub face_diameter_m: Option<f64>,
+    /// Impact: debris-cloud leading edge beyond the plate's rear face (m).
+    pub cloud_front_m: Option<f64>,
+    /// Impact: debris-cloud width normal to the flight direction (m).
+    pub cloud_width_m: Option<f64>,
     /// Failed particles at the end.
     pub failed_particles: Option<u64>,
 

@@ -57,6 +57,31 @@ pub fn model_size(m: u32) -> Option<ModelSize> {
     }
 }
 
+/// The impact scenario's models: `(particle spacing, cell size)` in metres. 1-3 are the
+/// paper's small model (0.53 mm spacing, 848,104 particles) with its three cell sizes
+/// 2.12 / 1.59 / 1.06 mm; 4 is the large model (0.21 mm, 13.5 M particles, 1.0 mm cells).
+pub fn impact_variant(m: u32) -> Option<(f64, f64)> {
+    match m {
+        1 => Some((0.53e-3, 2.12e-3)),
+        2 => Some((0.53e-3, 1.59e-3)),
+        3 => Some((0.53e-3, 1.06e-3)),
+        4 => Some((0.21e-3, 1.0e-3)),
+        _ => None,
+    }
+}
+
+/// Size of `model` of `scenario`. For the impact the node count is that of the adaptive grid
+/// around the debris cloud at 30.6 µs (about 160 x 160 x 220 mm), an upper estimate.
+pub fn scenario_size(scenario: &str, m: u32) -> Option<ModelSize> {
+    if scenario != "impact" {
+        return model_size(m);
+    }
+    let (spacing, cell) = impact_variant(m)?;
+    let particles = if spacing < 0.3e-3 { 13_537_926 } else { 848_104 };
+    let n = |len: f64| (len / cell).ceil() as u64 + 1;
+    Some(ModelSize { particles, nodes: n(0.16) * n(0.16) * n(0.22) })
+}
+
 // The constants below were fitted to the solver's own `model_memory_bytes` on Models 1-3
 // (serial: 137 B per particle + 128 B per node reproduces all three exactly) and checked
 // against the peak RSS of Model 4 (AE, 1 and 8 threads: 3.4 and 8.1 GB, within 1 %). AE keeps
@@ -78,11 +103,11 @@ pub const BASE_BYTES: u64 = 16 << 20;
 /// Per-worker slack (stack pages touched, DD halo growth with the patch count).
 pub const BYTES_PER_THREAD: u64 = 2 << 20;
 
-/// Estimated peak memory of a run, bytes.
-pub fn estimate_memory(model: u32, strategy: Strategy, threads: usize) -> u64 {
+/// Estimated peak memory of a run of `model` of `scenario`, bytes.
+pub fn estimate_memory(scenario: &str, model: u32, strategy: Strategy, threads: usize) -> u64 {
     let t = threads.max(1) as u64;
     let base = BASE_BYTES + t * BYTES_PER_THREAD;
-    let Some(s) = model_size(model) else { return base };
+    let Some(s) = scenario_size(scenario, model) else { return base };
     let mut b = base + s.particles * BYTES_PER_PARTICLE + s.nodes * BYTES_PER_NODE;
     match strategy {
         Strategy::Serial => {}
@@ -295,16 +320,14 @@ impl RunRequest {
     /// Arguments of `mpm` for this run.
     pub fn args(&self) -> Vec<String> {
         let s = &self.spec;
-        let mut a: Vec<String> = vec![
-            "run".into(),
-            self.scenario.clone(),
-            "--model".into(),
-            s.model.to_string(),
-            "--strategy".into(),
-            s.strategy.to_string(),
-            "--threads".into(),
-            s.threads.to_string(),
-        ];
+        let mut a: Vec<String> = vec!["run".into(), self.scenario.clone()];
+        match impact_variant(s.model).filter(|_| self.scenario == "impact") {
+            Some((spacing, cell)) => {
+                a.extend(["--spacing".into(), format!("{spacing:e}"), "--cell".into(), format!("{cell:e}")])
+            }
+            None => a.extend(["--model".into(), s.model.to_string()]),
+        }
+        a.extend(["--strategy".into(), s.strategy.to_string(), "--threads".into(), s.threads.to_string()]);
         if let Some(c) = &self.cpus {
             a.push("--cpus".into());
             a.push(c.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(","));
@@ -465,7 +488,7 @@ impl Runner for MockRunner {
             };
         }
         let s = &req.spec;
-        let size = model_size(s.model).unwrap_or(ModelSize { particles: 1000, nodes: 1000 });
+        let size = scenario_size(&s.scenario, s.model).unwrap_or(ModelSize { particles: 1000, nodes: 1000 });
         let steps = s.budget.step_limit.unwrap_or(100);
         let speed = match s.strategy {
             Strategy::Dd => 0.9,
@@ -493,7 +516,7 @@ impl Runner for MockRunner {
             "wall_s": wall, "grid_stage_s": wall * 0.45, "particle_stage_s": wall * 0.55, "substages": substages,
             "ns_per_particle_step": per_step * 1e9 / size.particles as f64,
             "particle_steps_per_s": size.particles as f64 / per_step, "steady_s_per_step": per_step,
-            "peak_rss_bytes": estimate_memory(s.model, s.strategy, s.threads),
+            "peak_rss_bytes": estimate_memory(&s.scenario, s.model, s.strategy, s.threads),
             "requested_cpus": requested, "observed_cpus": observed,
             "kinetic_energy_initial": 1000.0, "kinetic_energy": 900.0, "internal_energy": 99.0,
             "initial_length_m": 0.0254, "final_length_m": 0.0253, "face_diameter_m": 0.0077, "failed_particles": 0,
@@ -589,7 +612,7 @@ impl ExecSummary {
     pub fn report(&self) -> String {
         format!(
             "{}: {} rows written ({} ok, {} skipped, {} failed, {} invalid; {} oversubscribed), \
-             {} already done of {} planned, wall time {}\nresults: {}",
+             {} already done of {} planned, wall time {}",
             if self.interrupted { "interrupted" } else { "done" },
             self.written,
             self.ok,
@@ -599,15 +622,14 @@ impl ExecSummary {
             self.oversubscribed,
             self.already_done,
             self.planned,
-            humantime::format_duration(Duration::from_secs(self.wall.as_secs())),
-            self.dir.display()
+            humantime::format_duration(Duration::from_secs(self.wall.as_secs()))
         )
     }
 }
 
 /// Rough relative cost of a run, for the progress bar's ETA.
 fn cost(spec: &RunSpec) -> u64 {
-    let p = model_size(spec.model).map_or(1000, |s| s.particles);
+    let p = scenario_size(&spec.scenario, spec.model).map_or(1000, |s| s.particles);
     let steps = spec.budget.step_limit.unwrap_or(300) + 3; // + set-up, in step equivalents
     let f = if spec.opt == OptLevel::O0 { 6 } else { 1 };
     (p / 1000).max(1) * steps * f
@@ -660,7 +682,7 @@ pub fn execute(
         )?;
         for (i, r) in &todo {
             let pl = machine.place(&r.pin, r.threads)?;
-            let est = estimate_memory(r.model, r.strategy, r.threads);
+            let est = estimate_memory(&r.scenario, r.model, r.strategy, r.threads);
             let verdict = memory_verdict(est, available_memory(), campaign.mem_limit);
             writeln!(
                 out,
@@ -783,7 +805,7 @@ pub fn execute(
         let attempt = attempts.entry(spec.key()).or_default();
         let run_id = format!("{}-a{}", spec.key().0, *attempt);
         *attempt += 1;
-        let estimate = estimate_memory(spec.model, spec.strategy, spec.threads);
+        let estimate = estimate_memory(&spec.scenario, spec.model, spec.strategy, spec.threads);
         let mut row = base_row(campaign, machine, &git, solver, spec, &placement.cpus, placement.oversubscribed);
         row.run_id = run_id.clone();
         row.order_index = *order_index;
@@ -885,7 +907,7 @@ fn base_row(
     cpus: &[usize],
     oversubscribed: bool,
 ) -> Row {
-    let size = model_size(spec.model);
+    let size = scenario_size(&spec.scenario, spec.model);
     Row {
         schema_version: SCHEMA_VERSION,
         campaign_id: campaign.id.clone(),
@@ -998,6 +1020,8 @@ fn fill_from_output(row: &mut Row, req: &RunRequest, out: &RunOutput) {
     row.initial_length_m = f64_of(&v, "initial_length_m");
     row.final_length_m = f64_of(&v, "final_length_m");
     row.face_diameter_m = f64_of(&v, "face_diameter_m");
+    row.cloud_front_m = f64_of(&v, "cloud_front_m");
+    row.cloud_width_m = f64_of(&v, "cloud_width_m");
     row.failed_particles = u64_of(&v, "failed_particles");
     if v.get("oversubscribed").and_then(Value::as_bool) == Some(true) {
         row.oversubscribed = true;
@@ -1040,10 +1064,10 @@ mod tests {
 
     #[test]
     fn memory_estimates_grow_with_ae_threads_only() {
-        let ae1 = estimate_memory(4, Strategy::Ae, 1);
-        let ae8 = estimate_memory(4, Strategy::Ae, 8);
-        let dd1 = estimate_memory(4, Strategy::Dd, 1);
-        let dd8 = estimate_memory(4, Strategy::Dd, 8);
+        let ae1 = estimate_memory("taylor", 4, Strategy::Ae, 1);
+        let ae8 = estimate_memory("taylor", 4, Strategy::Ae, 8);
+        let dd1 = estimate_memory("taylor", 4, Strategy::Dd, 1);
+        let dd8 = estimate_memory("taylor", 4, Strategy::Dd, 8);
         assert_eq!(ae8 - ae1, 7 * (80 * 8_302_185 + BYTES_PER_THREAD));
         assert_eq!(dd8 - dd1, 7 * BYTES_PER_THREAD);
         // The paper's 8 GB machine: Model 4 AE at 8 threads does not fit, DD does.
@@ -1056,6 +1080,7 @@ mod tests {
     #[test]
     fn request_args() {
         let spec = RunSpec {
+            scenario: "taylor".into(),
             model: 2,
             strategy: Strategy::Dd,
             opt: OptLevel::O3,

@@ -246,9 +246,12 @@ impl Machine {
 
     /// A topology from an hwloc XML export (e.g. another machine's `topology.xml`).
     pub fn from_xml_file(path: &Path) -> Result<Self> {
+        // Read the file ourselves: hwlocality panics on an unreadable path (unexpected errno)
+        // instead of returning an error.
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
         let topo = builder()?
-            .from_xml_file(path)
-            .with_context(|| format!("cannot load hwloc XML {}", path.display()))?
+            .from_xml(&text)
+            .with_context(|| format!("{} is not an hwloc XML topology", path.display()))?
             .build()
             .context("hwloc could not build the topology from XML")?;
         Ok(Self::from_topology(&topo, None))
@@ -692,5 +695,19 @@ mod tests {
         assert!(export_xml().unwrap().contains("<topology"));
         let table = m.placement_table(&PAPER_THREADS, &[PinPolicy::Close, PinPolicy::Spread, PinPolicy::None]).unwrap();
         assert!(table.contains("close"));
+    }
+
+    #[test]
+    fn xml_round_trip_and_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("topology.xml");
+        std::fs::write(&p, export_xml().unwrap()).unwrap();
+        let m = Machine::from_xml_file(&p).unwrap();
+        assert_eq!(m.usable_pus().len(), Machine::detect().unwrap().usable_pus().len());
+        assert!(!m.is_this_system);
+        assert!(Machine::from_xml_file(&dir.path().join("missing.xml")).is_err());
+        std::fs::write(&p, "not xml").unwrap();
+        assert!(Machine::from_xml_file(&p).is_err());
+        assert!(Machine::synthetic("bogus:7").is_err());
     }
 }

@@ -106,7 +106,7 @@ fn help_teaches_the_commands_and_every_flag() {
         "[default: 0.5]",
         "[default: paper]",
         "[default: frictionless]",
-        "[default: fixed]",
+        "fixed for the Taylor bar",
         "[default: serial]",
         "[default: 100]",
         "<SECONDS>",
@@ -146,6 +146,7 @@ fn table2_counts_of_model_4() {
 const REQUIRED_KEYS: &[&str] = &[
     "scenario",
     "model",
+    "model_name",
     "strategy",
     "threads",
     "opt_level",
@@ -426,4 +427,37 @@ fn vtk_snapshots_and_pvd_are_written() {
     let vtu = std::fs::read_to_string(vtk.join("taylor_000020.vtu")).unwrap();
     assert!(vtu.contains(r#"<Piece NumberOfPoints="56056" NumberOfCells="56056">"#));
     assert!(vtu.contains(r#"Name="CYCLE" NumberOfTuples="1" format="ascii">20<"#));
+}
+
+#[test]
+fn impact_run_reports_the_cloud_and_draws_a_radiograph() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("impact.json");
+    let pics = dir.path().join("pictures");
+    let out = Command::new(env!("CARGO_BIN_EXE_mpm"))
+        .args(["run", "impact", "--spacing", "2.5e-3", "--cell", "5e-3", "--strategy", "dd", "--threads", "2"])
+        .args(["--end-time", "10e-6", "--quiet", "--json"])
+        .arg(&json)
+        .arg("--radiograph")
+        .arg(&pics)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["scenario"], "impact");
+    assert_eq!(v["grid_mode"], "adaptive");
+    for key in [
+        "cloud_front_m",
+        "cloud_front_robust_m",
+        "cloud_width_m",
+        "cloud_width_robust_m",
+        "hole_diameter_m",
+        "front_velocity_m_s",
+    ] {
+        let x = v[key].as_f64().unwrap_or_else(|| panic!("{key} missing"));
+        assert!(x.is_finite() && x > 0.0, "{key} = {x}");
+    }
+    assert!(v["failed_particles"].as_u64().unwrap() > 0);
+    let png = std::fs::read(pics.join("radiograph_final.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
 }

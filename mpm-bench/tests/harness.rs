@@ -162,8 +162,8 @@ fn memory_guard_skips_with_a_reason() {
     assert!(rows.iter().all(|r| r.status == Status::Skipped && r.reason.contains("memory guard")));
     assert!(rows.iter().all(|r| r.wall_s.is_none() && r.mem_estimate_bytes > 10 << 20));
     // AE grows with threads: with a limit between, Model 4 AE at 8 threads is skipped while DD runs.
-    let est_dd = runner::estimate_memory(4, Strategy::Dd, 8);
-    let est_ae = runner::estimate_memory(4, Strategy::Ae, 8);
+    let est_dd = runner::estimate_memory("taylor", 4, Strategy::Dd, 8);
+    let est_ae = runner::estimate_memory("taylor", 4, Strategy::Ae, 8);
     assert!(est_ae > est_dd);
     assert!(runner::memory_verdict(est_ae, None, Some(est_ae)).is_some());
     assert!(runner::memory_verdict(est_dd, None, Some(est_ae)).is_none());
@@ -227,7 +227,7 @@ requested_cpus,observed_cpus,oversubscribed,rep,warmup_steps,step_limit,end_time
 dt_first_s,wall_s,process_wall_s,grid_stage_s,particle_stage_s,sub_grid_fit_s,sub_binning_s,sub_scatter_s,\
 sub_assembly_s,sub_grid_update_s,sub_gather_s,sub_remap_scatter_s,sub_remap_assembly_s,sub_stress_update_s,\
 steady_s_per_step,ns_per_particle_step,particle_steps_per_s,peak_rss_bytes,mem_estimate_bytes,exit_code,\
-kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,final_length_m,face_diameter_m,\
+kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
 failed_particles,status,reason";
     assert_eq!(Row::header().join(","), want);
 }
@@ -303,6 +303,10 @@ fn cli_mock_campaign_resumes_and_topology_prints() {
     assert!(first.status.success(), "{err}");
     assert!(err.contains("8 rows written"), "{err}");
     assert_eq!(err.matches("oversubscribed (time sharing").count(), 1, "said once: {err}");
+    // scripts/reproduce.sh reads the campaign folder from standard output.
+    let stdout = String::from_utf8_lossy(&first.stdout);
+    let folder = stdout.lines().find_map(|l| l.strip_prefix("campaign folder: ")).expect("campaign folder line");
+    assert!(Path::new(folder).join("runs.csv").is_file(), "{folder}");
     let second = bench().args(args).output().unwrap();
     assert!(String::from_utf8_lossy(&second.stderr).contains("0 rows written"));
     let topo = bench().arg("topology").output().unwrap();
@@ -375,7 +379,8 @@ fn sigint_leaves_a_valid_csv_and_the_campaign_resumes() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().to_str().unwrap();
     let args = ["run", "--preset", "smoke", "--mock", "--out", out, "--quiet"];
-    let child = bench().args(args).env("MPM_BENCH_MOCK_DELAY_MS", "400").spawn().unwrap();
+    let child =
+        bench().args(args).env("MPM_BENCH_MOCK_DELAY_MS", "400").stderr(std::process::Stdio::null()).spawn().unwrap();
     std::thread::sleep(std::time::Duration::from_millis(1500));
     let killed = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
     assert!(killed.success());

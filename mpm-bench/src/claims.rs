@@ -1,0 +1,508 @@
+//! `mpm-bench claims`: the paper's claims C1-C6 (spec paper.md section 5) tested on a
+//! campaign, each with a verdict, the reason and the numbers behind it.
+//!
+//! Rules shared by every claim:
+//!
+//! * Only *real* parallel points are evidence of scaling: more than one thread and not
+//!   oversubscribed (an oversubscribed point is time sharing: never counted, for or against).
+//!   Memory (C2, C6) does not depend on time sharing, so every point counts there.
+//! * Two estimates differ only beyond the noise ([`crate::stats::compare`]): their bootstrap
+//!   intervals must not overlap; with single repetitions (no interval) they must differ by
+//!   more than 5 %. A difference within the noise supports nothing.
+//! * "holds": at least one comparison supports the claim and none contradicts it;
+//!   "does not hold": some comparison contradicts it; "cannot tell": no usable evidence
+//!   (nothing beyond the noise, missing points, or a machine that cannot show the effect,
+//!   such as one socket for C5).
+//! * Speedups and efficiencies are those of the total step time at optimisation O3 unless
+//!   the claim is about a stage or about optimisation.
+
+use crate::stats::{compare, load_campaign, Analysis, Campaign, CellKey, Compare, Estimate, Stage, StatsOptions};
+use anyhow::{Context, Result};
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+/// Evaluate the paper's claims C1-C6 on a results set.
+///
+/// Prints, for each claim, holds / does not hold / cannot tell with the reason and the
+/// numbers behind it. Only non-oversubscribed runs with more than one thread count as
+/// evidence of scaling; differences must exceed the bootstrap interval (or 5 % with a single
+/// repetition).
+#[derive(clap::Args, Debug, Clone)]
+pub struct ClaimsArgs {
+    /// A campaign folder (holding runs.csv) or a folder containing campaigns (e.g.
+    /// results/ or results/FINGERPRINT/): then the newest campaign is used.
+    #[arg(long)]
+    pub results: PathBuf,
+    /// Also write the table and the evidence as Markdown to this file.
+    #[arg(long)]
+    pub markdown: Option<PathBuf>,
+    /// Pinning policy to analyse when the campaign has several (default: close, else the first).
+    #[arg(long)]
+    pub pin: Option<String>,
+}
+
+/// A claim's verdict.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Verdict {
+    /// The data support the claim and nothing contradicts it.
+    Holds,
+    /// Some data contradict the claim.
+    DoesNotHold,
+    /// Not enough evidence either way.
+    CannotTell,
+}
+
+impl Verdict {
+    /// `holds`, `does not hold`, `cannot tell`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Verdict::Holds => "holds",
+            Verdict::DoesNotHold => "does not hold",
+            Verdict::CannotTell => "cannot tell",
+        }
+    }
+}
+
+/// One claim evaluated.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ClaimResult {
+    /// `C1` .. `C6`.
+    pub id: &'static str,
+    /// The claim as the paper states it.
+    pub text: &'static str,
+    /// The verdict.
+    pub verdict: Verdict,
+    /// Why, in one or two sentences.
+    pub reason: String,
+    /// The numbers behind the verdict, one line each.
+    pub evidence: Vec<String>,
+}
+
+/// The paper's claims (spec paper.md section 5).
+pub const CLAIMS: [(&str, &str); 6] = [
+    ("C1", "DD scales better and is more efficient than AE, increasingly so for larger models."),
+    ("C2", "AE memory grows with threads; DD memory is nearly constant (Model4: 4.61 -> 4.63 GB)."),
+    ("C3", "In AE the particle stage scales better than the grid-node stage (the bottleneck)."),
+    ("C4", "Without compiler optimisation, parallel efficiency is higher than with O3."),
+    ("C5", "Past 4 threads (the second socket) efficiency drops: cross-socket traffic."),
+    ("C6", "AE could not run Model4 at 4-8 threads: not enough memory on the 8 GB machine."),
+];
+
+/// Memory of the paper's machine (8 GB).
+pub const PAPER_MEMORY_BYTES: f64 = 8e9;
+
+/// Relative growth under which memory counts as "nearly constant" (C2).
+pub const FLAT_MEMORY: f64 = 0.10;
+
+/// Tally of comparisons "a > b" claimed.
+#[derive(Default)]
+struct Tally {
+    supports: usize,
+    contradicts: usize,
+    within: usize,
+    lines: Vec<String>,
+}
+
+impl Tally {
+    fn add(&mut self, label: String, a_name: &str, a: &Estimate, b_name: &str, b: &Estimate) {
+        let c = compare(a, b);
+        let tag = match c {
+            Compare::Greater => {
+                self.supports += 1;
+                "supports"
+            }
+            Compare::Less => {
+                self.contradicts += 1;
+                "contradicts"
+            }
+            Compare::Within => {
+                self.within += 1;
+                "within noise"
+            }
+        };
+        self.lines.push(format!("{label}: {a_name} {} vs {b_name} {} -> {tag}", a.show(3), b.show(3)));
+    }
+
+    fn verdict(&self, what: &str) -> (Verdict, String) {
+        let n = self.supports + self.contradicts + self.within;
+        if n == 0 {
+            (Verdict::CannotTell, format!("no comparable non-oversubscribed points with more than one thread ({what})"))
+        } else if self.contradicts > 0 {
+            (
+                Verdict::DoesNotHold,
+                format!(
+                    "{} of {n} comparisons contradict it beyond the noise ({} support it, {} within noise)",
+                    self.contradicts, self.supports, self.within
+                ),
+            )
+        } else if self.supports > 0 {
+            (
+                Verdict::Holds,
+                format!(
+                    "{} of {n} comparisons support it beyond the noise, none contradicts ({} within noise)",
+                    self.supports, self.within
+                ),
+            )
+        } else {
+            (Verdict::CannotTell, format!("all {n} comparisons are within the noise"))
+        }
+    }
+}
+
+fn result(id: &'static str, verdict: Verdict, reason: String, evidence: Vec<String>) -> ClaimResult {
+    let text = CLAIMS.iter().find(|c| c.0 == id).map(|c| c.1).unwrap_or("");
+    ClaimResult { id, text, verdict, reason, evidence }
+}
+
+/// Real parallel thread counts where both `a` and `b` have a point.
+fn common_real_threads(an: &Analysis, model: u32, a: (&str, &str), b: (&str, &str), stage: Stage) -> Vec<usize> {
+    an.series(model, a.0, a.1, stage)
+        .into_iter()
+        .filter(|p| p.is_real_parallel() && p.efficiency.is_some())
+        .filter_map(|p| {
+            an.point(model, b.0, b.1, p.key.threads, stage)
+                .filter(|q| q.is_real_parallel() && q.efficiency.is_some())
+                .map(|_| p.key.threads)
+        })
+        .collect()
+}
+
+fn c1(an: &Analysis) -> ClaimResult {
+    let mut t = Tally::default();
+    let mut gaps: Vec<(u32, usize, f64)> = Vec::new();
+    for m in an.models() {
+        let ths = common_real_threads(an, m, ("dd", "o3"), ("ae", "o3"), Stage::Total);
+        for &n in &ths {
+            let dd = an.point(m, "dd", "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
+            let ae = an.point(m, "ae", "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
+            t.add(format!("Model{m}, {n} threads, efficiency"), "DD", &dd, "AE", &ae);
+        }
+        if let Some(&n) = ths.last() {
+            let dd = an.point(m, "dd", "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
+            let ae = an.point(m, "ae", "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
+            gaps.push((m, n, dd.value - ae.value));
+        }
+    }
+    let (mut v, mut reason) = t.verdict("DD and AE at O3");
+    let mut ev = t.lines;
+    if !gaps.is_empty() {
+        ev.push(format!(
+            "gap e(DD) - e(AE) at the largest real thread count per model: {}",
+            gaps.iter().map(|(m, n, g)| format!("Model{m}@{n}t {g:+.3}")).collect::<Vec<_>>().join(", ")
+        ));
+    }
+    if v == Verdict::Holds {
+        // "increasingly so for larger models": the gap must not shrink with model size.
+        if gaps.len() < 2 {
+            v = Verdict::CannotTell;
+            reason = format!("{reason}; but one model only: cannot test 'increasingly so for larger models'");
+        } else {
+            let grows = gaps.windows(2).all(|w| w[1].2 >= w[0].2 - 0.02);
+            if grows {
+                reason = format!("{reason}; the gap does not shrink with model size");
+            } else {
+                v = Verdict::DoesNotHold;
+                reason = format!("{reason}; but the gap shrinks for a larger model (not 'increasingly so')");
+            }
+        }
+    }
+    result("C1", v, reason, ev)
+}
+
+fn c2(an: &Analysis, o: &StatsOptions) -> ClaimResult {
+    let mut ev = Vec::new();
+    let (mut ae_grows, mut ae_flat, mut dd_flat, mut dd_grows) = (0, 0, 0, 0);
+    for m in an.models() {
+        for strat in ["ae", "dd"] {
+            for opt in ["o3", "o0"] {
+                let mut pts: Vec<(usize, Estimate)> = an
+                    .thread_counts()
+                    .into_iter()
+                    .filter_map(|n| an.memory(&CellKey::new(m, strat, opt, n), o).map(|e| (n, e)))
+                    .collect();
+                pts.sort_by_key(|p| p.0);
+                let (Some(first), Some(last)) = (pts.first(), pts.last()) else { continue };
+                if first.0 != 1 || last.0 == 1 {
+                    continue;
+                }
+                let growth = last.1.value / first.1.value - 1.0;
+                ev.push(format!(
+                    "Model{m} {} {}: peak memory {} at 1 thread -> {} at {} threads ({:+.1} %)",
+                    strat.to_uppercase(),
+                    opt.to_uppercase(),
+                    gb(first.1.value),
+                    gb(last.1.value),
+                    last.0,
+                    100.0 * growth
+                ));
+                match (strat, growth > FLAT_MEMORY) {
+                    ("ae", true) => ae_grows += 1,
+                    ("ae", false) => ae_flat += 1,
+                    ("dd", false) => dd_flat += 1,
+                    _ => dd_grows += 1,
+                }
+            }
+        }
+    }
+    let n = ae_grows + ae_flat + dd_flat + dd_grows;
+    let (v, reason) = if n == 0 || ae_grows + ae_flat == 0 || dd_flat + dd_grows == 0 {
+        (Verdict::CannotTell, "no peak-memory measurements at 1 and more threads for both AE and DD".to_string())
+    } else if dd_grows > 0 {
+        (Verdict::DoesNotHold, format!("DD memory grew by more than {:.0} % in {dd_grows} series", 100.0 * FLAT_MEMORY))
+    } else if ae_grows == 0 {
+        (
+            Verdict::DoesNotHold,
+            format!("AE memory grew by less than {:.0} % in every series (the nodal copies are small next to the particles here)", 100.0 * FLAT_MEMORY),
+        )
+    } else {
+        (
+            Verdict::Holds,
+            format!(
+                "AE memory grew by more than {:.0} % in {ae_grows} of {} series; DD stayed within {:.0} % in all {dd_flat}",
+                100.0 * FLAT_MEMORY,
+                ae_grows + ae_flat,
+                100.0 * FLAT_MEMORY
+            ),
+        )
+    };
+    ev.push("paper: Model4 DD 4.61 GB (1 thread) -> 4.63 GB (8 threads)".into());
+    result("C2", v, reason, ev)
+}
+
+fn c3(an: &Analysis) -> ClaimResult {
+    let mut t = Tally::default();
+    for m in an.models() {
+        for p in an.series(m, "ae", "o3", Stage::Particle) {
+            if !p.is_real_parallel() {
+                continue;
+            }
+            let (Some(sp), Some(sg)) =
+                (p.speedup, an.point(m, "ae", "o3", p.key.threads, Stage::Grid).and_then(|g| g.speedup))
+            else {
+                continue;
+            };
+            t.add(format!("Model{m} AE O3, {} threads, speedup", p.key.threads), "particle", &sp, "grid", &sg);
+        }
+    }
+    let (v, reason) = t.verdict("AE O3 stage speedups");
+    result("C3", v, reason, t.lines)
+}
+
+fn c4(an: &Analysis) -> ClaimResult {
+    let mut t = Tally::default();
+    for m in an.models() {
+        for strat in ["ae", "dd"] {
+            for n in common_real_threads(an, m, (strat, "o0"), (strat, "o3"), Stage::Total) {
+                let e0 = an.point(m, strat, "o0", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
+                let e3 = an.point(m, strat, "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
+                t.add(format!("Model{m} {}, {n} threads, efficiency", strat.to_uppercase()), "O0", &e0, "O3", &e3);
+            }
+        }
+    }
+    let (v, reason) = t.verdict("O0 and O3");
+    result("C4", v, reason, t.lines)
+}
+
+fn c5(c: &Campaign, an: &Analysis) -> ClaimResult {
+    let Some(man) = &c.manifest else {
+        return result(
+            "C5",
+            Verdict::CannotTell,
+            "no manifest.json beside runs.csv: the number of sockets is unknown".into(),
+            vec![],
+        );
+    };
+    let sockets = man.machine.packages;
+    let mut ev = vec![format!(
+        "machine: {} socket(s), {} cores, {} NUMA node(s); pinning '{}'",
+        sockets,
+        man.machine.cores,
+        man.machine.numa_nodes.len(),
+        an.pin_policy
+    )];
+    if sockets < 2 {
+        return result(
+            "C5",
+            Verdict::CannotTell,
+            format!("this machine has {sockets} socket: there is no second socket to cross"),
+            ev,
+        );
+    }
+    if an.pin_policy != "close" {
+        return result(
+            "C5",
+            Verdict::CannotTell,
+            format!("pinning '{}' does not fill one socket before the next: rerun with --pin close", an.pin_policy),
+            ev,
+        );
+    }
+    let per_socket = man.machine.cores / sockets;
+    ev[0].push_str(&format!("; {per_socket} cores per socket"));
+    let mut t = Tally::default();
+    for m in an.models() {
+        for strat in ["ae", "dd"] {
+            let s: Vec<_> = an.series(m, strat, "o3", Stage::Total).into_iter().filter(|p| !p.oversubscribed).collect();
+            let inside = s.iter().rfind(|p| p.key.threads <= per_socket && p.key.threads > 1);
+            let across = s.iter().find(|p| p.key.threads > per_socket);
+            if let (Some(i), Some(a)) = (inside, across) {
+                let (Some(ei), Some(ea)) = (i.efficiency, a.efficiency) else { continue };
+                t.add(
+                    format!("Model{m} {} O3 efficiency", strat.to_uppercase()),
+                    &format!("{}t (one socket)", i.key.threads),
+                    &ei,
+                    &format!("{}t (two sockets)", a.key.threads),
+                    &ea,
+                );
+            }
+        }
+    }
+    let (v, reason) = t.verdict("thread counts on both sides of the socket boundary");
+    ev.extend(t.lines);
+    result("C5", v, reason, ev)
+}
+
+fn c6(c: &Campaign, o: &StatsOptions) -> ClaimResult {
+    let mut ev = Vec::new();
+    let mem = c.manifest.as_ref().map(|m| m.machine.memory_bytes as f64);
+    let (mut over, mut under, mut skipped) = (0, 0, 0);
+    let an = Analysis::from_rows(&c.rows, None, o);
+    for n in [4usize, 6, 8] {
+        for opt in ["o3", "o0"] {
+            let key = CellKey::new(4, "ae", opt, n);
+            let Some(cell) = an.cells.get(&key) else { continue };
+            let measured = an.memory(&key, o).map(|e| e.value);
+            let (bytes, how) = match measured {
+                Some(b) => (b, "measured peak"),
+                None if cell.mem_estimate > 0 => (cell.mem_estimate as f64, "guard estimate"),
+                None => continue,
+            };
+            let skipped_mem = cell
+                .not_ok
+                .iter()
+                .any(|(s, r)| *s == crate::record::Status::Skipped && r.to_ascii_lowercase().contains("memory"));
+            if skipped_mem {
+                skipped += 1;
+            }
+            if bytes > PAPER_MEMORY_BYTES {
+                over += 1;
+            } else {
+                under += 1;
+            }
+            ev.push(format!(
+                "Model4 AE {} {n} threads: {how} {}{}",
+                opt.to_uppercase(),
+                gb(bytes),
+                if skipped_mem { " (skipped here: memory guard)" } else { "" }
+            ));
+        }
+    }
+    if let Some(one) =
+        an.memory(&CellKey::new(4, "ae", "o3", 1), o).or_else(|| an.memory(&CellKey::new(4, "ae", "o0", 1), o))
+    {
+        ev.push(format!(
+            "Model4 AE at 1 thread: {}; at the paper's footprint (4.61 GB at 1 thread) a configuration needs more than 8 GB when it grows by more than {:.2}x",
+            gb(one.value),
+            PAPER_MEMORY_BYTES / 4.61e9
+        ));
+    }
+    if let Some(m) = mem {
+        ev.push(format!("this machine: {} of memory; the paper's: 8 GB", gb(m)));
+    }
+    let (v, reason) = if over + under == 0 {
+        (Verdict::CannotTell, "no Model4 AE run (or estimate) at 4, 6 or 8 threads".into())
+    } else if over > 0 && under == 0 {
+        (
+            Verdict::Holds,
+            format!("every Model4 AE configuration at 4-8 threads needs more than 8 GB ({skipped} skipped here by the memory guard)"),
+        )
+    } else if over > 0 {
+        (
+            Verdict::DoesNotHold,
+            format!(
+                "only in part: {over} of {} Model4 AE configurations at 4-8 threads need more than 8 GB, the others would fit ({skipped} skipped here)",
+                over + under
+            ),
+        )
+    } else {
+        (Verdict::DoesNotHold, "every Model4 AE configuration at 4-8 threads fits in 8 GB".into())
+    };
+    result("C6", v, reason, ev)
+}
+
+fn gb(b: f64) -> String {
+    format!("{:.2} GB", b / 1e9)
+}
+
+/// Evaluate C1-C6 on a campaign.
+pub fn evaluate(c: &Campaign, an: &Analysis) -> Vec<ClaimResult> {
+    let o = StatsOptions::default();
+    vec![c1(an), c2(an, &o), c3(an), c4(an), c5(c, an), c6(c, &o)]
+}
+
+/// A plain-text table with the evidence below it.
+pub fn table(results: &[ClaimResult]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "{:<4} {:<14} reason", "", "verdict");
+    for r in results {
+        let _ = writeln!(s, "{:<4} {:<14} {}", r.id, r.verdict.as_str(), r.reason);
+    }
+    for r in results {
+        let _ = writeln!(s, "\n{} {}", r.id, r.text);
+        for e in &r.evidence {
+            let _ = writeln!(s, "    {e}");
+        }
+    }
+    s
+}
+
+/// The same as Markdown (a table, then the evidence per claim). `heading` is the level of
+/// the evidence headings (e.g. `###`).
+pub fn markdown(results: &[ClaimResult], heading: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "| claim | statement | verdict | reason |\n|---|---|---|---|");
+    for r in results {
+        let _ =
+            writeln!(s, "| {} | {} | **{}** | {} |", r.id, r.text, r.verdict.as_str(), r.reason.replace('|', "\\|"));
+    }
+    for r in results {
+        let _ = writeln!(s, "\n{heading} {}: {}\n", r.id, r.verdict.as_str());
+        if r.evidence.is_empty() {
+            let _ = writeln!(s, "(no numbers)");
+        }
+        for e in &r.evidence {
+            let _ = writeln!(s, "- {e}");
+        }
+    }
+    s
+}
+
+/// `mpm-bench claims`.
+pub fn run(args: ClaimsArgs) -> Result<()> {
+    let c = load_campaign(&args.results)?;
+    let an = c.analyse(args.pin.as_deref());
+    let res = evaluate(&c, &an);
+    println!("Claims of the paper on campaign {} (machine {}, {})", c.id(), c.fingerprint(), c.dir.display());
+    for n in &an.notes {
+        println!("note: {n}");
+    }
+    print!("{}", table(&res));
+    if let Some(md) = &args.markdown {
+        let mut text = format!(
+            "# The paper's claims on campaign `{}`\n\nMachine `{}`; results `{}`; made with `mpm-bench claims --results {}`.\n\n",
+            c.id(),
+            c.fingerprint(),
+            c.dir.display(),
+            args.results.display()
+        );
+        text.push_str(&markdown(&res, "##"));
+        if let Some(parent) = md.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+        }
+        std::fs::write(md, text)
+            .with_context(|| format!("cannot write {}: choose a writable --markdown path", md.display()))?;
+        println!("wrote {}", md.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,746 @@
+//! Statistics of a campaign: medians over repetitions with bootstrap confidence intervals,
+//! speedup and parallel efficiency (paper Eqs. 19-20), and loading results folders.
+//!
+//! # What is measured
+//!
+//! A *cell* is one configuration: (model, strategy, optimisation level, threads). Its
+//! repetitions are the rows with status `ok` (skipped, failed and invalid rows are not
+//! measurements: they make the cell's point absent, never zero). For each cell and each
+//! [`Stage`] the time per step of every repetition is:
+//!
+//! * [`Stage::Total`]: `steady_s_per_step` (wall time per step with the warm-up steps
+//!   excluded) when the row has it, else `wall_s / steps`;
+//! * [`Stage::Grid`]: `grid_stage_s / steps` (the paper's grid-node stage, Eqs. 1-6);
+//! * [`Stage::Particle`]: `particle_stage_s / steps` (the particle stage, Eqs. 7-15).
+//!
+//! The stage times include the warm-up steps (the solver sums them over every step); the
+//! ratios below compare like with like, so this does not bias a speedup.
+//!
+//! # Estimates
+//!
+//! * time `T_n`: the median over repetitions;
+//! * speedup `s = T_1 / T_n` (Eq. 19) and efficiency `e = s / n` (Eq. 20): ratios of the
+//!   medians. `T_1` is the same strategy with one thread; when a campaign has no such cell
+//!   but has a `serial` run of the model, that is the base instead (the [`Base`] says which).
+//!   The absolute `T_1` is kept next to every speedup.
+//!
+//! Every estimate carries a percentile-bootstrap confidence interval (default 2000
+//! resamples, 95 %): each resample draws every sample involved (numerator and denominator
+//! independently) with replacement, takes the medians and forms the statistic; the interval
+//! is the (2.5 %, 97.5 %) percentiles of the resampled statistics, widened if needed to
+//! contain the point estimate. The generator is a SplitMix64 seeded from a fixed seed and
+//! the cell's name, so the same CSV always gives the same intervals, whatever the order of
+//! its rows. With a single repetition there is nothing to resample: the interval is the
+//! point itself and [`Estimate::degenerate`] says so. Print such estimates as points, not as
+//! intervals; the analysis commands do.
+//!
+//! A point is *oversubscribed* when any of its repetitions ran more threads than usable
+//! cores: its time is time sharing, not scaling, and the figures draw it hollow.
+
+use crate::bandwidth::BandwidthReport;
+use crate::manifest::{self, Manifest};
+use crate::record::{read_rows, Row, Status};
+use anyhow::{bail, Context, Result};
+use serde::Serialize;
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// Which time of a step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Stage {
+    /// The whole step (the paper's "total computation").
+    Total,
+    /// The grid-node stage (scatter, assembly, nodal update).
+    Grid,
+    /// The particle stage (gather, re-map, stress update).
+    Particle,
+}
+
+impl Stage {
+    /// The three stages in the paper's panel order (a), (b), (c).
+    pub const ALL: [Stage; 3] = [Stage::Total, Stage::Grid, Stage::Particle];
+
+    /// Short name: `total`, `grid`, `particle`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Total => "total",
+            Stage::Grid => "grid",
+            Stage::Particle => "particle",
+        }
+    }
+
+    /// The paper's panel title.
+    pub fn title(self) -> &'static str {
+        match self {
+            Stage::Total => "(a) Total computation",
+            Stage::Grid => "(b) Grid-node stage",
+            Stage::Particle => "(c) Particle stage",
+        }
+    }
+
+    /// Parse `total`, `grid` or `particle`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "total" => Ok(Stage::Total),
+            "grid" | "grid-node" => Ok(Stage::Grid),
+            "particle" => Ok(Stage::Particle),
+            other => bail!("unknown stage '{other}': use total, grid or particle"),
+        }
+    }
+
+    /// This stage's time per step of one row (seconds), if the row measured it.
+    pub fn time_per_step(self, row: &Row) -> Option<f64> {
+        let steps = row.steps.filter(|&s| s > 0).map(|s| s as f64);
+        let t = match self {
+            Stage::Total => row.steady_s_per_step.or_else(|| Some(row.wall_s? / steps?)),
+            Stage::Grid => Some(row.grid_stage_s? / steps?),
+            Stage::Particle => Some(row.particle_stage_s? / steps?),
+        }?;
+        (t.is_finite() && t > 0.0).then_some(t)
+    }
+}
+
+impl fmt::Display for Stage {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A point estimate with its confidence interval.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Estimate {
+    /// Point estimate (a median, or a ratio of medians).
+    pub value: f64,
+    /// Lower end of the interval.
+    pub lo: f64,
+    /// Upper end of the interval.
+    pub hi: f64,
+    /// Smallest number of repetitions among the samples involved.
+    pub reps: usize,
+}
+
+impl Estimate {
+    /// An estimate without uncertainty (`lo = hi = value`).
+    pub fn point(value: f64, reps: usize) -> Self {
+        Self { value, lo: value, hi: value, reps }
+    }
+
+    /// True when every sample involved had a single repetition: the interval is the point
+    /// itself and says nothing about the noise.
+    pub fn degenerate(&self) -> bool {
+        self.reps < 2 || self.lo == self.hi
+    }
+
+    /// Multiply value and interval by a positive factor.
+    pub fn scale(&self, k: f64) -> Self {
+        Self { value: self.value * k, lo: self.lo * k, hi: self.hi * k, reps: self.reps }
+    }
+
+    /// `1.23 [1.20, 1.26]`, or `1.23 (1 rep)` when degenerate, with `digits` decimals.
+    pub fn show(&self, digits: usize) -> String {
+        if self.degenerate() {
+            format!("{:.*} (n={})", digits, self.value, self.reps)
+        } else {
+            format!("{:.*} [{:.*}, {:.*}]", digits, self.value, digits, self.lo, digits, self.hi)
+        }
+    }
+}
+
+/// How two estimates compare, allowing for their uncertainty.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Compare {
+    /// The first is larger beyond the noise.
+    Greater,
+    /// The first is smaller beyond the noise.
+    Less,
+    /// The difference is within the noise.
+    Within,
+}
+
+/// Relative difference under which two single-repetition estimates count as equal.
+pub const SINGLE_REP_MARGIN: f64 = 0.05;
+
+/// Compare `a` with `b`: by interval separation when at least one has a real interval,
+/// else (single repetitions) by a relative margin of [`SINGLE_REP_MARGIN`].
+pub fn compare(a: &Estimate, b: &Estimate) -> Compare {
+    if a.degenerate() && b.degenerate() {
+        let scale = a.value.abs().max(b.value.abs()).max(f64::MIN_POSITIVE);
+        let d = (a.value - b.value) / scale;
+        if d > SINGLE_REP_MARGIN {
+            Compare::Greater
+        } else if d < -SINGLE_REP_MARGIN {
+            Compare::Less
+        } else {
+            Compare::Within
+        }
+    } else if a.lo > b.hi {
+        Compare::Greater
+    } else if a.hi < b.lo {
+        Compare::Less
+    } else {
+        Compare::Within
+    }
+}
+
+/// Bootstrap settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StatsOptions {
+    /// Bootstrap resamples (default 2000).
+    pub resamples: usize,
+    /// Confidence level of the intervals (default 0.95).
+    pub confidence: f64,
+    /// Base seed of the generator (default fixed, so results are reproducible).
+    pub seed: u64,
+}
+
+impl Default for StatsOptions {
+    fn default() -> Self {
+        Self { resamples: 2000, confidence: 0.95, seed: 0x5eed_1920 }
+    }
+}
+
+/// SplitMix64: a tiny, stable generator (its output never changes with a crate version).
+#[derive(Clone, Debug)]
+struct SplitMix64(u64);
+
+impl SplitMix64 {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    fn below(&mut self, n: usize) -> usize {
+        ((self.next() >> 11) as f64 / (1u64 << 53) as f64 * n as f64) as usize % n.max(1)
+    }
+}
+
+/// FNV-1a of a string (stable seed per cell name).
+fn fnv(s: &str) -> u64 {
+    s.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
+}
+
+/// Median of a sample (mean of the two middle values for an even count); NaN when empty.
+pub fn median(xs: &[f64]) -> f64 {
+    if xs.is_empty() {
+        return f64::NAN;
+    }
+    let mut v = xs.to_vec();
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    }
+}
+
+/// Linear-interpolated quantile of a sorted slice.
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    let pos = q.clamp(0.0, 1.0) * (sorted.len() - 1) as f64;
+    let (i, f) = (pos.floor() as usize, pos.fract());
+    if i + 1 < sorted.len() {
+        sorted[i] * (1.0 - f) + sorted[i + 1] * f
+    } else {
+        sorted[i]
+    }
+}
+
+/// Percentile bootstrap of `stat(medians of samples)`: every sample is resampled with
+/// replacement independently; `label` seeds the generator (with `opts.seed`).
+pub fn bootstrap(samples: &[&[f64]], stat: &dyn Fn(&[f64]) -> f64, opts: &StatsOptions, label: &str) -> Estimate {
+    let reps = samples.iter().map(|s| s.len()).min().unwrap_or(0);
+    let medians: Vec<f64> = samples.iter().map(|s| median(s)).collect();
+    let value = stat(&medians);
+    if reps == 0 || samples.iter().all(|s| s.len() < 2) || opts.resamples == 0 {
+        return Estimate::point(value, reps);
+    }
+    let mut rng = SplitMix64(opts.seed ^ fnv(label));
+    let mut out = Vec::with_capacity(opts.resamples);
+    let mut buf = Vec::new();
+    let mut meds = vec![0.0; samples.len()];
+    for _ in 0..opts.resamples {
+        for (k, s) in samples.iter().enumerate() {
+            buf.clear();
+            buf.extend((0..s.len()).map(|_| s[rng.below(s.len())]));
+            meds[k] = median(&buf);
+        }
+        let v = stat(&meds);
+        if v.is_finite() {
+            out.push(v);
+        }
+    }
+    if out.is_empty() {
+        return Estimate::point(value, reps);
+    }
+    out.sort_by(f64::total_cmp);
+    let alpha = (1.0 - opts.confidence).clamp(0.0, 1.0) / 2.0;
+    let lo = quantile(&out, alpha).min(value);
+    let hi = quantile(&out, 1.0 - alpha).max(value);
+    Estimate { value, lo, hi, reps }
+}
+
+/// One configuration of a campaign.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+pub struct CellKey {
+    /// Model number (1-4).
+    pub model: u32,
+    /// `ae`, `dd` or `serial`.
+    pub strategy: String,
+    /// `o3` or `o0`.
+    pub opt_level: String,
+    /// Worker threads.
+    pub threads: usize,
+}
+
+impl CellKey {
+    /// Build a key.
+    pub fn new(model: u32, strategy: &str, opt_level: &str, threads: usize) -> Self {
+        Self { model, strategy: strategy.into(), opt_level: opt_level.into(), threads }
+    }
+}
+
+impl fmt::Display for CellKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "Model{} {} {} {}t",
+            self.model,
+            self.strategy.to_uppercase(),
+            self.opt_level.to_uppercase(),
+            self.threads
+        )
+    }
+}
+
+/// The raw measurements of one cell.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Cell {
+    /// Time per step of each `ok` repetition, per stage in [`Stage::ALL`] order (s).
+    pub times: [Vec<f64>; 3],
+    /// Peak resident memory of each `ok` repetition (bytes).
+    pub peak_rss: Vec<f64>,
+    /// Any repetition (of any status) ran more threads than usable cores.
+    pub oversubscribed: bool,
+    /// Rows that are not `ok`: status and reason.
+    pub not_ok: Vec<(Status, String)>,
+    /// The memory guard's largest estimate for this cell (bytes).
+    pub mem_estimate: u64,
+    /// Particles of the model (from any row).
+    pub particles: Option<u64>,
+    /// Mean grid nodes over the steps (median over `ok` rows).
+    pub mean_nodes: Option<f64>,
+}
+
+impl Cell {
+    /// Times of `stage`.
+    pub fn times(&self, stage: Stage) -> &[f64] {
+        &self.times[stage as usize]
+    }
+
+    /// Whether the cell has at least one measurement.
+    pub fn measured(&self) -> bool {
+        !self.times[0].is_empty()
+    }
+}
+
+/// The base case of a speedup.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Base {
+    /// Strategy of the one-thread run (the point's own, or `serial`).
+    pub strategy: String,
+    /// Its time per step, `T_1` (s).
+    pub t1: Estimate,
+}
+
+/// One plotted point: a cell and a stage.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Point {
+    /// The configuration.
+    pub key: CellKey,
+    /// The stage.
+    pub stage: Stage,
+    /// Median time per step `T_n` (s).
+    pub time: Estimate,
+    /// The one-thread base case, when the campaign has one.
+    pub base: Option<Base>,
+    /// Speedup `T_1 / T_n` (Eq. 19).
+    pub speedup: Option<Estimate>,
+    /// Efficiency `speedup / n` (Eq. 20).
+    pub efficiency: Option<Estimate>,
+    /// More threads than usable cores: not a scaling point.
+    pub oversubscribed: bool,
+}
+
+impl Point {
+    /// A point that is evidence of scaling: more than one thread, not oversubscribed.
+    pub fn is_real_parallel(&self) -> bool {
+        self.key.threads > 1 && !self.oversubscribed
+    }
+}
+
+/// Statistics of one campaign's rows.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Analysis {
+    /// Raw measurements per cell.
+    pub cells: BTreeMap<CellKey, Cell>,
+    /// Every measured (cell, stage) with its estimates, sorted by key then stage.
+    pub points: Vec<Point>,
+    /// Pinning policy of the rows analysed.
+    pub pin_policy: String,
+    /// Things the reader should know (several pinning policies, a missing base case, ...).
+    pub notes: Vec<String>,
+    /// Machine fingerprints found in the rows.
+    pub machine_ids: Vec<String>,
+}
+
+impl Analysis {
+    /// Analyse `rows`. When the rows use several pinning policies, only `pin` (or, if
+    /// `None`, the first of close, spread, none, other lists) is analysed, and a note says so.
+    pub fn from_rows(rows: &[Row], pin: Option<&str>, opts: &StatsOptions) -> Self {
+        let mut an = Analysis::default();
+        let pins: BTreeSet<&str> = rows.iter().map(|r| r.pin_policy.as_str()).collect();
+        let chosen = match pin {
+            Some(p) => p.to_string(),
+            None => ["close", "spread", "none"]
+                .iter()
+                .find(|p| pins.contains(**p))
+                .map(|p| p.to_string())
+                .or_else(|| pins.iter().next().map(|p| p.to_string()))
+                .unwrap_or_default(),
+        };
+        if pins.len() > 1 {
+            an.notes.push(format!(
+                "the rows use {} pinning policies ({}); only '{chosen}' is analysed",
+                pins.len(),
+                pins.iter().copied().collect::<Vec<_>>().join(", ")
+            ));
+        }
+        an.pin_policy = chosen.clone();
+        let ids: BTreeSet<&str> = rows.iter().map(|r| r.machine_id.as_str()).filter(|s| !s.is_empty()).collect();
+        an.machine_ids = ids.into_iter().map(str::to_string).collect();
+        if an.machine_ids.len() > 1 {
+            an.notes.push(format!(
+                "rows from {} machines ({}) are mixed in one campaign",
+                an.machine_ids.len(),
+                an.machine_ids.join(", ")
+            ));
+        }
+        let mut nodes: BTreeMap<CellKey, Vec<f64>> = BTreeMap::new();
+        for r in rows.iter().filter(|r| r.pin_policy == chosen) {
+            let key = CellKey::new(r.model, &r.strategy, &r.opt_level, r.threads);
+            let cell = an.cells.entry(key.clone()).or_default();
+            cell.oversubscribed |= r.oversubscribed;
+            cell.mem_estimate = cell.mem_estimate.max(r.mem_estimate_bytes);
+            cell.particles = cell.particles.or(r.particles);
+            if r.status != Status::Ok {
+                cell.not_ok.push((r.status, r.reason.clone()));
+                continue;
+            }
+            let Some(total) = Stage::Total.time_per_step(r) else {
+                cell.not_ok.push((Status::Invalid, "status ok but no time measured".into()));
+                continue;
+            };
+            cell.times[0].push(total);
+            for (i, st) in [Stage::Grid, Stage::Particle].into_iter().enumerate() {
+                if let Some(t) = st.time_per_step(r) {
+                    cell.times[i + 1].push(t);
+                }
+            }
+            if let Some(b) = r.peak_rss_bytes {
+                cell.peak_rss.push(b as f64);
+            }
+            if let Some(n) = r.mean_nodes.or(r.nodes.map(|n| n as f64)) {
+                nodes.entry(key).or_default().push(n);
+            }
+        }
+        for (k, v) in nodes {
+            if let Some(c) = an.cells.get_mut(&k) {
+                c.mean_nodes = Some(median(&v));
+            }
+        }
+        let keys: Vec<CellKey> = an.cells.keys().cloned().collect();
+        let mut missing_base = BTreeSet::new();
+        for key in &keys {
+            let cell = &an.cells[key];
+            for stage in Stage::ALL {
+                let xs = cell.times(stage);
+                if xs.is_empty() {
+                    continue;
+                }
+                let label = format!("{key}/{stage}");
+                let time = bootstrap(&[xs], &|m| m[0], opts, &label);
+                let own = CellKey { threads: 1, ..key.clone() };
+                let serial = CellKey { threads: 1, strategy: "serial".into(), ..key.clone() };
+                let base_key =
+                    [own, serial].into_iter().find(|k| an.cells.get(k).is_some_and(|c| !c.times(stage).is_empty()));
+                let (base, speedup) = match base_key {
+                    Some(bk) => {
+                        let bs = an.cells[&bk].times(stage);
+                        let t1 = bootstrap(&[bs], &|m| m[0], opts, &format!("{bk}/{stage}"));
+                        let s = if bk == *key {
+                            Estimate::point(1.0, xs.len())
+                        } else {
+                            bootstrap(&[bs, xs], &|m| m[0] / m[1], opts, &format!("{label}/speedup"))
+                        };
+                        (Some(Base { strategy: bk.strategy.clone(), t1 }), Some(s))
+                    }
+                    None => {
+                        missing_base.insert(format!("Model{} {} {}", key.model, key.strategy, key.opt_level));
+                        (None, None)
+                    }
+                };
+                let efficiency = speedup.map(|s| s.scale(1.0 / key.threads as f64));
+                an.points.push(Point {
+                    key: key.clone(),
+                    stage,
+                    time,
+                    base,
+                    speedup,
+                    efficiency,
+                    oversubscribed: cell.oversubscribed,
+                });
+            }
+        }
+        if !missing_base.is_empty() {
+            an.notes.push(format!(
+                "no one-thread run (ok) for {}: no speedup there",
+                missing_base.into_iter().collect::<Vec<_>>().join(", ")
+            ));
+        }
+        an
+    }
+
+    /// The point of a cell and stage.
+    pub fn point(&self, model: u32, strategy: &str, opt: &str, threads: usize, stage: Stage) -> Option<&Point> {
+        self.points.iter().find(|p| {
+            p.stage == stage
+                && p.key.model == model
+                && p.key.threads == threads
+                && p.key.strategy == strategy
+                && p.key.opt_level == opt
+        })
+    }
+
+    /// The points of one line of a figure, by ascending thread count.
+    pub fn series(&self, model: u32, strategy: &str, opt: &str, stage: Stage) -> Vec<&Point> {
+        let mut v: Vec<&Point> = self
+            .points
+            .iter()
+            .filter(|p| {
+                p.stage == stage && p.key.model == model && p.key.strategy == strategy && p.key.opt_level == opt
+            })
+            .collect();
+        v.sort_by_key(|p| p.key.threads);
+        v
+    }
+
+    /// Models present, ascending.
+    pub fn models(&self) -> Vec<u32> {
+        let s: BTreeSet<u32> = self.cells.keys().map(|k| k.model).collect();
+        s.into_iter().collect()
+    }
+
+    /// Thread counts present, ascending.
+    pub fn thread_counts(&self) -> Vec<usize> {
+        let s: BTreeSet<usize> = self.cells.keys().map(|k| k.threads).collect();
+        s.into_iter().collect()
+    }
+
+    /// Median peak memory of a cell with its interval (bytes).
+    pub fn memory(&self, key: &CellKey, opts: &StatsOptions) -> Option<Estimate> {
+        let c = self.cells.get(key)?;
+        (!c.peak_rss.is_empty()).then(|| bootstrap(&[&c.peak_rss], &|m| m[0], opts, &format!("{key}/rss")))
+    }
+
+    /// Cells that have rows but no measurement, with the (first) reason.
+    pub fn unmeasured(&self) -> Vec<(&CellKey, &Cell)> {
+        self.cells.iter().filter(|(_, c)| !c.measured()).collect()
+    }
+
+    /// Whether any plotted point is oversubscribed.
+    pub fn any_oversubscribed(&self) -> bool {
+        self.points.iter().any(|p| p.oversubscribed)
+    }
+
+    /// Largest number of repetitions of any cell.
+    pub fn max_reps(&self) -> usize {
+        self.cells.values().map(|c| c.times[0].len()).max().unwrap_or(0)
+    }
+}
+
+/// A campaign folder read from disk.
+#[derive(Clone, Debug)]
+pub struct Campaign {
+    /// The folder (holds `runs.csv`).
+    pub dir: PathBuf,
+    /// Its rows.
+    pub rows: Vec<Row>,
+    /// `manifest.json`, when present and readable.
+    pub manifest: Option<Manifest>,
+    /// `bandwidth.json`, when present and readable.
+    pub bandwidth: Option<BandwidthReport>,
+}
+
+impl Campaign {
+    /// Campaign id: the manifest's, else the rows', else the folder name.
+    pub fn id(&self) -> String {
+        self.manifest
+            .as_ref()
+            .map(|m| m.campaign_id.clone())
+            .or_else(|| self.rows.first().map(|r| r.campaign_id.clone()).filter(|s| !s.is_empty()))
+            .unwrap_or_else(|| self.dir.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default())
+    }
+
+    /// Machine fingerprint: the manifest's, else the rows' (`unknown` if neither has one).
+    pub fn fingerprint(&self) -> String {
+        self.manifest
+            .as_ref()
+            .map(|m| m.machine.fingerprint.clone())
+            .or_else(|| self.rows.iter().map(|r| r.machine_id.clone()).find(|s| !s.is_empty()))
+            .unwrap_or_else(|| "unknown".into())
+    }
+
+    /// Analyse the rows with default options.
+    pub fn analyse(&self, pin: Option<&str>) -> Analysis {
+        Analysis::from_rows(&self.rows, pin, &StatsOptions::default())
+    }
+}
+
+/// Every campaign folder (one holding `runs.csv`) at or below `dir`, at most three levels
+/// deep (`results/<fingerprint>/<campaign>/runs.csv`), sorted by path.
+pub fn find_campaigns(dir: &Path) -> Result<Vec<PathBuf>> {
+    if !dir.exists() {
+        bail!(
+            "results folder {} does not exist: pass a campaign folder (with runs.csv) or a results folder \
+             (e.g. results/), or run `mpm-bench run --preset smoke` first",
+            dir.display()
+        );
+    }
+    if !dir.is_dir() {
+        if dir.file_name().is_some_and(|f| f == "runs.csv") {
+            return Ok(vec![dir.parent().unwrap_or(Path::new(".")).to_path_buf()]);
+        }
+        bail!("{} is not a folder: pass a campaign folder (with runs.csv) or a results folder", dir.display());
+    }
+    let mut out = Vec::new();
+    walk(dir, 0, &mut out)?;
+    out.sort();
+    Ok(out)
+}
+
+fn walk(dir: &Path, depth: usize, out: &mut Vec<PathBuf>) -> Result<()> {
+    if dir.join("runs.csv").is_file() {
+        out.push(dir.to_path_buf());
+        return Ok(());
+    }
+    if depth >= 3 {
+        return Ok(());
+    }
+    let rd = std::fs::read_dir(dir).with_context(|| format!("cannot list {}", dir.display()))?;
+    for e in rd.flatten() {
+        if e.file_type().is_ok_and(|t| t.is_dir()) {
+            walk(&e.path(), depth + 1, out)?;
+        }
+    }
+    Ok(())
+}
+
+/// The campaign `dir` names: `dir` itself when it holds `runs.csv`, else the campaign below
+/// it whose `runs.csv` was modified last (named on stderr when there were several).
+pub fn resolve_campaign(dir: &Path) -> Result<PathBuf> {
+    let all = find_campaigns(dir)?;
+    match all.len() {
+        0 => bail!(
+            "no runs.csv found in {} or its sub-folders (up to results/<fingerprint>/<campaign>/): \
+             run `mpm-bench run --preset smoke` or pass the campaign folder",
+            dir.display()
+        ),
+        1 => Ok(all.into_iter().next().expect("one")),
+        n => {
+            let newest = all
+                .iter()
+                .max_by_key(|d| std::fs::metadata(d.join("runs.csv")).and_then(|m| m.modified()).ok())
+                .expect("non-empty")
+                .clone();
+            eprintln!(
+                "note: {} holds {n} campaigns; using the newest, {} (pass a campaign folder to choose)",
+                dir.display(),
+                newest.display()
+            );
+            Ok(newest)
+        }
+    }
+}
+
+/// Read the campaign `dir` names (see [`resolve_campaign`]): rows, manifest, bandwidth.
+pub fn load_campaign(dir: &Path) -> Result<Campaign> {
+    let dir = resolve_campaign(dir)?;
+    let rows = read_rows(&dir.join("runs.csv"))?;
+    let mpath = dir.join("manifest.json");
+    let manifest = if mpath.is_file() {
+        match manifest::read(&mpath) {
+            Ok(m) => Some(m),
+            Err(e) => {
+                eprintln!("warning: ignoring {}: {e:#}", mpath.display());
+                None
+            }
+        }
+    } else {
+        None
+    };
+    let bpath = dir.join("bandwidth.json");
+    let bandwidth = if bpath.is_file() {
+        match crate::bandwidth::read(&bpath) {
+            Ok(b) => Some(b),
+            Err(e) => {
+                eprintln!("warning: ignoring {}: {e:#}", bpath.display());
+                None
+            }
+        }
+    } else {
+        None
+    };
+    Ok(Campaign { dir, rows, manifest, bandwidth })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_and_quantiles() {
+        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), 2.5);
+        assert!(median(&[]).is_nan());
+        assert_eq!(quantile(&[0.0, 10.0], 0.25), 2.5);
+    }
+
+    #[test]
+    fn single_rep_is_degenerate_and_bootstrap_is_deterministic() {
+        let o = StatsOptions::default();
+        let e = bootstrap(&[&[2.0]], &|m| m[0], &o, "x");
+        assert!(e.degenerate());
+        assert_eq!((e.lo, e.value, e.hi), (2.0, 2.0, 2.0));
+        let xs = [1.0, 1.1, 0.9, 1.05, 0.95];
+        let a = bootstrap(&[&xs], &|m| m[0], &o, "y");
+        let b = bootstrap(&[&xs], &|m| m[0], &o, "y");
+        assert_eq!(a, b);
+        assert!(a.lo <= 1.0 && a.hi >= 1.0 && a.lo < a.hi, "{a:?}");
+        assert!(a.lo >= 0.9 && a.hi <= 1.1);
+    }
+
+    #[test]
+    fn compare_uses_intervals_or_margin() {
+        let a = Estimate { value: 1.0, lo: 0.9, hi: 1.1, reps: 3 };
+        let b = Estimate { value: 1.3, lo: 1.2, hi: 1.4, reps: 3 };
+        assert_eq!(compare(&a, &b), Compare::Less);
+        assert_eq!(compare(&b, &a), Compare::Greater);
+        assert_eq!(compare(&Estimate::point(1.0, 1), &Estimate::point(1.02, 1)), Compare::Within);
+        assert_eq!(compare(&Estimate::point(1.0, 1), &Estimate::point(1.2, 1)), Compare::Less);
+    }
+}

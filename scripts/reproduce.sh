@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# The reproduce command: install what is missing, build the solver at both optimisation
+# levels, run the quick campaign (every model, both strategies, both optimisation levels,
+# threads 1/2/4/6/8, with step limits: about 20 minutes on 2 cores), then regenerate the
+# paper's Figures 7-14 and check its claims from this machine's results.
+#
+# Re-running resumes the campaign (finished runs are skipped). Options are passed on to
+# `mpm-bench run`, e.g. `scripts/reproduce.sh --reps 3` or `--preset smoke`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/bootstrap.sh
+[ -f "$HOME/.cargo/env" ] && . "$HOME/.cargo/env"
+
+step() { printf '\n==> %s\n' "$*" >&2; }
+
+step "building mpm and mpm-bench (profiles o3 and o0)"
+cargo build --profile o3 -p mpm-bench --bins
+cargo build --profile o0 -p mpm-bench --bin mpm
+
+preset=quick
+args=()
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --preset) preset="$2"; shift 2 ;;
+        --preset=*) preset="${1#--preset=}"; shift ;;
+        *) args+=("$1"); shift ;;
+    esac
+done
+
+step "machine topology"
+target/o3/mpm-bench topology
+
+step "campaign: preset $preset"
+campaign_log=$(mktemp)
+target/o3/mpm-bench run --preset "$preset" --no-build "${args[@]}" | tee "$campaign_log"
+campaign=$(sed -n 's/^campaign folder: //p' "$campaign_log" | tail -n 1)
+rm -f "$campaign_log"
+if [ -z "$campaign" ] || [ ! -f "$campaign/runs.csv" ]; then
+    echo "reproduce: could not find the campaign folder in the harness output" >&2
+    exit 1
+fi
+
+step "figures 7-14 and the memory figure -> paper-figures/"
+target/o3/mpm-bench figures --results "$campaign" --out paper-figures
+
+step "the paper's claims C1-C6 on this machine"
+target/o3/mpm-bench claims --results "$campaign" --markdown "$campaign/claims.md"
+
+step "done: results in $campaign, figures in paper-figures/"
