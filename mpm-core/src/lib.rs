@@ -42,6 +42,7 @@ pub mod scenario;
 pub mod shape;
 pub mod solver;
 pub mod strategy;
+pub mod team;
 pub mod timers;
 pub mod transfer;
 

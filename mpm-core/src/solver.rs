@@ -27,6 +27,7 @@ use crate::math::{norm, Vec3};
 use crate::particles::Particles;
 use crate::scenario::Setup;
 use crate::strategy::{Engine, Exec, Strategy};
+use crate::team::Team;
 use crate::timers::{Lap, StageTimes, Substage};
 use crate::transfer;
 use rayon::ThreadPool;
@@ -110,6 +111,7 @@ pub struct Simulation {
     node_steps: u128,
     times: StageTimes,
     poisoned: Option<u64>,
+    team: Team,
 }
 
 impl Simulation {
@@ -183,6 +185,7 @@ impl Simulation {
             node_steps: 0,
             times: StageTimes::default(),
             poisoned: None,
+            team: Team::new(config.threads),
             config,
         })
     }
@@ -302,17 +305,47 @@ impl Simulation {
         if self.config.strategy != Strategy::Serial && pool.current_num_threads() != want {
             return Err(SimError::PoolSize { got: pool.current_num_threads(), want });
         }
-        let result = pool.install(|| self.step_inner(pool, dt_max));
+        let result = if self.config.strategy == Strategy::Serial {
+            pool.install(|| self.step_inner(&Exec::serial(), dt_max))
+        } else {
+            self.step_team(pool, dt_max)
+        };
         if result.is_err() {
             self.poisoned = Some(self.steps + 1);
         }
         result
     }
 
-    fn step_inner(&mut self, pool: &ThreadPool, dt_max: f64) -> Result<(), SimError> {
+    /// One step as one parallel region: worker 0 drives the step, the other workers serve
+    /// its phases and stay awake in between (see [`crate::team`]).
+    fn step_team(&mut self, pool: &ThreadPool, dt_max: f64) -> Result<(), SimError> {
+        let mut team = std::mem::replace(&mut self.team, Team::new(0));
+        team.reset();
+        let driver = std::sync::Mutex::new((Some(&mut *self), None));
+        pool.broadcast(|ctx| {
+            if ctx.index() == 0 {
+                let mut slot = driver.lock().unwrap_or_else(|e| e.into_inner());
+                let sim = slot.0.take().expect("worker 0 drives the step once");
+                let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    sim.step_inner(&Exec::team(&team), dt_max)
+                }));
+                team.finish();
+                match outcome {
+                    Ok(r) => slot.1 = Some(r),
+                    Err(p) => std::panic::resume_unwind(p),
+                }
+            } else {
+                team.serve(ctx.index());
+            }
+        });
+        let result = driver.into_inner().unwrap_or_else(|e| e.into_inner()).1.expect("the driver ran the step");
+        self.team = team;
+        result
+    }
+
+    fn step_inner(&mut self, exec: &Exec<'_>, dt_max: f64) -> Result<(), SimError> {
         let step_no = self.steps + 1;
         let dt = self.dt_next.min(dt_max);
-        let exec = Exec::new(pool, self.config.strategy);
         let mut lap = Lap::start();
 
         // ---- grid-node stage -------------------------------------------------------
@@ -333,7 +366,7 @@ impl Simulation {
         }
         self.node_steps += self.geom.num_nodes() as u128;
         lap.lap(&mut self.times, Substage::GridFit);
-        self.engine.prepare(&exec, &self.geom, &self.particles.x);
+        self.engine.prepare(exec, &self.geom, &self.particles.x);
         lap.lap(&mut self.times, Substage::Binning);
 
         let geom = self.geom;
@@ -342,7 +375,7 @@ impl Simulation {
             let (particles, bf) = (&self.particles, self.config.body_force);
             let p2g = |p: usize| transfer::p2g(&geom, particles, bf, p);
             self.engine.scatter(
-                &exec,
+                exec,
                 &geom,
                 n,
                 &mut self.nodes.p2g,
@@ -353,17 +386,17 @@ impl Simulation {
                 (Substage::Scatter, Substage::Assembly),
             );
         }
-        transfer::grid_update(&exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
+        transfer::grid_update(exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::GridUpdate);
 
         // ---- particle stage --------------------------------------------------------
-        transfer::gather(&exec, &geom, &self.nodes.kin, &self.particles.x, &mut self.particles.v, dt);
+        transfer::gather(exec, &geom, &self.nodes.kin, &self.particles.x, &mut self.particles.v, dt);
         lap.lap(&mut self.times, Substage::Gather);
         {
             let particles = &self.particles;
             let remap = |p: usize| transfer::remap(&geom, particles, p);
             self.engine.scatter(
-                &exec,
+                exec,
                 &geom,
                 n,
                 &mut self.nodes.remap,
@@ -374,16 +407,14 @@ impl Simulation {
                 (Substage::RemapScatter, Substage::RemapAssembly),
             );
         }
-        transfer::remap_velocity(&exec, &geom, &self.wall_layers, &mut self.nodes, self.mass_tol);
+        transfer::remap_velocity(exec, &geom, &self.wall_layers, &mut self.nodes, self.mass_tol);
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
         let fixed = self.config.grid_mode == GridMode::Fixed;
         let (nodes, particles, consts, partials) = (&self.nodes, &mut self.particles, &self.consts, &mut self.partials);
         match self.material.eos {
-            Eos::MieGruneisen(ref m) => {
-                transfer::update(&exec, &geom, nodes, particles, consts, m, dt, fixed, partials)
-            }
-            Eos::Linear(ref l) => transfer::update(&exec, &geom, nodes, particles, consts, l, dt, fixed, partials),
+            Eos::MieGruneisen(ref m) => transfer::update(exec, &geom, nodes, particles, consts, m, dt, fixed, partials),
+            Eos::Linear(ref l) => transfer::update(exec, &geom, nodes, particles, consts, l, dt, fixed, partials),
         }
         let mut total = Partial::default();
         for p in &self.partials[..exec.workers] {

@@ -19,6 +19,7 @@ pub mod domain_decomposition;
 pub mod serial;
 
 use crate::grid::GridGeom;
+use crate::team::Team;
 use crate::timers::{Lap, StageTimes, Substage};
 use rayon::ThreadPool;
 use serde::Serialize;
@@ -112,34 +113,47 @@ impl NodeBox {
 
 /// Runs a phase on every worker: `f(j)` once for each `j` in `0..workers`.
 pub struct Exec<'a> {
-    pool: Option<&'a ThreadPool>,
+    kind: ExecKind<'a>,
     /// Number of workers (shares).
     pub workers: usize,
 }
 
+enum ExecKind<'a> {
+    Serial,
+    Pool(&'a ThreadPool),
+    Team(&'a Team),
+}
+
 impl<'a> Exec<'a> {
     /// The executor of `strategy` in `pool`: one share on the calling thread for the serial
-    /// strategy, one share per pool thread otherwise.
+    /// strategy, one `broadcast` per phase otherwise (worker `j` runs share `j`).
     pub fn new(pool: &'a ThreadPool, strategy: Strategy) -> Self {
         match strategy {
             Strategy::Serial => Self::serial(),
-            _ => Self { pool: Some(pool), workers: pool.current_num_threads() },
+            _ => Self { kind: ExecKind::Pool(pool), workers: pool.current_num_threads() },
         }
     }
 
     /// One share, run on the calling thread.
     pub fn serial() -> Self {
-        Self { pool: None, workers: 1 }
+        Self { kind: ExecKind::Serial, workers: 1 }
+    }
+
+    /// Phases run by a [`Team`] whose workers stay awake between phases (call from the
+    /// team's driver, worker 0).
+    pub fn team(team: &'a Team) -> Self {
+        Self { kind: ExecKind::Team(team), workers: team.workers() }
     }
 
     /// Run `f(j)` for every worker `j`, worker `j` on pool thread `j`.
     #[inline]
     pub fn run<F: Fn(usize) + Sync>(&self, f: F) {
-        match self.pool {
-            Some(pool) => {
+        match self.kind {
+            ExecKind::Serial => f(0),
+            ExecKind::Pool(pool) => {
                 pool.broadcast(|ctx| f(ctx.index()));
             }
-            None => f(0),
+            ExecKind::Team(team) => team.run(&f),
         }
     }
 }
