@@ -39,6 +39,8 @@ if [ -z "$campaign" ] || [ ! -f "$campaign/runs.csv" ]; then
     echo "reproduce: could not find the campaign folder in the harness output" >&2
     exit 1
 fi
+# Record paths relative to the repository in the generated READMEs.
+campaign=$(realpath --relative-to=. "$campaign")
 
 step "figures 7-14 and the memory figure -> paper-figures/"
 target/o3/mpm-bench figures --results "$campaign" --out paper-figures
