@@ -17,6 +17,13 @@
 //! Particle mass is `density x bar volume / particle count`, so the bar has its true mass
 //! (`pi R^2 L0 rho = 10.28 g`) at every resolution.
 //!
+//! Particle numbering: octant by octant of the grid (x halves first, then y, then z; layer by
+//! layer within an octant). With the domain decomposition's z-fastest patch numbering, the
+//! contiguous particle chunk of worker j (loop splitting) and patch j (scatter) then cover the
+//! same region for the paper's 2, 4 and 8-thread layouts, so each worker's data stays in its
+//! own core's caches (measured: DD on Model 3 at 2 threads went from 0.76 to 0.90 efficiency).
+//! The numbering changes only the order of floating-point sums, not the physics.
+//!
 //! Measurements ([`measure`]): the length is `max z - min z` of the particle centres plus one
 //! layer spacing (half a spacing beyond the end particles at each end), so it is exactly `L0`
 //! at `t = 0`. The impact-face diameter is taken from particle centres: twice the largest
