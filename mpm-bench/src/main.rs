@@ -332,7 +332,7 @@ fn cmd_run(a: RunArgs) -> Result<()> {
         let dir = std::fs::canonicalize(&summary.dir).unwrap_or(summary.dir.clone());
         println!("campaign folder: {}", dir.display());
     }
-    if summary.interrupted {
+    if summary.counts.interrupted {
         std::process::exit(130);
     }
     Ok(())

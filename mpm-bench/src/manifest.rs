@@ -97,24 +97,16 @@ pub struct SoftwareInfo {
     pub git: GitInfo,
 }
 
-/// One invocation of `mpm-bench run` on this campaign.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Session {
-    /// Start (RFC 3339 UTC).
-    pub started: String,
-    /// End (RFC 3339 UTC), empty while running or when killed.
-    pub finished: String,
-    /// Command line.
-    pub command: String,
-    /// Seed of the shuffled run order.
-    pub seed: u64,
+/// What one session of a campaign did (in the manifest and in the closing summary).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SessionCounts {
     /// Runs in the matrix.
     pub planned: usize,
     /// Runs already in the CSV at the start (resumed past).
     pub already_done: usize,
     /// Rows written by this session.
     pub written: usize,
-    /// Of which ok / skipped / failed / invalid / oversubscribed.
+    /// Rows written with status ok.
     pub ok: usize,
     /// Skipped rows written.
     pub skipped: usize,
@@ -126,6 +118,22 @@ pub struct Session {
     pub oversubscribed: usize,
     /// Stopped by Ctrl-C / SIGTERM.
     pub interrupted: bool,
+}
+
+/// One invocation of `mpm-bench run` on this campaign.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Session {
+    /// Start (RFC 3339 UTC).
+    pub started: String,
+    /// End (RFC 3339 UTC), empty while running or when killed.
+    pub finished: String,
+    /// Command line.
+    pub command: String,
+    /// Seed of the shuffled run order.
+    pub seed: u64,
+    /// What the session did.
+    #[serde(flatten)]
+    pub counts: SessionCounts,
     /// Binaries used (hashes may change between sessions after a rebuild).
     pub binaries: Vec<BinaryInfo>,
     /// Git state at the start.

@@ -585,24 +585,8 @@ pub struct ExecOptions {
 pub struct ExecSummary {
     /// Campaign folder.
     pub dir: PathBuf,
-    /// Runs in the matrix.
-    pub planned: usize,
-    /// Runs found done in the CSV.
-    pub already_done: usize,
-    /// Rows written now.
-    pub written: usize,
-    /// Of which ok.
-    pub ok: usize,
-    /// Skipped.
-    pub skipped: usize,
-    /// Failed.
-    pub failed: usize,
-    /// Invalid.
-    pub invalid: usize,
-    /// Oversubscribed.
-    pub oversubscribed: usize,
-    /// Interrupted before the end.
-    pub interrupted: bool,
+    /// Rows written, skipped, ... (also recorded in the manifest's session).
+    pub counts: manifest::SessionCounts,
     /// Wall time of the session.
     pub wall: Duration,
 }
@@ -613,15 +597,15 @@ impl ExecSummary {
         format!(
             "{}: {} rows written ({} ok, {} skipped, {} failed, {} invalid; {} oversubscribed), \
              {} already done of {} planned, wall time {}",
-            if self.interrupted { "interrupted" } else { "done" },
-            self.written,
-            self.ok,
-            self.skipped,
-            self.failed,
-            self.invalid,
-            self.oversubscribed,
-            self.already_done,
-            self.planned,
+            if self.counts.interrupted { "interrupted" } else { "done" },
+            self.counts.written,
+            self.counts.ok,
+            self.counts.skipped,
+            self.counts.failed,
+            self.counts.invalid,
+            self.counts.oversubscribed,
+            self.counts.already_done,
+            self.counts.planned,
             humantime::format_duration(Duration::from_secs(self.wall.as_secs()))
         )
     }
@@ -662,8 +646,11 @@ pub fn execute(
         order.iter().cloned().enumerate().filter(|(_, r)| !done.contains(&r.key())).collect();
     let mut summary = ExecSummary {
         dir: dir.clone(),
-        planned: order.len(),
-        already_done: order.len() - todo.len(),
+        counts: manifest::SessionCounts {
+            planned: order.len(),
+            already_done: order.len() - todo.len(),
+            ..Default::default()
+        },
         ..ExecSummary::default()
     };
     let usable = machine.usable_pus().len();
@@ -676,7 +663,7 @@ pub fn execute(
             "campaign {} ({} runs, {} already done, seed {}) -> {}",
             campaign.id,
             order.len(),
-            summary.already_done,
+            summary.counts.already_done,
             campaign.seed,
             csv_path.display()
         )?;
@@ -737,8 +724,7 @@ pub fn execute(
         started: manifest::now_rfc3339(),
         command: opts.command.clone(),
         seed: campaign.seed,
-        planned: order.len(),
-        already_done: summary.already_done,
+        counts: summary.counts,
         binaries,
         git: git.clone(),
         ..Session::default()
@@ -794,7 +780,7 @@ pub fn execute(
 
     for (n, (order_index, spec)) in todo.iter().enumerate() {
         if interrupted.load(Ordering::SeqCst) {
-            summary.interrupted = true;
+            summary.counts.interrupted = true;
             break;
         }
         pb.set_prefix(format!("run {}/{} ({} left)", n + 1, todo.len(), todo.len() - n));
@@ -825,7 +811,7 @@ pub fn execute(
             };
             let out = runner.run(&req);
             if out.interrupted || interrupted.load(Ordering::SeqCst) {
-                summary.interrupted = true;
+                summary.counts.interrupted = true;
                 let _ = std::fs::remove_file(&req.json_path);
                 break;
             }
@@ -833,15 +819,15 @@ pub fn execute(
         }
         row.timestamp = manifest::now_rfc3339();
         log.append(&row)?;
-        summary.written += 1;
+        summary.counts.written += 1;
         match row.status {
-            Status::Ok => summary.ok += 1,
-            Status::Skipped => summary.skipped += 1,
-            Status::Failed => summary.failed += 1,
-            Status::Invalid => summary.invalid += 1,
+            Status::Ok => summary.counts.ok += 1,
+            Status::Skipped => summary.counts.skipped += 1,
+            Status::Failed => summary.counts.failed += 1,
+            Status::Invalid => summary.counts.invalid += 1,
         }
         if row.oversubscribed {
-            summary.oversubscribed += 1;
+            summary.counts.oversubscribed += 1;
         }
         if show {
             let line = format!(
@@ -867,18 +853,12 @@ pub fn execute(
     }
     pb.finish_and_clear();
     if interrupted.load(Ordering::SeqCst) {
-        summary.interrupted = true;
+        summary.counts.interrupted = true;
     }
     summary.wall = t0.elapsed();
     if let Some(s) = man.sessions.last_mut() {
         s.finished = manifest::now_rfc3339();
-        s.written = summary.written;
-        s.ok = summary.ok;
-        s.skipped = summary.skipped;
-        s.failed = summary.failed;
-        s.invalid = summary.invalid;
-        s.oversubscribed = summary.oversubscribed;
-        s.interrupted = summary.interrupted;
+        s.counts = summary.counts;
     }
     manifest::write(&manifest_path, &man)?;
     debug_assert_eq!(log.path(), csv_path.as_path());

@@ -124,14 +124,14 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
     // Interrupted after 3 runs: exactly 3 valid rows.
     let mut r = MockRunner { interrupt_after: Some((3, flag.clone())), ..MockRunner::default() };
     let s = runner::execute(&c, &m, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
-    assert!(s.interrupted);
-    assert_eq!(s.written, 3);
+    assert!(s.counts.interrupted);
+    assert_eq!(s.counts.written, 3);
     let csv = s.dir.join("runs.csv");
     assert_eq!(read_rows(&csv).unwrap().len(), 3);
     // Resume: the other 5 only.
     let mut r = MockRunner::default();
     let s = run_mock(&c, &m, dir.path(), &mut r);
-    assert_eq!((s.already_done, s.written, r.calls.len()), (3, 5, 5));
+    assert_eq!((s.counts.already_done, s.counts.written, r.calls.len()), (3, 5, 5));
     let rows = read_rows(&csv).unwrap();
     assert_eq!(rows.len(), 8);
     let keys: HashSet<_> = rows.iter().map(Row::key).collect();
@@ -140,7 +140,7 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
     // Again: nothing to do.
     let mut r = MockRunner::default();
     let s = run_mock(&c, &m, dir.path(), &mut r);
-    assert_eq!((s.written, r.calls.len()), (0, 0));
+    assert_eq!((s.counts.written, r.calls.len()), (0, 0));
     assert_eq!(read_rows(&csv).unwrap().len(), 8);
     // Manifest and sessions.
     let man = mpm_bench::manifest::read(&s.dir.join("manifest.json")).unwrap();
@@ -157,7 +157,7 @@ fn memory_guard_skips_with_a_reason() {
     let mut r = MockRunner::default();
     let s = run_mock(&c, &laptop(), dir.path(), &mut r);
     assert_eq!(r.calls.len(), 0, "skipped runs are not attempted");
-    assert_eq!(s.skipped, 8);
+    assert_eq!(s.counts.skipped, 8);
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
     assert!(rows.iter().all(|r| r.status == Status::Skipped && r.reason.contains("memory guard")));
     assert!(rows.iter().all(|r| r.wall_s.is_none() && r.mem_estimate_bytes > 10 << 20));
@@ -194,13 +194,13 @@ fn oversubscribed_invalid_and_failed_rows_are_flagged() {
     let failed: Vec<_> = rows.iter().filter(|r| r.status == Status::Failed).collect();
     assert_eq!(failed.len(), 1);
     assert!(failed[0].reason.contains("exited with code 1"), "{}", failed[0].reason);
-    assert_eq!(s.oversubscribed, 2);
+    assert_eq!(s.counts.oversubscribed, 2);
     // --retry-failed runs the two bad ones again (new attempt ids), nothing else.
     let mut r = MockRunner::default();
     let flag = AtomicBool::new(false);
     let o = ExecOptions { retry_failed: true, ..opts(dir.path()) };
     let s = runner::execute(&c, &laptop(), &mock_solvers(&c), &mut r, &o, &flag).unwrap();
-    assert_eq!(s.written, 2);
+    assert_eq!(s.counts.written, 2);
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
     assert!(rows.iter().any(|r| r.run_id.ends_with("-a1")));
 }
@@ -391,7 +391,7 @@ fn sigint_leaves_a_valid_csv_and_the_campaign_resumes() {
     let rows = read_rows(&d.join("runs.csv")).unwrap();
     assert!(!rows.is_empty() && rows.len() < 8, "{} rows", rows.len());
     let man = mpm_bench::manifest::read(&d.join("manifest.json")).unwrap();
-    assert!(man.sessions[0].interrupted);
+    assert!(man.sessions[0].counts.interrupted);
     let again = bench().args(args).output().unwrap();
     assert!(again.status.success());
     let rows = read_rows(&d.join("runs.csv")).unwrap();
