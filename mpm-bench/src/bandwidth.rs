@@ -396,7 +396,7 @@ pub fn run(args: BandwidthArgs) -> Result<()> {
     let report = measure_all(&args)?;
     print!("{}", table(&report));
     if let Some(out) = &args.out {
-        manifest::write_atomic(out, &serde_json::to_string_pretty(&report)?)
+        crate::atomic::write_atomic(out, serde_json::to_string_pretty(&report)?.as_bytes())
             .with_context(|| format!("cannot write {}: choose a writable --out", out.display()))?;
         println!("wrote {}", out.display());
     }

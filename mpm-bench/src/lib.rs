@@ -15,6 +15,7 @@
 //!
 //! Pinning and measurement policy live here; the solver crate `mpm-core` has no OS code.
 
+pub mod atomic;
 pub mod bandwidth;
 pub mod claims;
 pub mod figures;

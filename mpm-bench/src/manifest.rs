@@ -309,14 +309,6 @@ pub fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// Write `text` to `path` atomically (temporary file + rename).
-pub fn write_atomic(path: &Path, text: &str) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, text).with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot replace {}", path.display()))?;
-    Ok(())
-}
-
 /// Read a manifest.
 pub fn read(path: &Path) -> Result<Manifest> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
@@ -325,7 +317,7 @@ pub fn read(path: &Path) -> Result<Manifest> {
 
 /// Write a manifest (atomically).
 pub fn write(path: &Path, m: &Manifest) -> Result<()> {
-    write_atomic(path, &serde_json::to_string_pretty(m)?)
+    crate::atomic::write_atomic(path, serde_json::to_string_pretty(m)?.as_bytes())
 }
 
 /// Current time, RFC 3339 UTC (seconds).

@@ -41,6 +41,9 @@ pub fn parse_cpu_list(s: &str) -> Result<Vec<usize>> {
                 if a > b {
                     bail!("range '{item}' in CPU list '{s}' runs backwards: write it as '{b}-{a}'");
                 }
+                if b - a > 4096 {
+                    bail!("range '{item}' in CPU list '{s}' is too long (more than 4096 CPUs)");
+                }
                 out.extend(a..=b);
             }
             None => out.push(num(item)?),

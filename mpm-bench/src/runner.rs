@@ -732,7 +732,7 @@ pub fn execute(
     manifest::write(&manifest_path, &man)?;
     if machine.is_this_system {
         match crate::topology::export_xml() {
-            Ok(xml) => manifest::write_atomic(&dir.join("topology.xml"), &xml)?,
+            Ok(xml) => crate::atomic::write_atomic(&dir.join("topology.xml"), xml.as_bytes())?,
             Err(e) => eprintln!("warning: no topology.xml: {e:#}"),
         }
     }

@@ -447,14 +447,7 @@ impl Summary {
         let last = sim.diagnostics();
         let taylor = ctx.taylor.map(|(f0, spacing)| (f0, measure(sim.particles(), spacing)));
         let cloud: Option<CloudFigures> = ctx.impact.map(|g| impact::measure(sim.particles(), &g));
-        let dd_layout = sim.domain_decomposition().map(|dd| {
-            if steps == 0 {
-                // The patches are cut at the first step; report the layout it will use.
-                mpm_core::strategy::patch_layout(cfg.threads, sim.geom().cells)
-            } else {
-                dd.layout()
-            }
-        });
+        let dd_layout = sim.domain_decomposition().map(|dd| dd.layout());
         Self {
             scenario: ctx.scenario.to_string(),
             model: ctx.model,

@@ -28,7 +28,8 @@
 //! The placement logic works on the plain-data [`Machine`], so it can be tested on synthetic
 //! topologies (`mpm-bench topology --synthetic "pack:2 core:4 pu:2"`) as well as this host.
 
-use anyhow::{anyhow, bail, Context, Result};
+use crate::pinning::parse_cpu_list;
+use anyhow::{bail, Context, Result};
 use hwlocality::object::attributes::ObjectAttributes;
 use hwlocality::object::types::{CacheType, ObjectType};
 use hwlocality::object::TopologyObject;
@@ -149,7 +150,7 @@ impl FromStr for PinPolicy {
                 if list.is_empty() || !list.starts_with(|c: char| c.is_ascii_digit()) {
                     bail!("unknown pinning policy '{s}': use close, spread, none, or a CPU list such as 0,1 or 0-3");
                 }
-                Ok(PinPolicy::List(parse_cpu_list(list)?))
+                Ok(PinPolicy::List(parse_cpu_list(list).with_context(|| format!("bad CPU list '{list}'"))?))
             }
         }
     }
@@ -166,33 +167,6 @@ impl<'de> Deserialize<'de> for PinPolicy {
         let s = String::deserialize(de)?;
         s.parse().map_err(|e: anyhow::Error| serde::de::Error::custom(format!("{e:#}")))
     }
-}
-
-/// Parse a CPU list such as `0,1,4-7` (OS indices; duplicates allowed, order kept).
-pub fn parse_cpu_list(s: &str) -> Result<Vec<usize>> {
-    let mut out = Vec::new();
-    for part in s.split(',') {
-        let part = part.trim();
-        if part.is_empty() {
-            bail!("bad CPU list '{s}': empty entry");
-        }
-        let num = |t: &str| -> Result<usize> {
-            t.trim().parse::<usize>().map_err(|_| anyhow!("bad CPU list '{s}': '{t}' is not a CPU number"))
-        };
-        if let Some((a, b)) = part.split_once('-') {
-            let (a, b) = (num(a)?, num(b)?);
-            if b < a {
-                bail!("bad CPU list '{s}': range {a}-{b} runs backwards");
-            }
-            if b - a > 4096 {
-                bail!("bad CPU list '{s}': range {a}-{b} is too long");
-            }
-            out.extend(a..=b);
-        } else {
-            out.push(num(part)?);
-        }
-    }
-    Ok(out)
 }
 
 /// Format a CPU list compactly: consecutive ascending runs of 3 or more become ranges.

@@ -20,6 +20,7 @@
 //! ASCII. The collection file `<prefix>.pvd` lists every snapshot with its time and is
 //! rewritten (atomically) after each one, so it is valid even if the run stops early.
 
+use crate::atomic::write_atomic;
 use anyhow::{Context, Result};
 use mpm_core::math::{deviator, trace, von_mises};
 use mpm_core::Particles;
@@ -215,27 +216,6 @@ fn pvd_text(entries: &[(f64, String)]) -> String {
     }
     s.push_str("  </Collection>\n</VTKFile>\n");
     s
-}
-
-/// Write `bytes` to `path` atomically: a temporary file beside it, then a rename.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = temp_path_for(path);
-    let result = (|| -> std::io::Result<()> {
-        let mut f = File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.with_context(|| format!("cannot write {}", path.display()))
-}
-
-/// `dir/.name.tmp.<pid>` for a target `dir/name`.
-pub fn temp_path_for(path: &Path) -> PathBuf {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
-    path.with_file_name(format!(".{name}.tmp.{}", std::process::id()))
 }
 
 /// Writes numbered snapshots `<dir>/<prefix>_<step>.vtu` and keeps `<dir>/<prefix>.pvd`

@@ -58,67 +58,65 @@ pub fn cell_nodes(geom: &GridGeom, cell: [usize; 3]) -> [usize; 8] {
     [b, b + 1, b + sy, b + sy + 1, b + sz, b + sz + 1, b + sz + sy, b + sz + sy + 1]
 }
 
-/// Eq. 6 and the walls: `p += f dt`; wall nodes lose the constrained components of `p`
-/// and `f`; `v = p/m`, `a = f/m` (zero on massless nodes). Parallel over node rows.
-pub fn grid_update(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: &mut NodeArrays, dt: f64, tol: f64) {
+/// Visit every node of the grid with its wall mask (1 = free component, 0 = constrained),
+/// parallel over node rows: `f(node, mask, &mut out[node])`.
+fn for_each_node<T, F>(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, out: &mut [T], f: F)
+where
+    T: Send,
+    F: Fn(usize, Vec3, &mut T) + Sync,
+{
     let d = geom.node_dims();
     let rows = d[1] * d[2];
     let has_x = walls.x_layers().next().is_some();
-    let p2g = &nodes.p2g;
-    let kin = DisjointSlice::new(&mut nodes.kin[..]);
+    let shared = DisjointSlice::new(out);
     exec.run(|w| {
         let r = partition(rows, exec.workers, w);
         // SAFETY: workers own disjoint row ranges, hence disjoint node ranges.
-        let out = unsafe { kin.range_mut(r.start * d[0]..r.end * d[0]) };
-        for (ri, row) in r.clone().enumerate() {
+        let mine = unsafe { shared.range_mut(r.start * d[0]..r.end * d[0]) };
+        for (ri, row) in r.enumerate() {
             let mask_row = walls.row_mask(row % d[1], row / d[1]);
             for i in 0..d[0] {
-                let a = &p2g[row * d[0] + i];
-                let mask = walls.node_mask(mask_row, i, has_x);
-                let m = a[0];
-                let o = &mut out[ri * d[0] + i];
-                if m > tol {
-                    let inv = 1.0 / m;
-                    for k in 0..3 {
-                        let f = a[4 + k] * mask[k];
-                        let p = (a[1 + k] + a[4 + k] * dt) * mask[k];
-                        o[k] = p * inv;
-                        o[3 + k] = f * inv;
-                    }
-                } else {
-                    *o = [0.0; 6];
-                }
+                f(row * d[0] + i, walls.node_mask(mask_row, i, has_x), &mut mine[ri * d[0] + i]);
             }
+        }
+    });
+}
+
+/// Eq. 6 and the walls: `p += f dt`; wall nodes lose the constrained components of `p`
+/// and `f`; `v = p/m`, `a = f/m` (zero on massless nodes). Parallel over node rows.
+pub fn grid_update(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: &mut NodeArrays, dt: f64, tol: f64) {
+    let NodeArrays { p2g, kin, .. } = nodes;
+    let p2g = &p2g[..];
+    for_each_node(exec, geom, walls, kin, |n, mask, o| {
+        let a = &p2g[n];
+        let m = a[0];
+        if m > tol {
+            let inv = 1.0 / m;
+            for k in 0..3 {
+                let f = a[4 + k] * mask[k];
+                let p = (a[1 + k] + a[4 + k] * dt) * mask[k];
+                o[k] = p * inv;
+                o[3 + k] = f * inv;
+            }
+        } else {
+            *o = [0.0; 6];
         }
     });
 }
 
 /// Eq. 11, second half: `v_i = p_i / m_i` with the walls applied again, in place.
 pub fn remap_velocity(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: &mut NodeArrays, tol: f64) {
-    let d = geom.node_dims();
-    let rows = d[1] * d[2];
-    let has_x = walls.x_layers().next().is_some();
-    let p2g = &nodes.p2g;
-    let remap = DisjointSlice::new(&mut nodes.remap[..]);
-    exec.run(|w| {
-        let r = partition(rows, exec.workers, w);
-        // SAFETY: workers own disjoint row ranges, hence disjoint node ranges.
-        let out = unsafe { remap.range_mut(r.start * d[0]..r.end * d[0]) };
-        for (ri, row) in r.clone().enumerate() {
-            let mask_row = walls.row_mask(row % d[1], row / d[1]);
-            for i in 0..d[0] {
-                let m = p2g[row * d[0] + i][0];
-                let mask = walls.node_mask(mask_row, i, has_x);
-                let o = &mut out[ri * d[0] + i];
-                if m > tol {
-                    let inv = 1.0 / m;
-                    for k in 0..3 {
-                        o[k] *= inv * mask[k];
-                    }
-                } else {
-                    *o = [0.0; 3];
-                }
+    let NodeArrays { p2g, remap, .. } = nodes;
+    let p2g = &p2g[..];
+    for_each_node(exec, geom, walls, remap, |n, mask, o| {
+        let m = p2g[n][0];
+        if m > tol {
+            let inv = 1.0 / m;
+            for k in 0..3 {
+                o[k] *= inv * mask[k];
             }
+        } else {
+            *o = [0.0; 3];
         }
     });
 }

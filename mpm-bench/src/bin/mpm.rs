@@ -4,10 +4,11 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use mpm_bench::atomic;
 use mpm_bench::picture::{write_radiograph, RadiographNotes};
 use mpm_bench::pinning::{self, PinnedPool};
 use mpm_bench::summary::{EndReason, HistoryPoint, HistoryRecorder, RunContext, Summary, Timing, OPT_LEVEL};
-use mpm_bench::vtk::{self, Encoding, SnapshotWriter};
+use mpm_bench::vtk::{Encoding, SnapshotWriter};
 use mpm_core::scenario::impact;
 use mpm_core::scenario::taylor::{self, TaylorBar};
 use mpm_core::{GridMode, MgForm, SimConfig, Simulation, Strategy, WallKind, DEFAULT_CFL};
@@ -370,7 +371,7 @@ impl PendingFile {
                 parent.display()
             );
         }
-        let tmp = vtk::temp_path_for(dest);
+        let tmp = atomic::temp_path_for(dest);
         std::fs::File::create(&tmp).with_context(|| {
             format!(
                 "cannot write the JSON summary to {}: directory {} is not writable",
@@ -382,14 +383,7 @@ impl PendingFile {
     }
 
     fn commit(mut self, bytes: &[u8]) -> Result<()> {
-        let r = (|| -> std::io::Result<()> {
-            use std::io::Write;
-            let mut f = std::fs::File::create(&self.tmp)?;
-            f.write_all(bytes)?;
-            f.sync_all()?;
-            std::fs::rename(&self.tmp, &self.dest)
-        })();
-        r.with_context(|| format!("cannot write the JSON summary {}", self.dest.display()))?;
+        atomic::write_atomic(&self.dest, bytes).context("cannot write the JSON summary")?;
         self.done = true;
         Ok(())
     }
