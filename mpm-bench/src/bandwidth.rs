@@ -31,12 +31,12 @@
 //! |---|---|---|
 //! | DD binning (count + write `Pindex`) | x 24 + patch 4 + 4 + Pindex 4 = 36 | - |
 //! | P2G scatter (Eqs. 1-5) | x 24, v 24, mass 8, rho 8, stress 48 = 112 (+4 Pindex, DD) | zero 56 + read-modify-write 112 = 168 per copy |
-//! | assembly (Eq. 16 / sub-grids) | - | AE 56 (T+1); DD zero 56 + read 56 + r/w 112 = 224; serial 0 |
+//! | assembly (Eq. 16 / sub-grids) | - | AE 56 (T+1); DD read 56 + write 56 = 112 (each node stored by its first patch, added by the others: shared faces neglected); serial 0 |
 //! | grid update (Eq. 6) | - | read p2g 56 + write kin 48 = 104 |
 //! | **grid-node stage** | 112 (+40 DD) | 168 copies + assembly + 104 |
 //! | gather (Eqs. 8, 10) | x 24 + v r/w 48 = 72 | kin 48 |
 //! | re-map scatter (Eq. 11) | x 24, v 24, mass 8 = 56 (+4 DD) | zero 24 + r/w 48 = 72 per copy |
-//! | re-map assembly | - | AE 24 (T+1); DD 96; serial 0 |
+//! | re-map assembly | - | AE 24 (T+1); DD 48; serial 0 |
 //! | re-map velocity | - | p2g records 56 + remap r/w 48 = 104 |
 //! | update (Eqs. 7, 9, 12-15) | x r/w 48, v 24, mass 8, rho 16, stress 96, eps_p 16, e_int 16, sound 16, failed 2 = 242 | kin 48 + remap 24 = 72 |
 //! | **particle stage** | 370 (+4 DD) | 48 + 72 copies + assembly + 104 + 72 |
@@ -180,7 +180,7 @@ impl StageBytes {
         let t = threads.max(1) as f64;
         let (copies, asm7, asm3, dd_p) = match strategy {
             "ae" => (t, 56.0 * (t + 1.0), 24.0 * (t + 1.0), 0.0),
-            "dd" => (1.0, 224.0, 96.0, 1.0),
+            "dd" => (1.0, 112.0, 48.0, 1.0),
             _ => (1.0, 0.0, 0.0, 0.0),
         };
         let grid_min = particles * (112.0 + 40.0 * dd_p) + nodes * (168.0 * copies + asm7 + 104.0);
@@ -387,20 +387,7 @@ pub fn table(r: &BandwidthReport) -> String {
 
 /// `mpm-bench bandwidth`: measure, print a table, write the JSON if asked.
 pub fn run(args: BandwidthArgs) -> Result<()> {
-    if let Some(out) = &args.out {
-        if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
-            std::fs::create_dir_all(parent)
-                .with_context(|| format!("cannot create {} for --out: choose a writable path", parent.display()))?;
-        }
-    }
-    let report = measure_all(&args)?;
-    print!("{}", table(&report));
-    if let Some(out) = &args.out {
-        crate::atomic::write_atomic(out, serde_json::to_string_pretty(&report)?.as_bytes())
-            .with_context(|| format!("cannot write {}: choose a writable --out", out.display()))?;
-        println!("wrote {}", out.display());
-    }
-    Ok(())
+    crate::atomic::measure_and_report(args.out.as_deref(), "--out", || measure_all(&args), table)
 }
 
 #[cfg(test)]

@@ -10,7 +10,8 @@
 //! * analysis ([`stats`], [`figures`], [`claims`], [`regress`], [`report`], [`bandwidth`]):
 //!   medians with bootstrap intervals, speedup and efficiency (paper Eqs. 19-20), the paper's
 //!   Figures 7-14, a verdict on each of its claims C1-C6, a CI gate on parallel efficiency,
-//!   hardware comparison reports and the STREAM-triad bandwidth ceiling.
+//!   hardware comparison reports and the STREAM-triad bandwidth ceiling; [`paired`]:
+//!   parallel efficiency as paired ratios of interleaved blocks in one process, for noisy hosts.
 //! * [`picture`]: the embedded font and the radiograph-style view of the debris cloud.
 //!
 //! Pinning and measurement policy live here; the solver crate `mpm-core` has no OS code.
@@ -21,6 +22,7 @@ pub mod claims;
 pub mod figures;
 pub mod manifest;
 pub mod matrix;
+pub mod paired;
 pub mod picture;
 pub mod pinning;
 pub mod record;

@@ -88,6 +88,26 @@ enum Cmd {
     Report(mpm_bench::report::ReportArgs),
     /// Measure the memory-bandwidth ceiling (STREAM triad) per thread count and pinning.
     Bandwidth(mpm_bench::bandwidth::BandwidthArgs),
+    /// Parallel efficiency as paired ratios of interleaved blocks in one process (noisy hosts).
+    #[command(
+        long_about = "Parallel efficiency T1 / (T x T_T) measured as paired ratios inside one process.\n\n\
+            The serial solver and, for each strategy, its 1-thread and T-thread solver are built \
+            from the same Taylor bar model in this process and advance in blocks of a few steps, \
+            in rotating order. Block b of every configuration covers the same simulated steps, \
+            so the ratio of a 1-thread block to the T-thread block next to it compares the same \
+            work under nearly the same host conditions; the result is the median of these ratios \
+            with a 95 % bootstrap interval, beside the efficiency of the medians and of the best \
+            blocks, the T-thread runs' load imbalance (a worker slowed from outside shows as a \
+            value well above 1) and each strategy's 1-thread time against the serial solver. \
+            Use it on shared or virtual machines, where separate runs minutes apart drift by \
+            more than the effect being measured. Build with --profile o3: the solver runs in \
+            this process.",
+        after_help = "Examples:\n  \
+            mpm-bench paired --model 2                        # AE and DD, 2 threads on CPUs 0,1\n  \
+            mpm-bench paired --model 3 --strategies dd --blocks 21 --json dd-m3.json\n  \
+            mpm-bench paired --model 1 --threads 4 --pin 0-3 --block-steps 10"
+    )]
+    Paired(mpm_bench::paired::PairedArgs),
 }
 
 #[derive(Args, Debug)]
@@ -190,6 +210,7 @@ fn main() {
         }),
         Cmd::Report(a) => mpm_bench::report::run(a),
         Cmd::Bandwidth(a) => mpm_bench::bandwidth::run(a),
+        Cmd::Paired(a) => mpm_bench::paired::run(a),
     };
     if let Err(e) = result {
         // `mpm-bench ... | head` closing the pipe is not an error worth a message.

@@ -15,7 +15,10 @@ use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 /// Version of the row layout; bump it whenever a column is added, removed or renamed.
-pub const SCHEMA_VERSION: u32 = 1;
+pub const SCHEMA_VERSION: u32 = 2;
+
+/// Columns added in schema 2; files of schema 1 lack them and still read (as empty).
+const ADDED_IN_V2: [&str; 2] = ["worker_busy_s", "load_imbalance"];
 
 /// Outcome of one run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -148,6 +151,14 @@ pub struct Row {
     pub ns_per_particle_step: Option<f64>,
     /// Particle-steps per second.
     pub particle_steps_per_s: Option<f64>,
+    /// Steady-state busy seconds of each worker in its shares of the parallel phases
+    /// (space-separated, worker order; empty for the serial strategy). Since schema 2.
+    #[serde(default)]
+    pub worker_busy_s: String,
+    /// Largest worker busy time over the mean (1 = balanced; well above 1 on a
+    /// non-oversubscribed run: a worker's CPU was slowed from outside the run). Since schema 2.
+    #[serde(default)]
+    pub load_imbalance: Option<f64>,
     /// Peak resident memory of the solver process (VmHWM read by the solver), bytes.
     pub peak_rss_bytes: Option<u64>,
     /// The memory guard's estimate for this run, bytes.
@@ -260,7 +271,8 @@ pub fn read_rows(path: &Path) -> Result<Vec<Row>> {
         .map(str::to_string)
         .collect();
     let want = Row::header();
-    let missing: Vec<&str> = want.iter().filter(|c| !have.contains(c)).map(String::as_str).collect();
+    let missing: Vec<&str> =
+        want.iter().filter(|c| !have.contains(c) && !ADDED_IN_V2.contains(&c.as_str())).map(String::as_str).collect();
     if !missing.is_empty() {
         bail!(
             "{} is missing column(s) {} (this harness writes schema version {SCHEMA_VERSION}); \
@@ -307,8 +319,18 @@ impl CsvLog {
                 file.set_len(keep as u64).with_context(|| format!("cannot repair {}", path.display()))?;
                 file.seek(SeekFrom::End(0))?;
             }
-            // Validate the header (and every row) before appending to it.
+            // Validate every row, then demand this schema's exact header: rows appended
+            // under another header would be misread.
             read_rows(path)?;
+            let have: Vec<String> = csv::Reader::from_path(path)?.headers()?.iter().map(str::to_string).collect();
+            if have != Row::header() {
+                bail!(
+                    "{} was written by another version of the harness (its columns differ from schema version \
+                     {SCHEMA_VERSION}); new rows cannot be appended to it: move it aside, write to another \
+                     --out, or run with --fresh",
+                    path.display()
+                );
+            }
         }
         Ok(Self { path: path.to_path_buf(), file })
     }
@@ -373,5 +395,29 @@ mod tests {
         let err = format!("{:#}", read_rows(&p).unwrap_err());
         assert!(err.contains("missing column"), "{err}");
         assert!(err.contains("observed_cpus"), "{err}");
+    }
+
+    /// A schema-1 file (without the load-imbalance columns) still reads: its rows get
+    /// empty values there and everything else intact. Appending to it is refused.
+    #[test]
+    fn schema_1_files_still_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("runs.csv");
+        let row = Row { schema_version: 1, campaign_id: "old".into(), model: 2, wall_s: Some(1.5), ..Row::default() };
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.serialize(&row).unwrap();
+        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        // Drop the two schema-2 columns from header and row.
+        let drop = |line: &str, idx: &[usize]| {
+            line.split(',').enumerate().filter(|(i, _)| !idx.contains(i)).map(|(_, c)| c).collect::<Vec<_>>().join(",")
+        };
+        let header = Row::header();
+        let idx: Vec<usize> = ADDED_IN_V2.iter().map(|c| header.iter().position(|h| h == c).unwrap()).collect();
+        let old: String = text.lines().map(|l| drop(l, &idx) + "\n").collect();
+        assert!(!old.lines().next().unwrap().contains("load_imbalance"));
+        std::fs::write(&p, old).unwrap();
+        let rows = read_rows(&p).unwrap();
+        assert_eq!(rows, vec![row]);
+        assert!(CsvLog::open(&p).is_err(), "appending schema-2 rows to a schema-1 file must be refused");
     }
 }

@@ -993,6 +993,12 @@ fn fill_from_output(row: &mut Row, req: &RunRequest, out: &RunOutput) {
     row.steady_s_per_step = f64_of(&v, "steady_s_per_step");
     row.ns_per_particle_step = f64_of(&v, "ns_per_particle_step");
     row.particle_steps_per_s = f64_of(&v, "particle_steps_per_s");
+    row.worker_busy_s = v
+        .get("worker_busy_s")
+        .and_then(Value::as_array)
+        .map(|a| a.iter().filter_map(Value::as_f64).map(|b| format!("{b:.6}")).collect::<Vec<_>>().join(" "))
+        .unwrap_or_default();
+    row.load_imbalance = f64_of(&v, "load_imbalance");
     row.peak_rss_bytes = u64_of(&v, "peak_rss_bytes");
     row.kinetic_energy_initial_j = f64_of(&v, "kinetic_energy_initial");
     row.kinetic_energy_j = f64_of(&v, "kinetic_energy");

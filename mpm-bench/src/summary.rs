@@ -24,6 +24,11 @@
 //!   `cloud_width_robust_m`, `hole_diameter_m`, `front_velocity_m_s`) are measured by
 //!   [`mpm_core::scenario::impact::measure`] from particle centres; the robust variants
 //!   ignore the outermost 0.1 % of the debris mass (see that module for the definitions).
+//! * `worker_busy_s` holds, per worker, the steady-state seconds it spent in its own shares
+//!   of the parallel phases (AE and DD; `null` for the serial strategy), and
+//!   `load_imbalance` their largest over their mean (1 = balanced). Both strategies give
+//!   every worker an equal share, so an imbalance well above 1 on a shared machine means a
+//!   worker's CPU was slowed from outside the run: read such a run's timing with care.
 //! * `history` holds about 200 samples `{step, time, kinetic, internal}` evenly spaced in
 //!   steps, including step 0 (the initial state) and the last step.
 
@@ -194,6 +199,13 @@ pub fn parse_vm_hwm(status: &str) -> Option<u64> {
     Some(value * unit)
 }
 
+/// Largest over mean of per-worker busy times; `None` when empty or all zero.
+pub fn load_imbalance(busy: &[f64]) -> Option<f64> {
+    let mean = busy.iter().sum::<f64>() / busy.len() as f64;
+    let max = busy.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    (mean > 0.0 && mean.is_finite()).then(|| max / mean)
+}
+
 /// Wall-clock figures measured by the program around the stepping loop.
 #[derive(Clone, Debug, Default)]
 pub struct Timing {
@@ -207,6 +219,8 @@ pub struct Timing {
     pub warmup_wall_s: f64,
     /// The solver's stage timers at the end of the warm-up.
     pub warmup_times: StageTimes,
+    /// Each worker's busy seconds at the end of the warm-up (`None`: serial strategy).
+    pub warmup_busy: Option<Vec<f64>>,
 }
 
 /// What the program knows about a run besides the [`Simulation`] itself.
@@ -342,6 +356,12 @@ pub struct Summary {
     pub ns_per_particle_step: Option<f64>,
     /// Steady-state particle-steps per second; `null` without steady steps.
     pub particle_steps_per_s: Option<f64>,
+    /// Steady-state seconds each worker spent in its shares of the parallel phases (worker
+    /// order); `null` for the serial strategy.
+    pub worker_busy_s: Option<Vec<f64>>,
+    /// Largest of `worker_busy_s` over their mean (1 = balanced); `null` when serial or
+    /// without steady steps.
+    pub load_imbalance: Option<f64>,
     /// Peak resident memory of the process, `VmHWM` (bytes); `null` if unreadable.
     pub peak_rss_bytes: Option<u64>,
     /// Bytes held by the model: particles, nodal arrays, scatter buffers, strategy tables.
@@ -437,6 +457,10 @@ impl Summary {
         let steady_times = sim.times().since(&t.warmup_times);
         let steady_wall = (t.wall_s - t.warmup_wall_s).max(0.0);
         let per_step = (steady_steps > 0).then(|| steady_wall / steady_steps as f64);
+        let busy: Option<Vec<f64>> = sim.worker_busy().map(|now| match &t.warmup_busy {
+            Some(w) => now.iter().zip(w).map(|(a, b)| (a - b).max(0.0)).collect(),
+            None => now,
+        });
         let pstep = particles as f64 * steady_steps as f64;
         let (ns, rate) = if steady_steps > 0 && steady_wall > 0.0 {
             (Some(steady_wall * 1e9 / pstep), Some(pstep / steady_wall))
@@ -492,6 +516,8 @@ impl Summary {
             steady_s_per_step: per_step,
             ns_per_particle_step: ns,
             particle_steps_per_s: rate,
+            load_imbalance: busy.as_deref().and_then(load_imbalance),
+            worker_busy_s: busy,
             peak_rss_bytes: peak_rss_bytes(),
             model_memory_bytes: sim.memory_bytes(),
             requested_cpus: ctx.pool.requested.clone(),

@@ -187,6 +187,8 @@ const REQUIRED_KEYS: &[&str] = &[
     "steady_s_per_step",
     "ns_per_particle_step",
     "particle_steps_per_s",
+    "worker_busy_s",
+    "load_imbalance",
     "peak_rss_bytes",
     "model_memory_bytes",
     "requested_cpus",
@@ -259,6 +261,7 @@ fn json_has_exactly_the_golden_keys() {
     assert!(v["requested_cpus"].as_array().unwrap().is_empty());
     assert!(v["observed_cpus"].as_array().unwrap().is_empty());
     assert_eq!(v["worker_affinity"].as_array().unwrap().len(), 1);
+    assert!(v["worker_busy_s"].is_null() && v["load_imbalance"].is_null(), "the serial strategy has no team");
     assert_eq!(v["momentum"].as_array().unwrap().len(), 3);
     let h = v["history"].as_array().unwrap();
     assert_eq!(h.len(), 13);
@@ -298,6 +301,13 @@ fn dd_on_two_pinned_workers_reports_their_cpus_and_stage_times() {
     for s in ["binning", "scatter", "assembly", "gather", "stress_update"] {
         assert!(v["substages"][s].as_f64().unwrap() > 0.0, "{s}");
     }
+    // Both workers worked in the steady steps, and no more than the steady wall time.
+    let busy: Vec<f64> = v["worker_busy_s"].as_array().unwrap().iter().map(|b| b.as_f64().unwrap()).collect();
+    assert_eq!(busy.len(), 2);
+    assert!(busy.iter().all(|&b| b > 0.0 && b <= f(&v, "steady_wall_s")), "{busy:?}");
+    let imbalance = f(&v, "load_imbalance");
+    let max = busy.iter().copied().fold(0.0, f64::max);
+    assert!((imbalance - max / (0.5 * (busy[0] + busy[1]))).abs() < 1e-12, "{imbalance}");
     let mut want: BTreeSet<String> = REQUIRED_KEYS.iter().map(|s| s.to_string()).collect();
     want.insert("dd_layout".into());
     assert_eq!(keys(&v), want);

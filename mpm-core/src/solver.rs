@@ -274,6 +274,16 @@ impl Simulation {
         }
     }
 
+    /// Seconds each worker has spent in its shares of the parallel phases, over every step
+    /// taken (worker order); `None` for the serial strategy, which has no team.
+    ///
+    /// The time outside the shares is serial work of worker 0 and barrier waiting. The
+    /// largest over the mean is the load imbalance: the strategies give every worker an
+    /// equal share, so a large value means a worker's CPU was slowed from outside the run.
+    pub fn worker_busy(&self) -> Option<Vec<f64>> {
+        (self.config.strategy != Strategy::Serial).then(|| self.team.busy_seconds().collect())
+    }
+
     /// Domain-decomposition state, if the strategy is DD.
     pub fn domain_decomposition(&self) -> Option<&crate::strategy::DomainDecomposition> {
         match &self.engine {

@@ -13,10 +13,17 @@
 //! * [`Team::run`] posts a phase, runs share 0 itself and waits until every worker has run
 //!   its share: a barrier at the end of every phase, as in an OpenMP worksharing loop;
 //! * waiting spins for a while, then yields the CPU, so oversubscribed runs (more workers
-//!   than cores) still make progress.
+//!   than cores) still make progress;
+//! * every worker adds the time it spends in its own shares to a busy counter
+//!   ([`Team::busy_seconds`]). Two `Instant::now()` per worker and phase, so it stays on.
+//!   The spread of the counters is the load imbalance: on a shared host it shows a worker
+//!   whose CPU was slowed from outside (measured on the development VM: the same
+//!   stress-update share took 9.6 ms on one worker and 19.8 ms on the other for a whole
+//!   run, then 9.6 ms on both in the next run).
 
 use std::cell::UnsafeCell;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::time::Instant;
 
 /// A phase: share `j` of some parallel work (stored with its lifetime erased).
 type Phase = dyn Fn(usize) + Sync + 'static;
@@ -41,6 +48,21 @@ fn wait_until(max_spins: u32, ready: impl Fn() -> bool) {
     }
 }
 
+/// One worker's busy time in nanoseconds, alone on its cache lines (each worker writes only
+/// its own counter, once per phase; sharing a line would make that a coherence miss).
+#[repr(align(128))]
+#[derive(Default)]
+struct BusyCounter(AtomicU64);
+
+impl BusyCounter {
+    /// Add the time since `start`.
+    #[inline]
+    fn charge(&self, start: Instant) {
+        let ns = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        self.0.fetch_add(ns, Ordering::Relaxed);
+    }
+}
+
 /// Shared state of one team (see the module docs).
 pub struct Team {
     workers: usize,
@@ -55,6 +77,8 @@ pub struct Team {
     panicked: AtomicBool,
     /// The current phase; written by the driver only between phases.
     phase: UnsafeCell<Option<*const Phase>>,
+    /// Per worker: nanoseconds spent in its shares since the team was made.
+    busy: Box<[BusyCounter]>,
 }
 
 // SAFETY: `phase` is written only by the driver while no serving worker reads it (before it
@@ -77,12 +101,19 @@ impl Team {
             exit: AtomicBool::new(false),
             panicked: AtomicBool::new(false),
             phase: UnsafeCell::new(None),
+            busy: (0..workers).map(|_| BusyCounter::default()).collect(),
         }
     }
 
     /// Number of workers.
     pub fn workers(&self) -> usize {
         self.workers
+    }
+
+    /// Seconds each worker has spent running its shares of phases since the team was made
+    /// (worker order). Exact once the region has ended; [`Team::reset`] keeps them.
+    pub fn busy_seconds(&self) -> impl ExactSizeIterator<Item = f64> + '_ {
+        self.busy.iter().map(|c| c.0.load(Ordering::Relaxed) as f64 * 1e-9)
     }
 
     /// Make the team ready for a new region (call before the broadcast).
@@ -106,7 +137,9 @@ impl Team {
         unsafe { *self.phase.get() = Some(erased) };
         self.done.store(0, Ordering::Relaxed);
         self.generation.fetch_add(1, Ordering::Release);
+        let start = Instant::now();
         f(0);
+        self.busy[0].charge(start);
         let others = self.workers - 1;
         wait_until(self.spins, || self.done.load(Ordering::Acquire) == others);
         if self.panicked.load(Ordering::Relaxed) {
@@ -134,9 +167,11 @@ impl Team {
             let f = unsafe { (*self.phase.get()).expect("a phase is posted with every generation") };
             // SAFETY: see `run`: the pointee outlives this call.
             let f = unsafe { &*f };
+            let start = Instant::now();
             if std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f(me))).is_err() {
                 self.panicked.store(true, Ordering::Relaxed);
             }
+            self.busy[me].charge(start);
             self.done.fetch_add(1, Ordering::Release);
         }
     }
@@ -179,5 +214,36 @@ mod tests {
             assert_eq!(errors.load(Ordering::Relaxed), 0, "{workers} workers");
             assert!(slots.iter().all(|s| s.load(Ordering::Relaxed) == phases));
         }
+    }
+
+    /// Each worker's busy counter holds the time of its own shares: worker `j` sleeps
+    /// `(j + 1) x 3 ms` per phase, so its counter is at least that, and the counters keep
+    /// accumulating across regions. A counter charged to the wrong worker, or reset by
+    /// `reset`, fails this (lower bounds only, so a slow host cannot fail it).
+    #[test]
+    fn busy_counters_charge_each_worker_its_own_shares() {
+        let workers = 2;
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(workers).build().unwrap();
+        let mut team = Team::new(workers);
+        let nap = |j: usize| std::thread::sleep(std::time::Duration::from_millis(3 * (j as u64 + 1)));
+        for region in 1..=2u32 {
+            team.reset();
+            pool.broadcast(|ctx| {
+                if ctx.index() == 0 {
+                    team.run(&nap);
+                    team.run(&nap);
+                    team.finish();
+                } else {
+                    team.serve(ctx.index());
+                }
+            });
+            let busy: Vec<f64> = team.busy_seconds().collect();
+            assert_eq!(busy.len(), workers);
+            for (j, b) in busy.iter().enumerate() {
+                let least = f64::from(region) * 2.0 * 0.003 * (j as f64 + 1.0);
+                assert!(*b >= least, "region {region}: worker {j} busy {b} s, slept at least {least} s");
+            }
+        }
+        assert_eq!(Team::new(0).busy_seconds().len(), 0);
     }
 }

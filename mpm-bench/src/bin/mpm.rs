@@ -753,6 +753,7 @@ fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result<()>
                 warm_done = true;
                 timing.warmup_wall_s = loop_start.elapsed().saturating_sub(output).as_secs_f64();
                 timing.warmup_times = *sim.times();
+                timing.warmup_busy = sim.worker_busy();
             }
             if let Some(p) = &progress {
                 p.update(&sim);
@@ -778,6 +779,7 @@ fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result<()>
         // The run ended inside the warm-up: no steady-state steps.
         timing.warmup_wall_s = timing.wall_s;
         timing.warmup_times = *sim.times();
+        timing.warmup_busy = sim.worker_busy();
     }
     if let Some(w) = snapshots.as_mut() {
         let t0 = Instant::now();
@@ -910,6 +912,15 @@ fn print_human(s: &Summary, json: Option<&Path>, snaps: Option<&SnapshotWriter>)
             s.steady_s_per_step.unwrap_or(0.0) * 1e3
         ),
         _ => out!("steady state: no steps after the warm-up"),
+    }
+    if let (Some(busy), Some(imb)) = (&s.worker_busy_s, s.load_imbalance) {
+        let list = busy.iter().map(|b| format!("{b:.3}")).collect::<Vec<_>>().join(" / ");
+        let note = if imb > 1.1 && !s.oversubscribed {
+            " (unequal: a worker's CPU was slowed from outside this run; repeat it)"
+        } else {
+            ""
+        };
+        out!("workers: busy {list} s in their shares, load imbalance {imb:.3}{note}");
     }
     if let (Some(l0), Some(l), Some(d)) = (s.initial_length_m, s.final_length_m, s.face_diameter_m) {
         out!("bar: length {:.3} mm (initial {:.3} mm), impact-face diameter {:.3} mm", l * 1e3, l0 * 1e3, d * 1e3);
