@@ -357,9 +357,16 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
 
 /// The human-readable result.
 pub fn table(r: &PairedReport) -> String {
-    let cpus = |c: &[usize]| if c.is_empty() { "unpinned".to_string() } else { pinning::format_cpu_list(c) };
+    // Worker by worker (an oversubscribed placement repeats CPUs).
+    let cpus = |c: &[usize]| {
+        if c.is_empty() {
+            "unpinned".to_string()
+        } else {
+            c.iter().map(usize::to_string).collect::<Vec<_>>().join(",")
+        }
+    };
     let mut s = format!(
-        "Model {} ({} particles): {} threads on CPUs {} against 1 thread on CPU {}; {} paired blocks of {} steps after {} warm-up\n",
+        "Model {} ({} particles): {} threads on CPUs {} against 1 thread on CPU {}; {} paired blocks of {} step(s) after {} warm-up step(s)\n",
         r.model,
         r.particles,
         r.threads,
