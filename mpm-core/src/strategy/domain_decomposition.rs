@@ -545,7 +545,7 @@ mod tests {
                 let exec = Exec::new(&pool, Strategy::DomainDecomposition);
                 let mut dd = DomainDecomposition::new(threads);
                 dd.cut(&geom);
-                // Sub-grid value: patch j, local node s -> a distinct power-of-two-free value.
+                // Distinct small integers and halves: their sums are exact, so equality is exact.
                 let buf: Vec<[f64; 2]> = (0..dd.subgrid_nodes()).map(|i| [1.0 + i as f64, -0.5 * i as f64]).collect();
                 let mut want = vec![[0.0; 2]; geom.num_nodes()];
                 for (j, p) in dd.patches().iter().enumerate() {
