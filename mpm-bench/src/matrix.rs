@@ -80,6 +80,17 @@ impl Strategy {
     }
 }
 
+impl From<Strategy> for mpm_core::Strategy {
+    /// The solver's strategy for a campaign's strategy.
+    fn from(s: Strategy) -> Self {
+        match s {
+            Strategy::Serial => mpm_core::Strategy::Serial,
+            Strategy::Ae => mpm_core::Strategy::ArrayExpansion,
+            Strategy::Dd => mpm_core::Strategy::DomainDecomposition,
+        }
+    }
+}
+
 impl fmt::Display for Strategy {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.as_str())

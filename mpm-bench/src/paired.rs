@@ -29,7 +29,7 @@ use crate::pinning;
 use crate::stats::{self, Estimate, StatsOptions};
 use crate::topology::{Machine, PinPolicy};
 use anyhow::{bail, Context, Result};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressStyle};
 use mpm_core::scenario::taylor::TaylorBar;
 use mpm_core::{SimConfig, Simulation};
 use serde::Serialize;
@@ -237,12 +237,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
     let mut runs: Vec<Config> = configs
         .iter()
         .map(|&(strategy, threads)| {
-            let core = match strategy {
-                Strategy::Serial => mpm_core::Strategy::Serial,
-                Strategy::Ae => mpm_core::Strategy::ArrayExpansion,
-                Strategy::Dd => mpm_core::Strategy::DomainDecomposition,
-            };
-            let config = SimConfig { strategy: core, threads, ..SimConfig::default() };
+            let config = SimConfig { strategy: strategy.into(), threads, ..SimConfig::default() };
             Ok(Config {
                 strategy,
                 threads,
@@ -264,7 +259,6 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
 
     let total = (a.blocks * runs.len()) as u64;
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(total) };
-    bar.set_draw_target(if a.quiet { ProgressDrawTarget::hidden() } else { ProgressDrawTarget::stderr() });
     bar.set_style(
         ProgressStyle::with_template("[{elapsed_precise}] {bar:24.cyan/blue} {pos}/{len} blocks ETA {eta} | {msg}")
             .expect("valid template")
