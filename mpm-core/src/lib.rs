@@ -52,5 +52,5 @@ pub use material::{Material, MgForm};
 pub use particles::Particles;
 pub use scenario::Setup;
 pub use solver::{Diagnostics, SimConfig, Simulation, DEFAULT_CFL};
-pub use strategy::Strategy;
+pub use strategy::{MemoryModel, Strategy};
 pub use timers::{StageTimes, Substage};

@@ -22,32 +22,89 @@ use crate::grid::GridGeom;
 use crate::team::Team;
 use crate::timers::{Lap, StageTimes, Substage};
 use rayon::ThreadPool;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 pub use domain_decomposition::{patch_layout, Binning, DomainDecomposition, Patch};
 
-/// Which scatter strategy the solver uses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Default)]
+/// Which scatter strategy the solver uses: the one type for the solver, the `mpm` program,
+/// the JSON summary, the campaign matrix, the CSV rows and the analysis.
+///
+/// Its serialised form is the short name (`serial`, `ae`, `dd`); parsing also accepts the
+/// long names (`array-expansion`, `domain-decomposition`). Adding a strategy means one arm
+/// here and its own file under `strategy/`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, Default)]
 pub enum Strategy {
     /// One thread, scatter straight into the global arrays (the oracle).
     #[default]
     #[serde(rename = "serial")]
     Serial,
     /// Array expansion: one copy of every nodal array per thread.
-    #[serde(rename = "ae")]
+    #[serde(rename = "ae", alias = "array-expansion")]
     ArrayExpansion,
     /// Domain decomposition: one patch (sub-grid) per thread.
-    #[serde(rename = "dd")]
+    #[serde(rename = "dd", alias = "domain-decomposition")]
     DomainDecomposition,
 }
 
+/// How a strategy's memory grows with the thread count `T` (paper claim C2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum MemoryModel {
+    /// No memory beyond the global nodal arrays.
+    None,
+    /// A copy of the scattered nodal arrays per thread: grows linearly with `T`.
+    PerThreadCopies,
+    /// Sub-grids whose shared faces are duplicated: nearly constant in `T`.
+    SharedFaces,
+}
+
 impl Strategy {
-    /// Short name: `serial`, `ae`, `dd`.
+    /// Every strategy, in a fixed order (serial first).
+    pub const ALL: [Strategy; 3] = [Strategy::Serial, Strategy::ArrayExpansion, Strategy::DomainDecomposition];
+
+    /// Short name: `serial`, `ae`, `dd` (CLI value, JSON and CSV field).
     pub fn name(self) -> &'static str {
         match self {
             Strategy::Serial => "serial",
             Strategy::ArrayExpansion => "ae",
             Strategy::DomainDecomposition => "dd",
+        }
+    }
+
+    /// Name for people (figure legends, report headings).
+    pub fn label(self) -> &'static str {
+        match self {
+            Strategy::Serial => "serial",
+            Strategy::ArrayExpansion => "array expansion",
+            Strategy::DomainDecomposition => "domain decomposition",
+        }
+    }
+
+    /// Whether the strategy runs on more than one thread (serial means exactly one).
+    pub fn is_parallel(self) -> bool {
+        match self {
+            Strategy::Serial => false,
+            Strategy::ArrayExpansion | Strategy::DomainDecomposition => true,
+        }
+    }
+
+    /// How its memory grows with the thread count.
+    pub fn memory_model(self) -> MemoryModel {
+        match self {
+            Strategy::Serial => MemoryModel::None,
+            Strategy::ArrayExpansion => MemoryModel::PerThreadCopies,
+            Strategy::DomainDecomposition => MemoryModel::SharedFaces,
+        }
+    }
+
+    /// Check a thread count for this strategy: serial runs on exactly one thread, the
+    /// parallel strategies on at least one.
+    pub fn check_threads(self, threads: usize) -> Result<(), String> {
+        match (self.is_parallel(), threads) {
+            (_, 0) => Err("the thread count must be at least 1".into()),
+            (false, t) if t > 1 => Err(format!(
+                "the serial strategy runs on exactly 1 thread, not {t}: use --strategy ae or dd for more threads"
+            )),
+            _ => Ok(()),
         }
     }
 }
@@ -65,7 +122,10 @@ impl std::str::FromStr for Strategy {
             "serial" => Ok(Strategy::Serial),
             "ae" | "array-expansion" => Ok(Strategy::ArrayExpansion),
             "dd" | "domain-decomposition" => Ok(Strategy::DomainDecomposition),
-            _ => Err(format!("unknown strategy '{s}': use 'serial', 'ae' or 'dd'")),
+            _ => {
+                let names: Vec<&str> = Strategy::ALL.iter().map(|s| s.name()).collect();
+                Err(format!("unknown strategy '{s}': use one of {}", names.join(", ")))
+            }
         }
     }
 }
