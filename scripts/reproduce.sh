@@ -14,8 +14,8 @@ scripts/bootstrap.sh
 step() { printf '\n==> %s\n' "$*" >&2; }
 
 step "building mpm and mpm-bench (profiles o3 and o0)"
-cargo build --profile o3 -p mpm-bench --bins
-cargo build --profile o0 -p mpm-bench --bin mpm
+cargo build --profile o3 -p mpm-cli -p mpm-bench
+cargo build --profile o0 -p mpm-cli --bin mpm
 
 preset=quick
 args=()

@@ -7,7 +7,7 @@
 //! The kernel is STREAM's triad, `a[i] = b[i] + s * c[i]`, over three `f64` arrays each much
 //! larger than the last-level cache (by default 4 x the total last-level cache, at least
 //! 64 MiB per array). For every thread count and pinning policy a fresh rayon pool is built
-//! with [`crate::pinning::build_pool`] (worker `j` pinned to the policy's `j`-th CPU from
+//! with [`mpm_cli::pinning::build_pool`] (worker `j` pinned to the policy's `j`-th CPU from
 //! [`crate::topology::Machine::place`], its placement read back), the arrays are allocated
 //! anew and first touched by the workers that will use them (worker `j` owns the `j`-th
 //! contiguous chunk, as in the solver, so pages land on the worker's NUMA node), one untimed
@@ -50,10 +50,10 @@
 //! and shows the no-reuse one beside it (above 100 % means the caches are doing their job).
 
 use crate::manifest;
-use crate::pinning;
 use crate::stats::Stage;
 use crate::topology::{Machine, PinPolicy};
 use anyhow::{bail, Context, Result};
+use mpm_cli::pinning;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -387,7 +387,7 @@ pub fn table(r: &BandwidthReport) -> String {
 
 /// `mpm-bench bandwidth`: measure, print a table, write the JSON if asked.
 pub fn run(args: BandwidthArgs) -> Result<()> {
-    crate::atomic::measure_and_report(args.out.as_deref(), "--out", || measure_all(&args), table)
+    mpm_cli::atomic::measure_and_report(args.out.as_deref(), "--out", || measure_all(&args), table)
 }
 
 #[cfg(test)]

@@ -9,14 +9,14 @@
 //! drawn hollow, joined by dotted segments, and the footnote names them: they are time
 //! sharing, not scaling. Configurations without an `ok` run (e.g. skipped by the memory
 //! guard) are absent, never drawn as zero. Text uses the DejaVu Sans compiled into the
-//! program ([`crate::picture::register_fonts`]).
+//! program ([`mpm_cli::picture::register_fonts`]).
 //!
 //! Files: `fig07.{png,svg}` .. `fig14.{png,svg}`, `fig_memory.{png,svg}` and a `README.md`
 //! saying which campaign and command made them.
 
-use crate::picture::register_fonts;
 use crate::stats::{load_campaign, Analysis, Campaign, CellKey, Point, Stage, StatsOptions};
 use anyhow::{anyhow, Context, Result};
+use mpm_cli::picture::register_fonts;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::fmt::Write as _;

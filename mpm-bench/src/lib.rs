@@ -1,10 +1,9 @@
 //! # mpm-bench
 //!
-//! The benchmark harness of the MPM parallelisation study, and the `mpm` program.
+//! The benchmark harness of the MPM parallelisation study. The `mpm` program it runs, the
+//! JSON summary it reads and the pinning code both use live in the crate `mpm-cli`.
 //!
-//! * `mpm` ([`summary`], [`vtk`], [`pinning`]): runs one simulation, pins its workers,
-//!   writes the JSON summary and VTU snapshots.
-//! * `mpm-bench` ([`topology`], [`matrix`], [`runner`], [`record`], [`manifest`]): runs
+//! * campaigns ([`topology`], [`matrix`], [`runner`], [`record`], [`manifest`]): runs
 //!   campaigns of `mpm` processes over models x threads x strategies x optimisation levels,
 //!   pinned the way the user asks, and records every run to CSV.
 //! * analysis ([`stats`], [`figures`], [`claims`], [`regress`], [`report`], [`bandwidth`]):
@@ -12,24 +11,16 @@
 //!   Figures 7-14, a verdict on each of its claims C1-C6, a CI gate on parallel efficiency,
 //!   hardware comparison reports and the STREAM-triad bandwidth ceiling; [`paired`]:
 //!   parallel efficiency as paired ratios of interleaved blocks in one process, for noisy hosts.
-//! * [`picture`]: the embedded font and the radiograph-style view of the debris cloud.
-//!
-//! Pinning and measurement policy live here; the solver crate `mpm-core` has no OS code.
 
-pub mod atomic;
 pub mod bandwidth;
 pub mod claims;
 pub mod figures;
 pub mod manifest;
 pub mod matrix;
 pub mod paired;
-pub mod picture;
-pub mod pinning;
 pub mod record;
 pub mod regress;
 pub mod report;
 pub mod runner;
 pub mod stats;
-pub mod summary;
 pub mod topology;
-pub mod vtk;

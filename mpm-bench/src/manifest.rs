@@ -317,7 +317,7 @@ pub fn read(path: &Path) -> Result<Manifest> {
 
 /// Write a manifest (atomically).
 pub fn write(path: &Path, m: &Manifest) -> Result<()> {
-    crate::atomic::write_atomic(path, serde_json::to_string_pretty(m)?.as_bytes())
+    mpm_cli::atomic::write_atomic(path, serde_json::to_string_pretty(m)?.as_bytes())
 }
 
 /// Current time, RFC 3339 UTC (seconds).

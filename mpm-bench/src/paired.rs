@@ -25,11 +25,11 @@
 //! process, so this binary's optimisation level is the one measured.
 
 use crate::matrix::Strategy;
-use crate::pinning;
 use crate::stats::{self, Estimate, StatsOptions};
 use crate::topology::{Machine, PinPolicy};
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
+use mpm_cli::pinning;
 use mpm_core::scenario::taylor::TaylorBar;
 use mpm_core::{SimConfig, Simulation};
 use serde::Serialize;
@@ -285,7 +285,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
             c.seconds.push(t0.elapsed().as_secs_f64() / block_steps as f64);
             if let (Some(before), Some(after)) = (busy0, c.sim.worker_busy()) {
                 let d: Vec<f64> = after.iter().zip(&before).map(|(x, y)| x - y).collect();
-                c.imbalance.push(crate::summary::load_imbalance(&d).unwrap_or(f64::NAN));
+                c.imbalance.push(mpm_cli::summary::load_imbalance(&d).unwrap_or(f64::NAN));
             }
             bar.inc(1);
         }
@@ -416,7 +416,7 @@ pub fn table(r: &PairedReport) -> String {
 
 /// `mpm-bench paired`: measure, print, write the JSON if asked.
 pub fn run(a: PairedArgs) -> Result<()> {
-    crate::atomic::measure_and_report(a.json.as_deref(), "--json", || measure(&a), table)
+    mpm_cli::atomic::measure_and_report(a.json.as_deref(), "--json", || measure(&a), table)
 }
 
 #[cfg(test)]

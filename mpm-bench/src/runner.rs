@@ -2,7 +2,7 @@
 //! run, and the loop that writes a CSV row after every run.
 //!
 //! * Binaries: `mpm` is built in the Cargo profiles `o3` and `o0`
-//!   (`cargo build --profile o3 -p mpm-bench --bin mpm`) or located in `target/<profile>/`;
+//!   (`cargo build --profile o3 -p mpm-cli --bin mpm`) or located in `target/<profile>/`;
 //!   `MPM_BENCH_SOLVER_O3` / `MPM_BENCH_SOLVER_O0` point at other binaries. Each binary's
 //!   SHA-256 goes into the manifest and (abbreviated) into every row.
 //! * [`Runner`]: [`ProcessRunner`] spawns `mpm run ... --json FILE --quiet` as a fresh
@@ -264,7 +264,7 @@ pub fn prepare_solvers(opts: &[OptLevel], build: bool, quiet: bool) -> Result<Ve
         };
         if !path.is_file() {
             bail!(
-                "solver binary {} not found (build it with `cargo build --profile {} -p mpm-bench --bin mpm`)",
+                "solver binary {} not found (build it with `cargo build --profile {} -p mpm-cli --bin mpm`)",
                 path.display(),
                 opt
             );
@@ -275,14 +275,14 @@ pub fn prepare_solvers(opts: &[OptLevel], build: bool, quiet: bool) -> Result<Ve
     Ok(out)
 }
 
-/// `cargo build --profile <opt> -p mpm-bench --bin mpm` in `workspace`.
+/// `cargo build --profile <opt> -p mpm-cli --bin mpm` in `workspace`.
 pub fn build_solver(workspace: &Path, opt: OptLevel, quiet: bool) -> Result<()> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     if !quiet {
-        eprintln!("building the solver: cargo build --profile {opt} -p mpm-bench --bin mpm");
+        eprintln!("building the solver: cargo build --profile {opt} -p mpm-cli --bin mpm");
     }
     let mut cmd = Command::new(&cargo);
-    cmd.current_dir(workspace).args(["build", "--profile", opt.as_str(), "-p", "mpm-bench", "--bin", "mpm"]);
+    cmd.current_dir(workspace).args(["build", "--profile", opt.as_str(), "-p", "mpm-cli", "--bin", "mpm"]);
     if quiet {
         cmd.arg("--quiet");
     }
@@ -732,7 +732,7 @@ pub fn execute(
     manifest::write(&manifest_path, &man)?;
     if machine.is_this_system {
         match crate::topology::export_xml() {
-            Ok(xml) => crate::atomic::write_atomic(&dir.join("topology.xml"), xml.as_bytes())?,
+            Ok(xml) => mpm_cli::atomic::write_atomic(&dir.join("topology.xml"), xml.as_bytes())?,
             Err(e) => eprintln!("warning: no topology.xml: {e:#}"),
         }
     }

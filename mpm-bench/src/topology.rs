@@ -28,7 +28,6 @@
 //! The placement logic works on the plain-data [`Machine`], so it can be tested on synthetic
 //! topologies (`mpm-bench topology --synthetic "pack:2 core:4 pu:2"`) as well as this host.
 
-use crate::pinning::parse_cpu_list;
 use anyhow::{bail, Context, Result};
 use hwlocality::object::attributes::ObjectAttributes;
 use hwlocality::object::types::{CacheType, ObjectType};
@@ -36,6 +35,7 @@ use hwlocality::object::TopologyObject;
 use hwlocality::topology::builder::TypeFilter;
 use hwlocality::topology::export::xml::XMLExportFlags;
 use hwlocality::Topology;
+use mpm_cli::pinning::parse_cpu_list;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt;

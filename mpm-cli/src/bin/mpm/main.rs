@@ -4,11 +4,11 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use mpm_bench::atomic;
-use mpm_bench::picture::{write_radiograph, RadiographNotes};
-use mpm_bench::pinning::{self, PinnedPool};
-use mpm_bench::summary::{EndReason, HistoryPoint, HistoryRecorder, RunContext, Summary, Timing, OPT_LEVEL};
-use mpm_bench::vtk::{Encoding, SnapshotWriter};
+use mpm_cli::atomic;
+use mpm_cli::picture::{write_radiograph, RadiographNotes};
+use mpm_cli::pinning::{self, PinnedPool};
+use mpm_cli::summary::{EndReason, HistoryPoint, HistoryRecorder, RunContext, Summary, Timing, OPT_LEVEL};
+use mpm_cli::vtk::{Encoding, SnapshotWriter};
 use mpm_core::scenario::impact;
 use mpm_core::scenario::taylor::{self, TaylorBar};
 use mpm_core::{GridMode, MgForm, SimConfig, Simulation, Strategy, WallKind, DEFAULT_CFL};
