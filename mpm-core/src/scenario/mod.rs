@@ -3,6 +3,7 @@
 
 pub mod impact;
 pub mod lattice;
+pub mod size;
 pub mod taylor;
 
 use crate::grid::{GridSpec, Wall};

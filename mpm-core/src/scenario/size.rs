@@ -1,0 +1,146 @@
+//! Model sizes and memory estimates without building a model: what a benchmark harness
+//! needs to plan runs (the memory guard, progress estimates, the rows of skipped runs).
+//!
+//! * Taylor bar Models 1-4: the counts of [`taylor::ModelSpec`] (Table 2).
+//! * Impact: the particles of [`impact::Impact::setup`], counted without seeding them, and
+//!   the nodes of the adaptive grid around the debris cloud at 30.6 µs (about
+//!   160 x 160 x 220 mm, measured on the small model), an upper estimate.
+//! * Memory ([`ModelSize::memory_bytes`]): bytes per particle and per node fitted to the
+//!   solver's own [`crate::Simulation::memory_bytes`] on Models 1-3 (serial: 137 B per
+//!   particle + 128 B per node reproduces all three exactly) and checked against the peak
+//!   RSS of Model 4 (AE, 1 and 8 threads: 3.4 and 8.1 GB, within 1 %). Array expansion keeps
+//!   one private 80-byte copy of the scattered nodal arrays per worker, so it grows with
+//!   every thread; domain decomposition adds binning and sub-grid arrays that barely depend
+//!   on the thread count ([`Strategy::memory_model`]).
+
+use super::{impact, taylor};
+use crate::strategy::{MemoryModel, Strategy};
+
+/// Bytes per particle (state, stress, strain, material history).
+pub const BYTES_PER_PARTICLE: u64 = 137;
+/// Bytes per grid node (mass, momentum, force, velocity, flags).
+pub const BYTES_PER_NODE: u64 = 128;
+/// Extra bytes per node for each AE worker (its private copy of the scattered arrays).
+pub const AE_BYTES_PER_NODE_PER_THREAD: u64 = 80;
+/// DD binning overhead per particle (patch index, permutation).
+pub const DD_BYTES_PER_PARTICLE: u64 = 8;
+/// DD sub-grid overhead per node (patch-local arrays and halo bookkeeping).
+pub const DD_BYTES_PER_NODE: u64 = 80;
+/// Process baseline (binary, runtime, allocator), plus [`BYTES_PER_THREAD`] per worker.
+pub const BASE_BYTES: u64 = 16 << 20;
+/// Per-worker slack (stack pages touched, DD halo growth with the patch count).
+pub const BYTES_PER_THREAD: u64 = 2 << 20;
+
+/// The impact models of a campaign, numbered 1-4: `(particle spacing, cell size)` in
+/// metres. 1-3 are the paper's small model (0.53 mm spacing, 848,104 particles) with its
+/// three cell sizes 2.12 / 1.59 / 1.06 mm; 4 is the large model (0.21 mm, 13.5 M particles,
+/// 1.0 mm cells).
+pub const IMPACT_MODELS: [(f64, f64); 4] =
+    [(0.53e-3, 2.12e-3), (0.53e-3, 1.59e-3), (0.53e-3, 1.06e-3), (0.21e-3, 1.0e-3)];
+
+/// Extent of the adaptive grid around the impact's debris cloud at 30.6 µs (m).
+const IMPACT_CLOUD_BOX: [f64; 3] = [0.16, 0.16, 0.22];
+
+/// Particle and node counts of a model.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ModelSize {
+    /// Particles.
+    pub particles: u64,
+    /// Grid nodes.
+    pub nodes: u64,
+}
+
+impl ModelSize {
+    /// Taylor bar Model `model` (1-4): Table 2's particles and fixed-grid nodes.
+    pub fn taylor(model: u8) -> Option<Self> {
+        let spec = taylor::ModelSpec::get(model).ok()?;
+        Some(Self { particles: spec.particles() as u64, nodes: spec.nodes() as u64 })
+    }
+
+    /// The impact at lattice `spacing` with grid `cell` (m): its particles, and the nodes of
+    /// the adaptive grid around the debris cloud at the paper's comparison time.
+    pub fn impact(spacing: f64, cell: f64) -> Self {
+        let set_up = impact::Impact { spacing, cell, ..impact::Impact::default() };
+        let plate: usize = set_up.plate_counts().iter().product();
+        let n = |len: f64| (len / cell).ceil() as u64 + 1;
+        let nodes = IMPACT_CLOUD_BOX.iter().map(|&len| n(len)).product();
+        Self { particles: (plate + sphere_particles(spacing)) as u64, nodes }
+    }
+
+    /// Estimated peak memory of a run of this model with `strategy` on `threads` workers
+    /// (bytes; see the module docs for the constants). The zero-sized model gives the
+    /// process baseline.
+    pub fn memory_bytes(&self, strategy: Strategy, threads: usize) -> u64 {
+        let t = threads.max(1) as u64;
+        let base = BASE_BYTES + t * BYTES_PER_THREAD;
+        let model = self.particles * BYTES_PER_PARTICLE + self.nodes * BYTES_PER_NODE;
+        let scatter = match strategy.memory_model() {
+            MemoryModel::None => 0,
+            MemoryModel::PerThreadCopies => t * AE_BYTES_PER_NODE_PER_THREAD * self.nodes,
+            MemoryModel::SharedFaces => self.particles * DD_BYTES_PER_PARTICLE + self.nodes * DD_BYTES_PER_NODE,
+        };
+        base + model + scatter
+    }
+}
+
+/// Points of the impact sphere's lattice at spacing `h`: the lattice cells of an even count
+/// across the sphere whose centres lie within its radius (as [`impact::Impact::setup`]
+/// seeds them, with the same arithmetic, so the count is exact).
+fn sphere_particles(h: f64) -> usize {
+    let radius = impact::SPHERE_RADIUS;
+    let centre_z = -(radius + 0.5 * h);
+    let across = ((2.0 * radius / h).ceil() as usize + 2).next_multiple_of(2);
+    let corner = -(across as f64) * 0.5 * h;
+    let at = |i: usize, lo: f64| lo + (i as f64 + 0.5) * h;
+    let mut count = 0;
+    for k in 0..across {
+        let dz = at(k, centre_z + corner) - centre_z;
+        for j in 0..across {
+            let y = at(j, corner);
+            count += (0..across)
+                .filter(|&i| {
+                    let x = at(i, corner);
+                    x * x + y * y + dz * dz <= radius * radius
+                })
+                .count();
+        }
+    }
+    count
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn taylor_sizes_are_table_2() {
+        assert_eq!(ModelSize::taylor(1), Some(ModelSize { particles: 56_056, nodes: 53_361 }));
+        assert_eq!(ModelSize::taylor(4), Some(ModelSize { particles: 12_416_320, nodes: 8_302_185 }));
+        assert_eq!(ModelSize::taylor(5), None);
+    }
+
+    /// The count without seeding equals the seeded set-up (coarse and the paper's small
+    /// model), and the large model's documented count.
+    #[test]
+    fn impact_particles_are_counted_exactly() {
+        for spacing in [2.0e-3, 0.53e-3] {
+            let (setup, _) = impact::Impact { spacing, ..impact::Impact::default() }.setup().unwrap();
+            assert_eq!(ModelSize::impact(spacing, 2.12e-3).particles, setup.particles.len() as u64, "{spacing}");
+        }
+        assert_eq!(ModelSize::impact(0.53e-3, 2.12e-3).particles, 848_104);
+        assert_eq!(ModelSize::impact(0.21e-3, 1.0e-3).particles, 13_537_926);
+        assert_eq!(ModelSize::impact(0.53e-3, 2.12e-3).nodes, 77 * 77 * 105);
+    }
+
+    #[test]
+    fn memory_grows_with_ae_threads_only() {
+        let m4 = ModelSize::taylor(4).unwrap();
+        let (ae1, ae8) = (m4.memory_bytes(Strategy::ArrayExpansion, 1), m4.memory_bytes(Strategy::ArrayExpansion, 8));
+        let dd1 = m4.memory_bytes(Strategy::DomainDecomposition, 1);
+        let dd8 = m4.memory_bytes(Strategy::DomainDecomposition, 8);
+        assert_eq!(ae8 - ae1, 7 * (80 * 8_302_185 + BYTES_PER_THREAD));
+        assert_eq!(dd8 - dd1, 7 * BYTES_PER_THREAD);
+        assert!(m4.memory_bytes(Strategy::Serial, 1) < dd1);
+        assert_eq!(ModelSize::default().memory_bytes(Strategy::Serial, 2), BASE_BYTES + 2 * BYTES_PER_THREAD);
+    }
+}
