@@ -3,10 +3,18 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
-use mpm_bench::matrix::{self, Campaign, OptLevel, Overrides, Strategy};
-use mpm_bench::runner::{self, ExecOptions, MockRunner, ProcessRunner, Solver};
-use mpm_bench::topology::{self, Machine, PinPolicy};
-use std::path::PathBuf;
+use mpm_bench::analysis::{claims, paired, regress};
+use mpm_bench::campaign::matrix::{Campaign, Overrides};
+use mpm_bench::campaign::preset::{self, OptLevel, Strategy};
+use mpm_bench::campaign::process::{MockRunner, ProcessRunner};
+use mpm_bench::campaign::runner::{self, ExecOptions};
+use mpm_bench::campaign::solver::{self, Solver};
+use mpm_bench::machine::placement::{PinPolicy, PAPER_THREADS};
+use mpm_bench::machine::topology::{self, Machine};
+use mpm_bench::machine::{bandwidth, fingerprint};
+use mpm_bench::report::{comparison, figures};
+use mpm_cli::atomic::write_atomic;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// Benchmark harness for the explicit MPM parallelisation study (array expansion vs domain
@@ -79,15 +87,15 @@ enum Cmd {
     )]
     Run(RunArgs),
     /// Regenerate the paper's Figures 7-14 (and a memory figure) from a campaign.
-    Figures(mpm_bench::figures::FiguresArgs),
+    Figures(figures::FiguresArgs),
     /// Check the paper's claims C1-C6 on a campaign: holds / does not hold / cannot tell.
-    Claims(mpm_bench::claims::ClaimsArgs),
+    Claims(claims::ClaimsArgs),
     /// Compare a campaign with a baseline; exit 1 when efficiency or time per step regressed.
-    Regress(mpm_bench::regress::RegressArgs),
+    Regress(regress::RegressArgs),
     /// Hardware comparison report (Markdown + figures) over two or more campaigns.
-    Report(mpm_bench::report::ReportArgs),
+    Report(comparison::ReportArgs),
     /// Measure the memory-bandwidth ceiling (STREAM triad) per thread count and pinning.
-    Bandwidth(mpm_bench::bandwidth::BandwidthArgs),
+    Bandwidth(bandwidth::BandwidthArgs),
     /// Parallel efficiency as paired ratios of interleaved blocks in one process (noisy hosts).
     #[command(
         long_about = "Parallel efficiency T1 / (T x T_T) measured as paired ratios inside one process.\n\n\
@@ -107,13 +115,13 @@ enum Cmd {
             mpm-bench paired --model 3 --strategies dd --blocks 21 --json dd-m3.json\n  \
             mpm-bench paired --model 1 --threads 4 --pin 0-3 --block-steps 10"
     )]
-    Paired(mpm_bench::paired::PairedArgs),
+    Paired(paired::PairedArgs),
 }
 
 #[derive(Args, Debug)]
 struct TopologyArgs {
     /// Thread counts to show (comma list).
-    #[arg(long, value_name = "LIST", value_delimiter = ',', default_values_t = topology::PAPER_THREADS.to_vec())]
+    #[arg(long, value_name = "LIST", value_delimiter = ',', default_values_t = PAPER_THREADS.to_vec())]
     threads: Vec<usize>,
     /// Also show an explicit CPU list policy, e.g. `0,1` or `0-3`.
     #[arg(long, value_name = "LIST")]
@@ -201,16 +209,18 @@ fn main() {
     let result = match cli.command {
         Cmd::Topology(a) => cmd_topology(a),
         Cmd::Run(a) => cmd_run(a),
-        Cmd::Figures(a) => mpm_bench::figures::run(a),
-        Cmd::Claims(a) => mpm_bench::claims::run(a),
-        Cmd::Regress(a) => mpm_bench::regress::run(a).map(|code| {
+        Cmd::Figures(a) => figures::run(a),
+        Cmd::Claims(a) => claims::run(a),
+        Cmd::Regress(a) => regress::run(a).map(|code| {
             if code != 0 {
                 std::process::exit(code);
             }
         }),
-        Cmd::Report(a) => mpm_bench::report::run(a),
-        Cmd::Bandwidth(a) => mpm_bench::bandwidth::run(a),
-        Cmd::Paired(a) => mpm_bench::paired::run(a),
+        Cmd::Report(a) => comparison::run(a),
+        Cmd::Bandwidth(a) => {
+            measure_and_report(a.out.as_deref(), "--out", || bandwidth::measure_all(&a), bandwidth::table)
+        }
+        Cmd::Paired(a) => measure_and_report(a.json.as_deref(), "--json", || paired::measure(&a), paired::table),
     };
     if let Err(e) = result {
         // `mpm-bench ... | head` closing the pipe is not an error worth a message.
@@ -245,7 +255,7 @@ fn cmd_topology(a: TopologyArgs) -> Result<()> {
     }
     write!(out, "{}", machine.placement_table(&a.threads, &policies)?)?;
     if machine.is_this_system {
-        writeln!(out, "Machine fingerprint: {}", mpm_bench::manifest::fingerprint(&machine))?;
+        writeln!(out, "Machine fingerprint: {}", fingerprint::fingerprint(&machine))?;
     }
     if let Some(path) = a.export_xml {
         let xml = topology::export_xml()?;
@@ -260,7 +270,7 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         .models
         .as_deref()
         .map(|s| {
-            matrix::parse_list(s, "model", |m| {
+            preset::parse_list(s, "model", |m| {
                 let m = m.trim_start_matches(|c: char| c.is_ascii_alphabetic());
                 m.parse::<u32>().map_err(|_| anyhow::anyhow!("'{m}' is not a model number (1-4)"))
             })
@@ -270,15 +280,15 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         .threads
         .as_deref()
         .map(|s| {
-            matrix::parse_list(s, "thread", |t| {
+            preset::parse_list(s, "thread", |t| {
                 t.parse::<usize>().map_err(|_| anyhow::anyhow!("'{t}' is not a thread count"))
             })
         })
         .transpose()?;
     let strategies =
-        a.strategies.as_deref().map(|s| matrix::parse_list(s, "strategy", |x| x.parse::<Strategy>())).transpose()?;
+        a.strategies.as_deref().map(|s| preset::parse_list(s, "strategy", |x| x.parse::<Strategy>())).transpose()?;
     let opt =
-        a.opt.as_deref().map(|s| matrix::parse_list(s, "optimisation level", |x| x.parse::<OptLevel>())).transpose()?;
+        a.opt.as_deref().map(|s| preset::parse_list(s, "optimisation level", |x| x.parse::<OptLevel>())).transpose()?;
     let pin = if a.pin.is_empty() {
         None
     } else {
@@ -292,18 +302,18 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         reps: a.reps,
         pin,
         steps: a.steps,
-        end_time: a.end_time.as_deref().map(matrix::parse_seconds).transpose()?,
+        end_time: a.end_time.as_deref().map(preset::parse_seconds).transpose()?,
         warmup: a.warmup,
         grid: a.grid.clone(),
-        mem_limit: a.mem_limit.as_deref().map(matrix::parse_size).transpose()?,
+        mem_limit: a.mem_limit.as_deref().map(preset::parse_size).transpose()?,
         seed: a.seed,
     })
 }
 
 fn cmd_run(a: RunArgs) -> Result<()> {
     let ov = overrides(&a)?;
-    let ws = runner::workspace_root();
-    let (preset, source) = matrix::load_preset(&a.preset, ws.as_deref())?;
+    let ws = solver::workspace_root();
+    let (preset, source) = preset::load_preset(&a.preset, ws.as_deref())?;
     let campaign = Campaign::resolve(preset, source, &ov)?;
     let machine = Machine::detect()?;
     for p in &campaign.pins {
@@ -343,7 +353,7 @@ fn cmd_run(a: RunArgs) -> Result<()> {
         runner::execute(&campaign, &machine, &solvers, &mut r, &opts, &interrupted)?
     } else {
         let solvers =
-            if a.dry_run { Vec::new() } else { runner::prepare_solvers(&campaign.opts, !a.no_build, a.quiet)? };
+            if a.dry_run { Vec::new() } else { solver::prepare_solvers(&campaign.opts, !a.no_build, a.quiet)? };
         let mut r = ProcessRunner::new(interrupted.clone());
         runner::execute(&campaign, &machine, &solvers, &mut r, &opts, &interrupted)?
     };
@@ -360,10 +370,34 @@ fn cmd_run(a: RunArgs) -> Result<()> {
 }
 
 /// Fail early, with a clear message, when the results root cannot be written.
-fn check_writable(out: &std::path::Path) -> Result<()> {
+fn check_writable(out: &Path) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create the output folder {}", out.display()))?;
     let probe = out.join(format!(".mpm-bench-write-test-{}", std::process::id()));
     std::fs::write(&probe, b"").with_context(|| format!("the output folder {} is not writable", out.display()))?;
     let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+/// Measure-print-save for the report commands (`bandwidth`, `paired`): create the parent
+/// folder of `out` before measuring (so a bad path fails at once, not after the run), then
+/// run `measure`, print `table` of its result and write it to `out` as pretty JSON.
+/// `flag` names the option that gave `out`, for the error messages.
+pub fn measure_and_report<T: serde::Serialize>(
+    out: Option<&Path>,
+    flag: &str,
+    measure: impl FnOnce() -> Result<T>,
+    table: impl FnOnce(&T) -> String,
+) -> Result<()> {
+    if let Some(parent) = out.and_then(Path::parent).filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("cannot create {} for {flag}: choose a writable path", parent.display()))?;
+    }
+    let report = measure()?;
+    print!("{}", table(&report));
+    if let Some(out) = out {
+        write_atomic(out, serde_json::to_string_pretty(&report)?.as_bytes())
+            .with_context(|| format!("cannot write {}: choose a writable {flag}", out.display()))?;
+        println!("wrote {}", out.display());
+    }
     Ok(())
 }

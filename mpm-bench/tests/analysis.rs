@@ -1,14 +1,17 @@
 //! Integration tests of the analysis commands (stats, figures, claims, regress, report,
 //! bandwidth) on crafted campaigns written with the real CSV writer.
 
-use mpm_bench::claims::{self, Verdict};
-use mpm_bench::figures::{self, FiguresArgs};
-use mpm_bench::manifest::{self, GitInfo, Manifest, SoftwareInfo, MANIFEST_VERSION};
-use mpm_bench::record::{CsvLog, Row, Status, SCHEMA_VERSION};
-use mpm_bench::regress::{self, Outcome, RegressArgs};
-use mpm_bench::report::{self, ReportArgs};
-use mpm_bench::stats::{load_campaign, Analysis, CellKey, Stage, StatsOptions};
-use mpm_bench::topology::Machine;
+use mpm_bench::analysis::claims::{self, Verdict};
+use mpm_bench::analysis::regress::{self, Outcome, RegressArgs};
+use mpm_bench::analysis::results::load_campaign;
+use mpm_bench::analysis::stats::{Analysis, CellKey, Stage, StatsOptions};
+use mpm_bench::campaign::manifest::{self, GitInfo, Manifest, SoftwareInfo, MANIFEST_VERSION};
+use mpm_bench::campaign::record::{CsvLog, Row, Status, SCHEMA_VERSION};
+use mpm_bench::machine::bandwidth;
+use mpm_bench::machine::fingerprint;
+use mpm_bench::machine::topology::Machine;
+use mpm_bench::report::comparison::{self as report, ReportArgs};
+use mpm_bench::report::figures::{self, FiguresArgs};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -75,7 +78,7 @@ fn eff(model: u32, strategy: &str, opt: &str, particle: bool, n: usize, per_sock
 }
 
 fn fingerprint(topo: Option<&str>) -> String {
-    topo.map(|t| manifest::fingerprint(&Machine::synthetic(t).unwrap())).unwrap_or_else(|| "nomanifest".into())
+    topo.map(|t| fingerprint::fingerprint(&Machine::synthetic(t).unwrap())).unwrap_or_else(|| "nomanifest".into())
 }
 
 fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
@@ -137,7 +140,7 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
     }
     if let Some(t) = c.topo {
         let machine = Machine::synthetic(t).unwrap();
-        let mut info = manifest::machine_info(&machine);
+        let mut info = fingerprint::machine_info(&machine);
         info.memory_bytes = 16 << 30;
         let m = Manifest {
             manifest_version: MANIFEST_VERSION,
@@ -421,7 +424,7 @@ fn report_compares_two_machines() {
 fn report_uses_a_bandwidth_json_when_present() {
     let tmp = tempfile::tempdir().unwrap();
     let a = write_campaign(&tmp.path().join("a"), &Craft::default());
-    let bw = mpm_bench::bandwidth::BandwidthReport {
+    let bw = bandwidth::BandwidthReport {
         kernel: "stream-triad".into(),
         machine_id: "x".into(),
         cpu_model: "test".into(),
@@ -436,7 +439,7 @@ fn report_uses_a_bandwidth_json_when_present() {
         timestamp: "now".into(),
         results: [1usize, 2, 4, 6, 8]
             .iter()
-            .map(|&t| mpm_bench::bandwidth::BandwidthPoint {
+            .map(|&t| bandwidth::BandwidthPoint {
                 threads: t,
                 pin: "close".into(),
                 requested_cpus: vec![],
@@ -460,14 +463,9 @@ fn report_uses_a_bandwidth_json_when_present() {
 
 #[test]
 fn bandwidth_smoke() {
-    let args = mpm_bench::bandwidth::BandwidthArgs {
-        threads: vec![1, 2],
-        pin: vec!["close".into()],
-        size_mib: 2,
-        reps: 2,
-        out: None,
-    };
-    let r = mpm_bench::bandwidth::measure_all(&args).unwrap();
+    let args =
+        bandwidth::BandwidthArgs { threads: vec![1, 2], pin: vec!["close".into()], size_mib: 2, reps: 2, out: None };
+    let r = bandwidth::measure_all(&args).unwrap();
     assert_eq!(r.results.len(), 2);
     assert!(r.results.iter().all(|p| p.best_gb_s > 0.0 && p.best_gb_s >= p.worst_gb_s));
     assert_eq!(r.bytes_per_element, 24);

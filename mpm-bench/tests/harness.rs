@@ -2,10 +2,16 @@
 //! oversubscription flags, the CSV header, CLI errors (all with the mock runner), and one
 //! real end-to-end smoke campaign through the `mpm-bench` binary and the real `mpm` solver.
 
-use mpm_bench::matrix::{self, Campaign, OptLevel, Overrides, Strategy};
-use mpm_bench::record::{read_rows, Row, Status};
-use mpm_bench::runner::{self, ExecOptions, MockRunner, Solver};
-use mpm_bench::topology::{Machine, PinPolicy};
+use mpm_bench::campaign::matrix::{Campaign, Overrides};
+use mpm_bench::campaign::memory;
+use mpm_bench::campaign::preset::{self, OptLevel, Strategy};
+use mpm_bench::campaign::process::MockRunner;
+use mpm_bench::campaign::record::{read_rows, Row, Status};
+use mpm_bench::campaign::runner::{self, ExecOptions};
+use mpm_bench::campaign::solver::Solver;
+use mpm_bench::machine::fingerprint;
+use mpm_bench::machine::placement::PinPolicy;
+use mpm_bench::machine::topology::Machine;
 use std::collections::HashSet;
 use std::path::Path;
 use std::process::Command;
@@ -13,7 +19,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 fn campaign(name: &str, ov: &Overrides) -> Campaign {
-    let (p, src) = matrix::load_preset(name, None).unwrap();
+    let (p, src) = preset::load_preset(name, None).unwrap();
     Campaign::resolve(p, src, ov).unwrap()
 }
 
@@ -83,7 +89,7 @@ fn overrides_change_the_campaign_id_but_not_the_seed() {
     assert_eq!(seeded.id, "smoke");
     assert_eq!(seeded.seed, 99);
     // Errors are clear.
-    let (p, s) = matrix::load_preset("smoke", None).unwrap();
+    let (p, s) = preset::load_preset("smoke", None).unwrap();
     let e = Campaign::resolve(p.clone(), s.clone(), &Overrides { models: Some(vec![5]), ..Overrides::default() })
         .unwrap_err()
         .to_string();
@@ -91,7 +97,7 @@ fn overrides_change_the_campaign_id_but_not_the_seed() {
     let e =
         Campaign::resolve(p, s, &Overrides { threads: Some(vec![0]), ..Overrides::default() }).unwrap_err().to_string();
     assert!(e.contains("at least 1"), "{e}");
-    let e = matrix::load_preset("nope", None).unwrap_err().to_string();
+    let e = preset::load_preset("nope", None).unwrap_err().to_string();
     assert!(e.contains("unknown preset 'nope'"), "{e}");
 }
 
@@ -143,9 +149,9 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
     assert_eq!((s.counts.written, r.calls.len()), (0, 0));
     assert_eq!(read_rows(&csv).unwrap().len(), 8);
     // Manifest and sessions.
-    let man = mpm_bench::manifest::read(&s.dir.join("manifest.json")).unwrap();
+    let man = mpm_bench::campaign::manifest::read(&s.dir.join("manifest.json")).unwrap();
     assert_eq!(man.sessions.len(), 3);
-    assert_eq!(man.machine.fingerprint, mpm_bench::manifest::fingerprint(&m));
+    assert_eq!(man.machine.fingerprint, fingerprint::fingerprint(&m));
     assert!(s.dir.starts_with(dir.path().join(&man.machine.fingerprint)));
 }
 
@@ -162,11 +168,11 @@ fn memory_guard_skips_with_a_reason() {
     assert!(rows.iter().all(|r| r.status == Status::Skipped && r.reason.contains("memory guard")));
     assert!(rows.iter().all(|r| r.wall_s.is_none() && r.mem_estimate_bytes > 10 << 20));
     // AE grows with threads: with a limit between, Model 4 AE at 8 threads is skipped while DD runs.
-    let est_dd = runner::estimate_memory("taylor", 4, Strategy::Dd, 8);
-    let est_ae = runner::estimate_memory("taylor", 4, Strategy::Ae, 8);
+    let est_dd = memory::estimate_memory("taylor", 4, Strategy::Dd, 8);
+    let est_ae = memory::estimate_memory("taylor", 4, Strategy::Ae, 8);
     assert!(est_ae > est_dd);
-    assert!(runner::memory_verdict(est_ae, None, Some(est_ae)).is_some());
-    assert!(runner::memory_verdict(est_dd, None, Some(est_ae)).is_none());
+    assert!(memory::memory_verdict(est_ae, None, Some(est_ae)).is_some());
+    assert!(memory::memory_verdict(est_dd, None, Some(est_ae)).is_none());
 }
 
 #[test]
@@ -220,7 +226,7 @@ fn pinning_none_passes_no_cpus() {
 /// Snapshot of the CSV header: changing it must be deliberate (bump SCHEMA_VERSION).
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::record::SCHEMA_VERSION, 2);
+    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 2);
     let want = "schema_version,campaign_id,run_id,timestamp,git_commit,git_dirty,machine_id,binary_sha256,seed,\
 order_index,scenario,model,particles,cells,nodes,mean_nodes,grid_mode,strategy,opt_level,threads,pin_policy,\
 requested_cpus,observed_cpus,oversubscribed,rep,warmup_steps,step_limit,end_time_s,steps,sim_time_s,end_reason,\
@@ -368,7 +374,7 @@ fn end_to_end_smoke_campaign_with_the_real_solver() {
     for f in ["manifest.json", "topology.xml"] {
         assert!(d.join(f).is_file(), "{f}");
     }
-    let man = mpm_bench::manifest::read(&d.join("manifest.json")).unwrap();
+    let man = mpm_bench::campaign::manifest::read(&d.join("manifest.json")).unwrap();
     assert_eq!(man.software.binaries.len(), 2);
     // Resume: nothing added.
     let second = bench().args(["run", "--preset", "smoke", "--out", out, "--quiet", "--no-build"]).output().unwrap();
@@ -394,7 +400,7 @@ fn sigint_leaves_a_valid_csv_and_the_campaign_resumes() {
     let d = runner::campaign_dir(dir.path(), &Machine::detect().unwrap(), &c);
     let rows = read_rows(&d.join("runs.csv")).unwrap();
     assert!(!rows.is_empty() && rows.len() < 8, "{} rows", rows.len());
-    let man = mpm_bench::manifest::read(&d.join("manifest.json")).unwrap();
+    let man = mpm_bench::campaign::manifest::read(&d.join("manifest.json")).unwrap();
     assert!(man.sessions[0].counts.interrupted);
     let again = bench().args(args).output().unwrap();
     assert!(again.status.success());

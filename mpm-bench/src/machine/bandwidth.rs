@@ -1,6 +1,5 @@
-//! `mpm-bench bandwidth`: the memory-bandwidth ceiling (STREAM triad) per thread count and
-//! pinning policy, and the bytes an MPM step moves, so a report can say what fraction of the
-//! ceiling each stage reaches.
+//! `mpm-bench bandwidth`: the memory-bandwidth ceiling (STREAM triad) of this machine per
+//! thread count and pinning policy, and its `bandwidth.json`.
 //!
 //! # The measurement
 //!
@@ -8,8 +7,8 @@
 //! larger than the last-level cache (by default 4 x the total last-level cache, at least
 //! 64 MiB per array). For every thread count and pinning policy a fresh rayon pool is built
 //! with [`mpm_cli::pinning::build_pool`] (worker `j` pinned to the policy's `j`-th CPU from
-//! [`crate::topology::Machine::place`], its placement read back), the arrays are allocated
-//! anew and first touched by the workers that will use them (worker `j` owns the `j`-th
+//! [`Machine::place`], its placement read back), the arrays are allocated anew and first
+//! touched by the workers that will use them (worker `j` owns the `j`-th
 //! contiguous chunk, as in the solver, so pages land on the worker's NUMA node), one untimed
 //! pass warms up, then `reps` passes are timed. The best pass gives the ceiling, as STREAM
 //! reports it; the median and the worst are kept too. Bandwidth counts 3 arrays x 8 bytes
@@ -17,41 +16,13 @@
 //! (10^9 bytes per second). Build the harness optimised (`--profile o3` or `--release`):
 //! an unoptimised triad measures the compiler, not the memory.
 //!
-//! # Bytes moved by an MPM step ([`StageBytes`])
-//!
-//! Counted from `mpm-core/src/transfer.rs` and `mpm-core/src/strategy/*.rs`, with `P`
-//! particles, `N` grid nodes (mean over the steps), `T` threads. Like STREAM, a read or a
-//! write of a double counts 8 bytes and write-allocate traffic is not counted. Node records:
-//! `p2g` = `[m, p, f]` 7 doubles = 56 B, `kin` = `[v, a]` 48 B, `remap` 24 B. Particle
-//! fields: `x`, `v` 24 B each, `mass`, `rho`, `eps_p`, `e_int`, `sound` 8 B, `stress` 48 B,
-//! `failed` 1 B. *copies* of the scatter arrays: `T` for AE (one column of all `N` nodes per
-//! thread), about 1 for DD (the sub-grids together; shared faces neglected) and serial.
-//!
-//! | pass | per particle | per node |
-//! |---|---|---|
-//! | DD binning (count + write `Pindex`) | x 24 + patch 4 + 4 + Pindex 4 = 36 | - |
-//! | P2G scatter (Eqs. 1-5) | x 24, v 24, mass 8, rho 8, stress 48 = 112 (+4 Pindex, DD) | zero 56 + read-modify-write 112 = 168 per copy |
-//! | assembly (Eq. 16 / sub-grids) | - | AE 56 (T+1); DD read 56 + write 56 = 112 (each node stored by its first patch, added by the others: shared faces neglected); serial 0 |
-//! | grid update (Eq. 6) | - | read p2g 56 + write kin 48 = 104 |
-//! | **grid-node stage** | 112 (+40 DD) | 168 copies + assembly + 104 |
-//! | gather (Eqs. 8, 10) | x 24 + v r/w 48 = 72 | kin 48 |
-//! | re-map scatter (Eq. 11) | x 24, v 24, mass 8 = 56 (+4 DD) | zero 24 + r/w 48 = 72 per copy |
-//! | re-map assembly | - | AE 24 (T+1); DD 48; serial 0 |
-//! | re-map velocity | - | p2g records 56 + remap r/w 48 = 104 |
-//! | update (Eqs. 7, 9, 12-15) | x r/w 48, v 24, mass 8, rho 16, stress 96, eps_p 16, e_int 16, sound 16, failed 2 = 242 | kin 48 + remap 24 = 72 |
-//! | **particle stage** | 370 (+4 DD) | 48 + 72 copies + assembly + 104 + 72 |
-//!
-//! These are *compulsory* bytes: every array streamed once per pass, as if the nodes a
-//! particle touches were still in cache from its neighbours (particles are stored in
-//! lattice order, so they mostly are). Without any reuse every particle would also move its
-//! 8 nodes: P2G 8 x 56 x 2 = 896 B, gather 8 x 48 = 384 B, re-map 8 x 24 x 2 = 384 B,
-//! update 8 x 72 = 576 B. [`StageBytes`] gives both bounds; the report's fraction of the
-//! ceiling uses the compulsory bytes (a lower bound: a stage near 100 % is bandwidth bound)
-//! and shows the no-reuse one beside it (above 100 % means the caches are doing their job).
+//! The analysis layer (`analysis::traffic`) estimates the bytes an MPM step moves, so a report can say
+//! what fraction of this ceiling each stage reaches.
 
-use crate::manifest;
-use crate::stats::Stage;
-use crate::topology::{Machine, PinPolicy};
+use super::fingerprint;
+use super::placement::PinPolicy;
+use super::topology::{human_bytes, Machine};
+use crate::util::{median, now_rfc3339};
 use anyhow::{bail, Context, Result};
 use mpm_cli::pinning;
 use serde::{Deserialize, Serialize};
@@ -160,49 +131,6 @@ pub fn read(path: &Path) -> Result<BandwidthReport> {
         .with_context(|| format!("{} is not a bandwidth.json written by `mpm-bench bandwidth`", path.display()))
 }
 
-/// Estimated bytes moved per step by each stage (see the module docs for the count).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct StageBytes {
-    /// Grid-node stage, compulsory traffic (bytes per step).
-    pub grid_min: f64,
-    /// Grid-node stage, no cache reuse between particles.
-    pub grid_max: f64,
-    /// Particle stage, compulsory traffic.
-    pub particle_min: f64,
-    /// Particle stage, no cache reuse between particles.
-    pub particle_max: f64,
-}
-
-impl StageBytes {
-    /// Bytes per step of `strategy` (`ae`, `dd`, `serial`) with `threads` workers,
-    /// `particles` particles and `nodes` grid nodes.
-    pub fn estimate(strategy: &str, threads: usize, particles: f64, nodes: f64) -> Self {
-        let t = threads.max(1) as f64;
-        let (copies, asm7, asm3, dd_p) = match strategy {
-            "ae" => (t, 56.0 * (t + 1.0), 24.0 * (t + 1.0), 0.0),
-            "dd" => (1.0, 112.0, 48.0, 1.0),
-            _ => (1.0, 0.0, 0.0, 0.0),
-        };
-        let grid_min = particles * (112.0 + 40.0 * dd_p) + nodes * (168.0 * copies + asm7 + 104.0);
-        let particle_min = particles * (370.0 + 4.0 * dd_p) + nodes * (48.0 + 72.0 * copies + asm3 + 104.0 + 72.0);
-        Self {
-            grid_min,
-            grid_max: grid_min + particles * 896.0,
-            particle_min,
-            particle_max: particle_min + particles * (384.0 + 384.0 + 576.0),
-        }
-    }
-
-    /// (compulsory, no-reuse) bytes per step of a stage.
-    pub fn of(&self, stage: Stage) -> (f64, f64) {
-        match stage {
-            Stage::Total => (self.grid_min + self.particle_min, self.grid_max + self.particle_max),
-            Stage::Grid => (self.grid_min, self.grid_max),
-            Stage::Particle => (self.particle_min, self.particle_max),
-        }
-    }
-}
-
 /// Total last-level cache of a machine (bytes): the largest `size x count` of any level.
 pub fn llc_bytes(m: &Machine) -> u64 {
     m.caches.iter().map(|c| c.size_bytes * c.count as u64).max().unwrap_or(32 << 20)
@@ -285,7 +213,7 @@ fn measure(
         oversubscribed: placement.oversubscribed,
         verified: pool.verified(),
         best_gb_s: gb(secs[0]),
-        median_gb_s: gb(crate::stats::median(&secs)),
+        median_gb_s: gb(median(&secs)),
         worst_gb_s: gb(secs[secs.len() - 1]),
         best_s: secs[0],
     })
@@ -311,9 +239,9 @@ pub fn measure_all(args: &BandwidthArgs) -> Result<BandwidthReport> {
     if machine.total_memory_bytes > 0 && need > machine.total_memory_bytes / 2 {
         bail!(
             "3 arrays of {} need {}, more than half of this machine's memory ({}): choose a smaller --size-mib",
-            crate::topology::human_bytes(array_bytes),
-            crate::topology::human_bytes(need),
-            crate::topology::human_bytes(machine.total_memory_bytes)
+            human_bytes(array_bytes),
+            human_bytes(need),
+            human_bytes(machine.total_memory_bytes)
         );
     }
     let mut results = Vec::new();
@@ -327,7 +255,7 @@ pub fn measure_all(args: &BandwidthArgs) -> Result<BandwidthReport> {
     }
     Ok(BandwidthReport {
         kernel: "stream-triad".into(),
-        machine_id: manifest::fingerprint(&machine),
+        machine_id: fingerprint::fingerprint(&machine),
         cpu_model: machine.cpu_model.clone(),
         packages: machine.num_packages(),
         cores: machine.num_cores(),
@@ -337,7 +265,7 @@ pub fn measure_all(args: &BandwidthArgs) -> Result<BandwidthReport> {
         reps: args.reps.max(1),
         bytes_per_element: 24,
         debug_build: cfg!(debug_assertions),
-        timestamp: manifest::now_rfc3339(),
+        timestamp: now_rfc3339(),
         results,
     })
 }
@@ -346,21 +274,24 @@ pub fn measure_all(args: &BandwidthArgs) -> Result<BandwidthReport> {
 pub fn table(r: &BandwidthReport) -> String {
     let mut s = format!(
         "STREAM triad a = b + {SCALAR}*c, 3 arrays x {} ({} elements), best of {} passes; {} ({} socket(s), {} cores, LLC {})\n",
-        crate::topology::human_bytes(r.array_bytes),
+        human_bytes(r.array_bytes),
         r.elements,
         r.reps,
         r.cpu_model,
         r.packages,
         r.cores,
-        crate::topology::human_bytes(r.llc_bytes)
+        human_bytes(r.llc_bytes)
     );
     s.push_str(&format!(
         "{:>7}  {:<8} {:>10} {:>10} {:>10}  {:<16} {}\n",
         "threads", "pin", "best GB/s", "median", "worst", "CPUs", "note"
     ));
     for p in &r.results {
-        let cpus =
-            if p.observed_cpus.is_empty() { "-".to_string() } else { crate::record::cpus_cell(&p.observed_cpus) };
+        let cpus = if p.observed_cpus.is_empty() {
+            "-".to_string()
+        } else {
+            p.observed_cpus.iter().map(usize::to_string).collect::<Vec<_>>().join(" ")
+        };
         let mut note = Vec::new();
         if p.oversubscribed {
             note.push("oversubscribed");
@@ -385,11 +316,6 @@ pub fn table(r: &BandwidthReport) -> String {
     s
 }
 
-/// `mpm-bench bandwidth`: measure, print a table, write the JSON if asked.
-pub fn run(args: BandwidthArgs) -> Result<()> {
-    mpm_cli::atomic::measure_and_report(args.out.as_deref(), "--out", || measure_all(&args), table)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -399,18 +325,6 @@ mod tests {
         let mut v = vec![0.0; 10];
         let parts = split_mut(&mut v, 3);
         assert_eq!(parts.iter().map(|p| p.len()).collect::<Vec<_>>(), vec![3, 3, 4]);
-    }
-
-    #[test]
-    fn byte_model_counts() {
-        let s = StageBytes::estimate("serial", 1, 1.0, 0.0);
-        assert_eq!(s.grid_min, 112.0);
-        assert_eq!(s.particle_min, 370.0);
-        let ae = StageBytes::estimate("ae", 4, 0.0, 1.0);
-        assert_eq!(ae.grid_min, 168.0 * 4.0 + 56.0 * 5.0 + 104.0);
-        let dd = StageBytes::estimate("dd", 4, 0.0, 1.0);
-        assert!(dd.grid_min < ae.grid_min);
-        assert_eq!(dd.of(Stage::Total).0, dd.grid_min + dd.particle_min);
     }
 
     #[test]

@@ -16,7 +16,7 @@
 //! simulated steps (the solvers agree to round-off), so the ratio
 //! `e_b = t1_b / (T x tT_b)` of two blocks a few hundred milliseconds apart compares the same
 //! work under nearly the same host conditions. The estimate is the median of the `e_b` with
-//! a percentile-bootstrap interval ([`crate::stats::bootstrap`]); the efficiency of the
+//! a percentile-bootstrap interval ([`super::stats::bootstrap`]); the efficiency of the
 //! medians and of the best blocks is printed beside it.
 //!
 //! The 1-thread solvers run on a pool of one worker pinned to the first CPU of the
@@ -24,9 +24,13 @@
 //! `j`-th CPU). Build the harness optimised (`--profile o3`): the solver runs in this
 //! process, so this binary's optimisation level is the one measured.
 
-use crate::matrix::Strategy;
-use crate::stats::{self, Estimate, StatsOptions};
-use crate::topology::{Machine, PinPolicy};
+use super::stats::{self, Estimate, StatsOptions};
+use crate::campaign::manifest::git_info;
+use crate::campaign::memory::{available_memory, estimate_memory};
+use crate::campaign::preset::Strategy;
+use crate::machine::placement::PinPolicy;
+use crate::machine::topology::{human_bytes, Machine};
+use crate::util::{median, now_rfc3339};
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use mpm_cli::pinning;
@@ -217,17 +221,16 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
         configs.push((s, 1));
         configs.push((s, a.threads));
     }
-    let need: u64 =
-        configs.iter().map(|&(s, t)| crate::runner::estimate_memory("taylor", u32::from(a.model), s, t)).sum();
-    if let Some(avail) = crate::runner::available_memory() {
+    let need: u64 = configs.iter().map(|&(s, t)| estimate_memory("taylor", u32::from(a.model), s, t)).sum();
+    if let Some(avail) = available_memory() {
         if need > avail {
             bail!(
                 "{} configurations of Model {} need about {}, but {} is available: measure one strategy \
                  (--strategies ae) or a smaller model",
                 configs.len(),
                 a.model,
-                crate::topology::human_bytes(need),
-                crate::topology::human_bytes(avail)
+                human_bytes(need),
+                human_bytes(avail)
             );
         }
     }
@@ -312,7 +315,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
         out.push(PairedStrategy {
             strategy: s.as_str().to_string(),
             efficiency: stats::bootstrap(&[&ratios], &|m| m[0], &opts, &format!("paired-{}", s.as_str())),
-            efficiency_of_medians: stats::median(&one.seconds) / (t * stats::median(&many.seconds)),
+            efficiency_of_medians: median(&one.seconds) / (t * median(&many.seconds)),
             efficiency_of_best: min(&one.seconds) / (t * min(&many.seconds)),
             one_thread_vs_serial: stats::bootstrap(
                 &[&vs_serial],
@@ -327,7 +330,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
             max_position_difference: dx / bar_length,
         });
     }
-    let git = crate::manifest::git_info(None);
+    let git = git_info(None);
     Ok(PairedReport {
         model: a.model,
         particles,
@@ -344,7 +347,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
         debug_build: cfg!(debug_assertions),
         git_commit: git.commit,
         git_dirty: git.dirty,
-        timestamp: crate::manifest::now_rfc3339(),
+        timestamp: now_rfc3339(),
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
     })
 }
@@ -370,7 +373,7 @@ pub fn table(r: &PairedReport) -> String {
         r.block_steps,
         r.warmup_steps
     );
-    s.push_str(&format!("serial: {:.3} ms per step (median)\n", 1e3 * stats::median(&r.serial_s_per_step)));
+    s.push_str(&format!("serial: {:.3} ms per step (median)\n", 1e3 * median(&r.serial_s_per_step)));
     s.push_str(&format!(
         "{:<8} {:>11} {:>11}  {:<24} {:>10} {:>8} {:>10} {:>16}\n",
         "strategy",
@@ -386,12 +389,12 @@ pub fn table(r: &PairedReport) -> String {
         s.push_str(&format!(
             "{:<8} {:>11.3} {:>11.3}  {:<24} {:>10.3} {:>8.3} {:>10.3} {:>16}\n",
             p.strategy,
-            1e3 * stats::median(&p.t1_s_per_step),
-            1e3 * stats::median(&p.tt_s_per_step),
+            1e3 * median(&p.t1_s_per_step),
+            1e3 * median(&p.tt_s_per_step),
             p.efficiency.show(3),
             p.efficiency_of_medians,
             p.efficiency_of_best,
-            stats::median(&p.block_imbalance),
+            median(&p.block_imbalance),
             p.one_thread_vs_serial.show(3)
         ));
     }
@@ -412,11 +415,6 @@ pub fn table(r: &PairedReport) -> String {
         s.push_str("warning: this harness was built with debug assertions; build with --profile o3 for real numbers\n");
     }
     s
-}
-
-/// `mpm-bench paired`: measure, print, write the JSON if asked.
-pub fn run(a: PairedArgs) -> Result<()> {
-    mpm_cli::atomic::measure_and_report(a.json.as_deref(), "--json", || measure(&a), table)
 }
 
 #[cfg(test)]

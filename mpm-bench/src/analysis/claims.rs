@@ -6,7 +6,7 @@
 //! * Only *real* parallel points are evidence of scaling: more than one thread and not
 //!   oversubscribed (an oversubscribed point is time sharing: never counted, for or against).
 //!   Memory (C2, C6) does not depend on time sharing, so every point counts there.
-//! * Two estimates differ only beyond the noise ([`crate::stats::compare`]): their bootstrap
+//! * Two estimates differ only beyond the noise ([`super::stats::compare`]): their bootstrap
 //!   intervals must not overlap; with single repetitions (no interval) they must differ by
 //!   more than 5 %. A difference within the noise supports nothing.
 //! * "holds": at least one comparison supports the claim and none contradicts it;
@@ -16,7 +16,9 @@
 //! * Speedups and efficiencies are those of the total step time at optimisation O3 unless
 //!   the claim is about a stage or about optimisation.
 
-use crate::stats::{compare, load_campaign, Analysis, Campaign, CellKey, Compare, Estimate, Stage, StatsOptions};
+use super::results::{load_campaign, Campaign};
+use super::stats::{compare, Analysis, CellKey, Compare, Estimate, Stage, StatsOptions};
+use crate::campaign::record::Status;
 use anyhow::{Context, Result};
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -378,10 +380,8 @@ fn c6(c: &Campaign, o: &StatsOptions) -> ClaimResult {
                 None if cell.mem_estimate > 0 => (cell.mem_estimate as f64, "guard estimate"),
                 None => continue,
             };
-            let skipped_mem = cell
-                .not_ok
-                .iter()
-                .any(|(s, r)| *s == crate::record::Status::Skipped && r.to_ascii_lowercase().contains("memory"));
+            let skipped_mem =
+                cell.not_ok.iter().any(|(s, r)| *s == Status::Skipped && r.to_ascii_lowercase().contains("memory"));
             if skipped_mem {
                 skipped += 1;
             }

@@ -1,60 +1,22 @@
 //! `manifest.json`: what machine and software a campaign ran on, once per campaign.
 //!
-//! The *machine fingerprint* is a short, stable hash (12 hex digits of SHA-256) of the CPU
-//! model, packages, cores, PUs, memory (rounded to GiB) and operating system (name and
-//! version, not the kernel build): results of the same machine land in the same
-//! `results/<fingerprint>/` folder and are comparable; a different machine gets another.
-//!
-//! The manifest also records the software environment: rustc version, the workspace's Cargo
-//! profiles, RUSTFLAGS, the solver binaries' SHA-256, relevant environment variables
-//! (`RAYON_*`, `OMP_*`, `MPM_*`, `HWLOC_*`, `MALLOC_*`, `LD_PRELOAD`, ...), the CPU frequency
-//! governor where readable, the kernel, and the git commit with a dirty flag. Each invocation
-//! of `mpm-bench run` on the campaign adds a [`Session`] (seed, command line, counts).
-//! The hwloc topology is exported beside it as `topology.xml`.
+//! The machine part ([`MachineInfo`], with the fingerprint) comes from
+//! [`crate::machine::fingerprint`]. The manifest also records the software environment: rustc
+//! version, the workspace's Cargo profiles, RUSTFLAGS, the solver binaries' SHA-256, relevant
+//! environment variables (`RAYON_*`, `OMP_*`, `MPM_*`, `HWLOC_*`, `MALLOC_*`, `LD_PRELOAD`,
+//! ...), the CPU frequency governor where readable, the kernel, and the git commit with a
+//! dirty flag. Each invocation of `mpm-bench run` on the campaign adds a [`Session`] (seed,
+//! command line, counts). The hwloc topology is exported beside it as `topology.xml`.
 
-use crate::topology::{CacheLevel, Machine, NumaNode};
+use crate::machine::fingerprint::MachineInfo;
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
 
 /// Version of the manifest layout.
 pub const MANIFEST_VERSION: u32 = 1;
-
-/// The machine part of the manifest.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct MachineInfo {
-    /// Short stable hash (see module docs).
-    pub fingerprint: String,
-    /// CPU model.
-    pub cpu_model: String,
-    /// Packages (sockets).
-    pub packages: usize,
-    /// Physical cores (usable).
-    pub cores: usize,
-    /// PUs / hardware threads (usable).
-    pub pus: usize,
-    /// PUs per core.
-    pub smt_width: usize,
-    /// NUMA nodes with local memory and CPUs.
-    pub numa_nodes: Vec<NumaNode>,
-    /// CPU caches.
-    pub caches: Vec<CacheLevel>,
-    /// Total memory, bytes.
-    pub memory_bytes: u64,
-    /// Operating system (`/etc/os-release` PRETTY_NAME).
-    pub os: String,
-    /// Kernel release.
-    pub kernel: String,
-    /// Architecture (`x86_64`, `aarch64`, ...).
-    pub arch: String,
-    /// CPU frequency governor(s), `unknown` when not readable (VMs, containers).
-    pub cpu_governor: String,
-    /// Full topology as plain data.
-    pub topology: Machine,
-}
 
 /// A solver binary.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -157,42 +119,6 @@ pub struct Manifest {
     pub sessions: Vec<Session>,
 }
 
-/// Stable fingerprint of a machine (12 hex digits).
-pub fn fingerprint(m: &Machine) -> String {
-    let mem_gib = (m.total_memory_bytes as f64 / (1u64 << 30) as f64).round() as u64;
-    let key = format!(
-        "cpu={}|packages={}|cores={}|pus={}|mem_gib={}|os={}|arch={}",
-        m.cpu_model,
-        m.num_packages(),
-        m.num_cores(),
-        m.usable_pus().len(),
-        mem_gib,
-        os_name(),
-        std::env::consts::ARCH
-    );
-    hex(&Sha256::digest(key.as_bytes()))[..12].to_string()
-}
-
-/// Machine part of the manifest for `m` (this host).
-pub fn machine_info(m: &Machine) -> MachineInfo {
-    MachineInfo {
-        fingerprint: fingerprint(m),
-        cpu_model: m.cpu_model.clone(),
-        packages: m.num_packages(),
-        cores: m.num_cores(),
-        pus: m.usable_pus().len(),
-        smt_width: m.smt_width(),
-        numa_nodes: m.numa_nodes.clone(),
-        caches: m.caches.clone(),
-        memory_bytes: m.total_memory_bytes,
-        os: os_name(),
-        kernel: read_trim("/proc/sys/kernel/osrelease").unwrap_or_else(|| "unknown".into()),
-        arch: std::env::consts::ARCH.into(),
-        cpu_governor: governor(),
-        topology: m.clone(),
-    }
-}
-
 /// Software part of the manifest.
 pub fn software_info(workspace: Option<&Path>, binaries: Vec<BinaryInfo>) -> SoftwareInfo {
     let rustc = Command::new(std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into()))
@@ -274,41 +200,6 @@ pub fn git_info(workspace: Option<&Path>) -> GitInfo {
     }
 }
 
-fn os_name() -> String {
-    std::fs::read_to_string("/etc/os-release")
-        .ok()
-        .and_then(|t| t.lines().find_map(|l| l.strip_prefix("PRETTY_NAME=").map(|v| v.trim_matches('"').to_string())))
-        .unwrap_or_else(|| std::env::consts::OS.to_string())
-}
-
-fn governor() -> String {
-    let mut govs: Vec<String> = Vec::new();
-    if let Ok(rd) = std::fs::read_dir("/sys/devices/system/cpu") {
-        for e in rd.flatten() {
-            if let Some(g) = read_trim(e.path().join("cpufreq/scaling_governor")) {
-                if !govs.contains(&g) {
-                    govs.push(g);
-                }
-            }
-        }
-    }
-    if govs.is_empty() {
-        "unknown (cpufreq not exposed)".into()
-    } else {
-        govs.sort();
-        govs.join(",")
-    }
-}
-
-fn read_trim(p: impl AsRef<Path>) -> Option<String> {
-    std::fs::read_to_string(p).ok().map(|s| s.trim().to_string()).filter(|s| !s.is_empty())
-}
-
-/// Lower-case hex.
-pub fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
-}
-
 /// Read a manifest.
 pub fn read(path: &Path) -> Result<Manifest> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
@@ -320,24 +211,9 @@ pub fn write(path: &Path, m: &Manifest) -> Result<()> {
     mpm_cli::atomic::write_atomic(path, serde_json::to_string_pretty(m)?.as_bytes())
 }
 
-/// Current time, RFC 3339 UTC (seconds).
-pub fn now_rfc3339() -> String {
-    humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn fingerprint_is_stable_and_short() {
-        let m = Machine::synthetic("pack:2 core:4 pu:2").unwrap();
-        let a = fingerprint(&m);
-        assert_eq!(a.len(), 12);
-        assert_eq!(a, fingerprint(&m));
-        let other = Machine::synthetic("pack:1 core:4 pu:2").unwrap();
-        assert_ne!(a, fingerprint(&other));
-    }
 
     #[test]
     fn software_info_has_profiles() {

@@ -1,5 +1,5 @@
 //! Statistics of a campaign: medians over repetitions with bootstrap confidence intervals,
-//! speedup and parallel efficiency (paper Eqs. 19-20), and loading results folders.
+//! speedup and parallel efficiency (paper Eqs. 19-20).
 //!
 //! # What is measured
 //!
@@ -37,14 +37,12 @@
 //! A point is *oversubscribed* when any of its repetitions ran more threads than usable
 //! cores: its time is time sharing, not scaling, and the figures draw it hollow.
 
-use crate::bandwidth::BandwidthReport;
-use crate::manifest::{self, Manifest};
-use crate::record::{read_rows, Row, Status};
-use anyhow::{bail, Context, Result};
+use crate::campaign::record::{Row, Status};
+use crate::util::{median, SplitMix64};
+use anyhow::{bail, Result};
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
-use std::path::{Path, PathBuf};
 
 /// Which time of a step.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
@@ -201,42 +199,9 @@ impl Default for StatsOptions {
     }
 }
 
-/// SplitMix64: a tiny, stable generator (its output never changes with a crate version).
-#[derive(Clone, Debug)]
-struct SplitMix64(u64);
-
-impl SplitMix64 {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    fn below(&mut self, n: usize) -> usize {
-        ((self.next() >> 11) as f64 / (1u64 << 53) as f64 * n as f64) as usize % n.max(1)
-    }
-}
-
 /// FNV-1a of a string (stable seed per cell name).
 fn fnv(s: &str) -> u64 {
     s.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
-}
-
-/// Median of a sample (mean of the two middle values for an even count); NaN when empty.
-pub fn median(xs: &[f64]) -> f64 {
-    if xs.is_empty() {
-        return f64::NAN;
-    }
-    let mut v = xs.to_vec();
-    v.sort_by(f64::total_cmp);
-    let m = v.len() / 2;
-    if v.len() % 2 == 1 {
-        v[m]
-    } else {
-        0.5 * (v[m - 1] + v[m])
-    }
 }
 
 /// Linear-interpolated quantile of a sorted slice.
@@ -266,7 +231,7 @@ pub fn bootstrap(samples: &[&[f64]], stat: &dyn Fn(&[f64]) -> f64, opts: &StatsO
     for _ in 0..opts.resamples {
         for (k, s) in samples.iter().enumerate() {
             buf.clear();
-            buf.extend((0..s.len()).map(|_| s[rng.below(s.len())]));
+            buf.extend((0..s.len()).map(|_| s[rng.index(s.len())]));
             meds[k] = median(&buf);
         }
         let v = stat(&meds);
@@ -573,150 +538,12 @@ impl Analysis {
     }
 }
 
-/// A campaign folder read from disk.
-#[derive(Clone, Debug)]
-pub struct Campaign {
-    /// The folder (holds `runs.csv`).
-    pub dir: PathBuf,
-    /// Its rows.
-    pub rows: Vec<Row>,
-    /// `manifest.json`, when present and readable.
-    pub manifest: Option<Manifest>,
-    /// `bandwidth.json`, when present and readable.
-    pub bandwidth: Option<BandwidthReport>,
-}
-
-impl Campaign {
-    /// Campaign id: the manifest's, else the rows', else the folder name.
-    pub fn id(&self) -> String {
-        self.manifest
-            .as_ref()
-            .map(|m| m.campaign_id.clone())
-            .or_else(|| self.rows.first().map(|r| r.campaign_id.clone()).filter(|s| !s.is_empty()))
-            .unwrap_or_else(|| self.dir.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default())
-    }
-
-    /// Machine fingerprint: the manifest's, else the rows' (`unknown` if neither has one).
-    pub fn fingerprint(&self) -> String {
-        self.manifest
-            .as_ref()
-            .map(|m| m.machine.fingerprint.clone())
-            .or_else(|| self.rows.iter().map(|r| r.machine_id.clone()).find(|s| !s.is_empty()))
-            .unwrap_or_else(|| "unknown".into())
-    }
-
-    /// Analyse the rows with default options.
-    pub fn analyse(&self, pin: Option<&str>) -> Analysis {
-        Analysis::from_rows(&self.rows, pin, &StatsOptions::default())
-    }
-}
-
-/// Every campaign folder (one holding `runs.csv`) at or below `dir`, at most three levels
-/// deep (`results/<fingerprint>/<campaign>/runs.csv`), sorted by path.
-pub fn find_campaigns(dir: &Path) -> Result<Vec<PathBuf>> {
-    if !dir.exists() {
-        bail!(
-            "results folder {} does not exist: pass a campaign folder (with runs.csv) or a results folder \
-             (e.g. results/), or run `mpm-bench run --preset smoke` first",
-            dir.display()
-        );
-    }
-    if !dir.is_dir() {
-        if dir.file_name().is_some_and(|f| f == "runs.csv") {
-            return Ok(vec![dir.parent().unwrap_or(Path::new(".")).to_path_buf()]);
-        }
-        bail!("{} is not a folder: pass a campaign folder (with runs.csv) or a results folder", dir.display());
-    }
-    let mut out = Vec::new();
-    walk(dir, 0, &mut out)?;
-    out.sort();
-    Ok(out)
-}
-
-fn walk(dir: &Path, depth: usize, out: &mut Vec<PathBuf>) -> Result<()> {
-    if dir.join("runs.csv").is_file() {
-        out.push(dir.to_path_buf());
-        return Ok(());
-    }
-    if depth >= 3 {
-        return Ok(());
-    }
-    let rd = std::fs::read_dir(dir).with_context(|| format!("cannot list {}", dir.display()))?;
-    for e in rd.flatten() {
-        if e.file_type().is_ok_and(|t| t.is_dir()) {
-            walk(&e.path(), depth + 1, out)?;
-        }
-    }
-    Ok(())
-}
-
-/// The campaign `dir` names: `dir` itself when it holds `runs.csv`, else the campaign below
-/// it whose `runs.csv` was modified last (named on stderr when there were several).
-pub fn resolve_campaign(dir: &Path) -> Result<PathBuf> {
-    let all = find_campaigns(dir)?;
-    match all.len() {
-        0 => bail!(
-            "no runs.csv found in {} or its sub-folders (up to results/<fingerprint>/<campaign>/): \
-             run `mpm-bench run --preset smoke` or pass the campaign folder",
-            dir.display()
-        ),
-        1 => Ok(all.into_iter().next().expect("one")),
-        n => {
-            let newest = all
-                .iter()
-                .max_by_key(|d| std::fs::metadata(d.join("runs.csv")).and_then(|m| m.modified()).ok())
-                .expect("non-empty")
-                .clone();
-            eprintln!(
-                "note: {} holds {n} campaigns; using the newest, {} (pass a campaign folder to choose)",
-                dir.display(),
-                newest.display()
-            );
-            Ok(newest)
-        }
-    }
-}
-
-/// Read the campaign `dir` names (see [`resolve_campaign`]): rows, manifest, bandwidth.
-pub fn load_campaign(dir: &Path) -> Result<Campaign> {
-    let dir = resolve_campaign(dir)?;
-    let rows = read_rows(&dir.join("runs.csv"))?;
-    let mpath = dir.join("manifest.json");
-    let manifest = if mpath.is_file() {
-        match manifest::read(&mpath) {
-            Ok(m) => Some(m),
-            Err(e) => {
-                eprintln!("warning: ignoring {}: {e:#}", mpath.display());
-                None
-            }
-        }
-    } else {
-        None
-    };
-    let bpath = dir.join("bandwidth.json");
-    let bandwidth = if bpath.is_file() {
-        match crate::bandwidth::read(&bpath) {
-            Ok(b) => Some(b),
-            Err(e) => {
-                eprintln!("warning: ignoring {}: {e:#}", bpath.display());
-                None
-            }
-        }
-    } else {
-        None
-    };
-    Ok(Campaign { dir, rows, manifest, bandwidth })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn median_and_quantiles() {
-        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), 2.5);
-        assert!(median(&[]).is_nan());
+    fn quantiles_interpolate() {
         assert_eq!(quantile(&[0.0, 10.0], 0.25), 2.5);
     }
 

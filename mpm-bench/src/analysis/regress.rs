@@ -10,7 +10,7 @@
 //!   `e_current / e_baseline`, each efficiency `T_1 / (n T_n)` from medians.
 //!
 //! Each ratio has a percentile-bootstrap interval (every sample involved resampled
-//! independently, [`crate::stats::bootstrap`]). A check *regresses* when the change is worse
+//! independently, [`super::stats::bootstrap`]). A check *regresses* when the change is worse
 //! than the tolerance (time ratio above `1 + tol`, efficiency ratio below `1 - tol`) **and**
 //! the interval excludes no change (1). It *improves* when better than the tolerance and the
 //! interval excludes 1; otherwise it is *unchanged*. With single repetitions the intervals
@@ -23,7 +23,9 @@
 //! when the two sets cannot be compared (different machines without `--force`, no common
 //! cell). The JSON verdict (`--json FILE`) is written in every case.
 
-use crate::stats::{bootstrap, load_campaign, Analysis, CellKey, Estimate, Stage, StatsOptions};
+use super::results::{load_campaign, Campaign};
+use super::stats::{bootstrap, Analysis, CellKey, Estimate, Stage, StatsOptions};
+use crate::util::median;
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -198,8 +200,8 @@ pub fn compare_analyses(
                 cell: key.clone(),
                 stage,
                 metric: "time_per_step",
-                baseline: crate::stats::median(bt),
-                current: crate::stats::median(ct),
+                baseline: median(bt),
+                current: median(ct),
                 ratio,
                 worse_by,
                 outcome: outcome(worse_by, &ratio, tol, true),
@@ -223,8 +225,8 @@ pub fn compare_analyses(
                 cell: key.clone(),
                 stage,
                 metric: "efficiency",
-                baseline: crate::stats::median(b1) / crate::stats::median(bt) / n,
-                current: crate::stats::median(c1) / crate::stats::median(ct) / n,
+                baseline: median(b1) / median(bt) / n,
+                current: median(c1) / median(ct) / n,
                 ratio,
                 worse_by,
                 outcome: outcome(worse_by, &ratio, tol, false),
@@ -236,7 +238,7 @@ pub fn compare_analyses(
     (checks, missing)
 }
 
-fn side(c: &crate::stats::Campaign) -> Side {
+fn side(c: &Campaign) -> Side {
     Side { dir: c.dir.display().to_string(), campaign: c.id(), fingerprint: c.fingerprint() }
 }
 

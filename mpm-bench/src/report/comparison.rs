@@ -6,14 +6,16 @@
 //! with their intervals (oversubscribed points marked); overlaid efficiency curves (one
 //! figure per strategy and optimisation level, one panel per model, one line per machine);
 //! the fraction of the STREAM-triad ceiling each stage reaches where the campaign holds a
-//! `bandwidth.json` ([`crate::bandwidth`]); and the paper's claims per machine
-//! ([`crate::claims`]).
+//! `bandwidth.json` ([`crate::machine::bandwidth`], [`crate::analysis::traffic`]); and the
+//! paper's claims per machine ([`crate::analysis::claims`]).
 
-use crate::bandwidth::StageBytes;
-use crate::claims::{self, ClaimResult};
-use crate::figures::{series_colour, write_png_svg, Line, Panel, PlotPoint};
-use crate::stats::{load_campaign, Analysis, Campaign, Stage};
-use crate::topology::human_bytes;
+use super::plot::{series_colour, write_png_svg, Line, Panel, PlotPoint};
+use crate::analysis::claims::{self, ClaimResult};
+use crate::analysis::results::{load_campaign, Campaign};
+use crate::analysis::stats::{Analysis, Stage};
+use crate::analysis::traffic::StageBytes;
+use crate::campaign::record::Status;
+use crate::machine::topology::human_bytes;
 use anyhow::{bail, Context, Result};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -93,7 +95,7 @@ fn machines_table(sets: &[Set]) -> String {
             })
         }),
         ("rows ok / not ok", |x| {
-            let ok = x.campaign.rows.iter().filter(|r| r.status == crate::record::Status::Ok).count();
+            let ok = x.campaign.rows.iter().filter(|r| r.status == Status::Ok).count();
             format!("{ok} / {}", x.campaign.rows.len() - ok)
         }),
         ("pinning", |x| x.analysis.pin_policy.clone()),
@@ -398,7 +400,7 @@ pub fn build(args: &ReportArgs) -> Result<String> {
     if any_bw {
         let _ = writeln!(
             s,
-            "Bytes per step are estimated from the kernels (see `mpm-bench/src/bandwidth.rs`): the first figure counts each array streamed once per pass (compulsory traffic), the one in brackets counts every particle's 8 nodes as moved from memory (no cache reuse). Stage times are per step, from the campaign's medians.\n"
+            "Bytes per step are estimated from the kernels (see `mpm-bench/src/analysis/traffic.rs`): the first figure counts each array streamed once per pass (compulsory traffic), the one in brackets counts every particle's 8 nodes as moved from memory (no cache reuse). Stage times are per step, from the campaign's medians.\n"
         );
     } else {
         let _ = writeln!(

@@ -1,0 +1,16 @@
+//! The analysis layer: numbers and verdicts from recorded campaigns.
+//!
+//! * [`results`]: campaign folders read from disk;
+//! * [`stats`]: medians, bootstrap intervals, speedup and efficiency per configuration;
+//! * [`traffic`]: the bytes an MPM step moves per stage;
+//! * [`claims`]: the paper's claims C1-C6 tested; [`regress`]: the CI gate;
+//! * [`paired`]: parallel efficiency as paired ratios measured in this process.
+//!
+//! It reads what the campaign and machine layers record and draws nothing.
+
+pub mod claims;
+pub mod paired;
+pub mod regress;
+pub mod results;
+pub mod stats;
+pub mod traffic;

@@ -1,0 +1,144 @@
+//! Campaign folders on disk: finding them under a results tree and reading one (its
+//! `runs.csv`, `manifest.json` and `bandwidth.json`) for the analysis commands.
+
+use super::stats::{Analysis, StatsOptions};
+use crate::campaign::manifest::{self, Manifest};
+use crate::campaign::record::{read_rows, Row};
+use crate::machine::bandwidth::{self, BandwidthReport};
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+
+/// A campaign folder read from disk.
+#[derive(Clone, Debug)]
+pub struct Campaign {
+    /// The folder (holds `runs.csv`).
+    pub dir: PathBuf,
+    /// Its rows.
+    pub rows: Vec<Row>,
+    /// `manifest.json`, when present and readable.
+    pub manifest: Option<Manifest>,
+    /// `bandwidth.json`, when present and readable.
+    pub bandwidth: Option<BandwidthReport>,
+}
+
+impl Campaign {
+    /// Campaign id: the manifest's, else the rows', else the folder name.
+    pub fn id(&self) -> String {
+        self.manifest
+            .as_ref()
+            .map(|m| m.campaign_id.clone())
+            .or_else(|| self.rows.first().map(|r| r.campaign_id.clone()).filter(|s| !s.is_empty()))
+            .unwrap_or_else(|| self.dir.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default())
+    }
+
+    /// Machine fingerprint: the manifest's, else the rows' (`unknown` if neither has one).
+    pub fn fingerprint(&self) -> String {
+        self.manifest
+            .as_ref()
+            .map(|m| m.machine.fingerprint.clone())
+            .or_else(|| self.rows.iter().map(|r| r.machine_id.clone()).find(|s| !s.is_empty()))
+            .unwrap_or_else(|| "unknown".into())
+    }
+
+    /// Analyse the rows with default options.
+    pub fn analyse(&self, pin: Option<&str>) -> Analysis {
+        Analysis::from_rows(&self.rows, pin, &StatsOptions::default())
+    }
+}
+
+/// Every campaign folder (one holding `runs.csv`) at or below `dir`, at most three levels
+/// deep (`results/<fingerprint>/<campaign>/runs.csv`), sorted by path.
+pub fn find_campaigns(dir: &Path) -> Result<Vec<PathBuf>> {
+    if !dir.exists() {
+        bail!(
+            "results folder {} does not exist: pass a campaign folder (with runs.csv) or a results folder \
+             (e.g. results/), or run `mpm-bench run --preset smoke` first",
+            dir.display()
+        );
+    }
+    if !dir.is_dir() {
+        if dir.file_name().is_some_and(|f| f == "runs.csv") {
+            return Ok(vec![dir.parent().unwrap_or(Path::new(".")).to_path_buf()]);
+        }
+        bail!("{} is not a folder: pass a campaign folder (with runs.csv) or a results folder", dir.display());
+    }
+    let mut out = Vec::new();
+    walk(dir, 0, &mut out)?;
+    out.sort();
+    Ok(out)
+}
+
+fn walk(dir: &Path, depth: usize, out: &mut Vec<PathBuf>) -> Result<()> {
+    if dir.join("runs.csv").is_file() {
+        out.push(dir.to_path_buf());
+        return Ok(());
+    }
+    if depth >= 3 {
+        return Ok(());
+    }
+    let rd = std::fs::read_dir(dir).with_context(|| format!("cannot list {}", dir.display()))?;
+    for e in rd.flatten() {
+        if e.file_type().is_ok_and(|t| t.is_dir()) {
+            walk(&e.path(), depth + 1, out)?;
+        }
+    }
+    Ok(())
+}
+
+/// The campaign `dir` names: `dir` itself when it holds `runs.csv`, else the campaign below
+/// it whose `runs.csv` was modified last (named on stderr when there were several).
+pub fn resolve_campaign(dir: &Path) -> Result<PathBuf> {
+    let all = find_campaigns(dir)?;
+    match all.len() {
+        0 => bail!(
+            "no runs.csv found in {} or its sub-folders (up to results/<fingerprint>/<campaign>/): \
+             run `mpm-bench run --preset smoke` or pass the campaign folder",
+            dir.display()
+        ),
+        1 => Ok(all.into_iter().next().expect("one")),
+        n => {
+            let newest = all
+                .iter()
+                .max_by_key(|d| std::fs::metadata(d.join("runs.csv")).and_then(|m| m.modified()).ok())
+                .expect("non-empty")
+                .clone();
+            eprintln!(
+                "note: {} holds {n} campaigns; using the newest, {} (pass a campaign folder to choose)",
+                dir.display(),
+                newest.display()
+            );
+            Ok(newest)
+        }
+    }
+}
+
+/// Read the campaign `dir` names (see [`resolve_campaign`]): rows, manifest, bandwidth.
+pub fn load_campaign(dir: &Path) -> Result<Campaign> {
+    let dir = resolve_campaign(dir)?;
+    let rows = read_rows(&dir.join("runs.csv"))?;
+    let mpath = dir.join("manifest.json");
+    let manifest = if mpath.is_file() {
+        match manifest::read(&mpath) {
+            Ok(m) => Some(m),
+            Err(e) => {
+                eprintln!("warning: ignoring {}: {e:#}", mpath.display());
+                None
+            }
+        }
+    } else {
+        None
+    };
+    let bpath = dir.join("bandwidth.json");
+    let bandwidth = if bpath.is_file() {
+        match bandwidth::read(&bpath) {
+            Ok(b) => Some(b),
+            Err(e) => {
+                eprintln!("warning: ignoring {}: {e:#}", bpath.display());
+                None
+            }
+        }
+    } else {
+        None
+    };
+    Ok(Campaign { dir, rows, manifest, bandwidth })
+}

@@ -1,0 +1,100 @@
+//! The memory guard: every run's memory estimated before it starts (model sizes and the
+//! memory model come from [`mpm_core::scenario::size`]), the memory available now, and the
+//! verdict that records a run that would not fit as `skipped` instead of attempting it.
+//!
+//! Array expansion grows with every thread; a run that does not fit in 90 % of the memory
+//! available now (or of `--mem-limit`) is skipped with the reason.
+
+use super::preset::Strategy;
+use crate::machine::topology::human_bytes;
+use mpm_core::scenario::size::{ModelSize, IMPACT_MODELS};
+
+/// The impact scenario's campaign models: `(particle spacing, cell size)` in metres of
+/// model `m` (1-4, see [`IMPACT_MODELS`]).
+pub fn impact_variant(m: u32) -> Option<(f64, f64)> {
+    IMPACT_MODELS.get((m as usize).checked_sub(1)?).copied()
+}
+
+/// Size of `model` of `scenario` (`taylor`: Models 1-4 of Table 2; `impact`: the
+/// [`impact_variant`]s, nodes of the adaptive grid around the debris cloud, an upper
+/// estimate).
+pub fn scenario_size(scenario: &str, m: u32) -> Option<ModelSize> {
+    if scenario == "impact" {
+        impact_variant(m).map(|(spacing, cell)| ModelSize::impact(spacing, cell))
+    } else {
+        ModelSize::taylor(u8::try_from(m).ok()?)
+    }
+}
+
+/// Estimated peak memory of a run of `model` of `scenario`, bytes (the process baseline for
+/// an unknown model).
+pub fn estimate_memory(scenario: &str, model: u32, strategy: Strategy, threads: usize) -> u64 {
+    scenario_size(scenario, model).unwrap_or_default().memory_bytes(strategy.into(), threads)
+}
+
+/// Memory available to a new process now, bytes: `MemAvailable`, capped by a cgroup v2
+/// `memory.max` when one is set.
+pub fn available_memory() -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let avail = meminfo
+        .lines()
+        .find(|l| l.starts_with("MemAvailable:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse::<u64>().ok())?
+        * 1024;
+    let cg = std::fs::read_to_string("/sys/fs/cgroup/memory.max").ok().and_then(|s| s.trim().parse::<u64>().ok());
+    let used = std::fs::read_to_string("/sys/fs/cgroup/memory.current")
+        .ok()
+        .and_then(|s| s.trim().parse::<u64>().ok())
+        .unwrap_or(0);
+    Some(match cg {
+        Some(max) => avail.min(max.saturating_sub(used)),
+        None => avail,
+    })
+}
+
+/// Fraction of the available memory a run may use.
+pub const MEMORY_HEADROOM: f64 = 0.9;
+
+/// Why a run does not fit, or `None` when it does.
+pub fn memory_verdict(estimate: u64, available: Option<u64>, limit: Option<u64>) -> Option<String> {
+    let (cap, source) = match (available, limit) {
+        (Some(a), Some(l)) if l < a => (l, "the --mem-limit"),
+        (None, Some(l)) => (l, "the --mem-limit"),
+        (Some(a), _) => (a, "memory available now"),
+        (None, None) => return None,
+    };
+    let allowed = (cap as f64 * MEMORY_HEADROOM) as u64;
+    (estimate > allowed).then(|| {
+        format!(
+            "memory guard: estimated {} exceeds {:.0}% of {} ({})",
+            human_bytes(estimate),
+            MEMORY_HEADROOM * 100.0,
+            source,
+            human_bytes(cap)
+        )
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mpm_core::scenario::size::BYTES_PER_THREAD;
+
+    #[test]
+    fn memory_estimates_grow_with_ae_threads_only() {
+        let ae1 = estimate_memory("taylor", 4, Strategy::Ae, 1);
+        let ae8 = estimate_memory("taylor", 4, Strategy::Ae, 8);
+        let dd1 = estimate_memory("taylor", 4, Strategy::Dd, 1);
+        let dd8 = estimate_memory("taylor", 4, Strategy::Dd, 8);
+        assert_eq!(ae8 - ae1, 7 * (80 * 8_302_185 + BYTES_PER_THREAD));
+        assert_eq!(dd8 - dd1, 7 * BYTES_PER_THREAD);
+        assert_eq!(scenario_size("impact", 1).map(|s| s.particles), Some(848_104));
+        assert_eq!(scenario_size("taylor", 5), None);
+        // The paper's 8 GB machine: Model 4 AE at 8 threads does not fit, DD does.
+        assert!(memory_verdict(ae8, Some(8 << 30), None).is_some());
+        assert!(memory_verdict(dd8, Some(8 << 30), None).is_none());
+        assert!(memory_verdict(ae8, Some(64 << 30), Some(4 << 30)).is_some());
+        assert!(memory_verdict(ae1, None, None).is_none());
+    }
+}

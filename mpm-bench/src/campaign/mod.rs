@@ -1,0 +1,20 @@
+//! The campaign layer: from a preset to one CSV row per `mpm` run.
+//!
+//! * [`preset`]: the TOML presets and their value types;
+//! * [`matrix`]: a preset and command-line overrides resolved into runs, in a seeded order;
+//! * [`memory`]: the memory guard (sizes and estimates from `mpm-core`);
+//! * [`solver`]: building, locating and hashing the `mpm` binaries;
+//! * [`process`]: one run as a child process (and the mock runner for tests);
+//! * [`runner`]: the loop over the runs, with resume and Ctrl-C;
+//! * [`record`]: the CSV row; [`manifest`]: the machine and software of a campaign.
+//!
+//! It uses the machine layer ([`crate::machine`]) and nothing of analysis or report.
+
+pub mod manifest;
+pub mod matrix;
+pub mod memory;
+pub mod preset;
+pub mod process;
+pub mod record;
+pub mod runner;
+pub mod solver;

@@ -1,0 +1,332 @@
+//! Campaign presets: the TOML files `configs/<name>.toml` (also built in), their value
+//! types (optimisation level, budgets) and the parsers of sizes, times and comma lists.
+//!
+//! A preset declares
+//! models x threads x strategies x optimisation levels x repetitions x pinning policies and a
+//! step budget (a step limit or a simulated end time, plus warm-up steps), with optional
+//! per-model / per-optimisation-level budget overrides:
+//!
+//! ```toml
+//! name = "quick"
+//! description = "every model, few steps"
+//! scenario = "taylor"
+//! models = [1, 2, 3, 4]
+//! threads = [1, 2, 4, 6, 8]
+//! strategies = ["ae", "dd"]
+//! opt = ["o3", "o0"]
+//! reps = 1
+//! pin = "close"            # or a list: ["close", "spread"]; or a CPU list "0,1"
+//! grid = "fixed"           # or "adaptive"
+//! seed = 2009              # run-order shuffle
+//! # mem_limit = "8GiB"     # pretend the machine has this much memory (memory guard)
+//! # timeout = "30m"        # per run
+//!
+//! [budget]
+//! steps = 20               # or: end_time = 4e-5 (seconds)
+//! warmup = 2
+//!
+//! [[budget.override]]      # the most specific matching override wins
+//! model = 4
+//! opt = "o0"
+//! steps = 1
+//! warmup = 0
+//! ```
+//!
+//! [`crate::campaign::matrix`] resolves a preset and the command-line overrides into runs.
+
+use crate::machine::placement::PinPolicy;
+use anyhow::{anyhow, bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+/// Presets shipped with the harness (embedded; `configs/<name>.toml` in the workspace wins
+/// when present, so edits there apply without rebuilding).
+pub const BUILTIN_PRESETS: [(&str, &str); 4] = [
+    ("smoke", include_str!("../../../configs/smoke.toml")),
+    ("quick", include_str!("../../../configs/quick.toml")),
+    ("paper", include_str!("../../../configs/paper.toml")),
+    ("impact", include_str!("../../../configs/impact.toml")),
+];
+
+/// Parallelisation strategy of a run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Strategy {
+    /// One thread, no parallel machinery.
+    Serial,
+    /// Array expansion: per-thread copies of the nodal arrays.
+    Ae,
+    /// Domain decomposition: per-thread patches of the grid.
+    Dd,
+}
+
+impl Strategy {
+    /// Name as passed to `mpm --strategy` and written to CSV.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Strategy::Serial => "serial",
+            Strategy::Ae => "ae",
+            Strategy::Dd => "dd",
+        }
+    }
+}
+
+impl From<Strategy> for mpm_core::Strategy {
+    /// The solver's strategy for a campaign's strategy.
+    fn from(s: Strategy) -> Self {
+        match s {
+            Strategy::Serial => mpm_core::Strategy::Serial,
+            Strategy::Ae => mpm_core::Strategy::ArrayExpansion,
+            Strategy::Dd => mpm_core::Strategy::DomainDecomposition,
+        }
+    }
+}
+
+impl fmt::Display for Strategy {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for Strategy {
+    type Err = anyhow::Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "serial" => Ok(Strategy::Serial),
+            "ae" | "array-expansion" => Ok(Strategy::Ae),
+            "dd" | "domain-decomposition" => Ok(Strategy::Dd),
+            _ => bail!("unknown strategy '{s}' (known: serial, ae, dd)"),
+        }
+    }
+}
+
+/// Optimisation level = Cargo profile of the solver binary.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OptLevel {
+    /// `opt-level = 3` (profile `o3`).
+    O3,
+    /// `opt-level = 0`, debug assertions and overflow checks off (profile `o0`).
+    O0,
+}
+
+impl OptLevel {
+    /// Profile name (`o3` / `o0`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            OptLevel::O3 => "o3",
+            OptLevel::O0 => "o0",
+        }
+    }
+}
+
+impl fmt::Display for OptLevel {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for OptLevel {
+    type Err = anyhow::Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "o3" | "3" => Ok(OptLevel::O3),
+            "o0" | "0" | "none" | "noopt" => Ok(OptLevel::O0),
+            _ => bail!("unknown optimisation level '{s}' (known: o3, o0)"),
+        }
+    }
+}
+
+/// One value or a list of them (TOML convenience).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum OneOrMany<T> {
+    /// A single value.
+    One(T),
+    /// A list.
+    Many(Vec<T>),
+}
+
+impl<T: Clone> OneOrMany<T> {
+    /// As a list.
+    pub fn to_vec(&self) -> Vec<T> {
+        match self {
+            OneOrMany::One(t) => vec![t.clone()],
+            OneOrMany::Many(v) => v.clone(),
+        }
+    }
+}
+
+/// Per-model / per-optimisation-level budget override.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BudgetOverride {
+    /// Model it applies to (all when absent).
+    pub model: Option<u32>,
+    /// Optimisation level it applies to (all when absent).
+    pub opt: Option<OptLevel>,
+    /// Step limit (replaces the end time).
+    pub steps: Option<u64>,
+    /// Simulated end time, s (replaces the step limit).
+    pub end_time: Option<f64>,
+    /// Warm-up steps.
+    pub warmup: Option<u64>,
+}
+
+/// Step budget section of a preset.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BudgetSpec {
+    /// Step limit.
+    pub steps: Option<u64>,
+    /// Simulated end time, s.
+    pub end_time: Option<f64>,
+    /// Warm-up steps (timed, excluded from the steady-state figure).
+    #[serde(default)]
+    pub warmup: u64,
+    /// Overrides, most specific match wins.
+    #[serde(default, rename = "override")]
+    pub overrides: Vec<BudgetOverride>,
+}
+
+/// A preset as written in TOML.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Preset {
+    /// Name (used in the campaign id).
+    pub name: String,
+    /// What the preset is for.
+    #[serde(default)]
+    pub description: String,
+    /// Scenario passed to `mpm run` (`taylor`).
+    #[serde(default = "default_scenario")]
+    pub scenario: String,
+    /// Models.
+    pub models: Vec<u32>,
+    /// Thread counts.
+    pub threads: Vec<usize>,
+    /// Strategies.
+    pub strategies: Vec<Strategy>,
+    /// Optimisation levels.
+    pub opt: Vec<OptLevel>,
+    /// Repetitions per configuration.
+    #[serde(default = "one")]
+    pub reps: u32,
+    /// Pinning policies.
+    #[serde(default = "default_pin")]
+    pub pin: OneOrMany<PinPolicy>,
+    /// `fixed` or `adaptive`.
+    #[serde(default = "default_grid")]
+    pub grid: String,
+    /// Seed of the run-order shuffle.
+    #[serde(default)]
+    pub seed: u64,
+    /// Pretend the machine has this much memory (`8GiB`), for the memory guard.
+    pub mem_limit: Option<String>,
+    /// Per-run time limit (`30m`), humantime syntax.
+    pub timeout: Option<String>,
+    /// Step budget.
+    pub budget: BudgetSpec,
+}
+
+fn default_scenario() -> String {
+    "taylor".into()
+}
+fn one() -> u32 {
+    1
+}
+fn default_pin() -> OneOrMany<PinPolicy> {
+    OneOrMany::One(PinPolicy::Close)
+}
+fn default_grid() -> String {
+    "fixed".into()
+}
+
+/// Find and parse a preset: a path to a TOML file, or a built-in name.
+/// `workspace` (when known) is searched for `configs/<name>.toml` first.
+pub fn load_preset(name_or_path: &str, workspace: Option<&Path>) -> Result<(Preset, String)> {
+    let as_path = PathBuf::from(name_or_path);
+    let looks_like_path = name_or_path.ends_with(".toml") || name_or_path.contains('/');
+    if looks_like_path || as_path.is_file() {
+        let text = std::fs::read_to_string(&as_path)
+            .with_context(|| format!("cannot read preset file {}", as_path.display()))?;
+        let p = parse_preset(&text).with_context(|| format!("bad preset file {}", as_path.display()))?;
+        return Ok((p, as_path.display().to_string()));
+    }
+    let Some((_, builtin)) = BUILTIN_PRESETS.iter().find(|(n, _)| *n == name_or_path) else {
+        let known: Vec<&str> = BUILTIN_PRESETS.iter().map(|(n, _)| *n).collect();
+        bail!("unknown preset '{name_or_path}' (known: {}; or give a path to a .toml file)", known.join(", "));
+    };
+    if let Some(ws) = workspace {
+        let file = ws.join("configs").join(format!("{name_or_path}.toml"));
+        if file.is_file() {
+            let text = std::fs::read_to_string(&file).with_context(|| format!("cannot read {}", file.display()))?;
+            let p = parse_preset(&text).with_context(|| format!("bad preset file {}", file.display()))?;
+            return Ok((p, file.display().to_string()));
+        }
+    }
+    Ok((parse_preset(builtin).context("bad built-in preset")?, "builtin".into()))
+}
+
+/// Parse preset TOML.
+pub fn parse_preset(text: &str) -> Result<Preset> {
+    toml::from_str(text).map_err(|e| anyhow!("{e}"))
+}
+
+/// Parse a size such as `8GiB`, `8G`, `512M`, `1000000` (bytes).
+pub fn parse_size(s: &str) -> Result<u64> {
+    let t = s.trim();
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let v: f64 = num.parse().map_err(|_| anyhow!("bad size '{s}' (examples: 8GiB, 512M, 1000000)"))?;
+    let mult: f64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1.0,
+        "k" | "kb" | "kib" => 1024.0,
+        "m" | "mb" | "mib" => 1024.0 * 1024.0,
+        "g" | "gb" | "gib" => 1024.0 * 1024.0 * 1024.0,
+        "t" | "tb" | "tib" => 1024.0f64.powi(4),
+        _ => bail!("bad size unit in '{s}' (use K, M, G or T; binary multiples)"),
+    };
+    Ok((v * mult) as u64)
+}
+
+/// Parse a simulated time: plain seconds (`4e-5`) or with a unit (`40us`, `0.5ms`).
+pub fn parse_seconds(s: &str) -> Result<f64> {
+    let t = s.trim();
+    if let Ok(v) = t.parse::<f64>() {
+        if v > 0.0 && v.is_finite() {
+            return Ok(v);
+        }
+        bail!("end time must be positive, got '{s}'");
+    }
+    let d = humantime::parse_duration(t).map_err(|_| anyhow!("bad time '{s}' (examples: 4e-5, 40us, 0.04ms)"))?;
+    if d.is_zero() {
+        bail!("end time must be positive, got '{s}'");
+    }
+    Ok(d.as_secs_f64())
+}
+
+/// Parse a comma list with `parse_one` (used by the CLI), naming the bad item.
+pub fn parse_list<T>(s: &str, what: &str, parse_one: impl Fn(&str) -> Result<T>) -> Result<Vec<T>> {
+    let items: Vec<&str> = s.split(',').map(str::trim).collect();
+    if items.iter().any(|i| i.is_empty()) {
+        bail!("bad {what} list '{s}': empty entry");
+    }
+    items.into_iter().map(|i| parse_one(i).with_context(|| format!("bad {what} list '{s}'"))).collect()
+}
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_and_times() {
+        assert_eq!(parse_size("8GiB").unwrap(), 8 << 30);
+        assert_eq!(parse_size("512M").unwrap(), 512 << 20);
+        assert!(parse_size("8X").is_err());
+        assert_eq!(parse_seconds("4e-5").unwrap(), 4e-5);
+        assert!((parse_seconds("40us").unwrap() - 4e-5).abs() < 1e-15);
+        assert!(parse_seconds("-1").is_err());
+    }
+}

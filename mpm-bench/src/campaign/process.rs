@@ -1,0 +1,281 @@
+//! One run as a child process: the request (the `mpm run` arguments), what came back, and
+//! the runners: [`ProcessRunner`] spawns `mpm run ... --json FILE --quiet` as a fresh
+//! process (clean memory figure, no state carried over); [`MockRunner`] fakes it in
+//! microseconds for tests.
+
+use super::matrix::RunSpec;
+use super::memory::{estimate_memory, impact_variant, scenario_size};
+use super::preset::{OptLevel, Strategy};
+use mpm_core::scenario::size::ModelSize;
+use serde_json::Value;
+use std::io::Read;
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Everything one run needs.
+#[derive(Clone, Debug)]
+pub struct RunRequest {
+    /// The run.
+    pub spec: RunSpec,
+    /// Scenario name (`taylor`).
+    pub scenario: String,
+    /// Solver binary.
+    pub binary: PathBuf,
+    /// CPU of each worker; `None` = not pinned.
+    pub cpus: Option<Vec<usize>>,
+    /// Where the solver writes its JSON summary.
+    pub json_path: PathBuf,
+    /// Per-run time limit.
+    pub timeout: Option<Duration>,
+}
+
+impl RunRequest {
+    /// Arguments of `mpm` for this run.
+    pub fn args(&self) -> Vec<String> {
+        let s = &self.spec;
+        let mut a: Vec<String> = vec!["run".into(), self.scenario.clone()];
+        match impact_variant(s.model).filter(|_| self.scenario == "impact") {
+            Some((spacing, cell)) => {
+                a.extend(["--spacing".into(), format!("{spacing:e}"), "--cell".into(), format!("{cell:e}")])
+            }
+            None => a.extend(["--model".into(), s.model.to_string()]),
+        }
+        a.extend(["--strategy".into(), s.strategy.to_string(), "--threads".into(), s.threads.to_string()]);
+        if let Some(c) = &self.cpus {
+            a.push("--cpus".into());
+            a.push(c.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(","));
+        }
+        if let Some(n) = s.budget.step_limit {
+            a.push("--steps".into());
+            a.push(n.to_string());
+        }
+        if let Some(t) = s.budget.end_time {
+            a.push("--end-time".into());
+            a.push(format!("{t:e}"));
+        }
+        a.extend(["--grid".into(), s.grid.clone(), "--warmup".into(), s.budget.warmup.to_string()]);
+        a.extend(["--json".into(), self.json_path.display().to_string(), "--quiet".into()]);
+        a
+    }
+}
+
+/// How a child process ended.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RunOutput {
+    /// Exit code (`None` when killed by a signal or never started).
+    pub exit_code: Option<i32>,
+    /// Why it did not run or was stopped (spawn error, timeout, signal).
+    pub error: Option<String>,
+    /// Last lines of its standard error.
+    pub stderr_tail: String,
+    /// Wall time of the process (s).
+    pub process_wall_s: f64,
+    /// Stopped because the campaign was interrupted.
+    pub interrupted: bool,
+}
+
+/// Runs one configuration.
+pub trait Runner {
+    /// Run `req`; the summary, if any, is at `req.json_path` afterwards.
+    fn run(&mut self, req: &RunRequest) -> RunOutput;
+}
+
+/// Spawns the real solver, one fresh process per run.
+pub struct ProcessRunner {
+    interrupted: Arc<AtomicBool>,
+}
+
+impl ProcessRunner {
+    /// A runner that stops its child when `interrupted` becomes true.
+    pub fn new(interrupted: Arc<AtomicBool>) -> Self {
+        Self { interrupted }
+    }
+}
+
+impl Runner for ProcessRunner {
+    fn run(&mut self, req: &RunRequest) -> RunOutput {
+        let start = Instant::now();
+        let _ = std::fs::remove_file(&req.json_path);
+        let mut cmd = Command::new(&req.binary);
+        cmd.args(req.args()).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::piped());
+        // Rayon and OpenMP variables must not change the thread count behind our back.
+        cmd.env_remove("RAYON_NUM_THREADS");
+        let mut child = match cmd.spawn() {
+            Ok(c) => c,
+            Err(e) => {
+                return RunOutput {
+                    error: Some(format!("cannot start {}: {e}", req.binary.display())),
+                    ..RunOutput::default()
+                }
+            }
+        };
+        let mut stderr = child.stderr.take();
+        let reader = std::thread::spawn(move || {
+            let mut s = String::new();
+            if let Some(e) = stderr.as_mut() {
+                let _ = e.read_to_string(&mut s);
+            }
+            s
+        });
+        let mut out = RunOutput::default();
+        loop {
+            match child.try_wait() {
+                Ok(Some(status)) => {
+                    out.exit_code = status.code();
+                    if status.code().is_none() {
+                        use std::os::unix::process::ExitStatusExt;
+                        out.error = Some(format!("killed by signal {}", status.signal().unwrap_or(0)));
+                    }
+                    break;
+                }
+                Ok(None) => {}
+                Err(e) => {
+                    out.error = Some(format!("cannot wait for the solver: {e}"));
+                    let _ = child.kill();
+                    let _ = child.wait();
+                    break;
+                }
+            }
+            if self.interrupted.load(Ordering::SeqCst) {
+                let _ = child.kill();
+                let _ = child.wait();
+                out.interrupted = true;
+                out.error = Some("interrupted".into());
+                break;
+            }
+            if req.timeout.is_some_and(|t| start.elapsed() > t) {
+                let _ = child.kill();
+                let _ = child.wait();
+                out.error = Some(format!(
+                    "timed out after {}",
+                    humantime::format_duration(Duration::from_secs(start.elapsed().as_secs()))
+                ));
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        out.process_wall_s = start.elapsed().as_secs_f64();
+        let text = reader.join().unwrap_or_default();
+        out.stderr_tail = tail(&text, 3);
+        out
+    }
+}
+
+fn tail(s: &str, lines: usize) -> String {
+    let v: Vec<&str> = s.lines().filter(|l| !l.trim().is_empty()).collect();
+    v[v.len().saturating_sub(lines)..].join(" | ")
+}
+
+/// A fake solver for tests: writes a plausible JSON summary instantly.
+#[derive(Clone, Debug, Default)]
+pub struct MockRunner {
+    /// Every request received, in order.
+    pub calls: Vec<RunRequest>,
+    /// Fail runs whose description contains this text.
+    pub fail_when: Option<String>,
+    /// Report CPUs other than the requested ones for runs whose description contains this.
+    pub wrong_cpus_when: Option<String>,
+    /// Raise the interrupt flag after this many calls (simulated Ctrl-C).
+    pub interrupt_after: Option<(usize, Arc<AtomicBool>)>,
+    /// Sleep this long per run.
+    pub delay: Duration,
+}
+
+impl Runner for MockRunner {
+    fn run(&mut self, req: &RunRequest) -> RunOutput {
+        self.calls.push(req.clone());
+        std::thread::sleep(self.delay);
+        if let Some((n, flag)) = &self.interrupt_after {
+            if self.calls.len() > *n {
+                flag.store(true, Ordering::SeqCst);
+                return RunOutput { interrupted: true, error: Some("interrupted".into()), ..RunOutput::default() };
+            }
+        }
+        let desc = req.spec.describe();
+        if self.fail_when.as_ref().is_some_and(|f| desc.contains(f.as_str())) {
+            return RunOutput {
+                exit_code: Some(1),
+                stderr_tail: "mock failure".into(),
+                process_wall_s: 0.01,
+                ..RunOutput::default()
+            };
+        }
+        let s = &req.spec;
+        let size = scenario_size(&s.scenario, s.model).unwrap_or(ModelSize { particles: 1000, nodes: 1000 });
+        let steps = s.budget.step_limit.unwrap_or(100);
+        let speed = match s.strategy {
+            Strategy::Dd => 0.9,
+            _ => 0.8,
+        } * (s.threads.min(2) as f64);
+        let per_step = size.particles as f64 * 50e-9 * if s.opt == OptLevel::O0 { 8.0 } else { 1.0 } / speed;
+        let wall = per_step * steps as f64;
+        let requested = req.cpus.clone().unwrap_or_default();
+        let observed: Vec<usize> = if self.wrong_cpus_when.as_ref().is_some_and(|f| desc.contains(f.as_str())) {
+            requested.iter().map(|c| c + 1).collect()
+        } else {
+            requested.clone()
+        };
+        let mut substages = serde_json::Map::new();
+        for (k, f) in
+            [("scatter", 0.3), ("assembly", 0.1), ("grid_update", 0.05), ("gather", 0.2), ("stress_update", 0.35)]
+        {
+            substages.insert(k.into(), Value::from(wall * f));
+        }
+        let summary = serde_json::json!({
+            "scenario": req.scenario, "model": s.model, "strategy": s.strategy.as_str(),
+            "threads": s.threads, "opt_level": s.opt.as_str(), "grid_mode": s.grid, "eos": "mie-gruneisen",
+            "particles": size.particles, "cells": size.nodes / 2, "nodes": size.nodes, "mean_nodes": size.nodes as f64,
+            "steps": steps, "dt_first": 1e-8, "sim_time": steps as f64 * 1e-8, "end_reason": "step_limit",
+            "wall_s": wall, "grid_stage_s": wall * 0.45, "particle_stage_s": wall * 0.55, "substages": substages,
+            "ns_per_particle_step": per_step * 1e9 / size.particles as f64,
+            "particle_steps_per_s": size.particles as f64 / per_step, "steady_s_per_step": per_step,
+            "peak_rss_bytes": estimate_memory(&s.scenario, s.model, s.strategy, s.threads),
+            "requested_cpus": requested, "observed_cpus": observed,
+            "kinetic_energy_initial": 1000.0, "kinetic_energy": 900.0, "internal_energy": 99.0,
+            "initial_length_m": 0.0254, "final_length_m": 0.0253, "face_diameter_m": 0.0077, "failed_particles": 0,
+            "warmup_steps": s.budget.warmup, "oversubscribed": false
+        });
+        if let Err(e) = std::fs::write(&req.json_path, summary.to_string()) {
+            return RunOutput { error: Some(format!("mock cannot write JSON: {e}")), ..RunOutput::default() };
+        }
+        RunOutput { exit_code: Some(0), process_wall_s: wall + 0.05, ..RunOutput::default() }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::campaign::matrix::RunBudget;
+    use crate::machine::placement::PinPolicy;
+
+    #[test]
+    fn request_args() {
+        let spec = RunSpec {
+            scenario: "taylor".into(),
+            model: 2,
+            strategy: Strategy::Dd,
+            opt: OptLevel::O3,
+            threads: 2,
+            pin: PinPolicy::Close,
+            rep: 0,
+            grid: "fixed".into(),
+            budget: RunBudget { step_limit: Some(5), end_time: None, warmup: 1 },
+        };
+        let req = RunRequest {
+            spec,
+            scenario: "taylor".into(),
+            binary: "mpm".into(),
+            cpus: Some(vec![0, 1]),
+            json_path: "x.json".into(),
+            timeout: None,
+        };
+        let a = req.args().join(" ");
+        assert_eq!(
+            a,
+            "run taylor --model 2 --strategy dd --threads 2 --cpus 0,1 --steps 5 --grid fixed --warmup 1 --json x.json --quiet"
+        );
+    }
+}

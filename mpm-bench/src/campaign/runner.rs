@@ -1,0 +1,545 @@
+//! Running a campaign: the loop that, run by run, checks the memory guard, runs `mpm` as a
+//! fresh child process and appends a CSV row, plus the manifest and Ctrl-C handling.
+//!
+//! * Binaries come from [`super::solver`], each run's process from [`super::process`], the
+//!   memory estimate and verdict from [`super::memory`].
+//! * Oversubscription: rows with more threads than usable PUs are flagged and the terminal
+//!   says so once per campaign. A run whose observed CPUs differ from the requested ones is
+//!   recorded `invalid`.
+//! * Ctrl-C / SIGTERM ([`install_interrupt_handler`]): the run in progress is stopped and not
+//!   recorded; every finished run is already in the CSV, so the campaign resumes later.
+
+use super::manifest::{self, BinaryInfo, Manifest, Session};
+use super::matrix::{Campaign, RunSpec};
+use super::memory::{available_memory, estimate_memory, memory_verdict, scenario_size};
+use super::preset::OptLevel;
+use super::process::{RunOutput, RunRequest, Runner};
+use super::record::{cpus_cell, read_rows, CsvLog, Row, RunKey, Status, SCHEMA_VERSION};
+use super::solver::{workspace_root, Solver};
+use crate::machine::fingerprint;
+use crate::machine::placement::PinPolicy;
+use crate::machine::topology::{format_cpu_list, human_bytes, Machine};
+use crate::util::now_rfc3339;
+use anyhow::{anyhow, Context, Result};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use serde_json::Value;
+use std::collections::{HashMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, OnceLock};
+use std::time::{Duration, Instant};
+
+// ------------------------------------------------------------------------------------------
+// Interrupts
+// ------------------------------------------------------------------------------------------
+
+static INTERRUPTED: OnceLock<Arc<AtomicBool>> = OnceLock::new();
+
+/// Install (once per process) a Ctrl-C / SIGTERM handler that raises the returned flag; a
+/// second Ctrl-C exits at once (every finished row is already on disk).
+pub fn install_interrupt_handler() -> Arc<AtomicBool> {
+    INTERRUPTED
+        .get_or_init(|| {
+            let flag = Arc::new(AtomicBool::new(false));
+            let count = Arc::new(AtomicUsize::new(0));
+            let f = flag.clone();
+            let result = ctrlc::set_handler(move || {
+                f.store(true, Ordering::SeqCst);
+                if count.fetch_add(1, Ordering::SeqCst) >= 1 {
+                    eprintln!("\ninterrupted twice: exiting now (finished rows are in the CSV)");
+                    std::process::exit(130);
+                }
+                eprintln!("\ninterrupt: stopping after cleaning up the current run (Ctrl-C again to quit at once)");
+            });
+            if let Err(e) = result {
+                eprintln!("warning: cannot install the Ctrl-C handler: {e}");
+            }
+            flag
+        })
+        .clone()
+}
+
+// ------------------------------------------------------------------------------------------
+// The campaign loop
+// ------------------------------------------------------------------------------------------
+
+/// Options of [`execute`].
+#[derive(Clone, Debug, Default)]
+pub struct ExecOptions {
+    /// Root of the results tree (`results/`).
+    pub out_root: PathBuf,
+    /// Print the plan only.
+    pub dry_run: bool,
+    /// Run again configurations whose rows are all failed/invalid/skipped.
+    pub retry_failed: bool,
+    /// Move an existing `runs.csv` aside and start over.
+    pub fresh: bool,
+    /// No progress bar, no per-run lines (errors and the summary still print).
+    pub quiet: bool,
+    /// Command line, for the manifest.
+    pub command: String,
+}
+
+/// What a campaign session did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ExecSummary {
+    /// Campaign folder.
+    pub dir: PathBuf,
+    /// Rows written, skipped, ... (also recorded in the manifest's session).
+    pub counts: manifest::SessionCounts,
+    /// Wall time of the session.
+    pub wall: Duration,
+}
+
+impl ExecSummary {
+    /// Closing summary lines.
+    pub fn report(&self) -> String {
+        format!(
+            "{}: {} rows written ({} ok, {} skipped, {} failed, {} invalid; {} oversubscribed), \
+             {} already done of {} planned, wall time {}",
+            if self.counts.interrupted { "interrupted" } else { "done" },
+            self.counts.written,
+            self.counts.ok,
+            self.counts.skipped,
+            self.counts.failed,
+            self.counts.invalid,
+            self.counts.oversubscribed,
+            self.counts.already_done,
+            self.counts.planned,
+            humantime::format_duration(Duration::from_secs(self.wall.as_secs()))
+        )
+    }
+}
+
+/// Rough relative cost of a run, for the progress bar's ETA.
+fn cost(spec: &RunSpec) -> u64 {
+    let p = scenario_size(&spec.scenario, spec.model).map_or(1000, |s| s.particles);
+    let steps = spec.budget.step_limit.unwrap_or(300) + 3; // + set-up, in step equivalents
+    let f = if spec.opt == OptLevel::O0 { 6 } else { 1 };
+    (p / 1000).max(1) * steps * f
+}
+
+/// The campaign folder: `<out_root>/<fingerprint>/<campaign id>`.
+pub fn campaign_dir(out_root: &Path, machine: &Machine, campaign: &Campaign) -> PathBuf {
+    out_root.join(fingerprint::fingerprint(machine)).join(&campaign.id)
+}
+
+/// Run (or resume) `campaign` on `machine` with `runner`, appending a row after every run.
+pub fn execute(
+    campaign: &Campaign,
+    machine: &Machine,
+    solvers: &[Solver],
+    runner: &mut dyn Runner,
+    opts: &ExecOptions,
+    interrupted: &AtomicBool,
+) -> Result<ExecSummary> {
+    let t0 = Instant::now();
+    for p in &campaign.pins {
+        machine.check_policy(p).with_context(|| format!("pinning policy {p}"))?;
+    }
+    let dir = campaign_dir(&opts.out_root, machine, campaign);
+    let csv_path = dir.join("runs.csv");
+    let order = campaign.ordered(campaign.seed);
+    let existing = if csv_path.is_file() && !opts.fresh { read_rows(&csv_path)? } else { Vec::new() };
+    let done = done_keys(&existing, opts.retry_failed);
+    let todo: Vec<(usize, RunSpec)> =
+        order.iter().cloned().enumerate().filter(|(_, r)| !done.contains(&r.key())).collect();
+    let mut summary = ExecSummary {
+        dir: dir.clone(),
+        counts: manifest::SessionCounts {
+            planned: order.len(),
+            already_done: order.len() - todo.len(),
+            ..Default::default()
+        },
+        ..ExecSummary::default()
+    };
+    let usable = machine.usable_pus().len();
+
+    if opts.dry_run {
+        use std::io::Write as _;
+        let mut out = std::io::stdout().lock();
+        writeln!(
+            out,
+            "campaign {} ({} runs, {} already done, seed {}) -> {}",
+            campaign.id,
+            order.len(),
+            summary.counts.already_done,
+            campaign.seed,
+            csv_path.display()
+        )?;
+        for (i, r) in &todo {
+            let pl = machine.place(&r.pin, r.threads)?;
+            let est = estimate_memory(&r.scenario, r.model, r.strategy, r.threads);
+            let verdict = memory_verdict(est, available_memory(), campaign.mem_limit);
+            writeln!(
+                out,
+                "{:>4}  {:<40} {:<12} cpus {:<16} mem {:>9}{}{}",
+                i,
+                r.describe(),
+                budget_label(r),
+                if pl.cpus.is_empty() { "-".to_string() } else { format_cpu_list(&pl.cpus) },
+                human_bytes(est),
+                if pl.oversubscribed { "  oversubscribed" } else { "" },
+                verdict.map(|v| format!("  SKIP ({v})")).unwrap_or_default()
+            )?;
+        }
+        summary.wall = t0.elapsed();
+        return Ok(summary);
+    }
+
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create the output folder {}", dir.display()))?;
+    if opts.fresh && csv_path.is_file() {
+        let aside = dir.join(format!(
+            "runs.csv.{}.bak",
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs())
+        ));
+        std::fs::rename(&csv_path, &aside).with_context(|| format!("cannot move {} aside", csv_path.display()))?;
+        eprintln!("--fresh: moved the old runs.csv to {}", aside.display());
+    }
+    let mut log = CsvLog::open(&csv_path)?;
+    let json_dir = dir.join("json");
+    std::fs::create_dir_all(&json_dir).with_context(|| format!("cannot create {}", json_dir.display()))?;
+
+    // Manifest and topology, once per campaign (a session entry per invocation).
+    let ws = workspace_root();
+    let git = manifest::git_info(ws.as_deref());
+    let binaries: Vec<BinaryInfo> = solvers.iter().map(Solver::info).collect();
+    let manifest_path = dir.join("manifest.json");
+    let machine_info = fingerprint::machine_info(machine);
+    let mut man = match manifest::read(&manifest_path) {
+        Ok(m) => m,
+        Err(_) => Manifest {
+            manifest_version: manifest::MANIFEST_VERSION,
+            campaign_id: campaign.id.clone(),
+            campaign: Value::Null,
+            machine: machine_info.clone(),
+            software: manifest::software_info(ws.as_deref(), binaries.clone()),
+            sessions: Vec::new(),
+        },
+    };
+    man.campaign = serde_json::to_value(campaign)?;
+    man.machine = machine_info;
+    man.software = manifest::software_info(ws.as_deref(), binaries.clone());
+    man.sessions.push(Session {
+        started: now_rfc3339(),
+        command: opts.command.clone(),
+        seed: campaign.seed,
+        counts: summary.counts,
+        binaries,
+        git: git.clone(),
+        ..Session::default()
+    });
+    manifest::write(&manifest_path, &man)?;
+    if machine.is_this_system {
+        match crate::machine::topology::export_xml() {
+            Ok(xml) => mpm_cli::atomic::write_atomic(&dir.join("topology.xml"), xml.as_bytes())?,
+            Err(e) => eprintln!("warning: no topology.xml: {e:#}"),
+        }
+    }
+
+    let show = !opts.quiet;
+    let over: Vec<usize> = {
+        let mut t: Vec<usize> = todo
+            .iter()
+            .filter(|(_, r)| machine.place(&r.pin, r.threads).is_ok_and(|p| p.oversubscribed))
+            .map(|(_, r)| r.threads)
+            .collect();
+        t.sort_unstable();
+        t.dedup();
+        t
+    };
+    if !over.is_empty() {
+        eprintln!(
+            "note: {} usable PU(s) here; runs with {} threads are oversubscribed (time sharing, \
+             not scaling): their rows are flagged `oversubscribed`",
+            usable,
+            over.iter().map(|t| t.to_string()).collect::<Vec<_>>().join("/")
+        );
+    }
+    if todo.is_empty() {
+        eprintln!("campaign {}: all {} runs already recorded; nothing to do", campaign.id, order.len());
+    }
+
+    let total_cost: u64 = todo.iter().map(|(_, r)| cost(r)).sum();
+    let pb = if show && !todo.is_empty() {
+        ProgressBar::with_draw_target(Some(total_cost), ProgressDrawTarget::stderr())
+    } else {
+        ProgressBar::hidden()
+    };
+    pb.set_style(
+        ProgressStyle::with_template("[{elapsed_precise}] {bar:24.cyan/blue} {prefix} ETA {eta} | {wide_msg}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    pb.enable_steady_tick(Duration::from_millis(500));
+    let solver_of: HashMap<OptLevel, &Solver> = solvers.iter().map(|s| (s.opt, s)).collect();
+    let mut attempts: HashMap<RunKey, usize> = HashMap::new();
+    for r in &existing {
+        *attempts.entry(r.key()).or_default() += 1;
+    }
+
+    for (n, (order_index, spec)) in todo.iter().enumerate() {
+        if interrupted.load(Ordering::SeqCst) {
+            summary.counts.interrupted = true;
+            break;
+        }
+        pb.set_prefix(format!("run {}/{} ({} left)", n + 1, todo.len(), todo.len() - n));
+        pb.set_message(spec.describe());
+        let solver =
+            *solver_of.get(&spec.opt).ok_or_else(|| anyhow!("no solver binary for optimisation level {}", spec.opt))?;
+        let placement = machine.place(&spec.pin, spec.threads)?;
+        let attempt = attempts.entry(spec.key()).or_default();
+        let run_id = format!("{}-a{}", spec.key().0, *attempt);
+        *attempt += 1;
+        let estimate = estimate_memory(&spec.scenario, spec.model, spec.strategy, spec.threads);
+        let mut row = base_row(campaign, machine, &git, solver, spec, &placement.cpus, placement.oversubscribed);
+        row.run_id = run_id.clone();
+        row.order_index = *order_index;
+        row.mem_estimate_bytes = estimate;
+
+        if let Some(reason) = memory_verdict(estimate, available_memory(), campaign.mem_limit) {
+            row.status = Status::Skipped;
+            row.reason = reason;
+        } else {
+            let req = RunRequest {
+                spec: spec.clone(),
+                scenario: campaign.scenario.clone(),
+                binary: solver.path.clone(),
+                cpus: (!matches!(spec.pin, PinPolicy::None)).then(|| placement.cpus.clone()),
+                json_path: json_dir.join(format!("{run_id}.json")),
+                timeout: campaign.timeout,
+            };
+            let out = runner.run(&req);
+            if out.interrupted || interrupted.load(Ordering::SeqCst) {
+                summary.counts.interrupted = true;
+                let _ = std::fs::remove_file(&req.json_path);
+                break;
+            }
+            fill_from_output(&mut row, &req, &out);
+        }
+        row.timestamp = now_rfc3339();
+        log.append(&row)?;
+        summary.counts.written += 1;
+        match row.status {
+            Status::Ok => summary.counts.ok += 1,
+            Status::Skipped => summary.counts.skipped += 1,
+            Status::Failed => summary.counts.failed += 1,
+            Status::Invalid => summary.counts.invalid += 1,
+        }
+        if row.oversubscribed {
+            summary.counts.oversubscribed += 1;
+        }
+        if show {
+            let line = format!(
+                "[{}/{}] {} : {}{}",
+                n + 1,
+                todo.len(),
+                spec.describe(),
+                row.status.as_str(),
+                match (row.status, row.wall_s) {
+                    (Status::Ok, Some(w)) =>
+                        format!(" ({w:.2} s solver, {:.1} s process)", row.process_wall_s.unwrap_or(0.0)),
+                    _ if !row.reason.is_empty() => format!(" ({})", row.reason),
+                    _ => String::new(),
+                }
+            );
+            if pb.is_hidden() {
+                eprintln!("{line}");
+            } else {
+                pb.println(line);
+            }
+        }
+        pb.inc(cost(spec));
+    }
+    pb.finish_and_clear();
+    if interrupted.load(Ordering::SeqCst) {
+        summary.counts.interrupted = true;
+    }
+    summary.wall = t0.elapsed();
+    if let Some(s) = man.sessions.last_mut() {
+        s.finished = now_rfc3339();
+        s.counts = summary.counts;
+    }
+    manifest::write(&manifest_path, &man)?;
+    debug_assert_eq!(log.path(), csv_path.as_path());
+    Ok(summary)
+}
+
+fn budget_label(r: &RunSpec) -> String {
+    match (r.budget.step_limit, r.budget.end_time) {
+        (Some(n), _) => format!("{n} steps (w{})", r.budget.warmup),
+        (None, Some(t)) => format!("to {t:e} s (w{})", r.budget.warmup),
+        _ => "unbounded".into(),
+    }
+}
+
+/// Keys of configurations that need no new run.
+fn done_keys(rows: &[Row], retry_failed: bool) -> HashSet<RunKey> {
+    rows.iter().filter(|r| !retry_failed || r.status == Status::Ok).map(Row::key).collect()
+}
+
+fn base_row(
+    campaign: &Campaign,
+    machine: &Machine,
+    git: &manifest::GitInfo,
+    solver: &Solver,
+    spec: &RunSpec,
+    cpus: &[usize],
+    oversubscribed: bool,
+) -> Row {
+    let size = scenario_size(&spec.scenario, spec.model);
+    Row {
+        schema_version: SCHEMA_VERSION,
+        campaign_id: campaign.id.clone(),
+        git_commit: git.commit.clone(),
+        git_dirty: git.dirty,
+        machine_id: fingerprint::fingerprint(machine),
+        binary_sha256: solver.sha256.chars().take(16).collect(),
+        seed: campaign.seed,
+        scenario: campaign.scenario.clone(),
+        model: spec.model,
+        particles: size.map(|s| s.particles),
+        nodes: size.map(|s| s.nodes),
+        grid_mode: spec.grid.clone(),
+        strategy: spec.strategy.to_string(),
+        opt_level: spec.opt.to_string(),
+        threads: spec.threads,
+        pin_policy: spec.pin.label(),
+        requested_cpus: cpus_cell(cpus),
+        oversubscribed,
+        rep: spec.rep,
+        warmup_steps: spec.budget.warmup,
+        step_limit: spec.budget.step_limit,
+        end_time_s: spec.budget.end_time,
+        ..Row::default()
+    }
+}
+
+fn f64_of(v: &Value, k: &str) -> Option<f64> {
+    v.get(k).and_then(Value::as_f64)
+}
+
+fn u64_of(v: &Value, k: &str) -> Option<u64> {
+    v.get(k).and_then(|x| x.as_u64().or_else(|| x.as_f64().filter(|f| *f >= 0.0).map(|f| f.round() as u64)))
+}
+
+fn cpus_of(v: &Value, k: &str) -> Option<Vec<usize>> {
+    v.get(k)?.as_array().map(|a| a.iter().filter_map(|x| x.as_u64().map(|c| c as usize)).collect())
+}
+
+/// Fill a row's measurements and status from a finished child process.
+fn fill_from_output(row: &mut Row, req: &RunRequest, out: &RunOutput) {
+    row.exit_code = out.exit_code;
+    row.process_wall_s = Some(out.process_wall_s);
+    let why = |out: &RunOutput| -> String {
+        let mut s = out.error.clone().unwrap_or_else(|| match out.exit_code {
+            Some(c) => format!("solver exited with code {c}"),
+            None => "solver did not finish".into(),
+        });
+        if !out.stderr_tail.is_empty() {
+            s.push_str(": ");
+            s.push_str(&out.stderr_tail);
+        }
+        s
+    };
+    if out.exit_code != Some(0) || out.error.is_some() {
+        row.status = Status::Failed;
+        row.reason = why(out);
+        return;
+    }
+    let text = match std::fs::read_to_string(&req.json_path) {
+        Ok(t) => t,
+        Err(e) => {
+            row.status = Status::Failed;
+            row.reason = format!("solver exited 0 but wrote no JSON summary ({e})");
+            return;
+        }
+    };
+    let v: Value = match serde_json::from_str(&text) {
+        Ok(v) => v,
+        Err(e) => {
+            row.status = Status::Failed;
+            row.reason = format!("bad JSON summary: {e}");
+            return;
+        }
+    };
+    if let Some(s) = v.get("scenario").and_then(Value::as_str) {
+        row.scenario = s.to_string();
+    }
+    row.particles = u64_of(&v, "particles").or(row.particles);
+    row.cells = u64_of(&v, "cells");
+    row.nodes = u64_of(&v, "nodes").or(row.nodes);
+    row.mean_nodes = f64_of(&v, "mean_nodes");
+    if let Some(g) = v.get("grid_mode").and_then(Value::as_str) {
+        row.grid_mode = g.to_string();
+    }
+    row.steps = u64_of(&v, "steps");
+    row.sim_time_s = f64_of(&v, "sim_time");
+    row.end_reason = v.get("end_reason").and_then(Value::as_str).unwrap_or("").to_string();
+    row.dt_first_s = f64_of(&v, "dt_first");
+    row.wall_s = f64_of(&v, "wall_s");
+    row.grid_stage_s = f64_of(&v, "grid_stage_s");
+    row.particle_stage_s = f64_of(&v, "particle_stage_s");
+    let sub = v.get("substages").cloned().unwrap_or(Value::Null);
+    row.sub_grid_fit_s = f64_of(&sub, "grid_fit");
+    row.sub_binning_s = f64_of(&sub, "binning");
+    row.sub_scatter_s = f64_of(&sub, "scatter");
+    row.sub_assembly_s = f64_of(&sub, "assembly");
+    row.sub_grid_update_s = f64_of(&sub, "grid_update");
+    row.sub_gather_s = f64_of(&sub, "gather");
+    row.sub_remap_scatter_s = f64_of(&sub, "remap_scatter");
+    row.sub_remap_assembly_s = f64_of(&sub, "remap_assembly");
+    row.sub_stress_update_s = f64_of(&sub, "stress_update");
+    row.steady_s_per_step = f64_of(&v, "steady_s_per_step");
+    row.ns_per_particle_step = f64_of(&v, "ns_per_particle_step");
+    row.particle_steps_per_s = f64_of(&v, "particle_steps_per_s");
+    row.worker_busy_s = v
+        .get("worker_busy_s")
+        .and_then(Value::as_array)
+        .map(|a| a.iter().filter_map(Value::as_f64).map(|b| format!("{b:.6}")).collect::<Vec<_>>().join(" "))
+        .unwrap_or_default();
+    row.load_imbalance = f64_of(&v, "load_imbalance");
+    row.peak_rss_bytes = u64_of(&v, "peak_rss_bytes");
+    row.kinetic_energy_initial_j = f64_of(&v, "kinetic_energy_initial");
+    row.kinetic_energy_j = f64_of(&v, "kinetic_energy");
+    row.internal_energy_j = f64_of(&v, "internal_energy");
+    row.initial_length_m = f64_of(&v, "initial_length_m");
+    row.final_length_m = f64_of(&v, "final_length_m");
+    row.face_diameter_m = f64_of(&v, "face_diameter_m");
+    row.cloud_front_m = f64_of(&v, "cloud_front_m");
+    row.cloud_width_m = f64_of(&v, "cloud_width_m");
+    row.failed_particles = u64_of(&v, "failed_particles");
+    if v.get("oversubscribed").and_then(Value::as_bool) == Some(true) {
+        row.oversubscribed = true;
+    }
+    let requested = req.cpus.clone().unwrap_or_default();
+    let observed = cpus_of(&v, "observed_cpus").unwrap_or_default();
+    row.observed_cpus = cpus_cell(&observed);
+    if let Some(solver_req) = cpus_of(&v, "requested_cpus") {
+        if !requested.is_empty() && solver_req != requested {
+            row.status = Status::Invalid;
+            row.reason = format!(
+                "solver reports requested CPUs [{}], harness asked for [{}]",
+                cpus_cell(&solver_req),
+                cpus_cell(&requested)
+            );
+            return;
+        }
+    }
+    if !requested.is_empty() && observed != requested {
+        row.status = Status::Invalid;
+        row.reason = format!(
+            "pinning not honoured: requested CPUs [{}], observed [{}]",
+            cpus_cell(&requested),
+            cpus_cell(&observed)
+        );
+        return;
+    }
+    let energies = [row.kinetic_energy_j, row.internal_energy_j, row.wall_s];
+    if energies.iter().any(|e| e.is_some_and(|x| !x.is_finite())) || row.wall_s.is_none() || row.steps.is_none() {
+        row.status = Status::Invalid;
+        row.reason = "summary lacks wall_s/steps or has non-finite values".into();
+        return;
+    }
+    row.status = Status::Ok;
+}

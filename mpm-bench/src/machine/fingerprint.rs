@@ -1,0 +1,127 @@
+//! The machine's identity: its fingerprint (the `results/<fingerprint>/` folder) and the
+//! machine part of a campaign's manifest.
+//!
+//! The *machine fingerprint* is a short, stable hash (12 hex digits of SHA-256) of the CPU
+//! model, packages, cores, PUs, memory (rounded to GiB) and operating system (name and
+//! version, not the kernel build): results of the same machine land in the same
+//! `results/<fingerprint>/` folder and are comparable; a different machine gets another.
+
+use super::topology::{CacheLevel, Machine, NumaNode};
+use crate::util::hex;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use std::path::Path;
+
+/// The machine part of the manifest.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MachineInfo {
+    /// Short stable hash (see module docs).
+    pub fingerprint: String,
+    /// CPU model.
+    pub cpu_model: String,
+    /// Packages (sockets).
+    pub packages: usize,
+    /// Physical cores (usable).
+    pub cores: usize,
+    /// PUs / hardware threads (usable).
+    pub pus: usize,
+    /// PUs per core.
+    pub smt_width: usize,
+    /// NUMA nodes with local memory and CPUs.
+    pub numa_nodes: Vec<NumaNode>,
+    /// CPU caches.
+    pub caches: Vec<CacheLevel>,
+    /// Total memory, bytes.
+    pub memory_bytes: u64,
+    /// Operating system (`/etc/os-release` PRETTY_NAME).
+    pub os: String,
+    /// Kernel release.
+    pub kernel: String,
+    /// Architecture (`x86_64`, `aarch64`, ...).
+    pub arch: String,
+    /// CPU frequency governor(s), `unknown` when not readable (VMs, containers).
+    pub cpu_governor: String,
+    /// Full topology as plain data.
+    pub topology: Machine,
+}
+
+/// Stable fingerprint of a machine (12 hex digits).
+pub fn fingerprint(m: &Machine) -> String {
+    let mem_gib = (m.total_memory_bytes as f64 / (1u64 << 30) as f64).round() as u64;
+    let key = format!(
+        "cpu={}|packages={}|cores={}|pus={}|mem_gib={}|os={}|arch={}",
+        m.cpu_model,
+        m.num_packages(),
+        m.num_cores(),
+        m.usable_pus().len(),
+        mem_gib,
+        os_name(),
+        std::env::consts::ARCH
+    );
+    hex(&Sha256::digest(key.as_bytes()))[..12].to_string()
+}
+
+/// Machine part of the manifest for `m` (this host).
+pub fn machine_info(m: &Machine) -> MachineInfo {
+    MachineInfo {
+        fingerprint: fingerprint(m),
+        cpu_model: m.cpu_model.clone(),
+        packages: m.num_packages(),
+        cores: m.num_cores(),
+        pus: m.usable_pus().len(),
+        smt_width: m.smt_width(),
+        numa_nodes: m.numa_nodes.clone(),
+        caches: m.caches.clone(),
+        memory_bytes: m.total_memory_bytes,
+        os: os_name(),
+        kernel: read_trim("/proc/sys/kernel/osrelease").unwrap_or_else(|| "unknown".into()),
+        arch: std::env::consts::ARCH.into(),
+        cpu_governor: governor(),
+        topology: m.clone(),
+    }
+}
+
+fn os_name() -> String {
+    std::fs::read_to_string("/etc/os-release")
+        .ok()
+        .and_then(|t| t.lines().find_map(|l| l.strip_prefix("PRETTY_NAME=").map(|v| v.trim_matches('"').to_string())))
+        .unwrap_or_else(|| std::env::consts::OS.to_string())
+}
+
+fn governor() -> String {
+    let mut govs: Vec<String> = Vec::new();
+    if let Ok(rd) = std::fs::read_dir("/sys/devices/system/cpu") {
+        for e in rd.flatten() {
+            if let Some(g) = read_trim(e.path().join("cpufreq/scaling_governor")) {
+                if !govs.contains(&g) {
+                    govs.push(g);
+                }
+            }
+        }
+    }
+    if govs.is_empty() {
+        "unknown (cpufreq not exposed)".into()
+    } else {
+        govs.sort();
+        govs.join(",")
+    }
+}
+
+fn read_trim(p: impl AsRef<Path>) -> Option<String> {
+    std::fs::read_to_string(p).ok().map(|s| s.trim().to_string()).filter(|s| !s.is_empty())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fingerprint_is_stable_and_short() {
+        let m = Machine::synthetic("pack:2 core:4 pu:2").unwrap();
+        let a = fingerprint(&m);
+        assert_eq!(a.len(), 12);
+        assert_eq!(a, fingerprint(&m));
+        let other = Machine::synthetic("pack:1 core:4 pu:2").unwrap();
+        assert_ne!(a, fingerprint(&other));
+    }
+}
