@@ -5,7 +5,7 @@ use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use mpm_bench::analysis::{claims, paired, regress};
 use mpm_bench::campaign::matrix::{Campaign, Overrides};
-use mpm_bench::campaign::preset::{self, OptLevel, Strategy};
+use mpm_bench::campaign::preset::{self, OptLevel};
 use mpm_bench::campaign::process::{MockRunner, ProcessRunner};
 use mpm_bench::campaign::runner::{self, ExecOptions};
 use mpm_bench::campaign::solver::{self, Solver};
@@ -14,6 +14,7 @@ use mpm_bench::machine::topology::{self, Machine};
 use mpm_bench::machine::{bandwidth, fingerprint};
 use mpm_bench::report::{comparison, figures};
 use mpm_cli::atomic::write_atomic;
+use mpm_core::Strategy;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -285,8 +286,15 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
             })
         })
         .transpose()?;
-    let strategies =
-        a.strategies.as_deref().map(|s| preset::parse_list(s, "strategy", |x| x.parse::<Strategy>())).transpose()?;
+    let strategies = a
+        .strategies
+        .as_deref()
+        .map(|s| {
+            preset::parse_list(s, "strategy", |x| {
+                x.to_ascii_lowercase().parse::<Strategy>().map_err(anyhow::Error::msg)
+            })
+        })
+        .transpose()?;
     let opt =
         a.opt.as_deref().map(|s| preset::parse_list(s, "optimisation level", |x| x.parse::<OptLevel>())).transpose()?;
     let pin = if a.pin.is_empty() {

@@ -12,8 +12,12 @@ use mpm_bench::machine::fingerprint;
 use mpm_bench::machine::topology::Machine;
 use mpm_bench::report::comparison::{self as report, ReportArgs};
 use mpm_bench::report::figures::{self, FiguresArgs};
+use mpm_core::Strategy;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+const AE: Strategy = Strategy::ArrayExpansion;
+const DD: Strategy = Strategy::DomainDecomposition;
 
 /// How a crafted campaign is made.
 #[derive(Clone)]
@@ -58,13 +62,13 @@ impl Default for Craft {
 
 /// Stage efficiencies of the crafted machine: DD beats AE, more so for larger models; AE's
 /// grid stage is its bottleneck; O0 scales better than O3; crossing a socket costs 20 %.
-fn eff(model: u32, strategy: &str, opt: &str, particle: bool, n: usize, per_socket: usize) -> f64 {
+fn eff(model: u32, strategy: Strategy, opt: &str, particle: bool, n: usize, per_socket: usize) -> f64 {
     if n == 1 {
         return 1.0;
     }
     let mut e = match (strategy, particle) {
-        ("ae", false) => 0.75 - 0.1 * model as f64,
-        ("ae", true) => 0.93,
+        (AE, false) => 0.75 - 0.1 * model as f64,
+        (AE, true) => 0.93,
         (_, false) => 0.9,
         (_, true) => 0.95,
     };
@@ -87,7 +91,7 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
     let mut log = CsvLog::open(&dir.join("runs.csv")).unwrap();
     for &m in &c.models {
         let (g1, p1) = (0.004 * m as f64, 0.006 * m as f64);
-        for strategy in ["ae", "dd"] {
+        for strategy in [AE, DD] {
             for opt in ["o3", "o0"] {
                 let slow = if opt == "o0" { 5.0 } else { 1.0 };
                 for &n in &c.threads {
@@ -97,8 +101,8 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
                         let k = slow * noise * par * c.slow_all;
                         let g = g1 * k / (n as f64 * eff(m, strategy, opt, false, n, c.per_socket));
                         let p = p1 * k / (n as f64 * eff(m, strategy, opt, true, n, c.per_socket));
-                        let mem = 1e8 * m as f64 + if strategy == "ae" { 3e7 * m as f64 * (n - 1) as f64 } else { 1e6 };
-                        let skip = c.skip_m4_ae && m == 4 && strategy == "ae" && n >= 4;
+                        let mem = 1e8 * m as f64 + if strategy == AE { 3e7 * m as f64 * (n - 1) as f64 } else { 1e6 };
+                        let skip = c.skip_m4_ae && m == 4 && strategy == AE && n >= 4;
                         let steps = 10u64;
                         let row = Row {
                             schema_version: SCHEMA_VERSION,
@@ -111,7 +115,7 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
                             nodes: Some(5_000 * m as u64),
                             mean_nodes: Some(5_000.0 * m as f64),
                             grid_mode: "fixed".into(),
-                            strategy: strategy.into(),
+                            strategy,
                             opt_level: opt.into(),
                             threads: n,
                             pin_policy: c.pin.into(),
@@ -174,7 +178,7 @@ fn stats_medians_speedups_and_intervals() {
     let dir = write_campaign(&tmp.path().join("c"), &Craft::default());
     let an = analysis(&dir);
     // Model1 DD O3 at 2 threads: T1 = 0.01 s; T2 from the stage efficiencies.
-    let p = an.point(1, "dd", "o3", 2, Stage::Total).unwrap();
+    let p = an.point(1, DD, "o3", 2, Stage::Total).unwrap();
     let t1 = 0.004 + 0.006;
     let t2 = 0.004 / (2.0 * 0.9) + 0.006 / (2.0 * 0.95);
     assert!((p.time.value - t2).abs() < 1e-12, "{:?}", p.time);
@@ -186,15 +190,15 @@ fn stats_medians_speedups_and_intervals() {
     let e = p.efficiency.unwrap();
     assert!((e.value - s.value / 2.0).abs() < 1e-12);
     // Stage times are normalised per step.
-    let g = an.point(1, "dd", "o3", 2, Stage::Grid).unwrap();
+    let g = an.point(1, DD, "o3", 2, Stage::Grid).unwrap();
     assert!((g.time.value - 0.004 / 1.8).abs() < 1e-12);
     // The one-thread point has speedup exactly 1 without a fake interval.
-    let one = an.point(1, "dd", "o3", 1, Stage::Total).unwrap();
+    let one = an.point(1, DD, "o3", 1, Stage::Total).unwrap();
     assert_eq!(one.speedup.unwrap().value, 1.0);
     assert!(one.speedup.unwrap().lo == 1.0 && one.speedup.unwrap().hi == 1.0);
     // Skipped cells are absent, not zero; their cell says why.
-    assert!(an.point(4, "ae", "o3", 4, Stage::Total).is_none());
-    let cell = &an.cells[&CellKey::new(4, "ae", "o3", 4)];
+    assert!(an.point(4, AE, "o3", 4, Stage::Total).is_none());
+    let cell = &an.cells[&CellKey::new(4, AE, "o3", 4)];
     assert!(!cell.measured() && cell.not_ok[0].0 == Status::Skipped);
     // Deterministic: the same rows give the same intervals.
     let again = analysis(&dir);
@@ -203,8 +207,8 @@ fn stats_medians_speedups_and_intervals() {
     let tmp2 = tempfile::tempdir().unwrap();
     let dir2 = write_campaign(&tmp2.path().join("c"), &Craft { cores: 2, ..Craft::default() });
     let an2 = analysis(&dir2);
-    assert!(an2.point(1, "dd", "o3", 4, Stage::Total).unwrap().oversubscribed);
-    assert!(!an2.point(1, "dd", "o3", 2, Stage::Total).unwrap().oversubscribed);
+    assert!(an2.point(1, DD, "o3", 4, Stage::Total).unwrap().oversubscribed);
+    assert!(!an2.point(1, DD, "o3", 2, Stage::Total).unwrap().oversubscribed);
 }
 
 #[test]
@@ -212,10 +216,10 @@ fn single_repetition_gives_degenerate_intervals() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = write_campaign(&tmp.path().join("c"), &Craft { reps: 1, ..Craft::default() });
     let an = analysis(&dir);
-    let s = an.point(2, "ae", "o3", 2, Stage::Total).unwrap().speedup.unwrap();
+    let s = an.point(2, AE, "o3", 2, Stage::Total).unwrap().speedup.unwrap();
     assert!(s.degenerate() && s.lo == s.value && s.hi == s.value);
     assert!(s.show(2).contains("n=1"), "{}", s.show(2));
-    let mem = an.memory(&CellKey::new(2, "ae", "o3", 2), &StatsOptions::default()).unwrap();
+    let mem = an.memory(&CellKey::new(2, AE, "o3", 2), &StatsOptions::default()).unwrap();
     assert!(mem.degenerate());
 }
 

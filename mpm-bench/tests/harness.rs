@@ -4,7 +4,7 @@
 
 use mpm_bench::campaign::matrix::{Campaign, Overrides};
 use mpm_bench::campaign::memory;
-use mpm_bench::campaign::preset::{self, OptLevel, Strategy};
+use mpm_bench::campaign::preset::{self, OptLevel};
 use mpm_bench::campaign::process::MockRunner;
 use mpm_bench::campaign::record::{read_rows, Row, Status};
 use mpm_bench::campaign::runner::{self, ExecOptions};
@@ -12,6 +12,7 @@ use mpm_bench::campaign::solver::Solver;
 use mpm_bench::machine::fingerprint;
 use mpm_bench::machine::placement::PinPolicy;
 use mpm_bench::machine::topology::Machine;
+use mpm_core::Strategy;
 use std::collections::HashSet;
 use std::path::Path;
 use std::process::Command;
@@ -50,7 +51,7 @@ fn matrix_expansion_covers_every_cell() {
     assert_eq!(keys.len(), runs.len(), "every run has its own key");
     for m in 1..=4 {
         for opt in [OptLevel::O3, OptLevel::O0] {
-            for s in [Strategy::Ae, Strategy::Dd] {
+            for s in [Strategy::ArrayExpansion, Strategy::DomainDecomposition] {
                 for t in [1, 2, 4, 6, 8] {
                     assert!(runs.iter().any(|r| r.model == m && r.opt == opt && r.strategy == s && r.threads == t));
                 }
@@ -70,7 +71,8 @@ fn matrix_expansion_covers_every_cell() {
     assert!(paper.expand().iter().all(|r| r.budget.end_time == Some(4e-5) && r.budget.step_limit.is_none()));
 
     // Serial pairs with one thread only.
-    let ov = Overrides { strategies: Some(vec![Strategy::Serial, Strategy::Dd]), ..Overrides::default() };
+    let ov =
+        Overrides { strategies: Some(vec![Strategy::Serial, Strategy::DomainDecomposition]), ..Overrides::default() };
     let c = campaign("smoke", &ov);
     assert!(c.expand().iter().all(|r| r.strategy != Strategy::Serial || r.threads == 1));
     assert_eq!(c.expand().iter().filter(|r| r.strategy == Strategy::Serial).count(), 2);
@@ -168,8 +170,8 @@ fn memory_guard_skips_with_a_reason() {
     assert!(rows.iter().all(|r| r.status == Status::Skipped && r.reason.contains("memory guard")));
     assert!(rows.iter().all(|r| r.wall_s.is_none() && r.mem_estimate_bytes > 10 << 20));
     // AE grows with threads: with a limit between, Model 4 AE at 8 threads is skipped while DD runs.
-    let est_dd = memory::estimate_memory("taylor", 4, Strategy::Dd, 8);
-    let est_ae = memory::estimate_memory("taylor", 4, Strategy::Ae, 8);
+    let est_dd = memory::estimate_memory("taylor", 4, Strategy::DomainDecomposition, 8);
+    let est_ae = memory::estimate_memory("taylor", 4, Strategy::ArrayExpansion, 8);
     assert!(est_ae > est_dd);
     assert!(memory::memory_verdict(est_ae, None, Some(est_ae)).is_some());
     assert!(memory::memory_verdict(est_dd, None, Some(est_ae)).is_none());

@@ -35,7 +35,7 @@
 use crate::pinning::PinnedPool;
 use mpm_core::scenario::impact::{self, CloudFigures, ImpactGeometry};
 use mpm_core::scenario::taylor::{measure, TaylorFigures};
-use mpm_core::{Simulation, StageTimes};
+use mpm_core::{Simulation, StageTimes, Strategy};
 use serde::de::{MapAccess, Visitor};
 use serde::ser::SerializeMap;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
@@ -53,13 +53,24 @@ pub const TARGET: &str = env!("MPM_TARGET");
 pub const LENGTH_CONVENTION: &str = "length: z-extent of particle centres plus one layer spacing (exactly L0 at t = 0); face diameter: from particle centres";
 
 /// Why the stepping loop stopped.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum EndReason {
     /// The simulated time reached the end time.
     EndTime,
-    /// The step limit was reached first.
+    /// The step limit was reached first (also the value of a summary under construction).
+    #[default]
     StepLimit,
+}
+
+impl EndReason {
+    /// Its JSON (and CSV) name: `end_time`, `step_limit`.
+    pub fn name(self) -> &'static str {
+        match self {
+            EndReason::EndTime => "end_time",
+            EndReason::StepLimit => "step_limit",
+        }
+    }
 }
 
 /// One sample of the energy history.
@@ -266,8 +277,9 @@ pub struct RunContext<'a> {
     pub started_unix_s: f64,
 }
 
-/// The JSON summary of one run. Field names are an interface (see the module docs).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// The JSON summary of one run. Field names are an interface (see the module docs): `mpm`
+/// writes it, the harness reads it back with this type.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
     /// Scenario name (`taylor`).
     pub scenario: String,
@@ -276,8 +288,8 @@ pub struct Summary {
     /// Model label (`Model1` ... `Model4`, `impact-h0.53mm-dx2.12mm`).
     #[serde(default)]
     pub model_name: String,
-    /// Scatter strategy: `serial`, `ae` or `dd`.
-    pub strategy: String,
+    /// Scatter strategy, written by its short name: `serial`, `ae` or `dd`.
+    pub strategy: Strategy,
     /// Worker threads of the pool.
     pub threads: usize,
     /// Optimisation level of the solver build (`o3`, `o0`).
@@ -476,7 +488,7 @@ impl Summary {
             scenario: ctx.scenario.to_string(),
             model: ctx.model,
             model_name: ctx.model_name,
-            strategy: cfg.strategy.name().to_string(),
+            strategy: cfg.strategy,
             threads: ctx.pool.pool.current_num_threads(),
             opt_level: OPT_LEVEL.to_string(),
             profile: PROFILE.to_string(),
@@ -584,6 +596,13 @@ mod tests {
             assert!(v.len() <= 202, "n={n}: {}", v.len());
             assert!(v.len() as u64 >= (n + 1).min(150), "n={n}: {}", v.len());
             assert!(v.windows(2).all(|w| w[0].step < w[1].step));
+        }
+    }
+
+    #[test]
+    fn end_reason_names_are_its_json_names() {
+        for r in [EndReason::EndTime, EndReason::StepLimit] {
+            assert_eq!(serde_json::to_value(r).unwrap(), r.name());
         }
     }
 

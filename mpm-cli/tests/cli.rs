@@ -1,6 +1,8 @@
 //! The `mpm` program through its real binary: help, Table 2 counts, the JSON summary's keys,
 //! strategies, pinning, oversubscription, bad input and VTU output.
 
+use mpm_cli::summary::Summary;
+use mpm_core::Strategy;
 use serde_json::Value;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -273,6 +275,17 @@ fn json_has_exactly_the_golden_keys() {
     assert!(f(&v, "kinetic_energy") < k0);
 }
 
+/// The harness reads the summary back as the typed [`Summary`]: every key the program
+/// writes parses, the strategy as the typed value, and writing it again gives the same JSON.
+#[test]
+fn summary_reads_back_as_the_typed_summary() {
+    let (v, _) = run_json(&["--model", "1", "--steps", "3", "--strategy", "dd", "--threads", "2", "--quiet"]);
+    let s: Summary = serde_json::from_value(v.clone()).unwrap();
+    assert_eq!(s.strategy, Strategy::DomainDecomposition);
+    assert_eq!(s.end_reason.name(), v["end_reason"]);
+    assert_eq!(serde_json::to_value(&s).unwrap(), v);
+}
+
 #[test]
 fn end_time_run_lands_exactly_on_the_end_time() {
     let (v, out) = run_json(&["--model", "1", "--end-time", "1e-6"]);
@@ -360,7 +373,7 @@ fn bad_input_is_a_clear_error() {
     rejects(&["--model", "5", "--steps", "0"], "1..=4");
     rejects(&["--steps", "0"], "--model");
     rejects(&["--model", "1", "--threads", "0"], "at least 1");
-    rejects(&["--model", "1", "--threads", "2"], "use --strategy ae or --strategy dd");
+    rejects(&["--model", "1", "--threads", "2"], "use --strategy ae or dd");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0,99"], "CPU 99 does not exist");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0"], "one CPU per worker");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0,x"], "not a CPU number");

@@ -17,10 +17,12 @@
 //!   the claim is about a stage or about optimisation.
 
 use super::results::{load_campaign, Campaign};
-use super::stats::{compare, Analysis, CellKey, Compare, Estimate, Stage, StatsOptions};
+use super::stats::{compare, parallel_strategies, tag, Analysis, CellKey, Compare, Estimate, Stage, StatsOptions};
 use crate::campaign::record::Status;
 use anyhow::{Context, Result};
+use mpm_core::Strategy;
 use serde::Serialize;
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
@@ -92,6 +94,11 @@ pub const CLAIMS: [(&str, &str); 6] = [
     ("C6", "AE could not run Model4 at 4-8 threads: not enough memory on the 8 GB machine."),
 ];
 
+/// Array expansion, the subject of claims C3 and C6.
+const AE: Strategy = Strategy::ArrayExpansion;
+/// Domain decomposition.
+const DD: Strategy = Strategy::DomainDecomposition;
+
 /// Memory of the paper's machine (8 GB).
 pub const PAPER_MEMORY_BYTES: f64 = 8e9;
 
@@ -159,7 +166,13 @@ fn result(id: &'static str, verdict: Verdict, reason: String, evidence: Vec<Stri
 }
 
 /// Real parallel thread counts where both `a` and `b` have a point.
-fn common_real_threads(an: &Analysis, model: u32, a: (&str, &str), b: (&str, &str), stage: Stage) -> Vec<usize> {
+fn common_real_threads(
+    an: &Analysis,
+    model: u32,
+    a: (Strategy, &str),
+    b: (Strategy, &str),
+    stage: Stage,
+) -> Vec<usize> {
     an.series(model, a.0, a.1, stage)
         .into_iter()
         .filter(|p| p.is_real_parallel() && p.efficiency.is_some())
@@ -175,16 +188,14 @@ fn c1(an: &Analysis) -> ClaimResult {
     let mut t = Tally::default();
     let mut gaps: Vec<(u32, usize, f64)> = Vec::new();
     for m in an.models() {
-        let ths = common_real_threads(an, m, ("dd", "o3"), ("ae", "o3"), Stage::Total);
+        let ths = common_real_threads(an, m, (DD, "o3"), (AE, "o3"), Stage::Total);
+        let eff =
+            |s: Strategy, n: usize| an.point(m, s, "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
         for &n in &ths {
-            let dd = an.point(m, "dd", "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
-            let ae = an.point(m, "ae", "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
-            t.add(format!("Model{m}, {n} threads, efficiency"), "DD", &dd, "AE", &ae);
+            t.add(format!("Model{m}, {n} threads, efficiency"), &tag(DD), &eff(DD, n), &tag(AE), &eff(AE, n));
         }
         if let Some(&n) = ths.last() {
-            let dd = an.point(m, "dd", "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
-            let ae = an.point(m, "ae", "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
-            gaps.push((m, n, dd.value - ae.value));
+            gaps.push((m, n, eff(DD, n).value - eff(AE, n).value));
         }
     }
     let (mut v, mut reason) = t.verdict("DD and AE at O3");
@@ -215,9 +226,10 @@ fn c1(an: &Analysis) -> ClaimResult {
 
 fn c2(an: &Analysis, o: &StatsOptions) -> ClaimResult {
     let mut ev = Vec::new();
-    let (mut ae_grows, mut ae_flat, mut dd_flat, mut dd_grows) = (0, 0, 0, 0);
+    // Per strategy: series that grew by more than FLAT_MEMORY, series that did not.
+    let mut growth_of: BTreeMap<Strategy, (usize, usize)> = BTreeMap::new();
     for m in an.models() {
-        for strat in ["ae", "dd"] {
+        for strat in parallel_strategies() {
             for opt in ["o3", "o0"] {
                 let mut pts: Vec<(usize, Estimate)> = an
                     .thread_counts()
@@ -232,22 +244,24 @@ fn c2(an: &Analysis, o: &StatsOptions) -> ClaimResult {
                 let growth = last.1.value / first.1.value - 1.0;
                 ev.push(format!(
                     "Model{m} {} {}: peak memory {} at 1 thread -> {} at {} threads ({:+.1} %)",
-                    strat.to_uppercase(),
+                    tag(strat),
                     opt.to_uppercase(),
                     gb(first.1.value),
                     gb(last.1.value),
                     last.0,
                     100.0 * growth
                 ));
-                match (strat, growth > FLAT_MEMORY) {
-                    ("ae", true) => ae_grows += 1,
-                    ("ae", false) => ae_flat += 1,
-                    ("dd", false) => dd_flat += 1,
-                    _ => dd_grows += 1,
+                let tally = growth_of.entry(strat).or_default();
+                if growth > FLAT_MEMORY {
+                    tally.0 += 1;
+                } else {
+                    tally.1 += 1;
                 }
             }
         }
     }
+    let (ae_grows, ae_flat) = growth_of.get(&AE).copied().unwrap_or_default();
+    let (dd_grows, dd_flat) = growth_of.get(&DD).copied().unwrap_or_default();
     let n = ae_grows + ae_flat + dd_flat + dd_grows;
     let (v, reason) = if n == 0 || ae_grows + ae_flat == 0 || dd_flat + dd_grows == 0 {
         (Verdict::CannotTell, "no peak-memory measurements at 1 and more threads for both AE and DD".to_string())
@@ -276,16 +290,16 @@ fn c2(an: &Analysis, o: &StatsOptions) -> ClaimResult {
 fn c3(an: &Analysis) -> ClaimResult {
     let mut t = Tally::default();
     for m in an.models() {
-        for p in an.series(m, "ae", "o3", Stage::Particle) {
+        for p in an.series(m, AE, "o3", Stage::Particle) {
             if !p.is_real_parallel() {
                 continue;
             }
             let (Some(sp), Some(sg)) =
-                (p.speedup, an.point(m, "ae", "o3", p.key.threads, Stage::Grid).and_then(|g| g.speedup))
+                (p.speedup, an.point(m, AE, "o3", p.key.threads, Stage::Grid).and_then(|g| g.speedup))
             else {
                 continue;
             };
-            t.add(format!("Model{m} AE O3, {} threads, speedup", p.key.threads), "particle", &sp, "grid", &sg);
+            t.add(format!("Model{m} {} O3, {} threads, speedup", tag(AE), p.key.threads), "particle", &sp, "grid", &sg);
         }
     }
     let (v, reason) = t.verdict("AE O3 stage speedups");
@@ -295,11 +309,11 @@ fn c3(an: &Analysis) -> ClaimResult {
 fn c4(an: &Analysis) -> ClaimResult {
     let mut t = Tally::default();
     for m in an.models() {
-        for strat in ["ae", "dd"] {
+        for strat in parallel_strategies() {
             for n in common_real_threads(an, m, (strat, "o0"), (strat, "o3"), Stage::Total) {
                 let e0 = an.point(m, strat, "o0", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
                 let e3 = an.point(m, strat, "o3", n, Stage::Total).and_then(|p| p.efficiency).expect("filtered");
-                t.add(format!("Model{m} {}, {n} threads, efficiency", strat.to_uppercase()), "O0", &e0, "O3", &e3);
+                t.add(format!("Model{m} {}, {n} threads, efficiency", tag(strat)), "O0", &e0, "O3", &e3);
             }
         }
     }
@@ -344,14 +358,14 @@ fn c5(c: &Campaign, an: &Analysis) -> ClaimResult {
     ev[0].push_str(&format!("; {per_socket} cores per socket"));
     let mut t = Tally::default();
     for m in an.models() {
-        for strat in ["ae", "dd"] {
+        for strat in parallel_strategies() {
             let s: Vec<_> = an.series(m, strat, "o3", Stage::Total).into_iter().filter(|p| !p.oversubscribed).collect();
             let inside = s.iter().rfind(|p| p.key.threads <= per_socket && p.key.threads > 1);
             let across = s.iter().find(|p| p.key.threads > per_socket);
             if let (Some(i), Some(a)) = (inside, across) {
                 let (Some(ei), Some(ea)) = (i.efficiency, a.efficiency) else { continue };
                 t.add(
-                    format!("Model{m} {} O3 efficiency", strat.to_uppercase()),
+                    format!("Model{m} {} O3 efficiency", tag(strat)),
                     &format!("{}t (one socket)", i.key.threads),
                     &ei,
                     &format!("{}t (two sockets)", a.key.threads),
@@ -372,7 +386,7 @@ fn c6(c: &Campaign, o: &StatsOptions) -> ClaimResult {
     let an = Analysis::from_rows(&c.rows, None, o);
     for n in [4usize, 6, 8] {
         for opt in ["o3", "o0"] {
-            let key = CellKey::new(4, "ae", opt, n);
+            let key = CellKey::new(4, AE, opt, n);
             let Some(cell) = an.cells.get(&key) else { continue };
             let measured = an.memory(&key, o).map(|e| e.value);
             let (bytes, how) = match measured {
@@ -399,7 +413,7 @@ fn c6(c: &Campaign, o: &StatsOptions) -> ClaimResult {
         }
     }
     if let Some(one) =
-        an.memory(&CellKey::new(4, "ae", "o3", 1), o).or_else(|| an.memory(&CellKey::new(4, "ae", "o0", 1), o))
+        an.memory(&CellKey::new(4, AE, "o3", 1), o).or_else(|| an.memory(&CellKey::new(4, AE, "o0", 1), o))
     {
         ev.push(format!(
             "Model4 AE at 1 thread: {}; at the paper's footprint (4.61 GB at 1 thread) a configuration needs more than 8 GB when it grows by more than {:.2}x",

@@ -27,7 +27,6 @@
 use super::stats::{self, Estimate, StatsOptions};
 use crate::campaign::manifest::git_info;
 use crate::campaign::memory::{available_memory, estimate_memory};
-use crate::campaign::preset::Strategy;
 use crate::machine::placement::PinPolicy;
 use crate::machine::topology::{human_bytes, Machine};
 use crate::util::{median, now_rfc3339};
@@ -35,7 +34,7 @@ use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use mpm_cli::pinning;
 use mpm_core::scenario::taylor::TaylorBar;
-use mpm_core::{SimConfig, Simulation};
+use mpm_core::{SimConfig, Simulation, Strategy};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -85,7 +84,7 @@ pub struct PairedArgs {
 #[derive(Clone, Debug, Serialize)]
 pub struct PairedStrategy {
     /// `ae` or `dd`.
-    pub strategy: String,
+    pub strategy: Strategy,
     /// Seconds per step of the 1-thread configuration, per block.
     pub t1_s_per_step: Vec<f64>,
     /// Seconds per step of the `T`-thread configuration, per block.
@@ -164,9 +163,10 @@ fn parse_strategies(list: &[String]) -> Result<Vec<Strategy>> {
     for s in list {
         let st: Strategy = s
             .trim()
+            .to_ascii_lowercase()
             .parse()
             .map_err(|_| anyhow::anyhow!("unknown strategy '{s}' in --strategies: use ae, dd or both (ae,dd)"))?;
-        if st == Strategy::Serial {
+        if !st.is_parallel() {
             bail!("--strategies takes ae and dd; the serial solver is always measured as the reference");
         }
         if !out.contains(&st) {
@@ -240,7 +240,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
     let mut runs: Vec<Config> = configs
         .iter()
         .map(|&(strategy, threads)| {
-            let config = SimConfig { strategy: strategy.into(), threads, ..SimConfig::default() };
+            let config = SimConfig { strategy, threads, ..SimConfig::default() };
             Ok(Config {
                 strategy,
                 threads,
@@ -257,7 +257,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
         let pool = &pool_of(c.threads).pool;
         let (strategy, threads) = (c.strategy, c.threads);
         pool.install(|| (0..steps).try_for_each(|_| c.sim.step(pool, f64::INFINITY)))
-            .with_context(|| format!("{} with {threads} thread(s) failed", strategy.as_str()))
+            .with_context(|| format!("{strategy} with {threads} thread(s) failed"))
     };
 
     let total = (a.blocks * runs.len()) as u64;
@@ -281,7 +281,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
     for b in 0..a.blocks {
         for k in 0..n {
             let c = &mut runs[(b + k) % n];
-            bar.set_message(format!("block {} of {}: {} x{}", b + 1, a.blocks, c.strategy.as_str(), c.threads));
+            bar.set_message(format!("block {} of {}: {} x{}", b + 1, a.blocks, c.strategy, c.threads));
             let busy0 = c.sim.worker_busy();
             let t0 = Instant::now();
             advance(c, block_steps)?;
@@ -313,16 +313,11 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
             .flat_map(|(p, q)| (0..3).map(move |k| (p[k] - q[k]).abs()))
             .fold(0.0, f64::max);
         out.push(PairedStrategy {
-            strategy: s.as_str().to_string(),
-            efficiency: stats::bootstrap(&[&ratios], &|m| m[0], &opts, &format!("paired-{}", s.as_str())),
+            strategy: s,
+            efficiency: stats::bootstrap(&[&ratios], &|m| m[0], &opts, &format!("paired-{s}")),
             efficiency_of_medians: median(&one.seconds) / (t * median(&many.seconds)),
             efficiency_of_best: min(&one.seconds) / (t * min(&many.seconds)),
-            one_thread_vs_serial: stats::bootstrap(
-                &[&vs_serial],
-                &|m| m[0],
-                &opts,
-                &format!("vs-serial-{}", s.as_str()),
-            ),
+            one_thread_vs_serial: stats::bootstrap(&[&vs_serial], &|m| m[0], &opts, &format!("vs-serial-{s}")),
             block_efficiency: ratios,
             block_imbalance: many.imbalance.clone(),
             t1_s_per_step: one.seconds.clone(),
@@ -388,7 +383,7 @@ pub fn table(r: &PairedReport) -> String {
     for p in &r.strategies {
         s.push_str(&format!(
             "{:<8} {:>11.3} {:>11.3}  {:<24} {:>10.3} {:>8.3} {:>10.3} {:>16}\n",
-            p.strategy,
+            p.strategy.name(),
             1e3 * median(&p.t1_s_per_step),
             1e3 * median(&p.tt_s_per_step),
             p.efficiency.show(3),

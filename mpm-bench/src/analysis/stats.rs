@@ -40,6 +40,7 @@
 use crate::campaign::record::{Row, Status};
 use crate::util::{median, SplitMix64};
 use anyhow::{bail, Result};
+use mpm_core::Strategy;
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
@@ -250,12 +251,15 @@ pub fn bootstrap(samples: &[&[f64]], stat: &dyn Fn(&[f64]) -> f64, opts: &StatsO
 }
 
 /// One configuration of a campaign.
-#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+///
+/// Keys order by model, the strategy's short name (`ae`, `dd`, `serial`), optimisation
+/// level and threads, so every table and list keeps that order.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize)]
 pub struct CellKey {
     /// Model number (1-4).
     pub model: u32,
-    /// `ae`, `dd` or `serial`.
-    pub strategy: String,
+    /// The scatter strategy.
+    pub strategy: Strategy,
     /// `o3` or `o0`.
     pub opt_level: String,
     /// Worker threads.
@@ -264,21 +268,41 @@ pub struct CellKey {
 
 impl CellKey {
     /// Build a key.
-    pub fn new(model: u32, strategy: &str, opt_level: &str, threads: usize) -> Self {
-        Self { model, strategy: strategy.into(), opt_level: opt_level.into(), threads }
+    pub fn new(model: u32, strategy: Strategy, opt_level: &str, threads: usize) -> Self {
+        Self { model, strategy, opt_level: opt_level.into(), threads }
     }
+
+    fn order(&self) -> (u32, &str, &str, usize) {
+        (self.model, self.strategy.name(), &self.opt_level, self.threads)
+    }
+}
+
+impl Ord for CellKey {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.order().cmp(&other.order())
+    }
+}
+
+impl PartialOrd for CellKey {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+/// A strategy's short name in capitals (`AE`, `DD`, `SERIAL`), as tables, legends and
+/// bootstrap labels print it.
+pub fn tag(s: Strategy) -> String {
+    s.name().to_uppercase()
+}
+
+/// The strategies that run on several threads (AE, DD), in [`Strategy::ALL`] order.
+pub fn parallel_strategies() -> impl Iterator<Item = Strategy> {
+    Strategy::ALL.into_iter().filter(|s| s.is_parallel())
 }
 
 impl fmt::Display for CellKey {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "Model{} {} {} {}t",
-            self.model,
-            self.strategy.to_uppercase(),
-            self.opt_level.to_uppercase(),
-            self.threads
-        )
+        write!(f, "Model{} {} {} {}t", self.model, tag(self.strategy), self.opt_level.to_uppercase(), self.threads)
     }
 }
 
@@ -316,8 +340,8 @@ impl Cell {
 /// The base case of a speedup.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Base {
-    /// Strategy of the one-thread run (the point's own, or `serial`).
-    pub strategy: String,
+    /// Strategy of the one-thread run (the point's own, or serial).
+    pub strategy: Strategy,
     /// Its time per step, `T_1` (s).
     pub t1: Estimate,
 }
@@ -397,7 +421,7 @@ impl Analysis {
         }
         let mut nodes: BTreeMap<CellKey, Vec<f64>> = BTreeMap::new();
         for r in rows.iter().filter(|r| r.pin_policy == chosen) {
-            let key = CellKey::new(r.model, &r.strategy, &r.opt_level, r.threads);
+            let key = CellKey::new(r.model, r.strategy, &r.opt_level, r.threads);
             let cell = an.cells.entry(key.clone()).or_default();
             cell.oversubscribed |= r.oversubscribed;
             cell.mem_estimate = cell.mem_estimate.max(r.mem_estimate_bytes);
@@ -440,7 +464,7 @@ impl Analysis {
                 let label = format!("{key}/{stage}");
                 let time = bootstrap(&[xs], &|m| m[0], opts, &label);
                 let own = CellKey { threads: 1, ..key.clone() };
-                let serial = CellKey { threads: 1, strategy: "serial".into(), ..key.clone() };
+                let serial = CellKey { threads: 1, strategy: Strategy::Serial, ..key.clone() };
                 let base_key =
                     [own, serial].into_iter().find(|k| an.cells.get(k).is_some_and(|c| !c.times(stage).is_empty()));
                 let (base, speedup) = match base_key {
@@ -452,7 +476,7 @@ impl Analysis {
                         } else {
                             bootstrap(&[bs, xs], &|m| m[0] / m[1], opts, &format!("{label}/speedup"))
                         };
-                        (Some(Base { strategy: bk.strategy.clone(), t1 }), Some(s))
+                        (Some(Base { strategy: bk.strategy, t1 }), Some(s))
                     }
                     None => {
                         missing_base.insert(format!("Model{} {} {}", key.model, key.strategy, key.opt_level));
@@ -481,7 +505,7 @@ impl Analysis {
     }
 
     /// The point of a cell and stage.
-    pub fn point(&self, model: u32, strategy: &str, opt: &str, threads: usize, stage: Stage) -> Option<&Point> {
+    pub fn point(&self, model: u32, strategy: Strategy, opt: &str, threads: usize, stage: Stage) -> Option<&Point> {
         self.points.iter().find(|p| {
             p.stage == stage
                 && p.key.model == model
@@ -492,7 +516,7 @@ impl Analysis {
     }
 
     /// The points of one line of a figure, by ascending thread count.
-    pub fn series(&self, model: u32, strategy: &str, opt: &str, stage: Stage) -> Vec<&Point> {
+    pub fn series(&self, model: u32, strategy: Strategy, opt: &str, stage: Stage) -> Vec<&Point> {
         let mut v: Vec<&Point> = self
             .points
             .iter()

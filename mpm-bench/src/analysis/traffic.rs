@@ -32,6 +32,7 @@
 //! and shows the no-reuse one beside it (above 100 % means the caches are doing their job).
 
 use super::stats::Stage;
+use mpm_core::Strategy;
 use serde::Serialize;
 
 /// Estimated bytes moved per step by each stage (see the module docs for the count).
@@ -48,14 +49,14 @@ pub struct StageBytes {
 }
 
 impl StageBytes {
-    /// Bytes per step of `strategy` (`ae`, `dd`, `serial`) with `threads` workers,
-    /// `particles` particles and `nodes` grid nodes.
-    pub fn estimate(strategy: &str, threads: usize, particles: f64, nodes: f64) -> Self {
+    /// Bytes per step of `strategy` with `threads` workers, `particles` particles and `nodes`
+    /// grid nodes.
+    pub fn estimate(strategy: Strategy, threads: usize, particles: f64, nodes: f64) -> Self {
         let t = threads.max(1) as f64;
         let (copies, asm7, asm3, dd_p) = match strategy {
-            "ae" => (t, 56.0 * (t + 1.0), 24.0 * (t + 1.0), 0.0),
-            "dd" => (1.0, 112.0, 48.0, 1.0),
-            _ => (1.0, 0.0, 0.0, 0.0),
+            Strategy::ArrayExpansion => (t, 56.0 * (t + 1.0), 24.0 * (t + 1.0), 0.0),
+            Strategy::DomainDecomposition => (1.0, 112.0, 48.0, 1.0),
+            Strategy::Serial => (1.0, 0.0, 0.0, 0.0),
         };
         let grid_min = particles * (112.0 + 40.0 * dd_p) + nodes * (168.0 * copies + asm7 + 104.0);
         let particle_min = particles * (370.0 + 4.0 * dd_p) + nodes * (48.0 + 72.0 * copies + asm3 + 104.0 + 72.0);
@@ -83,12 +84,12 @@ mod tests {
 
     #[test]
     fn byte_model_counts() {
-        let s = StageBytes::estimate("serial", 1, 1.0, 0.0);
+        let s = StageBytes::estimate(Strategy::Serial, 1, 1.0, 0.0);
         assert_eq!(s.grid_min, 112.0);
         assert_eq!(s.particle_min, 370.0);
-        let ae = StageBytes::estimate("ae", 4, 0.0, 1.0);
+        let ae = StageBytes::estimate(Strategy::ArrayExpansion, 4, 0.0, 1.0);
         assert_eq!(ae.grid_min, 168.0 * 4.0 + 56.0 * 5.0 + 104.0);
-        let dd = StageBytes::estimate("dd", 4, 0.0, 1.0);
+        let dd = StageBytes::estimate(Strategy::DomainDecomposition, 4, 0.0, 1.0);
         assert!(dd.grid_min < ae.grid_min);
         assert_eq!(dd.of(Stage::Total).0, dd.grid_min + dd.particle_min);
     }

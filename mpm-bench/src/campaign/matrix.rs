@@ -8,10 +8,11 @@
 //! a seeded Fisher-Yates (SplitMix64, stable across versions), so machine drift spreads over
 //! every cell instead of biasing one.
 
-use super::preset::{parse_size, BudgetOverride, BudgetSpec, OptLevel, Preset, Strategy};
+use super::preset::{parse_size, BudgetOverride, BudgetSpec, OptLevel, Preset};
 use crate::machine::placement::PinPolicy;
 use crate::util::SplitMix64;
 use anyhow::{anyhow, bail, Context, Result};
+use mpm_core::Strategy;
 use serde::Serialize;
 use std::time::Duration;
 
@@ -138,7 +139,7 @@ impl RunSpec {
     pub fn key(&self) -> super::record::RunKey {
         super::record::run_key(
             self.model,
-            self.strategy.as_str(),
+            self.strategy,
             self.opt.as_str(),
             self.threads,
             &self.pin.label(),
@@ -329,7 +330,7 @@ impl Campaign {
                 for &opt in &self.opts {
                     for &strategy in &self.strategies {
                         for &threads in &self.threads {
-                            if strategy == Strategy::Serial && threads != 1 {
+                            if strategy.check_threads(threads).is_err() {
                                 continue;
                             }
                             for pin in &self.pins {

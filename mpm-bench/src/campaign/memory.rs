@@ -5,9 +5,9 @@
 //! Array expansion grows with every thread; a run that does not fit in 90 % of the memory
 //! available now (or of `--mem-limit`) is skipped with the reason.
 
-use super::preset::Strategy;
 use crate::machine::topology::human_bytes;
 use mpm_core::scenario::size::{ModelSize, IMPACT_MODELS};
+use mpm_core::Strategy;
 
 /// The impact scenario's campaign models: `(particle spacing, cell size)` in metres of
 /// model `m` (1-4, see [`IMPACT_MODELS`]).
@@ -29,7 +29,7 @@ pub fn scenario_size(scenario: &str, m: u32) -> Option<ModelSize> {
 /// Estimated peak memory of a run of `model` of `scenario`, bytes (the process baseline for
 /// an unknown model).
 pub fn estimate_memory(scenario: &str, model: u32, strategy: Strategy, threads: usize) -> u64 {
-    scenario_size(scenario, model).unwrap_or_default().memory_bytes(strategy.into(), threads)
+    scenario_size(scenario, model).unwrap_or_default().memory_bytes(strategy, threads)
 }
 
 /// Memory available to a new process now, bytes: `MemAvailable`, capped by a cgroup v2
@@ -83,10 +83,10 @@ mod tests {
 
     #[test]
     fn memory_estimates_grow_with_ae_threads_only() {
-        let ae1 = estimate_memory("taylor", 4, Strategy::Ae, 1);
-        let ae8 = estimate_memory("taylor", 4, Strategy::Ae, 8);
-        let dd1 = estimate_memory("taylor", 4, Strategy::Dd, 1);
-        let dd8 = estimate_memory("taylor", 4, Strategy::Dd, 8);
+        let ae1 = estimate_memory("taylor", 4, Strategy::ArrayExpansion, 1);
+        let ae8 = estimate_memory("taylor", 4, Strategy::ArrayExpansion, 8);
+        let dd1 = estimate_memory("taylor", 4, Strategy::DomainDecomposition, 1);
+        let dd8 = estimate_memory("taylor", 4, Strategy::DomainDecomposition, 8);
         assert_eq!(ae8 - ae1, 7 * (80 * 8_302_185 + BYTES_PER_THREAD));
         assert_eq!(dd8 - dd1, 7 * BYTES_PER_THREAD);
         assert_eq!(scenario_size("impact", 1).map(|s| s.particles), Some(848_104));

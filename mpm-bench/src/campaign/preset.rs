@@ -36,6 +36,7 @@
 
 use crate::machine::placement::PinPolicy;
 use anyhow::{anyhow, bail, Context, Result};
+use mpm_core::Strategy;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -49,58 +50,6 @@ pub const BUILTIN_PRESETS: [(&str, &str); 4] = [
     ("paper", include_str!("../../../configs/paper.toml")),
     ("impact", include_str!("../../../configs/impact.toml")),
 ];
-
-/// Parallelisation strategy of a run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Strategy {
-    /// One thread, no parallel machinery.
-    Serial,
-    /// Array expansion: per-thread copies of the nodal arrays.
-    Ae,
-    /// Domain decomposition: per-thread patches of the grid.
-    Dd,
-}
-
-impl Strategy {
-    /// Name as passed to `mpm --strategy` and written to CSV.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Strategy::Serial => "serial",
-            Strategy::Ae => "ae",
-            Strategy::Dd => "dd",
-        }
-    }
-}
-
-impl From<Strategy> for mpm_core::Strategy {
-    /// The solver's strategy for a campaign's strategy.
-    fn from(s: Strategy) -> Self {
-        match s {
-            Strategy::Serial => mpm_core::Strategy::Serial,
-            Strategy::Ae => mpm_core::Strategy::ArrayExpansion,
-            Strategy::Dd => mpm_core::Strategy::DomainDecomposition,
-        }
-    }
-}
-
-impl fmt::Display for Strategy {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl FromStr for Strategy {
-    type Err = anyhow::Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "serial" => Ok(Strategy::Serial),
-            "ae" | "array-expansion" => Ok(Strategy::Ae),
-            "dd" | "domain-decomposition" => Ok(Strategy::Dd),
-            _ => bail!("unknown strategy '{s}' (known: serial, ae, dd)"),
-        }
-    }
-}
 
 /// Optimisation level = Cargo profile of the solver binary.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]

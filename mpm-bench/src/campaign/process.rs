@@ -5,9 +5,10 @@
 
 use super::matrix::RunSpec;
 use super::memory::{estimate_memory, impact_variant, scenario_size};
-use super::preset::{OptLevel, Strategy};
+use super::preset::OptLevel;
+use mpm_cli::summary::{EndReason, Substages, Summary};
 use mpm_core::scenario::size::ModelSize;
-use serde_json::Value;
+use mpm_core::Strategy;
 use std::io::Read;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
@@ -207,8 +208,8 @@ impl Runner for MockRunner {
         let size = scenario_size(&s.scenario, s.model).unwrap_or(ModelSize { particles: 1000, nodes: 1000 });
         let steps = s.budget.step_limit.unwrap_or(100);
         let speed = match s.strategy {
-            Strategy::Dd => 0.9,
-            _ => 0.8,
+            Strategy::DomainDecomposition => 0.9,
+            Strategy::Serial | Strategy::ArrayExpansion => 0.8,
         } * (s.threads.min(2) as f64);
         let per_step = size.particles as f64 * 50e-9 * if s.opt == OptLevel::O0 { 8.0 } else { 1.0 } / speed;
         let wall = per_step * steps as f64;
@@ -218,27 +219,51 @@ impl Runner for MockRunner {
         } else {
             requested.clone()
         };
-        let mut substages = serde_json::Map::new();
-        for (k, f) in
+        let substages =
             [("scatter", 0.3), ("assembly", 0.1), ("grid_update", 0.05), ("gather", 0.2), ("stress_update", 0.35)]
-        {
-            substages.insert(k.into(), Value::from(wall * f));
-        }
-        let summary = serde_json::json!({
-            "scenario": req.scenario, "model": s.model, "strategy": s.strategy.as_str(),
-            "threads": s.threads, "opt_level": s.opt.as_str(), "grid_mode": s.grid, "eos": "mie-gruneisen",
-            "particles": size.particles, "cells": size.nodes / 2, "nodes": size.nodes, "mean_nodes": size.nodes as f64,
-            "steps": steps, "dt_first": 1e-8, "sim_time": steps as f64 * 1e-8, "end_reason": "step_limit",
-            "wall_s": wall, "grid_stage_s": wall * 0.45, "particle_stage_s": wall * 0.55, "substages": substages,
-            "ns_per_particle_step": per_step * 1e9 / size.particles as f64,
-            "particle_steps_per_s": size.particles as f64 / per_step, "steady_s_per_step": per_step,
-            "peak_rss_bytes": estimate_memory(&s.scenario, s.model, s.strategy, s.threads),
-            "requested_cpus": requested, "observed_cpus": observed,
-            "kinetic_energy_initial": 1000.0, "kinetic_energy": 900.0, "internal_energy": 99.0,
-            "initial_length_m": 0.0254, "final_length_m": 0.0253, "face_diameter_m": 0.0077, "failed_particles": 0,
-            "warmup_steps": s.budget.warmup, "oversubscribed": false
-        });
-        if let Err(e) = std::fs::write(&req.json_path, summary.to_string()) {
+                .into_iter()
+                .map(|(k, f)| (k.to_string(), wall * f))
+                .collect();
+        let summary = Summary {
+            scenario: req.scenario.clone(),
+            model: u8::try_from(s.model).unwrap_or(u8::MAX),
+            strategy: s.strategy,
+            threads: s.threads,
+            opt_level: s.opt.to_string(),
+            grid_mode: s.grid.clone(),
+            eos: "mie-gruneisen".into(),
+            particles: size.particles as usize,
+            cells: (size.nodes / 2) as usize,
+            nodes: size.nodes as usize,
+            mean_nodes: size.nodes as f64,
+            steps,
+            warmup_steps: s.budget.warmup,
+            dt_first: 1e-8,
+            sim_time: steps as f64 * 1e-8,
+            end_reason: EndReason::StepLimit,
+            wall_s: wall,
+            grid_stage_s: wall * 0.45,
+            particle_stage_s: wall * 0.55,
+            substages: Substages(substages),
+            ns_per_particle_step: Some(per_step * 1e9 / size.particles as f64),
+            particle_steps_per_s: Some(size.particles as f64 / per_step),
+            steady_s_per_step: Some(per_step),
+            peak_rss_bytes: Some(estimate_memory(&s.scenario, s.model, s.strategy, s.threads)),
+            requested_cpus: requested,
+            observed_cpus: observed,
+            kinetic_energy_initial: 1000.0,
+            kinetic_energy: 900.0,
+            internal_energy: 99.0,
+            initial_length_m: Some(0.0254),
+            final_length_m: Some(0.0253),
+            face_diameter_m: Some(0.0077),
+            ..Summary::default()
+        };
+        let text = match serde_json::to_string(&summary) {
+            Ok(t) => t,
+            Err(e) => return RunOutput { error: Some(format!("mock cannot write JSON: {e}")), ..RunOutput::default() },
+        };
+        if let Err(e) = std::fs::write(&req.json_path, text) {
             return RunOutput { error: Some(format!("mock cannot write JSON: {e}")), ..RunOutput::default() };
         }
         RunOutput { exit_code: Some(0), process_wall_s: wall + 0.05, ..RunOutput::default() }
@@ -256,7 +281,7 @@ mod tests {
         let spec = RunSpec {
             scenario: "taylor".into(),
             model: 2,
-            strategy: Strategy::Dd,
+            strategy: Strategy::DomainDecomposition,
             opt: OptLevel::O3,
             threads: 2,
             pin: PinPolicy::Close,

@@ -9,6 +9,7 @@
 //! (`"0 1"`). Empty cells mean "not measured" (for example every measurement of a skipped row).
 
 use anyhow::{bail, Context, Result};
+use mpm_core::Strategy;
 use serde::{Deserialize, Serialize};
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, SeekFrom, Write};
@@ -88,7 +89,7 @@ pub struct Row {
     /// `fixed` or `adaptive`.
     pub grid_mode: String,
     /// `serial`, `ae` (array expansion) or `dd` (domain decomposition).
-    pub strategy: String,
+    pub strategy: Strategy,
     /// `o3` or `o0` (the Cargo profile of the solver binary).
     pub opt_level: String,
     /// Worker threads.
@@ -212,7 +213,7 @@ impl Row {
     pub fn key(&self) -> RunKey {
         run_key(
             self.model,
-            &self.strategy,
+            self.strategy,
             &self.opt_level,
             self.threads,
             &self.pin_policy,
@@ -229,7 +230,7 @@ impl Row {
 #[allow(clippy::too_many_arguments)]
 pub fn run_key(
     model: u32,
-    strategy: &str,
+    strategy: Strategy,
     opt: &str,
     threads: usize,
     pin: &str,

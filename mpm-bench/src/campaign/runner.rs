@@ -22,7 +22,7 @@ use crate::machine::topology::{format_cpu_list, human_bytes, Machine};
 use crate::util::now_rfc3339;
 use anyhow::{anyhow, Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use serde_json::Value;
+use mpm_cli::summary::Summary;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -211,7 +211,7 @@ pub fn execute(
         Err(_) => Manifest {
             manifest_version: manifest::MANIFEST_VERSION,
             campaign_id: campaign.id.clone(),
-            campaign: Value::Null,
+            campaign: serde_json::Value::Null,
             machine: machine_info.clone(),
             software: manifest::software_info(ws.as_deref(), binaries.clone()),
             sessions: Vec::new(),
@@ -401,7 +401,7 @@ fn base_row(
         particles: size.map(|s| s.particles),
         nodes: size.map(|s| s.nodes),
         grid_mode: spec.grid.clone(),
-        strategy: spec.strategy.to_string(),
+        strategy: spec.strategy,
         opt_level: spec.opt.to_string(),
         threads: spec.threads,
         pin_policy: spec.pin.label(),
@@ -415,131 +415,122 @@ fn base_row(
     }
 }
 
-fn f64_of(v: &Value, k: &str) -> Option<f64> {
-    v.get(k).and_then(Value::as_f64)
-}
-
-fn u64_of(v: &Value, k: &str) -> Option<u64> {
-    v.get(k).and_then(|x| x.as_u64().or_else(|| x.as_f64().filter(|f| *f >= 0.0).map(|f| f.round() as u64)))
-}
-
-fn cpus_of(v: &Value, k: &str) -> Option<Vec<usize>> {
-    v.get(k)?.as_array().map(|a| a.iter().filter_map(|x| x.as_u64().map(|c| c as usize)).collect())
-}
-
-/// Fill a row's measurements and status from a finished child process.
+/// Fill a row's measurements and status from a finished child process: failed when the
+/// process failed or left no readable summary, invalid when the summary contradicts the
+/// request, ok otherwise.
 fn fill_from_output(row: &mut Row, req: &RunRequest, out: &RunOutput) {
     row.exit_code = out.exit_code;
     row.process_wall_s = Some(out.process_wall_s);
-    let why = |out: &RunOutput| -> String {
-        let mut s = out.error.clone().unwrap_or_else(|| match out.exit_code {
-            Some(c) => format!("solver exited with code {c}"),
-            None => "solver did not finish".into(),
-        });
-        if !out.stderr_tail.is_empty() {
-            s.push_str(": ");
-            s.push_str(&out.stderr_tail);
-        }
-        s
-    };
     if out.exit_code != Some(0) || out.error.is_some() {
         row.status = Status::Failed;
-        row.reason = why(out);
+        row.reason = process_failure(out);
         return;
     }
-    let text = match std::fs::read_to_string(&req.json_path) {
-        Ok(t) => t,
-        Err(e) => {
+    let summary = match read_summary(&req.json_path) {
+        Ok(s) => s,
+        Err(reason) => {
             row.status = Status::Failed;
-            row.reason = format!("solver exited 0 but wrote no JSON summary ({e})");
+            row.reason = reason;
             return;
         }
     };
-    let v: Value = match serde_json::from_str(&text) {
-        Ok(v) => v,
-        Err(e) => {
-            row.status = Status::Failed;
-            row.reason = format!("bad JSON summary: {e}");
-            return;
-        }
-    };
-    if let Some(s) = v.get("scenario").and_then(Value::as_str) {
-        row.scenario = s.to_string();
-    }
-    row.particles = u64_of(&v, "particles").or(row.particles);
-    row.cells = u64_of(&v, "cells");
-    row.nodes = u64_of(&v, "nodes").or(row.nodes);
-    row.mean_nodes = f64_of(&v, "mean_nodes");
-    if let Some(g) = v.get("grid_mode").and_then(Value::as_str) {
-        row.grid_mode = g.to_string();
-    }
-    row.steps = u64_of(&v, "steps");
-    row.sim_time_s = f64_of(&v, "sim_time");
-    row.end_reason = v.get("end_reason").and_then(Value::as_str).unwrap_or("").to_string();
-    row.dt_first_s = f64_of(&v, "dt_first");
-    row.wall_s = f64_of(&v, "wall_s");
-    row.grid_stage_s = f64_of(&v, "grid_stage_s");
-    row.particle_stage_s = f64_of(&v, "particle_stage_s");
-    let sub = v.get("substages").cloned().unwrap_or(Value::Null);
-    row.sub_grid_fit_s = f64_of(&sub, "grid_fit");
-    row.sub_binning_s = f64_of(&sub, "binning");
-    row.sub_scatter_s = f64_of(&sub, "scatter");
-    row.sub_assembly_s = f64_of(&sub, "assembly");
-    row.sub_grid_update_s = f64_of(&sub, "grid_update");
-    row.sub_gather_s = f64_of(&sub, "gather");
-    row.sub_remap_scatter_s = f64_of(&sub, "remap_scatter");
-    row.sub_remap_assembly_s = f64_of(&sub, "remap_assembly");
-    row.sub_stress_update_s = f64_of(&sub, "stress_update");
-    row.steady_s_per_step = f64_of(&v, "steady_s_per_step");
-    row.ns_per_particle_step = f64_of(&v, "ns_per_particle_step");
-    row.particle_steps_per_s = f64_of(&v, "particle_steps_per_s");
-    row.worker_busy_s = v
-        .get("worker_busy_s")
-        .and_then(Value::as_array)
-        .map(|a| a.iter().filter_map(Value::as_f64).map(|b| format!("{b:.6}")).collect::<Vec<_>>().join(" "))
-        .unwrap_or_default();
-    row.load_imbalance = f64_of(&v, "load_imbalance");
-    row.peak_rss_bytes = u64_of(&v, "peak_rss_bytes");
-    row.kinetic_energy_initial_j = f64_of(&v, "kinetic_energy_initial");
-    row.kinetic_energy_j = f64_of(&v, "kinetic_energy");
-    row.internal_energy_j = f64_of(&v, "internal_energy");
-    row.initial_length_m = f64_of(&v, "initial_length_m");
-    row.final_length_m = f64_of(&v, "final_length_m");
-    row.face_diameter_m = f64_of(&v, "face_diameter_m");
-    row.cloud_front_m = f64_of(&v, "cloud_front_m");
-    row.cloud_width_m = f64_of(&v, "cloud_width_m");
-    row.failed_particles = u64_of(&v, "failed_particles");
-    if v.get("oversubscribed").and_then(Value::as_bool) == Some(true) {
-        row.oversubscribed = true;
-    }
-    let requested = req.cpus.clone().unwrap_or_default();
-    let observed = cpus_of(&v, "observed_cpus").unwrap_or_default();
-    row.observed_cpus = cpus_cell(&observed);
-    if let Some(solver_req) = cpus_of(&v, "requested_cpus") {
-        if !requested.is_empty() && solver_req != requested {
+    copy_measurements(row, &summary);
+    match check_summary(&summary, &req.cpus.clone().unwrap_or_default()) {
+        Ok(()) => row.status = Status::Ok,
+        Err(reason) => {
             row.status = Status::Invalid;
-            row.reason = format!(
-                "solver reports requested CPUs [{}], harness asked for [{}]",
-                cpus_cell(&solver_req),
-                cpus_cell(&requested)
-            );
-            return;
+            row.reason = reason;
         }
     }
-    if !requested.is_empty() && observed != requested {
-        row.status = Status::Invalid;
-        row.reason = format!(
+}
+
+/// Why a child process failed: its error or exit code, and the tail of its standard error.
+fn process_failure(out: &RunOutput) -> String {
+    let mut s = out.error.clone().unwrap_or_else(|| match out.exit_code {
+        Some(c) => format!("solver exited with code {c}"),
+        None => "solver did not finish".into(),
+    });
+    if !out.stderr_tail.is_empty() {
+        s.push_str(": ");
+        s.push_str(&out.stderr_tail);
+    }
+    s
+}
+
+/// The JSON summary a successful `mpm` run wrote.
+fn read_summary(path: &Path) -> Result<Summary, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("solver exited 0 but wrote no JSON summary ({e})"))?;
+    serde_json::from_str(&text).map_err(|e| format!("bad JSON summary: {e}"))
+}
+
+/// Copy a summary's configuration as run, counts and measurements into its row.
+fn copy_measurements(row: &mut Row, s: &Summary) {
+    row.scenario = s.scenario.clone();
+    row.particles = Some(s.particles as u64);
+    row.cells = Some(s.cells as u64);
+    row.nodes = Some(s.nodes as u64);
+    row.mean_nodes = Some(s.mean_nodes);
+    row.grid_mode = s.grid_mode.clone();
+    row.steps = Some(s.steps);
+    row.sim_time_s = Some(s.sim_time);
+    row.end_reason = s.end_reason.name().to_string();
+    row.dt_first_s = Some(s.dt_first);
+    row.wall_s = Some(s.wall_s);
+    row.grid_stage_s = Some(s.grid_stage_s);
+    row.particle_stage_s = Some(s.particle_stage_s);
+    let sub = |name| s.substages.get(name);
+    row.sub_grid_fit_s = sub("grid_fit");
+    row.sub_binning_s = sub("binning");
+    row.sub_scatter_s = sub("scatter");
+    row.sub_assembly_s = sub("assembly");
+    row.sub_grid_update_s = sub("grid_update");
+    row.sub_gather_s = sub("gather");
+    row.sub_remap_scatter_s = sub("remap_scatter");
+    row.sub_remap_assembly_s = sub("remap_assembly");
+    row.sub_stress_update_s = sub("stress_update");
+    row.steady_s_per_step = s.steady_s_per_step;
+    row.ns_per_particle_step = s.ns_per_particle_step;
+    row.particle_steps_per_s = s.particle_steps_per_s;
+    row.worker_busy_s = s
+        .worker_busy_s
+        .as_ref()
+        .map(|b| b.iter().map(|b| format!("{b:.6}")).collect::<Vec<_>>().join(" "))
+        .unwrap_or_default();
+    row.load_imbalance = s.load_imbalance;
+    row.peak_rss_bytes = s.peak_rss_bytes;
+    row.kinetic_energy_initial_j = Some(s.kinetic_energy_initial);
+    row.kinetic_energy_j = Some(s.kinetic_energy);
+    row.internal_energy_j = Some(s.internal_energy);
+    row.initial_length_m = s.initial_length_m;
+    row.final_length_m = s.final_length_m;
+    row.face_diameter_m = s.face_diameter_m;
+    row.cloud_front_m = s.cloud_front_m;
+    row.cloud_width_m = s.cloud_width_m;
+    row.failed_particles = Some(s.failed_particles as u64);
+    row.oversubscribed |= s.oversubscribed;
+    row.observed_cpus = cpus_cell(&s.observed_cpus);
+}
+
+/// Whether a summary is a valid measurement of what was asked: the CPUs the harness
+/// requested (empty when not pinned) are the ones the solver was asked for and observed,
+/// and the figures are finite.
+fn check_summary(s: &Summary, requested: &[usize]) -> Result<(), String> {
+    if !requested.is_empty() && s.requested_cpus != requested {
+        return Err(format!(
+            "solver reports requested CPUs [{}], harness asked for [{}]",
+            cpus_cell(&s.requested_cpus),
+            cpus_cell(requested)
+        ));
+    }
+    if !requested.is_empty() && s.observed_cpus != requested {
+        return Err(format!(
             "pinning not honoured: requested CPUs [{}], observed [{}]",
-            cpus_cell(&requested),
-            cpus_cell(&observed)
-        );
-        return;
+            cpus_cell(requested),
+            cpus_cell(&s.observed_cpus)
+        ));
     }
-    let energies = [row.kinetic_energy_j, row.internal_energy_j, row.wall_s];
-    if energies.iter().any(|e| e.is_some_and(|x| !x.is_finite())) || row.wall_s.is_none() || row.steps.is_none() {
-        row.status = Status::Invalid;
-        row.reason = "summary lacks wall_s/steps or has non-finite values".into();
-        return;
+    if [s.kinetic_energy, s.internal_energy, s.wall_s].iter().any(|x| !x.is_finite()) {
+        return Err("summary has non-finite values (wall_s or energies)".into());
     }
-    row.status = Status::Ok;
+    Ok(())
 }

@@ -12,11 +12,12 @@
 use super::plot::{series_colour, write_png_svg, Line, Panel, PlotPoint};
 use crate::analysis::claims::{self, ClaimResult};
 use crate::analysis::results::{load_campaign, Campaign};
-use crate::analysis::stats::{Analysis, Stage};
+use crate::analysis::stats::{parallel_strategies, tag, Analysis, Stage};
 use crate::analysis::traffic::StageBytes;
 use crate::campaign::record::Status;
 use crate::machine::topology::human_bytes;
 use anyhow::{bail, Context, Result};
+use mpm_core::Strategy;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -117,15 +118,23 @@ fn machines_table(sets: &[Set]) -> String {
     s
 }
 
-fn combos(sets: &[Set]) -> Vec<(u32, String, String)> {
-    let mut v: Vec<(u32, String, String)> = sets
+/// (model, parallel strategy, optimisation level) of every cell of any set: O3 before O0,
+/// then by strategy name and model.
+fn combos(sets: &[Set]) -> Vec<(u32, Strategy, String)> {
+    let mut v: Vec<(u32, Strategy, String)> = sets
         .iter()
-        .flat_map(|s| s.analysis.cells.keys().map(|k| (k.model, k.strategy.clone(), k.opt_level.clone())))
-        .filter(|(_, st, _)| st != "serial")
+        .flat_map(|s| s.analysis.cells.keys().map(|k| (k.model, k.strategy, k.opt_level.clone())))
+        .filter(|(_, st, _)| st.is_parallel())
         .collect();
-    v.sort_by_key(|a| (a.2 == "o0", a.1.clone(), a.0));
+    v.sort_by_key(|a| (a.2 == "o0", a.1.name(), a.0));
     v.dedup();
     v
+}
+
+/// (strategy, optimisation level) of the scaling tables and figures: AE and DD at O3, then
+/// at O0.
+fn strategy_opt_pairs() -> Vec<(Strategy, &'static str)> {
+    ["o3", "o0"].into_iter().flat_map(|opt| parallel_strategies().map(move |s| (s, opt))).collect()
 }
 
 fn t1_table(sets: &[Set]) -> String {
@@ -139,12 +148,10 @@ fn t1_table(sets: &[Set]) -> String {
     }
     s.push('\n');
     for (m, st, opt) in combos(sets) {
-        let _ = write!(s, "| Model{m} | {} | {} |", st.to_uppercase(), opt.to_uppercase());
+        let _ = write!(s, "| Model{m} | {} | {} |", tag(st), opt.to_uppercase());
         for set in sets {
-            let cell = set
-                .analysis
-                .point(m, &st, &opt, 1, Stage::Total)
-                .map_or("-".to_string(), |p| p.time.scale(1e3).show(2));
+            let cell =
+                set.analysis.point(m, st, &opt, 1, Stage::Total).map_or("-".to_string(), |p| p.time.scale(1e3).show(2));
             let _ = write!(s, " {cell} |");
         }
         s.push('\n');
@@ -152,7 +159,7 @@ fn t1_table(sets: &[Set]) -> String {
     s
 }
 
-fn scaling_table(sets: &[Set], strategy: &str, opt: &str) -> Option<String> {
+fn scaling_table(sets: &[Set], strategy: Strategy, opt: &str) -> Option<String> {
     let threads: Vec<usize> = {
         let mut t: Vec<usize> = sets.iter().flat_map(|s| s.analysis.thread_counts()).filter(|&n| n > 1).collect();
         t.sort_unstable();
@@ -220,10 +227,10 @@ fn bandwidth_section(set: &Set) -> Option<String> {
     for (key, cell) in &an.cells {
         let (Some(p), Some(nodes)) = (cell.particles, cell.mean_nodes) else { continue };
         let Some(ceiling) = bw.ceiling(key.threads, &an.pin_policy) else { continue };
-        let bytes = StageBytes::estimate(&key.strategy, key.threads, p as f64, nodes);
+        let bytes = StageBytes::estimate(key.strategy, key.threads, p as f64, nodes);
         let mut cols = Vec::new();
         for stage in [Stage::Grid, Stage::Particle] {
-            let Some(pt) = an.point(key.model, &key.strategy, &key.opt_level, key.threads, stage) else {
+            let Some(pt) = an.point(key.model, key.strategy, &key.opt_level, key.threads, stage) else {
                 cols.push("-".to_string());
                 continue;
             };
@@ -240,7 +247,7 @@ fn bandwidth_section(set: &Set) -> Option<String> {
             s,
             "| Model{} | {} | {} | {}{} | {} | {} |",
             key.model,
-            key.strategy.to_uppercase(),
+            tag(key.strategy),
             key.opt_level.to_uppercase(),
             key.threads,
             if cell.oversubscribed { " *" } else { "" },
@@ -258,7 +265,7 @@ fn efficiency_figures(sets: &[Set], out: &Path) -> Result<Vec<(String, String)>>
     let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
     let stem = out.file_stem().map_or("report".into(), |s| s.to_string_lossy().into_owned());
     let mut made = Vec::new();
-    for (strategy, opt) in [("ae", "o3"), ("dd", "o3"), ("ae", "o0"), ("dd", "o0")] {
+    for (strategy, opt) in strategy_opt_pairs() {
         let models: Vec<u32> = {
             let mut m: Vec<u32> =
                 combos(sets).into_iter().filter(|c| c.1 == strategy && c.2 == opt).map(|c| c.0).collect();
@@ -314,7 +321,7 @@ fn efficiency_figures(sets: &[Set], out: &Path) -> Result<Vec<(String, String)>>
         let name = format!("{stem}-eff-{strategy}-{opt}");
         let title = format!(
             "Parallel efficiency of {} ({}), total step: machines overlaid",
-            if strategy == "ae" { "array expansion" } else { "domain decomposition" },
+            strategy.label(),
             opt.to_uppercase()
         );
         write_png_svg(
@@ -377,9 +384,9 @@ pub fn build(args: &ReportArgs) -> Result<String> {
         s,
         "## Speedup and efficiency (total step)\n\nSpeedup T1/Tn and efficiency speedup/n (paper Eqs. 19-20), ratios of medians with 95 % bootstrap intervals. `*`: oversubscribed (more threads than cores: time sharing, not scaling).\n"
     );
-    for (st, opt) in [("ae", "o3"), ("dd", "o3"), ("ae", "o0"), ("dd", "o0")] {
+    for (st, opt) in strategy_opt_pairs() {
         if let Some(t) = scaling_table(&sets, st, opt) {
-            let _ = writeln!(s, "### {} {}\n\n{t}", st.to_uppercase(), opt.to_uppercase());
+            let _ = writeln!(s, "### {} {}\n\n{t}", tag(st), opt.to_uppercase());
         }
     }
     let figs = efficiency_figures(&sets, &args.out)?;

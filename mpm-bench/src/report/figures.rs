@@ -16,8 +16,9 @@
 
 use super::plot::{write_png_svg, Line, Panel, PlotPoint};
 use crate::analysis::results::{load_campaign, Campaign};
-use crate::analysis::stats::{Analysis, CellKey, Point, Stage, StatsOptions};
+use crate::analysis::stats::{parallel_strategies, tag, Analysis, CellKey, Point, Stage, StatsOptions};
 use anyhow::{Context, Result};
+use mpm_core::Strategy;
 use plotters::style::RGBColor;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -57,8 +58,8 @@ pub enum Metric {
 pub struct FigureSpec {
     /// Figure number (7-14).
     pub number: u32,
-    /// `ae` or `dd`.
-    pub strategy: &'static str,
+    /// The strategy plotted.
+    pub strategy: Strategy,
     /// `o3` or `o0`.
     pub opt_level: &'static str,
     /// What is plotted.
@@ -77,7 +78,7 @@ impl FigureSpec {
             Metric::Speedup => "Speedup",
             Metric::Efficiency => "Efficiency",
         };
-        let strat = if self.strategy == "ae" { "array expansion (AE)" } else { "domain decomposition (DD)" };
+        let strat = format!("{} ({})", self.strategy.label(), tag(self.strategy));
         let opt = if self.opt_level == "o3" { "with O3 optimisation" } else { "without optimisation" };
         format!("Fig. {}  {what} of {strat} {opt}", self.number)
     }
@@ -85,14 +86,14 @@ impl FigureSpec {
 
 /// The paper's Figures 7-14.
 pub const PAPER_FIGURES: [FigureSpec; 8] = [
-    FigureSpec { number: 7, strategy: "ae", opt_level: "o3", metric: Metric::Speedup },
-    FigureSpec { number: 8, strategy: "ae", opt_level: "o3", metric: Metric::Efficiency },
-    FigureSpec { number: 9, strategy: "ae", opt_level: "o0", metric: Metric::Speedup },
-    FigureSpec { number: 10, strategy: "ae", opt_level: "o0", metric: Metric::Efficiency },
-    FigureSpec { number: 11, strategy: "dd", opt_level: "o3", metric: Metric::Speedup },
-    FigureSpec { number: 12, strategy: "dd", opt_level: "o3", metric: Metric::Efficiency },
-    FigureSpec { number: 13, strategy: "dd", opt_level: "o0", metric: Metric::Speedup },
-    FigureSpec { number: 14, strategy: "dd", opt_level: "o0", metric: Metric::Efficiency },
+    FigureSpec { number: 7, strategy: Strategy::ArrayExpansion, opt_level: "o3", metric: Metric::Speedup },
+    FigureSpec { number: 8, strategy: Strategy::ArrayExpansion, opt_level: "o3", metric: Metric::Efficiency },
+    FigureSpec { number: 9, strategy: Strategy::ArrayExpansion, opt_level: "o0", metric: Metric::Speedup },
+    FigureSpec { number: 10, strategy: Strategy::ArrayExpansion, opt_level: "o0", metric: Metric::Efficiency },
+    FigureSpec { number: 11, strategy: Strategy::DomainDecomposition, opt_level: "o3", metric: Metric::Speedup },
+    FigureSpec { number: 12, strategy: Strategy::DomainDecomposition, opt_level: "o3", metric: Metric::Efficiency },
+    FigureSpec { number: 13, strategy: Strategy::DomainDecomposition, opt_level: "o0", metric: Metric::Speedup },
+    FigureSpec { number: 14, strategy: Strategy::DomainDecomposition, opt_level: "o0", metric: Metric::Efficiency },
 ];
 
 /// Size of a figure in pixels.
@@ -158,7 +159,7 @@ pub fn paper_panels(an: &Analysis, spec: &FigureSpec) -> Vec<Panel> {
             if lines.iter().all(|l| l.points.is_empty()) {
                 notes.push(format!(
                     "no ok runs of {} {} in this campaign",
-                    spec.strategy.to_uppercase(),
+                    tag(spec.strategy),
                     spec.opt_level.to_uppercase()
                 ));
             }
@@ -218,7 +219,7 @@ pub fn memory_panels(an: &Analysis) -> Vec<Panel> {
             let mut lines = Vec::new();
             let mut notes = Vec::new();
             let mut top = 0.0f64;
-            for (si, strat) in ["ae", "dd"].into_iter().enumerate() {
+            for (si, strat) in parallel_strategies().enumerate() {
                 for opt in ["o3", "o0"] {
                     let mut pts = Vec::new();
                     let mut skipped = Vec::new();
@@ -240,7 +241,7 @@ pub fn memory_panels(an: &Analysis) -> Vec<Panel> {
                     if !skipped.is_empty() {
                         notes.push(format!(
                             "{} {}: no run at {} thread(s) (skipped/failed)",
-                            strat.to_uppercase(),
+                            tag(strat),
                             opt.to_uppercase(),
                             skipped.join(", ")
                         ));
@@ -251,7 +252,7 @@ pub fn memory_panels(an: &Analysis) -> Vec<Panel> {
                     top = pts.iter().map(|p| p.hi).fold(top, f64::max);
                     let o0 = opt == "o0";
                     lines.push(Line {
-                        label: format!("{} {}", strat.to_uppercase(), opt.to_uppercase()),
+                        label: format!("{} {}", tag(strat), opt.to_uppercase()),
                         colour: match (si, o0) {
                             (0, false) => RGBColor(31, 119, 180),
                             (0, true) => RGBColor(120, 180, 230),

@@ -2,6 +2,7 @@
 //! snapshots). See `mpm run taylor --help`.
 
 use anyhow::{bail, Context, Result};
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mpm_cli::atomic;
@@ -183,8 +184,8 @@ struct RunOptions {
 
     /// How the nodal scatter is made race-free: serial (1 thread), ae (array expansion) or
     /// dd (domain decomposition).
-    #[arg(long, value_enum, default_value_t = StrategyArg::Serial)]
-    strategy: StrategyArg,
+    #[arg(long, default_value_t = Strategy::Serial, value_parser = strategy_parser())]
+    strategy: Strategy,
 
     /// Worker threads of the rayon pool (exactly this many). Default 1; more than 1 needs
     /// --strategy ae or dd. More threads than cores is allowed and flagged as oversubscribed.
@@ -258,14 +259,18 @@ enum GridArg {
     Adaptive,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-enum StrategyArg {
-    /// One thread, scatter straight into the global arrays.
-    Serial,
-    /// Array expansion: one copy of the nodal arrays per thread, summed after the scatter.
-    Ae,
-    /// Domain decomposition: one patch of the grid per thread.
-    Dd,
+/// `--strategy`: one of the short names of [`Strategy::ALL`], described by its label where
+/// that says more than the name.
+fn strategy_parser() -> impl TypedValueParser<Value = Strategy> {
+    let value = |s: Strategy| {
+        let v = PossibleValue::new(s.name());
+        if s.label() == s.name() {
+            v
+        } else {
+            v.help(s.label())
+        }
+    };
+    PossibleValuesParser::new(Strategy::ALL.map(value)).try_map(|name| name.parse::<Strategy>())
 }
 
 fn parse_f64(s: &str) -> Result<f64, String> {
@@ -446,14 +451,6 @@ impl Progress {
     }
 }
 
-fn strategy_of(s: StrategyArg) -> Strategy {
-    match s {
-        StrategyArg::Serial => Strategy::Serial,
-        StrategyArg::Ae => Strategy::ArrayExpansion,
-        StrategyArg::Dd => Strategy::DomainDecomposition,
-    }
-}
-
 /// The scenario a run was asked for.
 enum ScenarioRun {
     Taylor(TaylorArgs),
@@ -598,13 +595,9 @@ fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result<()>
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64());
     let o = scenario.options();
     // ---- everything that can be checked before building the model -------------------
-    let strategy = strategy_of(o.strategy);
+    let strategy = o.strategy;
     let threads = o.threads.unwrap_or(1);
-    if strategy == Strategy::Serial && threads > 1 {
-        bail!(
-            "the serial strategy runs on 1 thread, not {threads}: use --strategy ae or --strategy dd for more threads"
-        );
-    }
+    strategy.check_threads(threads).map_err(anyhow::Error::msg)?;
     let cpus = match &o.cpus {
         Some(list) => {
             let c = pinning::parse_cpu_list(list).context("invalid --cpus")?;
