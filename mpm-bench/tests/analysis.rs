@@ -143,29 +143,34 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
         }
     }
     if let Some(t) = c.topo {
-        let machine = Machine::synthetic(t).unwrap();
-        let mut info = fingerprint::machine_info(&machine);
-        info.memory_bytes = 16 << 30;
-        let m = Manifest {
-            manifest_version: MANIFEST_VERSION,
-            campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
-            campaign: serde_json::Value::Null,
-            machine: info,
-            software: SoftwareInfo {
-                rustc: "rustc test".into(),
-                cargo_profiles: serde_json::Value::Null,
-                rustflags: String::new(),
-                binaries: vec![],
-                env: BTreeMap::new(),
-                hwloc_api: "2.9.0".into(),
-                harness_version: "test".into(),
-                git: GitInfo::default(),
-            },
-            sessions: vec![],
-        };
-        manifest::write(&dir.join("manifest.json"), &m).unwrap();
+        write_manifest(dir, t);
     }
     dir.to_path_buf()
+}
+
+/// The manifest of a crafted campaign on the hwloc synthetic topology `t` (16 GiB).
+fn write_manifest(dir: &Path, t: &str) {
+    let machine = Machine::synthetic(t).unwrap();
+    let mut info = fingerprint::machine_info(&machine);
+    info.memory_bytes = 16 << 30;
+    let m = Manifest {
+        manifest_version: MANIFEST_VERSION,
+        campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
+        campaign: serde_json::Value::Null,
+        machine: info,
+        software: SoftwareInfo {
+            rustc: "rustc test".into(),
+            cargo_profiles: serde_json::Value::Null,
+            rustflags: String::new(),
+            binaries: vec![],
+            env: BTreeMap::new(),
+            hwloc_api: "2.9.0".into(),
+            harness_version: "test".into(),
+            git: GitInfo::default(),
+        },
+        sessions: vec![],
+    };
+    manifest::write(&dir.join("manifest.json"), &m).unwrap();
 }
 
 fn analysis(dir: &Path) -> Analysis {

@@ -460,34 +460,23 @@ pub struct Summary {
 impl Summary {
     /// Build the summary of a finished run. Reads `VmHWM` now.
     pub fn build(sim: &Simulation, ctx: RunContext<'_>) -> Self {
+        let mut s = Self::configuration(sim, &ctx);
+        s.fill_timing(sim, ctx.timing);
+        s.fill_placement(&ctx);
+        s.fill_physics(sim, &ctx);
+        s.model_name = ctx.model_name;
+        s.history = ctx.history;
+        s.command_line = ctx.command_line;
+        s
+    }
+
+    /// The run as configured and its counts: scenario, model, strategy, build, material,
+    /// grid, steps and time reached, memory.
+    fn configuration(sim: &Simulation, ctx: &RunContext<'_>) -> Self {
         let cfg = sim.config();
-        let particles = sim.particles().len();
-        let steps = sim.steps();
-        let t = ctx.timing;
-        let warmup = t.warmup_steps.min(steps);
-        let steady_steps = steps - warmup;
-        let steady_times = sim.times().since(&t.warmup_times);
-        let steady_wall = (t.wall_s - t.warmup_wall_s).max(0.0);
-        let per_step = (steady_steps > 0).then(|| steady_wall / steady_steps as f64);
-        let busy: Option<Vec<f64>> = sim.worker_busy().map(|now| match &t.warmup_busy {
-            Some(w) => now.iter().zip(w).map(|(a, b)| (a - b).max(0.0)).collect(),
-            None => now,
-        });
-        let pstep = particles as f64 * steady_steps as f64;
-        let (ns, rate) = if steady_steps > 0 && steady_wall > 0.0 {
-            (Some(steady_wall * 1e9 / pstep), Some(pstep / steady_wall))
-        } else {
-            (None, None)
-        };
-        let init = sim.initial();
-        let last = sim.diagnostics();
-        let taylor = ctx.taylor.map(|(f0, spacing)| (f0, measure(sim.particles(), spacing)));
-        let cloud: Option<CloudFigures> = ctx.impact.map(|g| impact::measure(sim.particles(), &g));
-        let dd_layout = sim.domain_decomposition().map(|dd| dd.layout());
         Self {
             scenario: ctx.scenario.to_string(),
             model: ctx.model,
-            model_name: ctx.model_name,
             strategy: cfg.strategy,
             threads: ctx.pool.pool.current_num_threads(),
             opt_level: OPT_LEVEL.to_string(),
@@ -501,68 +490,101 @@ impl Summary {
             cfl: cfg.cfl,
             wall: ctx.wall.to_string(),
             velocity_m_s: ctx.velocity,
-            particles,
+            particles: sim.particles().len(),
             cells: ctx.cells,
             nodes: ctx.nodes,
             mean_nodes: sim.mean_nodes(),
             final_nodes: sim.geom().num_nodes(),
             dx_m: sim.geom().dx,
-            steps,
-            warmup_steps: warmup,
-            steady_steps,
+            steps: sim.steps(),
             dt_first: sim.dt_first(),
             dt_next: sim.dt_next(),
             sim_time: sim.time(),
             end_time: ctx.end_time,
             step_limit: ctx.step_limit,
             end_reason: ctx.end_reason,
-            wall_s: t.wall_s,
-            output_s: t.output_s,
-            grid_stage_s: sim.times().grid_stage(),
-            particle_stage_s: sim.times().particle_stage(),
-            substages: Substages::from_times(sim.times()),
-            steady_wall_s: steady_wall,
-            steady_grid_stage_s: steady_times.grid_stage(),
-            steady_particle_stage_s: steady_times.particle_stage(),
-            steady_substages: Substages::from_times(&steady_times),
-            steady_s_per_step: per_step,
-            ns_per_particle_step: ns,
-            particle_steps_per_s: rate,
-            load_imbalance: busy.as_deref().and_then(load_imbalance),
-            worker_busy_s: busy,
             peak_rss_bytes: peak_rss_bytes(),
             model_memory_bytes: sim.memory_bytes(),
-            requested_cpus: ctx.pool.requested.clone(),
-            observed_cpus: ctx.pool.observed_cpus(),
-            worker_affinity: ctx.pool.affinities(),
-            pinned: ctx.pool.pinned(),
-            pinning_verified: ctx.pool.verified(),
-            oversubscribed: ctx.oversubscribed,
-            available_cores: ctx.available_cores,
-            kinetic_energy_initial: init.kinetic,
-            internal_energy_initial: init.internal,
-            kinetic_energy: last.kinetic,
-            internal_energy: last.internal,
-            momentum_initial: init.momentum,
-            momentum: last.momentum,
-            failed_particles: sim.particles().failed_count(),
-            history: ctx.history,
-            initial_length_m: taylor.map(|(a, _)| a.length),
-            final_length_m: taylor.map(|(_, b)| b.length),
-            initial_face_diameter_m: taylor.map(|(a, _)| a.face_diameter),
-            face_diameter_m: taylor.map(|(_, b)| b.face_diameter),
-            length_convention: taylor.map(|_| LENGTH_CONVENTION.to_string()),
-            cloud_front_m: cloud.map(|c| c.cloud_front),
-            cloud_front_robust_m: cloud.map(|c| c.cloud_front_robust),
-            cloud_width_m: cloud.map(|c| c.cloud_width),
-            cloud_width_robust_m: cloud.map(|c| c.cloud_width_robust),
-            hole_diameter_m: cloud.map(|c| c.hole_diameter),
-            front_velocity_m_s: cloud.map(|c| c.front_velocity),
-            debris_mass_kg: cloud.map(|c| c.debris_mass),
             spacing_m: ctx.impact.map(|_| sim.spacing()[0]),
-            dd_layout,
-            command_line: ctx.command_line,
+            dd_layout: sim.domain_decomposition().map(|dd| dd.layout()),
             started_unix_s: ctx.started_unix_s,
+            ..Self::default()
+        }
+    }
+
+    /// Wall time, stage times and the steady state after the warm-up (see the module docs).
+    fn fill_timing(&mut self, sim: &Simulation, t: &Timing) {
+        let particles = sim.particles().len();
+        let warmup = t.warmup_steps.min(self.steps);
+        let steady_steps = self.steps - warmup;
+        let steady_times = sim.times().since(&t.warmup_times);
+        let steady_wall = (t.wall_s - t.warmup_wall_s).max(0.0);
+        let busy: Option<Vec<f64>> = sim.worker_busy().map(|now| match &t.warmup_busy {
+            Some(w) => now.iter().zip(w).map(|(a, b)| (a - b).max(0.0)).collect(),
+            None => now,
+        });
+        let pstep = particles as f64 * steady_steps as f64;
+        let (ns, rate) = if steady_steps > 0 && steady_wall > 0.0 {
+            (Some(steady_wall * 1e9 / pstep), Some(pstep / steady_wall))
+        } else {
+            (None, None)
+        };
+        self.warmup_steps = warmup;
+        self.steady_steps = steady_steps;
+        self.wall_s = t.wall_s;
+        self.output_s = t.output_s;
+        self.grid_stage_s = sim.times().grid_stage();
+        self.particle_stage_s = sim.times().particle_stage();
+        self.substages = Substages::from_times(sim.times());
+        self.steady_wall_s = steady_wall;
+        self.steady_grid_stage_s = steady_times.grid_stage();
+        self.steady_particle_stage_s = steady_times.particle_stage();
+        self.steady_substages = Substages::from_times(&steady_times);
+        self.steady_s_per_step = (steady_steps > 0).then(|| steady_wall / steady_steps as f64);
+        self.ns_per_particle_step = ns;
+        self.particle_steps_per_s = rate;
+        self.load_imbalance = busy.as_deref().and_then(load_imbalance);
+        self.worker_busy_s = busy;
+    }
+
+    /// Where the workers were asked to run and where they ran.
+    fn fill_placement(&mut self, ctx: &RunContext<'_>) {
+        self.requested_cpus = ctx.pool.requested.clone();
+        self.observed_cpus = ctx.pool.observed_cpus();
+        self.worker_affinity = ctx.pool.affinities();
+        self.pinned = ctx.pool.pinned();
+        self.pinning_verified = ctx.pool.verified();
+        self.oversubscribed = ctx.oversubscribed;
+        self.available_cores = ctx.available_cores;
+    }
+
+    /// Energies, momentum, failures and the scenario's own figures.
+    fn fill_physics(&mut self, sim: &Simulation, ctx: &RunContext<'_>) {
+        let (init, last) = (sim.initial(), sim.diagnostics());
+        self.kinetic_energy_initial = init.kinetic;
+        self.internal_energy_initial = init.internal;
+        self.kinetic_energy = last.kinetic;
+        self.internal_energy = last.internal;
+        self.momentum_initial = init.momentum;
+        self.momentum = last.momentum;
+        self.failed_particles = sim.particles().failed_count();
+        if let Some((f0, spacing)) = ctx.taylor {
+            let f = measure(sim.particles(), spacing);
+            self.initial_length_m = Some(f0.length);
+            self.final_length_m = Some(f.length);
+            self.initial_face_diameter_m = Some(f0.face_diameter);
+            self.face_diameter_m = Some(f.face_diameter);
+            self.length_convention = Some(LENGTH_CONVENTION.to_string());
+        }
+        if let Some(g) = &ctx.impact {
+            let c: CloudFigures = impact::measure(sim.particles(), g);
+            self.cloud_front_m = Some(c.cloud_front);
+            self.cloud_front_robust_m = Some(c.cloud_front_robust);
+            self.cloud_width_m = Some(c.cloud_width);
+            self.cloud_width_robust_m = Some(c.cloud_width_robust);
+            self.hole_diameter_m = Some(c.hole_diameter);
+            self.front_velocity_m_s = Some(c.front_velocity);
+            self.debris_mass_kg = Some(c.debris_mass);
         }
     }
 }

@@ -32,7 +32,8 @@ use crate::machine::topology::{human_bytes, Machine};
 use crate::util::{median, now_rfc3339};
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use mpm_cli::pinning;
+use mpm_cli::pinning::{self, PinnedPool};
+use mpm_cli::summary::load_imbalance;
 use mpm_core::scenario::taylor::TaylorBar;
 use mpm_core::{SimConfig, Simulation, Strategy};
 use serde::Serialize;
@@ -198,26 +199,45 @@ fn check_args(a: &PairedArgs) -> Result<()> {
     Ok(())
 }
 
-/// Run the measurement (no printing).
-pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
-    check_args(a)?;
-    let strategies = parse_strategies(&a.strategies)?;
-    let policy: PinPolicy = a.pin.parse()?;
-    let machine = Machine::detect()?;
-    machine.check_policy(&policy)?;
-    let placement = machine.place(&policy, a.threads)?;
-    let cpus = (!placement.cpus.is_empty()).then_some(placement.cpus.as_slice());
-    let pool_t = pinning::build_pool(a.threads, cpus)?;
-    let pool_1 = pinning::build_pool(1, cpus.map(|c| &c[..1]))?;
-    for p in [&pool_t, &pool_1] {
-        let bad = p.mismatches();
-        if !bad.is_empty() {
-            bail!("pinning not as requested: {}", bad.join("; "));
+/// The 1-thread and the `T`-thread pool, pinned by `policy` (the 1-thread worker on the
+/// placement's first CPU); a worker not where it was asked to be is an error.
+struct Pools {
+    one: PinnedPool,
+    many: PinnedPool,
+    oversubscribed: bool,
+}
+
+impl Pools {
+    fn build(policy: &PinPolicy, threads: usize) -> Result<Self> {
+        let machine = Machine::detect()?;
+        machine.check_policy(policy)?;
+        let placement = machine.place(policy, threads)?;
+        let cpus = (!placement.cpus.is_empty()).then_some(placement.cpus.as_slice());
+        let many = pinning::build_pool(threads, cpus)?;
+        let one = pinning::build_pool(1, cpus.map(|c| &c[..1]))?;
+        for p in [&many, &one] {
+            let bad = p.mismatches();
+            if !bad.is_empty() {
+                bail!("pinning not as requested: {}", bad.join("; "));
+            }
         }
+        Ok(Self { one, many, oversubscribed: placement.oversubscribed })
     }
 
+    fn of(&self, threads: usize) -> &PinnedPool {
+        if threads == 1 {
+            &self.one
+        } else {
+            &self.many
+        }
+    }
+}
+
+/// The configurations: serial, then each strategy at 1 and at `threads` threads, all from
+/// the same Taylor bar set-up, refused up front when together they would not fit in memory.
+fn configurations(a: &PairedArgs, strategies: &[Strategy]) -> Result<(Vec<Config>, usize)> {
     let mut configs: Vec<(Strategy, usize)> = vec![(Strategy::Serial, 1)];
-    for &s in &strategies {
+    for &s in strategies {
         configs.push((s, 1));
         configs.push((s, a.threads));
     }
@@ -236,8 +256,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
     }
     let setup = TaylorBar { model: a.model, ..TaylorBar::default() }.setup()?;
     let particles = setup.particles.len();
-    let bar_length = mpm_core::scenario::taylor::LENGTH;
-    let mut runs: Vec<Config> = configs
+    let runs = configs
         .iter()
         .map(|&(strategy, threads)| {
             let config = SimConfig { strategy, threads, ..SimConfig::default() };
@@ -250,18 +269,37 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
             })
         })
         .collect::<Result<_>>()?;
-    drop(setup);
+    Ok((runs, particles))
+}
 
-    let pool_of = |threads: usize| if threads == 1 { &pool_1 } else { &pool_t };
-    let advance = |c: &mut Config, steps: u64| -> Result<()> {
-        let pool = &pool_of(c.threads).pool;
-        let (strategy, threads) = (c.strategy, c.threads);
-        pool.install(|| (0..steps).try_for_each(|_| c.sim.step(pool, f64::INFINITY)))
+impl Config {
+    /// Advance `steps` steps on its pool.
+    fn advance(&mut self, pools: &Pools, steps: u64) -> Result<()> {
+        let pool = &pools.of(self.threads).pool;
+        let (strategy, threads) = (self.strategy, self.threads);
+        pool.install(|| (0..steps).try_for_each(|_| self.sim.step(pool, f64::INFINITY)))
             .with_context(|| format!("{strategy} with {threads} thread(s) failed"))
-    };
+    }
 
-    let total = (a.blocks * runs.len()) as u64;
-    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(total) };
+    /// One timed block: seconds per step and, for a team, the load imbalance of the block.
+    fn block(&mut self, pools: &Pools, steps: u64) -> Result<()> {
+        let busy0 = self.sim.worker_busy();
+        let t0 = Instant::now();
+        self.advance(pools, steps)?;
+        self.seconds.push(t0.elapsed().as_secs_f64() / steps as f64);
+        if let (Some(before), Some(after)) = (busy0, self.sim.worker_busy()) {
+            let d: Vec<f64> = after.iter().zip(&before).map(|(x, y)| x - y).collect();
+            self.imbalance.push(load_imbalance(&d).unwrap_or(f64::NAN));
+        }
+        Ok(())
+    }
+}
+
+/// Untimed warm-up steps of every configuration, then `blocks` rounds of timed blocks in
+/// rotating order. Returns the steps per block (from the serial warm-up's speed unless
+/// `--block-steps` is given).
+fn run_blocks(a: &PairedArgs, runs: &mut [Config], pools: &Pools) -> Result<u64> {
+    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new((a.blocks * runs.len()) as u64) };
     bar.set_style(
         ProgressStyle::with_template("[{elapsed_precise}] {bar:24.cyan/blue} {pos}/{len} blocks ETA {eta} | {msg}")
             .expect("valid template")
@@ -271,7 +309,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
     let mut serial_step = f64::NAN;
     for (i, c) in runs.iter_mut().enumerate() {
         let t0 = Instant::now();
-        advance(c, a.warmup)?;
+        c.advance(pools, a.warmup)?;
         if i == 0 {
             serial_step = t0.elapsed().as_secs_f64() / a.warmup as f64;
         }
@@ -282,58 +320,66 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
         for k in 0..n {
             let c = &mut runs[(b + k) % n];
             bar.set_message(format!("block {} of {}: {} x{}", b + 1, a.blocks, c.strategy, c.threads));
-            let busy0 = c.sim.worker_busy();
-            let t0 = Instant::now();
-            advance(c, block_steps)?;
-            c.seconds.push(t0.elapsed().as_secs_f64() / block_steps as f64);
-            if let (Some(before), Some(after)) = (busy0, c.sim.worker_busy()) {
-                let d: Vec<f64> = after.iter().zip(&before).map(|(x, y)| x - y).collect();
-                c.imbalance.push(mpm_cli::summary::load_imbalance(&d).unwrap_or(f64::NAN));
-            }
+            c.block(pools, block_steps)?;
             bar.inc(1);
         }
     }
     bar.finish_and_clear();
+    Ok(block_steps)
+}
 
+/// The paired efficiencies of one strategy from its 1-thread and `T`-thread blocks.
+fn paired_strategy(s: Strategy, one: &Config, many: &Config, serial: &[f64], threads: usize) -> PairedStrategy {
     let opts = StatsOptions::default();
-    let serial = runs[0].seconds.clone();
-    let t = a.threads as f64;
-    let mut out = Vec::new();
-    for (i, &s) in strategies.iter().enumerate() {
-        let (one, many) = (&runs[1 + 2 * i], &runs[2 + 2 * i]);
-        let ratios: Vec<f64> = one.seconds.iter().zip(&many.seconds).map(|(x, y)| x / (t * y)).collect();
-        let vs_serial: Vec<f64> = one.seconds.iter().zip(&serial).map(|(x, y)| x / y).collect();
-        let min = |v: &[f64]| v.iter().copied().fold(f64::INFINITY, f64::min);
-        let dx = one
-            .sim
-            .particles()
-            .x
-            .iter()
-            .zip(&many.sim.particles().x)
-            .flat_map(|(p, q)| (0..3).map(move |k| (p[k] - q[k]).abs()))
-            .fold(0.0, f64::max);
-        out.push(PairedStrategy {
-            strategy: s,
-            efficiency: stats::bootstrap(&[&ratios], &|m| m[0], &opts, &format!("paired-{s}")),
-            efficiency_of_medians: median(&one.seconds) / (t * median(&many.seconds)),
-            efficiency_of_best: min(&one.seconds) / (t * min(&many.seconds)),
-            one_thread_vs_serial: stats::bootstrap(&[&vs_serial], &|m| m[0], &opts, &format!("vs-serial-{s}")),
-            block_efficiency: ratios,
-            block_imbalance: many.imbalance.clone(),
-            t1_s_per_step: one.seconds.clone(),
-            tt_s_per_step: many.seconds.clone(),
-            max_position_difference: dx / bar_length,
-        });
+    let t = threads as f64;
+    let ratios: Vec<f64> = one.seconds.iter().zip(&many.seconds).map(|(x, y)| x / (t * y)).collect();
+    let vs_serial: Vec<f64> = one.seconds.iter().zip(serial).map(|(x, y)| x / y).collect();
+    let min = |v: &[f64]| v.iter().copied().fold(f64::INFINITY, f64::min);
+    let dx = one
+        .sim
+        .particles()
+        .x
+        .iter()
+        .zip(&many.sim.particles().x)
+        .flat_map(|(p, q)| (0..3).map(move |k| (p[k] - q[k]).abs()))
+        .fold(0.0, f64::max);
+    PairedStrategy {
+        strategy: s,
+        efficiency: stats::bootstrap(&[&ratios], &|m| m[0], &opts, &format!("paired-{s}")),
+        efficiency_of_medians: median(&one.seconds) / (t * median(&many.seconds)),
+        efficiency_of_best: min(&one.seconds) / (t * min(&many.seconds)),
+        one_thread_vs_serial: stats::bootstrap(&[&vs_serial], &|m| m[0], &opts, &format!("vs-serial-{s}")),
+        block_efficiency: ratios,
+        block_imbalance: many.imbalance.clone(),
+        t1_s_per_step: one.seconds.clone(),
+        tt_s_per_step: many.seconds.clone(),
+        max_position_difference: dx / mpm_core::scenario::taylor::LENGTH,
     }
+}
+
+/// Run the measurement (no printing).
+pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
+    check_args(a)?;
+    let strategies = parse_strategies(&a.strategies)?;
+    let policy: PinPolicy = a.pin.parse()?;
+    let pools = Pools::build(&policy, a.threads)?;
+    let (mut runs, particles) = configurations(a, &strategies)?;
+    let block_steps = run_blocks(a, &mut runs, &pools)?;
+    let serial = runs[0].seconds.clone();
+    let out = strategies
+        .iter()
+        .enumerate()
+        .map(|(i, &s)| paired_strategy(s, &runs[1 + 2 * i], &runs[2 + 2 * i], &serial, a.threads))
+        .collect();
     let git = git_info(None);
     Ok(PairedReport {
         model: a.model,
         particles,
         threads: a.threads,
         pin: policy.label(),
-        observed_cpus: if pool_t.pinned() { pool_t.observed_cpus() } else { Vec::new() },
-        observed_cpu_one: if pool_1.pinned() { pool_1.observed_cpus() } else { Vec::new() },
-        oversubscribed: placement.oversubscribed,
+        observed_cpus: if pools.many.pinned() { pools.many.observed_cpus() } else { Vec::new() },
+        observed_cpu_one: if pools.one.pinned() { pools.one.observed_cpus() } else { Vec::new() },
+        oversubscribed: pools.oversubscribed,
         blocks: a.blocks,
         block_steps,
         warmup_steps: a.warmup,

@@ -335,6 +335,32 @@ impl Cell {
     pub fn measured(&self) -> bool {
         !self.times[0].is_empty()
     }
+
+    /// Add a row of this cell: its times, peak memory and flags when it is `ok` and timed
+    /// (then `true`), else its status and reason.
+    fn add(&mut self, r: &Row) -> bool {
+        self.oversubscribed |= r.oversubscribed;
+        self.mem_estimate = self.mem_estimate.max(r.mem_estimate_bytes);
+        self.particles = self.particles.or(r.particles);
+        if r.status != Status::Ok {
+            self.not_ok.push((r.status, r.reason.clone()));
+            return false;
+        }
+        let Some(total) = Stage::Total.time_per_step(r) else {
+            self.not_ok.push((Status::Invalid, "status ok but no time measured".into()));
+            return false;
+        };
+        self.times[0].push(total);
+        for (i, st) in [Stage::Grid, Stage::Particle].into_iter().enumerate() {
+            if let Some(t) = st.time_per_step(r) {
+                self.times[i + 1].push(t);
+            }
+        }
+        if let Some(b) = r.peak_rss_bytes {
+            self.peak_rss.push(b as f64);
+        }
+        true
+    }
 }
 
 /// The base case of a speedup.
@@ -392,6 +418,16 @@ impl Analysis {
     /// `None`, the first of close, spread, none, other lists) is analysed, and a note says so.
     pub fn from_rows(rows: &[Row], pin: Option<&str>, opts: &StatsOptions) -> Self {
         let mut an = Analysis::default();
+        an.choose_pin(rows, pin);
+        an.note_machines(rows);
+        let pin = an.pin_policy.clone();
+        an.add_rows(rows.iter().filter(|r| r.pin_policy == pin));
+        an.estimate_points(opts);
+        an
+    }
+
+    /// The pinning policy to analyse, with a note when the rows use several.
+    fn choose_pin(&mut self, rows: &[Row], pin: Option<&str>) {
         let pins: BTreeSet<&str> = rows.iter().map(|r| r.pin_policy.as_str()).collect();
         let chosen = match pin {
             Some(p) => p.to_string(),
@@ -403,105 +439,100 @@ impl Analysis {
                 .unwrap_or_default(),
         };
         if pins.len() > 1 {
-            an.notes.push(format!(
+            self.notes.push(format!(
                 "the rows use {} pinning policies ({}); only '{chosen}' is analysed",
                 pins.len(),
                 pins.iter().copied().collect::<Vec<_>>().join(", ")
             ));
         }
-        an.pin_policy = chosen.clone();
+        self.pin_policy = chosen;
+    }
+
+    /// The machines the rows come from, with a note when there are several.
+    fn note_machines(&mut self, rows: &[Row]) {
         let ids: BTreeSet<&str> = rows.iter().map(|r| r.machine_id.as_str()).filter(|s| !s.is_empty()).collect();
-        an.machine_ids = ids.into_iter().map(str::to_string).collect();
-        if an.machine_ids.len() > 1 {
-            an.notes.push(format!(
+        self.machine_ids = ids.into_iter().map(str::to_string).collect();
+        if self.machine_ids.len() > 1 {
+            self.notes.push(format!(
                 "rows from {} machines ({}) are mixed in one campaign",
-                an.machine_ids.len(),
-                an.machine_ids.join(", ")
+                self.machine_ids.len(),
+                self.machine_ids.join(", ")
             ));
         }
+    }
+
+    /// Every row into its cell: `ok` rows as measurements, the others with their reason;
+    /// each cell's mean node count is the median over its measured rows.
+    fn add_rows<'r>(&mut self, rows: impl Iterator<Item = &'r Row>) {
         let mut nodes: BTreeMap<CellKey, Vec<f64>> = BTreeMap::new();
-        for r in rows.iter().filter(|r| r.pin_policy == chosen) {
+        for r in rows {
             let key = CellKey::new(r.model, r.strategy, &r.opt_level, r.threads);
-            let cell = an.cells.entry(key.clone()).or_default();
-            cell.oversubscribed |= r.oversubscribed;
-            cell.mem_estimate = cell.mem_estimate.max(r.mem_estimate_bytes);
-            cell.particles = cell.particles.or(r.particles);
-            if r.status != Status::Ok {
-                cell.not_ok.push((r.status, r.reason.clone()));
-                continue;
-            }
-            let Some(total) = Stage::Total.time_per_step(r) else {
-                cell.not_ok.push((Status::Invalid, "status ok but no time measured".into()));
-                continue;
-            };
-            cell.times[0].push(total);
-            for (i, st) in [Stage::Grid, Stage::Particle].into_iter().enumerate() {
-                if let Some(t) = st.time_per_step(r) {
-                    cell.times[i + 1].push(t);
+            let cell = self.cells.entry(key.clone()).or_default();
+            if cell.add(r) {
+                if let Some(n) = r.mean_nodes.or(r.nodes.map(|n| n as f64)) {
+                    nodes.entry(key).or_default().push(n);
                 }
-            }
-            if let Some(b) = r.peak_rss_bytes {
-                cell.peak_rss.push(b as f64);
-            }
-            if let Some(n) = r.mean_nodes.or(r.nodes.map(|n| n as f64)) {
-                nodes.entry(key).or_default().push(n);
             }
         }
         for (k, v) in nodes {
-            if let Some(c) = an.cells.get_mut(&k) {
+            if let Some(c) = self.cells.get_mut(&k) {
                 c.mean_nodes = Some(median(&v));
             }
         }
-        let keys: Vec<CellKey> = an.cells.keys().cloned().collect();
+    }
+
+    /// The estimates of every measured (cell, stage), with a note naming the cells without
+    /// a one-thread base.
+    fn estimate_points(&mut self, opts: &StatsOptions) {
         let mut missing_base = BTreeSet::new();
-        for key in &keys {
-            let cell = &an.cells[key];
+        let mut points = Vec::new();
+        for (key, cell) in &self.cells {
             for stage in Stage::ALL {
-                let xs = cell.times(stage);
-                if xs.is_empty() {
+                if cell.times(stage).is_empty() {
                     continue;
                 }
-                let label = format!("{key}/{stage}");
-                let time = bootstrap(&[xs], &|m| m[0], opts, &label);
-                let own = CellKey { threads: 1, ..key.clone() };
-                let serial = CellKey { threads: 1, strategy: Strategy::Serial, ..key.clone() };
-                let base_key =
-                    [own, serial].into_iter().find(|k| an.cells.get(k).is_some_and(|c| !c.times(stage).is_empty()));
-                let (base, speedup) = match base_key {
-                    Some(bk) => {
-                        let bs = an.cells[&bk].times(stage);
-                        let t1 = bootstrap(&[bs], &|m| m[0], opts, &format!("{bk}/{stage}"));
-                        let s = if bk == *key {
-                            Estimate::point(1.0, xs.len())
-                        } else {
-                            bootstrap(&[bs, xs], &|m| m[0] / m[1], opts, &format!("{label}/speedup"))
-                        };
-                        (Some(Base { strategy: bk.strategy, t1 }), Some(s))
-                    }
-                    None => {
-                        missing_base.insert(format!("Model{} {} {}", key.model, key.strategy, key.opt_level));
-                        (None, None)
-                    }
-                };
-                let efficiency = speedup.map(|s| s.scale(1.0 / key.threads as f64));
-                an.points.push(Point {
-                    key: key.clone(),
-                    stage,
-                    time,
-                    base,
-                    speedup,
-                    efficiency,
-                    oversubscribed: cell.oversubscribed,
-                });
+                let point = self.estimate(key, stage, opts);
+                if point.base.is_none() {
+                    missing_base.insert(format!("Model{} {} {}", key.model, key.strategy, key.opt_level));
+                }
+                points.push(point);
             }
         }
+        self.points.extend(points);
         if !missing_base.is_empty() {
-            an.notes.push(format!(
+            self.notes.push(format!(
                 "no one-thread run (ok) for {}: no speedup there",
                 missing_base.into_iter().collect::<Vec<_>>().join(", ")
             ));
         }
-        an
+    }
+
+    /// The point of a measured (cell, stage): its time and, against the same strategy on
+    /// one thread (else the serial run), speedup and efficiency.
+    fn estimate(&self, key: &CellKey, stage: Stage, opts: &StatsOptions) -> Point {
+        let cell = &self.cells[key];
+        let xs = cell.times(stage);
+        let label = format!("{key}/{stage}");
+        let time = bootstrap(&[xs], &|m| m[0], opts, &label);
+        let own = CellKey { threads: 1, ..key.clone() };
+        let serial = CellKey { threads: 1, strategy: Strategy::Serial, ..key.clone() };
+        let base_key =
+            [own, serial].into_iter().find(|k| self.cells.get(k).is_some_and(|c| !c.times(stage).is_empty()));
+        let (base, speedup) = match base_key {
+            Some(bk) => {
+                let bs = self.cells[&bk].times(stage);
+                let t1 = bootstrap(&[bs], &|m| m[0], opts, &format!("{bk}/{stage}"));
+                let s = if bk == *key {
+                    Estimate::point(1.0, xs.len())
+                } else {
+                    bootstrap(&[bs, xs], &|m| m[0] / m[1], opts, &format!("{label}/speedup"))
+                };
+                (Some(Base { strategy: bk.strategy, t1 }), Some(s))
+            }
+            None => (None, None),
+        };
+        let efficiency = speedup.map(|s| s.scale(1.0 / key.threads as f64));
+        Point { key: key.clone(), stage, time, base, speedup, efficiency, oversubscribed: cell.oversubscribed }
     }
 
     /// The point of a cell and stage.

@@ -49,6 +49,27 @@ pub struct Overrides {
 }
 
 impl Overrides {
+    /// The preset's budget section after these overrides: a budget on the command line
+    /// replaces every budget of the preset, a warm-up every warm-up.
+    fn budget_of(&self, preset: &BudgetSpec) -> BudgetSpec {
+        let mut budget = preset.clone();
+        if self.steps.is_some() || self.end_time.is_some() {
+            budget.steps = self.steps;
+            budget.end_time = self.end_time;
+            for o in &mut budget.overrides {
+                o.steps = None;
+                o.end_time = None;
+            }
+        }
+        if let Some(w) = self.warmup {
+            budget.warmup = w;
+            for o in &mut budget.overrides {
+                o.warmup = None;
+            }
+        }
+        budget
+    }
+
     /// Slug of the overrides that change what runs (seed excluded), e.g. `m1-2_t1-2_n5`.
     pub fn slug(&self) -> String {
         let join = |v: Vec<String>| v.join("-");
@@ -195,98 +216,73 @@ pub struct Campaign {
 impl Campaign {
     /// Apply `overrides` to `preset` and validate the result.
     pub fn resolve(preset: Preset, source: String, overrides: &Overrides) -> Result<Self> {
-        let models = overrides.models.clone().unwrap_or_else(|| preset.models.clone());
-        let threads = overrides.threads.clone().unwrap_or_else(|| preset.threads.clone());
-        let strategies = overrides.strategies.clone().unwrap_or_else(|| preset.strategies.clone());
-        let opts = overrides.opt.clone().unwrap_or_else(|| preset.opt.clone());
-        let reps = overrides.reps.unwrap_or(preset.reps);
-        let pins = overrides.pin.clone().unwrap_or_else(|| preset.pin.to_vec());
-        let grid = overrides.grid.clone().unwrap_or_else(|| preset.grid.clone());
-        let seed = overrides.seed.unwrap_or(preset.seed);
-        for m in &models {
+        let slug = overrides.slug();
+        let id = if slug.is_empty() { preset.name.clone() } else { format!("{}_{slug}", preset.name) };
+        let mut c = Campaign {
+            id: sanitize_id(&id),
+            preset_name: preset.name.clone(),
+            preset_source: source,
+            overrides: slug,
+            scenario: preset.scenario.clone(),
+            models: overrides.models.clone().unwrap_or_else(|| preset.models.clone()),
+            threads: overrides.threads.clone().unwrap_or_else(|| preset.threads.clone()),
+            strategies: overrides.strategies.clone().unwrap_or_else(|| preset.strategies.clone()),
+            opts: overrides.opt.clone().unwrap_or_else(|| preset.opt.clone()),
+            reps: overrides.reps.unwrap_or(preset.reps),
+            pins: overrides.pin.clone().unwrap_or_else(|| preset.pin.to_vec()),
+            grid: overrides.grid.clone().unwrap_or_else(|| preset.grid.clone()),
+            seed: overrides.seed.unwrap_or(preset.seed),
+            mem_limit: None,
+            timeout: None,
+            budget: overrides.budget_of(&preset.budget),
+            preset,
+        };
+        c.check_matrix()?;
+        c.mem_limit = match (overrides.mem_limit, &c.preset.mem_limit) {
+            (Some(m), _) => Some(m),
+            (None, Some(s)) => Some(parse_size(s).context("preset mem_limit")?),
+            (None, None) => None,
+        };
+        c.timeout = match &c.preset.timeout {
+            Some(t) => Some(humantime::parse_duration(t).map_err(|e| anyhow!("preset timeout '{t}': {e}"))?),
+            None => None,
+        };
+        check_budget(&c.budget)?;
+        Ok(c)
+    }
+
+    /// Known models and scenario, positive thread counts and repetitions, no empty list, a
+    /// known grid mode.
+    fn check_matrix(&self) -> Result<()> {
+        for m in &self.models {
             if !KNOWN_MODELS.contains(m) {
                 bail!("unknown model {m} (known: 1, 2, 3, 4)");
             }
         }
-        if threads.contains(&0) {
+        if self.threads.contains(&0) {
             bail!("thread counts must be at least 1 (got 0)");
         }
         for (what, empty) in [
-            ("models", models.is_empty()),
-            ("threads", threads.is_empty()),
-            ("strategies", strategies.is_empty()),
-            ("optimisation levels", opts.is_empty()),
-            ("pinning policies", pins.is_empty()),
+            ("models", self.models.is_empty()),
+            ("threads", self.threads.is_empty()),
+            ("strategies", self.strategies.is_empty()),
+            ("optimisation levels", self.opts.is_empty()),
+            ("pinning policies", self.pins.is_empty()),
         ] {
             if empty {
                 bail!("the campaign has no {what}");
             }
         }
-        if reps == 0 {
+        if self.reps == 0 {
             bail!("repetitions must be at least 1");
         }
-        if grid != "fixed" && grid != "adaptive" {
-            bail!("unknown grid mode '{grid}' (known: fixed, adaptive)");
+        if self.grid != "fixed" && self.grid != "adaptive" {
+            bail!("unknown grid mode '{}' (known: fixed, adaptive)", self.grid);
         }
-        if preset.scenario != "taylor" && preset.scenario != "impact" {
-            bail!("unknown scenario '{}' (the campaign harness runs: taylor, impact)", preset.scenario);
+        if self.scenario != "taylor" && self.scenario != "impact" {
+            bail!("unknown scenario '{}' (the campaign harness runs: taylor, impact)", self.scenario);
         }
-        let mem_limit = match (overrides.mem_limit, &preset.mem_limit) {
-            (Some(m), _) => Some(m),
-            (None, Some(s)) => Some(parse_size(s).context("preset mem_limit")?),
-            (None, None) => None,
-        };
-        let timeout = match &preset.timeout {
-            Some(t) => Some(humantime::parse_duration(t).map_err(|e| anyhow!("preset timeout '{t}': {e}"))?),
-            None => None,
-        };
-        let mut budget = preset.budget.clone();
-        if overrides.steps.is_some() || overrides.end_time.is_some() {
-            // A budget on the command line replaces every budget of the preset.
-            budget.steps = overrides.steps;
-            budget.end_time = overrides.end_time;
-            for o in &mut budget.overrides {
-                o.steps = None;
-                o.end_time = None;
-            }
-        }
-        if let Some(w) = overrides.warmup {
-            budget.warmup = w;
-            for o in &mut budget.overrides {
-                o.warmup = None;
-            }
-        }
-        if budget.steps.is_some() && budget.end_time.is_some() {
-            bail!("give either a step limit or an end time, not both");
-        }
-        if budget.steps.is_none() && budget.end_time.is_none() {
-            bail!("the campaign has no step budget: set steps or end_time");
-        }
-        if budget.steps == Some(0) {
-            bail!("the step limit must be at least 1");
-        }
-        let slug = overrides.slug();
-        let id = if slug.is_empty() { preset.name.clone() } else { format!("{}_{slug}", preset.name) };
-        let id = sanitize_id(&id);
-        Ok(Campaign {
-            id,
-            preset_name: preset.name.clone(),
-            preset_source: source,
-            overrides: slug,
-            scenario: preset.scenario.clone(),
-            models,
-            threads,
-            strategies,
-            opts,
-            reps,
-            pins,
-            grid,
-            seed,
-            mem_limit,
-            timeout,
-            budget,
-            preset,
-        })
+        Ok(())
     }
 
     /// Budget of one (model, opt) cell: the most specific matching override wins.
@@ -366,6 +362,20 @@ impl Campaign {
         }
         out
     }
+}
+
+/// Exactly one of a step limit (at least 1) and an end time.
+fn check_budget(budget: &BudgetSpec) -> Result<()> {
+    if budget.steps.is_some() && budget.end_time.is_some() {
+        bail!("give either a step limit or an end time, not both");
+    }
+    if budget.steps.is_none() && budget.end_time.is_none() {
+        bail!("the campaign has no step budget: set steps or end_time");
+    }
+    if budget.steps == Some(0) {
+        bail!("the step limit must be at least 1");
+    }
+    Ok(())
 }
 
 fn sanitize_id(s: &str) -> String {

@@ -204,61 +204,14 @@ impl Runner for MockRunner {
                 ..RunOutput::default()
             };
         }
-        let s = &req.spec;
-        let size = scenario_size(&s.scenario, s.model).unwrap_or(ModelSize { particles: 1000, nodes: 1000 });
-        let steps = s.budget.step_limit.unwrap_or(100);
-        let speed = match s.strategy {
-            Strategy::DomainDecomposition => 0.9,
-            Strategy::Serial | Strategy::ArrayExpansion => 0.8,
-        } * (s.threads.min(2) as f64);
-        let per_step = size.particles as f64 * 50e-9 * if s.opt == OptLevel::O0 { 8.0 } else { 1.0 } / speed;
-        let wall = per_step * steps as f64;
         let requested = req.cpus.clone().unwrap_or_default();
         let observed: Vec<usize> = if self.wrong_cpus_when.as_ref().is_some_and(|f| desc.contains(f.as_str())) {
             requested.iter().map(|c| c + 1).collect()
         } else {
             requested.clone()
         };
-        let substages =
-            [("scatter", 0.3), ("assembly", 0.1), ("grid_update", 0.05), ("gather", 0.2), ("stress_update", 0.35)]
-                .into_iter()
-                .map(|(k, f)| (k.to_string(), wall * f))
-                .collect();
-        let summary = Summary {
-            scenario: req.scenario.clone(),
-            model: u8::try_from(s.model).unwrap_or(u8::MAX),
-            strategy: s.strategy,
-            threads: s.threads,
-            opt_level: s.opt.to_string(),
-            grid_mode: s.grid.clone(),
-            eos: "mie-gruneisen".into(),
-            particles: size.particles as usize,
-            cells: (size.nodes / 2) as usize,
-            nodes: size.nodes as usize,
-            mean_nodes: size.nodes as f64,
-            steps,
-            warmup_steps: s.budget.warmup,
-            dt_first: 1e-8,
-            sim_time: steps as f64 * 1e-8,
-            end_reason: EndReason::StepLimit,
-            wall_s: wall,
-            grid_stage_s: wall * 0.45,
-            particle_stage_s: wall * 0.55,
-            substages: Substages(substages),
-            ns_per_particle_step: Some(per_step * 1e9 / size.particles as f64),
-            particle_steps_per_s: Some(size.particles as f64 / per_step),
-            steady_s_per_step: Some(per_step),
-            peak_rss_bytes: Some(estimate_memory(&s.scenario, s.model, s.strategy, s.threads)),
-            requested_cpus: requested,
-            observed_cpus: observed,
-            kinetic_energy_initial: 1000.0,
-            kinetic_energy: 900.0,
-            internal_energy: 99.0,
-            initial_length_m: Some(0.0254),
-            final_length_m: Some(0.0253),
-            face_diameter_m: Some(0.0077),
-            ..Summary::default()
-        };
+        let summary = mock_summary(req, requested, observed);
+        let wall = summary.wall_s;
         let text = match serde_json::to_string(&summary) {
             Ok(t) => t,
             Err(e) => return RunOutput { error: Some(format!("mock cannot write JSON: {e}")), ..RunOutput::default() },
@@ -267,6 +220,60 @@ impl Runner for MockRunner {
             return RunOutput { error: Some(format!("mock cannot write JSON: {e}")), ..RunOutput::default() };
         }
         RunOutput { exit_code: Some(0), process_wall_s: wall + 0.05, ..RunOutput::default() }
+    }
+}
+
+/// A plausible summary of `req`: times from the model size, strategy, threads and
+/// optimisation level; the CPUs as given.
+fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -> Summary {
+    let s = &req.spec;
+    let size = scenario_size(&s.scenario, s.model).unwrap_or(ModelSize { particles: 1000, nodes: 1000 });
+    let steps = s.budget.step_limit.unwrap_or(100);
+    let speed = match s.strategy {
+        Strategy::DomainDecomposition => 0.9,
+        Strategy::Serial | Strategy::ArrayExpansion => 0.8,
+    } * (s.threads.min(2) as f64);
+    let per_step = size.particles as f64 * 50e-9 * if s.opt == OptLevel::O0 { 8.0 } else { 1.0 } / speed;
+    let wall = per_step * steps as f64;
+    let substages =
+        [("scatter", 0.3), ("assembly", 0.1), ("grid_update", 0.05), ("gather", 0.2), ("stress_update", 0.35)]
+            .into_iter()
+            .map(|(k, f)| (k.to_string(), wall * f))
+            .collect();
+    Summary {
+        scenario: req.scenario.clone(),
+        model: u8::try_from(s.model).unwrap_or(u8::MAX),
+        strategy: s.strategy,
+        threads: s.threads,
+        opt_level: s.opt.to_string(),
+        grid_mode: s.grid.clone(),
+        eos: "mie-gruneisen".into(),
+        particles: size.particles as usize,
+        cells: (size.nodes / 2) as usize,
+        nodes: size.nodes as usize,
+        mean_nodes: size.nodes as f64,
+        steps,
+        warmup_steps: s.budget.warmup,
+        dt_first: 1e-8,
+        sim_time: steps as f64 * 1e-8,
+        end_reason: EndReason::StepLimit,
+        wall_s: wall,
+        grid_stage_s: wall * 0.45,
+        particle_stage_s: wall * 0.55,
+        substages: Substages(substages),
+        ns_per_particle_step: Some(per_step * 1e9 / size.particles as f64),
+        particle_steps_per_s: Some(size.particles as f64 / per_step),
+        steady_s_per_step: Some(per_step),
+        peak_rss_bytes: Some(estimate_memory(&s.scenario, s.model, s.strategy, s.threads)),
+        requested_cpus: requested,
+        observed_cpus: observed,
+        kinetic_energy_initial: 1000.0,
+        kinetic_energy: 900.0,
+        internal_energy: 99.0,
+        initial_length_m: Some(0.0254),
+        final_length_m: Some(0.0253),
+        face_diameter_m: Some(0.0077),
+        ..Summary::default()
     }
 }
 

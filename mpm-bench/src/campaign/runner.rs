@@ -124,50 +124,44 @@ pub fn campaign_dir(out_root: &Path, machine: &Machine, campaign: &Campaign) -> 
     out_root.join(fingerprint::fingerprint(machine)).join(&campaign.id)
 }
 
-/// Run (or resume) `campaign` on `machine` with `runner`, appending a row after every run.
-pub fn execute(
-    campaign: &Campaign,
-    machine: &Machine,
-    solvers: &[Solver],
-    runner: &mut dyn Runner,
-    opts: &ExecOptions,
-    interrupted: &AtomicBool,
-) -> Result<ExecSummary> {
-    let t0 = Instant::now();
-    for p in &campaign.pins {
-        machine.check_policy(p).with_context(|| format!("pinning policy {p}"))?;
-    }
-    let dir = campaign_dir(&opts.out_root, machine, campaign);
-    let csv_path = dir.join("runs.csv");
-    let order = campaign.ordered(campaign.seed);
-    let existing = if csv_path.is_file() && !opts.fresh { read_rows(&csv_path)? } else { Vec::new() };
-    let done = done_keys(&existing, opts.retry_failed);
-    let todo: Vec<(usize, RunSpec)> =
-        order.iter().cloned().enumerate().filter(|(_, r)| !done.contains(&r.key())).collect();
-    let mut summary = ExecSummary {
-        dir: dir.clone(),
-        counts: manifest::SessionCounts {
-            planned: order.len(),
-            already_done: order.len() - todo.len(),
-            ..Default::default()
-        },
-        ..ExecSummary::default()
-    };
-    let usable = machine.usable_pus().len();
+/// The runs of one invocation: the campaign folder, the rows already there and the runs
+/// still to do (with their position in the seeded order).
+struct Plan {
+    dir: PathBuf,
+    csv_path: PathBuf,
+    planned: usize,
+    existing: Vec<Row>,
+    todo: Vec<(usize, RunSpec)>,
+}
 
-    if opts.dry_run {
+impl Plan {
+    /// Read the campaign folder's rows (unless `--fresh`) and leave out the configurations
+    /// they already hold (all of them, or only the `ok` ones with `--retry-failed`).
+    fn of(campaign: &Campaign, machine: &Machine, opts: &ExecOptions) -> Result<Self> {
+        let dir = campaign_dir(&opts.out_root, machine, campaign);
+        let csv_path = dir.join("runs.csv");
+        let order = campaign.ordered(campaign.seed);
+        let existing = if csv_path.is_file() && !opts.fresh { read_rows(&csv_path)? } else { Vec::new() };
+        let done = done_keys(&existing, opts.retry_failed);
+        let planned = order.len();
+        let todo = order.into_iter().enumerate().filter(|(_, r)| !done.contains(&r.key())).collect();
+        Ok(Self { dir, csv_path, planned, existing, todo })
+    }
+
+    /// `--dry-run`: every run to do with its CPUs, memory estimate and the guard's verdict.
+    fn print(&self, campaign: &Campaign, machine: &Machine) -> Result<()> {
         use std::io::Write as _;
         let mut out = std::io::stdout().lock();
         writeln!(
             out,
             "campaign {} ({} runs, {} already done, seed {}) -> {}",
             campaign.id,
-            order.len(),
-            summary.counts.already_done,
+            self.planned,
+            self.planned - self.todo.len(),
             campaign.seed,
-            csv_path.display()
+            self.csv_path.display()
         )?;
-        for (i, r) in &todo {
+        for (i, r) in &self.todo {
             let pl = machine.place(&r.pin, r.threads)?;
             let est = estimate_memory(&r.scenario, r.model, r.strategy, r.threads);
             let verdict = memory_verdict(est, available_memory(), campaign.mem_limit);
@@ -183,157 +177,158 @@ pub fn execute(
                 verdict.map(|v| format!("  SKIP ({v})")).unwrap_or_default()
             )?;
         }
-        summary.wall = t0.elapsed();
-        return Ok(summary);
+        Ok(())
     }
 
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create the output folder {}", dir.display()))?;
-    if opts.fresh && csv_path.is_file() {
-        let aside = dir.join(format!(
-            "runs.csv.{}.bak",
-            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs())
-        ));
-        std::fs::rename(&csv_path, &aside).with_context(|| format!("cannot move {} aside", csv_path.display()))?;
-        eprintln!("--fresh: moved the old runs.csv to {}", aside.display());
-    }
-    let mut log = CsvLog::open(&csv_path)?;
-    let json_dir = dir.join("json");
-    std::fs::create_dir_all(&json_dir).with_context(|| format!("cannot create {}", json_dir.display()))?;
-
-    // Manifest and topology, once per campaign (a session entry per invocation).
-    let ws = workspace_root();
-    let git = manifest::git_info(ws.as_deref());
-    let binaries: Vec<BinaryInfo> = solvers.iter().map(Solver::info).collect();
-    let manifest_path = dir.join("manifest.json");
-    let machine_info = fingerprint::machine_info(machine);
-    let mut man = match manifest::read(&manifest_path) {
-        Ok(m) => m,
-        Err(_) => Manifest {
-            manifest_version: manifest::MANIFEST_VERSION,
-            campaign_id: campaign.id.clone(),
-            campaign: serde_json::Value::Null,
-            machine: machine_info.clone(),
-            software: manifest::software_info(ws.as_deref(), binaries.clone()),
-            sessions: Vec::new(),
-        },
-    };
-    man.campaign = serde_json::to_value(campaign)?;
-    man.machine = machine_info;
-    man.software = manifest::software_info(ws.as_deref(), binaries.clone());
-    man.sessions.push(Session {
-        started: now_rfc3339(),
-        command: opts.command.clone(),
-        seed: campaign.seed,
-        counts: summary.counts,
-        binaries,
-        git: git.clone(),
-        ..Session::default()
-    });
-    manifest::write(&manifest_path, &man)?;
-    if machine.is_this_system {
-        match crate::machine::topology::export_xml() {
-            Ok(xml) => mpm_cli::atomic::write_atomic(&dir.join("topology.xml"), xml.as_bytes())?,
-            Err(e) => eprintln!("warning: no topology.xml: {e:#}"),
+    /// Create the folder (moving an old `runs.csv` aside with `--fresh`) and open the CSV
+    /// log and the folder of JSON summaries.
+    fn open_folder(&self, fresh: bool) -> Result<(CsvLog, PathBuf)> {
+        let dir = &self.dir;
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create the output folder {}", dir.display()))?;
+        if fresh && self.csv_path.is_file() {
+            let aside = dir.join(format!(
+                "runs.csv.{}.bak",
+                std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs())
+            ));
+            std::fs::rename(&self.csv_path, &aside)
+                .with_context(|| format!("cannot move {} aside", self.csv_path.display()))?;
+            eprintln!("--fresh: moved the old runs.csv to {}", aside.display());
         }
+        let log = CsvLog::open(&self.csv_path)?;
+        let json_dir = dir.join("json");
+        std::fs::create_dir_all(&json_dir).with_context(|| format!("cannot create {}", json_dir.display()))?;
+        Ok((log, json_dir))
     }
 
-    let show = !opts.quiet;
-    let over: Vec<usize> = {
-        let mut t: Vec<usize> = todo
+    /// Say once which thread counts are oversubscribed here, and when there is nothing to do.
+    fn notes(&self, campaign: &Campaign, machine: &Machine) {
+        let mut over: Vec<usize> = self
+            .todo
             .iter()
             .filter(|(_, r)| machine.place(&r.pin, r.threads).is_ok_and(|p| p.oversubscribed))
             .map(|(_, r)| r.threads)
             .collect();
-        t.sort_unstable();
-        t.dedup();
-        t
-    };
-    if !over.is_empty() {
-        eprintln!(
-            "note: {} usable PU(s) here; runs with {} threads are oversubscribed (time sharing, \
-             not scaling): their rows are flagged `oversubscribed`",
-            usable,
-            over.iter().map(|t| t.to_string()).collect::<Vec<_>>().join("/")
-        );
-    }
-    if todo.is_empty() {
-        eprintln!("campaign {}: all {} runs already recorded; nothing to do", campaign.id, order.len());
-    }
-
-    let total_cost: u64 = todo.iter().map(|(_, r)| cost(r)).sum();
-    let pb = if show && !todo.is_empty() {
-        ProgressBar::with_draw_target(Some(total_cost), ProgressDrawTarget::stderr())
-    } else {
-        ProgressBar::hidden()
-    };
-    pb.set_style(
-        ProgressStyle::with_template("[{elapsed_precise}] {bar:24.cyan/blue} {prefix} ETA {eta} | {wide_msg}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    pb.enable_steady_tick(Duration::from_millis(500));
-    let solver_of: HashMap<OptLevel, &Solver> = solvers.iter().map(|s| (s.opt, s)).collect();
-    let mut attempts: HashMap<RunKey, usize> = HashMap::new();
-    for r in &existing {
-        *attempts.entry(r.key()).or_default() += 1;
-    }
-
-    for (n, (order_index, spec)) in todo.iter().enumerate() {
-        if interrupted.load(Ordering::SeqCst) {
-            summary.counts.interrupted = true;
-            break;
+        over.sort_unstable();
+        over.dedup();
+        if !over.is_empty() {
+            eprintln!(
+                "note: {} usable PU(s) here; runs with {} threads are oversubscribed (time sharing, \
+                 not scaling): their rows are flagged `oversubscribed`",
+                machine.usable_pus().len(),
+                over.iter().map(|t| t.to_string()).collect::<Vec<_>>().join("/")
+            );
         }
-        pb.set_prefix(format!("run {}/{} ({} left)", n + 1, todo.len(), todo.len() - n));
-        pb.set_message(spec.describe());
-        let solver =
-            *solver_of.get(&spec.opt).ok_or_else(|| anyhow!("no solver binary for optimisation level {}", spec.opt))?;
-        let placement = machine.place(&spec.pin, spec.threads)?;
-        let attempt = attempts.entry(spec.key()).or_default();
-        let run_id = format!("{}-a{}", spec.key().0, *attempt);
-        *attempt += 1;
-        let estimate = estimate_memory(&spec.scenario, spec.model, spec.strategy, spec.threads);
-        let mut row = base_row(campaign, machine, &git, solver, spec, &placement.cpus, placement.oversubscribed);
-        row.run_id = run_id.clone();
-        row.order_index = *order_index;
-        row.mem_estimate_bytes = estimate;
+        if self.todo.is_empty() {
+            eprintln!("campaign {}: all {} runs already recorded; nothing to do", campaign.id, self.planned);
+        }
+    }
+}
 
-        if let Some(reason) = memory_verdict(estimate, available_memory(), campaign.mem_limit) {
-            row.status = Status::Skipped;
-            row.reason = reason;
-        } else {
-            let req = RunRequest {
-                spec: spec.clone(),
-                scenario: campaign.scenario.clone(),
-                binary: solver.path.clone(),
-                cpus: (!matches!(spec.pin, PinPolicy::None)).then(|| placement.cpus.clone()),
-                json_path: json_dir.join(format!("{run_id}.json")),
-                timeout: campaign.timeout,
-            };
-            let out = runner.run(&req);
-            if out.interrupted || interrupted.load(Ordering::SeqCst) {
-                summary.counts.interrupted = true;
-                let _ = std::fs::remove_file(&req.json_path);
-                break;
+/// The campaign's `manifest.json` with this invocation's session, and `topology.xml`.
+struct ManifestLog {
+    path: PathBuf,
+    manifest: Manifest,
+}
+
+impl ManifestLog {
+    /// Read (or start) the manifest, bring machine and software up to date, add a session
+    /// (with its planned counts) and write it; export this host's topology beside it.
+    fn start(
+        campaign: &Campaign,
+        machine: &Machine,
+        solvers: &[Solver],
+        opts: &ExecOptions,
+        dir: &Path,
+        counts: manifest::SessionCounts,
+    ) -> Result<Self> {
+        let ws = workspace_root();
+        let git = manifest::git_info(ws.as_deref());
+        let binaries: Vec<BinaryInfo> = solvers.iter().map(Solver::info).collect();
+        let path = dir.join("manifest.json");
+        let machine_info = fingerprint::machine_info(machine);
+        let software = manifest::software_info(ws.as_deref(), binaries.clone());
+        let mut man = manifest::read(&path).unwrap_or_else(|_| Manifest {
+            manifest_version: manifest::MANIFEST_VERSION,
+            campaign_id: campaign.id.clone(),
+            campaign: serde_json::Value::Null,
+            machine: machine_info.clone(),
+            software: software.clone(),
+            sessions: Vec::new(),
+        });
+        man.campaign = serde_json::to_value(campaign)?;
+        man.machine = machine_info;
+        man.software = software;
+        man.sessions.push(Session {
+            started: now_rfc3339(),
+            command: opts.command.clone(),
+            seed: campaign.seed,
+            counts,
+            binaries,
+            git,
+            ..Session::default()
+        });
+        manifest::write(&path, &man)?;
+        if machine.is_this_system {
+            match crate::machine::topology::export_xml() {
+                Ok(xml) => mpm_cli::atomic::write_atomic(&dir.join("topology.xml"), xml.as_bytes())?,
+                Err(e) => eprintln!("warning: no topology.xml: {e:#}"),
             }
-            fill_from_output(&mut row, &req, &out);
         }
-        row.timestamp = now_rfc3339();
-        log.append(&row)?;
-        summary.counts.written += 1;
-        match row.status {
-            Status::Ok => summary.counts.ok += 1,
-            Status::Skipped => summary.counts.skipped += 1,
-            Status::Failed => summary.counts.failed += 1,
-            Status::Invalid => summary.counts.invalid += 1,
+        Ok(Self { path, manifest: man })
+    }
+
+    /// The git state recorded for this session.
+    fn git(&self) -> manifest::GitInfo {
+        self.manifest.sessions.last().map(|s| s.git.clone()).unwrap_or_default()
+    }
+
+    /// Record the session's end and counts.
+    fn finish(&mut self, counts: manifest::SessionCounts) -> Result<()> {
+        if let Some(s) = self.manifest.sessions.last_mut() {
+            s.finished = now_rfc3339();
+            s.counts = counts;
         }
-        if row.oversubscribed {
-            summary.counts.oversubscribed += 1;
-        }
-        if show {
+        manifest::write(&self.path, &self.manifest)
+    }
+}
+
+/// The progress bar over the runs to do (its ETA weighted by [`cost`]) and a line per run.
+struct CampaignProgress {
+    bar: ProgressBar,
+    show: bool,
+    total: usize,
+}
+
+impl CampaignProgress {
+    fn new(todo: &[(usize, RunSpec)], show: bool) -> Self {
+        let total_cost: u64 = todo.iter().map(|(_, r)| cost(r)).sum();
+        let bar = if show && !todo.is_empty() {
+            ProgressBar::with_draw_target(Some(total_cost), ProgressDrawTarget::stderr())
+        } else {
+            ProgressBar::hidden()
+        };
+        bar.set_style(
+            ProgressStyle::with_template("[{elapsed_precise}] {bar:24.cyan/blue} {prefix} ETA {eta} | {wide_msg}")
+                .expect("valid template")
+                .progress_chars("=> "),
+        );
+        bar.enable_steady_tick(Duration::from_millis(500));
+        Self { bar, show, total: todo.len() }
+    }
+
+    /// Run `n` (0-based) starts.
+    fn start(&self, n: usize, spec: &RunSpec) {
+        self.bar.set_prefix(format!("run {}/{} ({} left)", n + 1, self.total, self.total - n));
+        self.bar.set_message(spec.describe());
+    }
+
+    /// Run `n` ended with `row`: its line, and the bar moves on.
+    fn ended(&self, n: usize, spec: &RunSpec, row: &Row) {
+        if self.show {
             let line = format!(
                 "[{}/{}] {} : {}{}",
                 n + 1,
-                todo.len(),
+                self.total,
                 spec.describe(),
                 row.status.as_str(),
                 match (row.status, row.wall_s) {
@@ -343,26 +338,139 @@ pub fn execute(
                     _ => String::new(),
                 }
             );
-            if pb.is_hidden() {
+            if self.bar.is_hidden() {
                 eprintln!("{line}");
             } else {
-                pb.println(line);
+                self.bar.println(line);
             }
         }
-        pb.inc(cost(spec));
+        self.bar.inc(cost(spec));
     }
-    pb.finish_and_clear();
-    if interrupted.load(Ordering::SeqCst) {
-        summary.counts.interrupted = true;
+}
+
+/// What every run of one invocation shares.
+struct RunContext<'a> {
+    campaign: &'a Campaign,
+    machine: &'a Machine,
+    git: manifest::GitInfo,
+    json_dir: PathBuf,
+    interrupted: &'a AtomicBool,
+}
+
+impl RunContext<'_> {
+    /// One run: skipped by the memory guard, or run by `runner` and recorded from its
+    /// summary. `None` when the campaign was interrupted during the run (nothing recorded).
+    fn run_one(
+        &self,
+        runner: &mut dyn Runner,
+        solver: &Solver,
+        spec: &RunSpec,
+        order_index: usize,
+        run_id: String,
+    ) -> Result<Option<Row>> {
+        let placement = self.machine.place(&spec.pin, spec.threads)?;
+        let estimate = estimate_memory(&spec.scenario, spec.model, spec.strategy, spec.threads);
+        let mut row =
+            base_row(self.campaign, self.machine, &self.git, solver, spec, &placement.cpus, placement.oversubscribed);
+        row.order_index = order_index;
+        row.mem_estimate_bytes = estimate;
+        if let Some(reason) = memory_verdict(estimate, available_memory(), self.campaign.mem_limit) {
+            row.status = Status::Skipped;
+            row.reason = reason;
+        } else {
+            let req = RunRequest {
+                spec: spec.clone(),
+                scenario: self.campaign.scenario.clone(),
+                binary: solver.path.clone(),
+                cpus: (!matches!(spec.pin, PinPolicy::None)).then(|| placement.cpus.clone()),
+                json_path: self.json_dir.join(format!("{run_id}.json")),
+                timeout: self.campaign.timeout,
+            };
+            let out = runner.run(&req);
+            if out.interrupted || self.interrupted.load(Ordering::SeqCst) {
+                let _ = std::fs::remove_file(&req.json_path);
+                return Ok(None);
+            }
+            fill_from_output(&mut row, &req, &out);
+        }
+        row.run_id = run_id;
+        row.timestamp = now_rfc3339();
+        Ok(Some(row))
     }
-    summary.wall = t0.elapsed();
-    if let Some(s) = man.sessions.last_mut() {
-        s.finished = now_rfc3339();
-        s.counts = summary.counts;
+}
+
+/// Add a written row to the session's counts.
+fn count(counts: &mut manifest::SessionCounts, row: &Row) {
+    counts.written += 1;
+    match row.status {
+        Status::Ok => counts.ok += 1,
+        Status::Skipped => counts.skipped += 1,
+        Status::Failed => counts.failed += 1,
+        Status::Invalid => counts.invalid += 1,
     }
-    manifest::write(&manifest_path, &man)?;
-    debug_assert_eq!(log.path(), csv_path.as_path());
-    Ok(summary)
+    if row.oversubscribed {
+        counts.oversubscribed += 1;
+    }
+}
+
+/// Run (or resume) `campaign` on `machine` with `runner`, appending a row after every run.
+pub fn execute(
+    campaign: &Campaign,
+    machine: &Machine,
+    solvers: &[Solver],
+    runner: &mut dyn Runner,
+    opts: &ExecOptions,
+    interrupted: &AtomicBool,
+) -> Result<ExecSummary> {
+    let t0 = Instant::now();
+    for p in &campaign.pins {
+        machine.check_policy(p).with_context(|| format!("pinning policy {p}"))?;
+    }
+    let plan = Plan::of(campaign, machine, opts)?;
+    let mut counts = manifest::SessionCounts {
+        planned: plan.planned,
+        already_done: plan.planned - plan.todo.len(),
+        ..Default::default()
+    };
+    if opts.dry_run {
+        plan.print(campaign, machine)?;
+        return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
+    }
+    let (mut log, json_dir) = plan.open_folder(opts.fresh)?;
+    let mut manifest = ManifestLog::start(campaign, machine, solvers, opts, &plan.dir, counts)?;
+    plan.notes(campaign, machine);
+    let progress = CampaignProgress::new(&plan.todo, !opts.quiet);
+    let solver_of: HashMap<OptLevel, &Solver> = solvers.iter().map(|s| (s.opt, s)).collect();
+    let mut attempts: HashMap<RunKey, usize> = HashMap::new();
+    for r in &plan.existing {
+        *attempts.entry(r.key()).or_default() += 1;
+    }
+    let ctx = RunContext { campaign, machine, git: manifest.git(), json_dir, interrupted };
+    for (n, (order_index, spec)) in plan.todo.iter().enumerate() {
+        if interrupted.load(Ordering::SeqCst) {
+            counts.interrupted = true;
+            break;
+        }
+        progress.start(n, spec);
+        let solver =
+            *solver_of.get(&spec.opt).ok_or_else(|| anyhow!("no solver binary for optimisation level {}", spec.opt))?;
+        let attempt = attempts.entry(spec.key()).or_default();
+        let run_id = format!("{}-a{}", spec.key().0, *attempt);
+        *attempt += 1;
+        let Some(row) = ctx.run_one(runner, solver, spec, *order_index, run_id)? else {
+            counts.interrupted = true;
+            break;
+        };
+        log.append(&row)?;
+        count(&mut counts, &row);
+        progress.ended(n, spec, &row);
+    }
+    progress.bar.finish_and_clear();
+    counts.interrupted |= interrupted.load(Ordering::SeqCst);
+    let wall = t0.elapsed();
+    manifest.finish(counts)?;
+    debug_assert_eq!(log.path(), plan.csv_path.as_path());
+    Ok(ExecSummary { dir: plan.dir, counts, wall })
 }
 
 fn budget_label(r: &RunSpec) -> String {

@@ -144,86 +144,6 @@ impl Machine {
     /// usable PUs (the process's affinity mask).
     pub fn from_topology(topo: &Topology, allowed: Option<Vec<usize>>) -> Self {
         let usable = |pu: usize| allowed.as_ref().is_none_or(|a| a.contains(&pu));
-        let cpus_of = |o: &TopologyObject| -> Vec<usize> {
-            o.cpuset().map(|c| c.iter_set().map(usize::from).collect()).unwrap_or_default()
-        };
-        let mut packages: Vec<Package> = Vec::new();
-        let mut pkg_ids: Vec<Option<u64>> = Vec::new();
-        for core in topo.objects_with_type(ObjectType::Core) {
-            let pus: Vec<usize> = core
-                .normal_children()
-                .filter(|c| c.object_type() == ObjectType::PU)
-                .filter_map(|c| c.os_index())
-                .filter(|&p| usable(p))
-                .collect();
-            let pus = if pus.is_empty() && core.normal_arity() == 0 {
-                cpus_of(core).into_iter().filter(|&p| usable(p)).collect()
-            } else {
-                pus
-            };
-            if pus.is_empty() {
-                continue;
-            }
-            let pkg = core.first_ancestor_with_type(ObjectType::Package);
-            let id = pkg.map(|p| p.global_persistent_index());
-            let idx = match pkg_ids.iter().position(|&x| x == id) {
-                Some(i) => i,
-                None => {
-                    pkg_ids.push(id);
-                    packages.push(Package { os_index: pkg.and_then(|p| p.os_index()), cores: Vec::new() });
-                    packages.len() - 1
-                }
-            };
-            packages[idx].cores.push(Core { os_index: core.os_index(), pus });
-        }
-        if packages.is_empty() {
-            // No Core objects (unusual): one core per PU.
-            let cores = topo
-                .objects_with_type(ObjectType::PU)
-                .filter_map(|p| p.os_index())
-                .filter(|&p| usable(p))
-                .map(|p| Core { os_index: Some(p), pus: vec![p] })
-                .collect();
-            packages.push(Package { os_index: Some(0), cores });
-        }
-        let numa_nodes = topo
-            .objects_with_type(ObjectType::NUMANode)
-            .map(|n| NumaNode {
-                os_index: n.os_index(),
-                memory_bytes: match n.attributes() {
-                    Some(ObjectAttributes::NUMANode(a)) => a.local_memory().map_or(0, |m| m.get()),
-                    _ => 0,
-                },
-                cpus: cpus_of(n),
-            })
-            .collect();
-        let mut caches: BTreeMap<(usize, u8), CacheLevel> = BTreeMap::new();
-        for ty in [
-            ObjectType::L1Cache,
-            ObjectType::L1ICache,
-            ObjectType::L2Cache,
-            ObjectType::L2ICache,
-            ObjectType::L3Cache,
-            ObjectType::L3ICache,
-            ObjectType::L4Cache,
-            ObjectType::L5Cache,
-        ] {
-            for obj in topo.objects_with_type(ty) {
-                let Some(ObjectAttributes::Cache(c)) = obj.attributes() else { continue };
-                let (suffix, kind) = match c.cache_type() {
-                    CacheType::Data => ("d", 0u8),
-                    CacheType::Instruction => ("i", 1),
-                    _ => ("", 2),
-                };
-                let entry = caches.entry((c.depth(), kind)).or_insert_with(|| CacheLevel {
-                    name: format!("L{}{suffix}", c.depth()),
-                    size_bytes: c.size().map_or(0, |s| s.get()),
-                    count: 0,
-                    pus_per_instance: cpus_of(obj).len(),
-                });
-                entry.count += 1;
-            }
-        }
         let cpu_model = topo
             .objects_with_type(ObjectType::Package)
             .find_map(|p| p.info("CPUModel").map(|s| s.to_string_lossy().trim().to_string()))
@@ -232,9 +152,9 @@ impl Machine {
             .unwrap_or_else(|| "unknown CPU".into());
         Machine {
             cpu_model,
-            packages,
-            numa_nodes,
-            caches: caches.into_values().collect(),
+            packages: packages(topo, &usable),
+            numa_nodes: numa_nodes(topo),
+            caches: caches(topo),
             total_memory_bytes: if topo.is_this_system() {
                 // Some VMs hot-plug memory that hwloc's NUMA nodes do not list: the OS's
                 // MemTotal is what a run can use.
@@ -328,6 +248,102 @@ impl Machine {
         }
         s
     }
+}
+
+/// OS indices of the PUs of an object.
+fn cpus_of(o: &TopologyObject) -> Vec<usize> {
+    o.cpuset().map(|c| c.iter_set().map(usize::from).collect()).unwrap_or_default()
+}
+
+/// Packages with their cores that have a usable PU, in logical order (one core per PU when
+/// hwloc lists no cores).
+fn packages(topo: &Topology, usable: &dyn Fn(usize) -> bool) -> Vec<Package> {
+    let mut packages: Vec<Package> = Vec::new();
+    let mut pkg_ids: Vec<Option<u64>> = Vec::new();
+    for core in topo.objects_with_type(ObjectType::Core) {
+        let pus: Vec<usize> = core
+            .normal_children()
+            .filter(|c| c.object_type() == ObjectType::PU)
+            .filter_map(|c| c.os_index())
+            .filter(|&p| usable(p))
+            .collect();
+        let pus = if pus.is_empty() && core.normal_arity() == 0 {
+            cpus_of(core).into_iter().filter(|&p| usable(p)).collect()
+        } else {
+            pus
+        };
+        if pus.is_empty() {
+            continue;
+        }
+        let pkg = core.first_ancestor_with_type(ObjectType::Package);
+        let id = pkg.map(|p| p.global_persistent_index());
+        let idx = match pkg_ids.iter().position(|&x| x == id) {
+            Some(i) => i,
+            None => {
+                pkg_ids.push(id);
+                packages.push(Package { os_index: pkg.and_then(|p| p.os_index()), cores: Vec::new() });
+                packages.len() - 1
+            }
+        };
+        packages[idx].cores.push(Core { os_index: core.os_index(), pus });
+    }
+    if packages.is_empty() {
+        // No Core objects (unusual): one core per PU.
+        let cores = topo
+            .objects_with_type(ObjectType::PU)
+            .filter_map(|p| p.os_index())
+            .filter(|&p| usable(p))
+            .map(|p| Core { os_index: Some(p), pus: vec![p] })
+            .collect();
+        packages.push(Package { os_index: Some(0), cores });
+    }
+    packages
+}
+
+/// NUMA nodes with their local memory and CPUs.
+fn numa_nodes(topo: &Topology) -> Vec<NumaNode> {
+    topo.objects_with_type(ObjectType::NUMANode)
+        .map(|n| NumaNode {
+            os_index: n.os_index(),
+            memory_bytes: match n.attributes() {
+                Some(ObjectAttributes::NUMANode(a)) => a.local_memory().map_or(0, |m| m.get()),
+                _ => 0,
+            },
+            cpus: cpus_of(n),
+        })
+        .collect()
+}
+
+/// One entry per cache level and kind (data, instruction, unified), innermost first.
+fn caches(topo: &Topology) -> Vec<CacheLevel> {
+    let mut caches: BTreeMap<(usize, u8), CacheLevel> = BTreeMap::new();
+    for ty in [
+        ObjectType::L1Cache,
+        ObjectType::L1ICache,
+        ObjectType::L2Cache,
+        ObjectType::L2ICache,
+        ObjectType::L3Cache,
+        ObjectType::L3ICache,
+        ObjectType::L4Cache,
+        ObjectType::L5Cache,
+    ] {
+        for obj in topo.objects_with_type(ty) {
+            let Some(ObjectAttributes::Cache(c)) = obj.attributes() else { continue };
+            let (suffix, kind) = match c.cache_type() {
+                CacheType::Data => ("d", 0u8),
+                CacheType::Instruction => ("i", 1),
+                _ => ("", 2),
+            };
+            let entry = caches.entry((c.depth(), kind)).or_insert_with(|| CacheLevel {
+                name: format!("L{}{suffix}", c.depth()),
+                size_bytes: c.size().map_or(0, |s| s.get()),
+                count: 0,
+                pus_per_instance: cpus_of(obj).len(),
+            });
+            entry.count += 1;
+        }
+    }
+    caches.into_values().collect()
 }
 
 fn os(i: Option<usize>, fallback: usize) -> String {

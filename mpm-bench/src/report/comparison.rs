@@ -339,8 +339,9 @@ fn efficiency_figures(sets: &[Set], out: &Path) -> Result<Vec<(String, String)>>
     Ok(made)
 }
 
-/// Build the Markdown report (and write its figures beside `out`).
-pub fn build(args: &ReportArgs) -> Result<String> {
+/// Read every results set, analyse it and evaluate the claims; label each by its machine
+/// fingerprint, plus the campaign id when a fingerprint repeats.
+fn load_sets(args: &ReportArgs) -> Result<Vec<Set>> {
     if args.dirs.is_empty() {
         bail!("give at least one results folder: mpm-bench report DIR DIR... --out report.md");
     }
@@ -351,12 +352,16 @@ pub fn build(args: &ReportArgs) -> Result<String> {
         let cl = claims::evaluate(&c, &an);
         sets.push(Set { label: String::new(), campaign: c, analysis: an, claims: cl });
     }
-    // Labels: fingerprint, plus the campaign id when a fingerprint repeats.
     let fps: Vec<String> = sets.iter().map(|s| s.campaign.fingerprint()).collect();
     for (i, set) in sets.iter_mut().enumerate() {
         let dup = fps.iter().filter(|f| **f == fps[i]).count() > 1;
         set.label = if dup { format!("{}/{}", fps[i], set.campaign.id()) } else { fps[i].clone() };
     }
+    Ok(sets)
+}
+
+/// Title, command and the sets compared (with their analysis notes).
+fn header(args: &ReportArgs, sets: &[Set]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# Hardware comparison: explicit MPM, array expansion vs domain decomposition\n");
     let _ = writeln!(
@@ -365,7 +370,7 @@ pub fn build(args: &ReportArgs) -> Result<String> {
         args.dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(" "),
         args.out.display()
     );
-    for set in &sets {
+    for set in sets {
         let _ = writeln!(s, "- `{}`: `{}`", set.label, set.campaign.dir.display());
         for n in &set.analysis.notes {
             let _ = writeln!(s, "  - note: {n}");
@@ -374,31 +379,35 @@ pub fn build(args: &ReportArgs) -> Result<String> {
     if sets.len() < 2 {
         let _ = writeln!(s, "\n(One results set only: nothing is compared, the tables describe one machine.)");
     }
-    let _ = writeln!(s, "\n## Machines\n\n{}", machines_table(&sets));
+    s
+}
+
+/// T1, then speedup and efficiency per strategy and optimisation level.
+fn timing_sections(sets: &[Set]) -> String {
+    let mut s = String::new();
     let _ = writeln!(
         s,
         "## Base time T1 (one thread, steady-state time per step)\n\nMedians over repetitions with 95 % bootstrap intervals; `(n=1)` marks a single repetition (no interval).\n\n{}",
-        t1_table(&sets)
+        t1_table(sets)
     );
     let _ = writeln!(
         s,
         "## Speedup and efficiency (total step)\n\nSpeedup T1/Tn and efficiency speedup/n (paper Eqs. 19-20), ratios of medians with 95 % bootstrap intervals. `*`: oversubscribed (more threads than cores: time sharing, not scaling).\n"
     );
     for (st, opt) in strategy_opt_pairs() {
-        if let Some(t) = scaling_table(&sets, st, opt) {
+        if let Some(t) = scaling_table(sets, st, opt) {
             let _ = writeln!(s, "### {} {}\n\n{t}", tag(st), opt.to_uppercase());
         }
     }
-    let figs = efficiency_figures(&sets, &args.out)?;
-    if !figs.is_empty() {
-        let _ = writeln!(s, "## Efficiency curves, machines overlaid\n");
-        for (title, file) in figs {
-            let _ = writeln!(s, "![{title}]({file})\n");
-        }
-    }
+    s
+}
+
+/// The fraction of the bandwidth ceiling per set that has a `bandwidth.json`.
+fn bandwidth_sections(sets: &[Set]) -> String {
+    let mut s = String::new();
     let _ = writeln!(s, "## Fraction of the memory-bandwidth ceiling\n");
     let mut any_bw = false;
-    for set in &sets {
+    for set in sets {
         if let Some(t) = bandwidth_section(set) {
             any_bw = true;
             let _ = writeln!(s, "{t}");
@@ -415,26 +424,50 @@ pub fn build(args: &ReportArgs) -> Result<String> {
             "No `bandwidth.json` in these campaigns: run `mpm-bench bandwidth --out results/<fingerprint>/<campaign>/bandwidth.json` to add the ceiling.\n"
         );
     }
+    s
+}
+
+/// The verdicts side by side, then each set's evidence.
+fn claims_sections(sets: &[Set]) -> String {
+    let mut s = String::new();
     let _ = writeln!(s, "## The paper's claims per machine\n");
     let _ = write!(s, "| claim |");
-    for set in &sets {
+    for set in sets {
         let _ = write!(s, " {} |", set.label);
     }
     s.push_str("\n|---|");
-    for _ in &sets {
+    for _ in sets {
         s.push_str("---|");
     }
     s.push('\n');
     for (i, (id, text)) in claims::CLAIMS.iter().enumerate() {
         let _ = write!(s, "| {id}: {text} |");
-        for set in &sets {
+        for set in sets {
             let _ = write!(s, " **{}** |", set.claims[i].verdict.as_str());
         }
         s.push('\n');
     }
-    for set in &sets {
+    for set in sets {
         let _ = writeln!(s, "\n### Claims on `{}`\n\n{}", set.label, claims::markdown(&set.claims, "####"));
     }
+    s
+}
+
+/// Build the Markdown report (and write its figures beside `out`).
+pub fn build(args: &ReportArgs) -> Result<String> {
+    let sets = load_sets(args)?;
+    let mut s = header(args, &sets);
+    let _ = writeln!(s, "\n## Machines\n\n{}", machines_table(&sets));
+    s.push_str(&timing_sections(&sets));
+    let figs = efficiency_figures(&sets, &args.out)?;
+    if !figs.is_empty() {
+        let _ = writeln!(s, "## Efficiency curves, machines overlaid\n");
+        for (title, file) in figs {
+            let _ = writeln!(s, "![{title}]({file})\n");
+        }
+    }
+    s.push_str(&bandwidth_sections(&sets));
+    s.push_str(&claims_sections(&sets));
     Ok(s)
 }
 

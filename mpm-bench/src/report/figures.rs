@@ -205,86 +205,93 @@ pub fn footnotes(c: &Campaign, an: &Analysis) -> Vec<String> {
     ]
 }
 
-/// Panels of the memory figure: one per model, AE and DD (solid O3, dashed O0).
-pub fn memory_panels(an: &Analysis) -> Vec<Panel> {
+/// Peak memory (GB) of model `m`, `strat`, `opt` by thread count, and the thread counts
+/// whose runs were skipped or failed.
+fn memory_points(an: &Analysis, m: u32, strat: Strategy, opt: &str) -> (Vec<PlotPoint>, Vec<String>) {
     let o = StatsOptions::default();
+    let mut pts = Vec::new();
+    let mut skipped = Vec::new();
+    for n in an.thread_counts() {
+        let key = CellKey::new(m, strat, opt, n);
+        let Some(cell) = an.cells.get(&key) else { continue };
+        match an.memory(&key, &o) {
+            Some(e) => pts.push(PlotPoint {
+                x: n as f64,
+                y: e.value / 1e9,
+                lo: e.lo / 1e9,
+                hi: e.hi / 1e9,
+                hollow: cell.oversubscribed,
+            }),
+            None if !cell.not_ok.is_empty() => skipped.push(n.to_string()),
+            None => {}
+        }
+    }
+    (pts, skipped)
+}
+
+/// The memory panel of model `m`: AE and DD (solid O3, dashed O0), in MB for small models.
+fn memory_panel(an: &Analysis, m: u32, x_max: f64) -> Panel {
+    let mut lines = Vec::new();
+    let mut notes = Vec::new();
+    let mut top = 0.0f64;
+    for (si, strat) in parallel_strategies().enumerate() {
+        for opt in ["o3", "o0"] {
+            let (pts, skipped) = memory_points(an, m, strat, opt);
+            if !skipped.is_empty() {
+                notes.push(format!(
+                    "{} {}: no run at {} thread(s) (skipped/failed)",
+                    tag(strat),
+                    opt.to_uppercase(),
+                    skipped.join(", ")
+                ));
+            }
+            if pts.is_empty() {
+                continue;
+            }
+            top = pts.iter().map(|p| p.hi).fold(top, f64::max);
+            let o0 = opt == "o0";
+            lines.push(Line {
+                label: format!("{} {}", tag(strat), opt.to_uppercase()),
+                colour: match (si, o0) {
+                    (0, false) => RGBColor(31, 119, 180),
+                    (0, true) => RGBColor(120, 180, 230),
+                    (_, false) => RGBColor(214, 39, 40),
+                    (_, true) => RGBColor(255, 127, 14),
+                },
+                marker: si + 2 * o0 as usize,
+                dashed: o0,
+                points: pts,
+            });
+        }
+    }
+    // GB, or MB for small models.
+    let (unit, k) = if top < 1.0 { ("MB", 1e3) } else { ("GB", 1.0) };
+    for l in &mut lines {
+        for p in &mut l.points {
+            (p.y, p.lo, p.hi) = (p.y * k, p.lo * k, p.hi * k);
+        }
+    }
+    Panel {
+        title: format!("Model{m}"),
+        y_desc: format!("Peak resident memory ({unit})"),
+        x_desc: "Number of threads".into(),
+        x_max,
+        y_max: (top * k * 1.6).max(0.05),
+        ideal: None,
+        ideal_flat: false,
+        lines,
+        notes,
+    }
+}
+
+/// Panels of the memory figure: one per model.
+pub fn memory_panels(an: &Analysis) -> Vec<Panel> {
     let mut models = an.models();
     if models.is_empty() {
         models = vec![1];
     }
     let max_threads = an.thread_counts().into_iter().max().unwrap_or(8) as f64;
-    models
-        .iter()
-        .map(|&m| {
-            let mut lines = Vec::new();
-            let mut notes = Vec::new();
-            let mut top = 0.0f64;
-            for (si, strat) in parallel_strategies().enumerate() {
-                for opt in ["o3", "o0"] {
-                    let mut pts = Vec::new();
-                    let mut skipped = Vec::new();
-                    for n in an.thread_counts() {
-                        let key = CellKey::new(m, strat, opt, n);
-                        let Some(cell) = an.cells.get(&key) else { continue };
-                        match an.memory(&key, &o) {
-                            Some(e) => pts.push(PlotPoint {
-                                x: n as f64,
-                                y: e.value / 1e9,
-                                lo: e.lo / 1e9,
-                                hi: e.hi / 1e9,
-                                hollow: cell.oversubscribed,
-                            }),
-                            None if !cell.not_ok.is_empty() => skipped.push(n.to_string()),
-                            None => {}
-                        }
-                    }
-                    if !skipped.is_empty() {
-                        notes.push(format!(
-                            "{} {}: no run at {} thread(s) (skipped/failed)",
-                            tag(strat),
-                            opt.to_uppercase(),
-                            skipped.join(", ")
-                        ));
-                    }
-                    if pts.is_empty() {
-                        continue;
-                    }
-                    top = pts.iter().map(|p| p.hi).fold(top, f64::max);
-                    let o0 = opt == "o0";
-                    lines.push(Line {
-                        label: format!("{} {}", tag(strat), opt.to_uppercase()),
-                        colour: match (si, o0) {
-                            (0, false) => RGBColor(31, 119, 180),
-                            (0, true) => RGBColor(120, 180, 230),
-                            (_, false) => RGBColor(214, 39, 40),
-                            (_, true) => RGBColor(255, 127, 14),
-                        },
-                        marker: si + 2 * o0 as usize,
-                        dashed: o0,
-                        points: pts,
-                    });
-                }
-            }
-            // GB, or MB for small models.
-            let (unit, k) = if top < 1.0 { ("MB", 1e3) } else { ("GB", 1.0) };
-            for l in &mut lines {
-                for p in &mut l.points {
-                    (p.y, p.lo, p.hi) = (p.y * k, p.lo * k, p.hi * k);
-                }
-            }
-            Panel {
-                title: format!("Model{m}"),
-                y_desc: format!("Peak resident memory ({unit})"),
-                x_desc: "Number of threads".into(),
-                x_max: (max_threads + 1.0).max(9.0),
-                y_max: (top * k * 1.6).max(0.05),
-                ideal: None,
-                ideal_flat: false,
-                lines,
-                notes,
-            }
-        })
-        .collect()
+    models.iter().map(|&m| memory_panel(an, m, (max_threads + 1.0).max(9.0))).collect()
 }
 
 /// Write Figures 7-14, the memory figure and the README into `out`. Returns the files.

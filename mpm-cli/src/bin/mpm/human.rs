@@ -1,0 +1,153 @@
+//! The summary of a run for people (stdout), unless `--quiet`.
+
+use mpm_cli::pinning;
+use mpm_cli::summary::{EndReason, Summary, OPT_LEVEL};
+use mpm_cli::vtk::SnapshotWriter;
+use std::path::Path;
+
+/// `1234567` as `1,234,567`.
+fn group(n: u64) -> String {
+    let s = n.to_string();
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i) % 3 == 0 {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// Print the summary for people. A closed stdout (e.g. `| head`) must not panic: write
+/// errors are ignored.
+pub fn print_human(s: &Summary, json: Option<&Path>, snaps: Option<&SnapshotWriter>) {
+    use std::io::Write;
+    let mut lines = configuration(s);
+    lines.extend(timing(s));
+    lines.extend(physics(s));
+    if let Some(w) = snaps {
+        lines.push(format!("snapshots: {} VTU file(s), open {}", w.steps().len(), w.pvd_path().display()));
+    }
+    if let Some(j) = json {
+        lines.push(format!("summary: {}", j.display()));
+    }
+    let mut stdout = std::io::stdout().lock();
+    for line in lines {
+        let _ = writeln!(stdout, "{line}");
+    }
+}
+
+/// The model and the solver as run: counts, grid, strategy, threads, pinning, build.
+fn configuration(s: &Summary) -> Vec<String> {
+    let what = if s.scenario == "taylor" { format!("Taylor bar Model {}", s.model) } else { s.model_name.clone() };
+    let model = format!(
+        "{what} at {} m/s: {} particles, {} cells, {} nodes ({} grid, dx = {:.4} mm)",
+        s.velocity_m_s,
+        group(s.particles as u64),
+        group(s.cells as u64),
+        group(s.nodes as u64),
+        s.grid_mode,
+        s.dx_m * 1e3
+    );
+    let cpus = if s.pinned {
+        format!(
+            ", pinned to CPUs {} (observed {}{})",
+            pinning::format_cpu_list(&s.requested_cpus),
+            s.observed_cpus.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(","),
+            if s.pinning_verified == Some(true) { ", verified" } else { ", NOT as requested" }
+        )
+    } else {
+        String::new()
+    };
+    let solver = format!(
+        "solver: strategy {}, {} thread(s){}{}, {} build, {}, CFL {}, {} wall",
+        s.strategy,
+        s.threads,
+        cpus,
+        if s.oversubscribed { " (oversubscribed)" } else { "" },
+        OPT_LEVEL,
+        s.eos,
+        s.cfl,
+        s.wall
+    );
+    vec![model, solver]
+}
+
+/// Steps, wall time by stage, the steady state and the workers' balance.
+fn timing(s: &Summary) -> Vec<String> {
+    let reason = match s.end_reason {
+        EndReason::EndTime => "end time reached",
+        EndReason::StepLimit => "step limit reached",
+    };
+    let mut lines = vec![format!(
+        "steps: {} to t = {:.3} µs ({reason}), dt first {:.3e} s",
+        group(s.steps),
+        s.sim_time * 1e6,
+        s.dt_first
+    )];
+    let total = s.grid_stage_s + s.particle_stage_s;
+    let pct = |x: f64| if total > 0.0 { 100.0 * x / total } else { 0.0 };
+    lines.push(format!(
+        "wall time: {:.3} s; grid-node stage {:.3} s ({:.0} %), particle stage {:.3} s ({:.0} %)",
+        s.wall_s,
+        s.grid_stage_s,
+        pct(s.grid_stage_s),
+        s.particle_stage_s,
+        pct(s.particle_stage_s)
+    ));
+    lines.push(match (s.ns_per_particle_step, s.particle_steps_per_s) {
+        (Some(ns), Some(rate)) => format!(
+            "steady state ({} steps after {} warm-up): {:.1} ns per particle-step, {:.3e} particle-steps/s, {:.3} ms per step",
+            s.steady_steps,
+            s.warmup_steps,
+            ns,
+            rate,
+            s.steady_s_per_step.unwrap_or(0.0) * 1e3
+        ),
+        _ => "steady state: no steps after the warm-up".to_string(),
+    });
+    if let (Some(busy), Some(imb)) = (&s.worker_busy_s, s.load_imbalance) {
+        let list = busy.iter().map(|b| format!("{b:.3}")).collect::<Vec<_>>().join(" / ");
+        let note = if imb > 1.1 && !s.oversubscribed {
+            " (unequal: a worker's CPU was slowed from outside this run; repeat it)"
+        } else {
+            ""
+        };
+        lines.push(format!("workers: busy {list} s in their shares, load imbalance {imb:.3}{note}"));
+    }
+    lines
+}
+
+/// The scenario's figures, energies and memory.
+fn physics(s: &Summary) -> Vec<String> {
+    let mut lines = Vec::new();
+    if let (Some(l0), Some(l), Some(d)) = (s.initial_length_m, s.final_length_m, s.face_diameter_m) {
+        lines.push(format!(
+            "bar: length {:.3} mm (initial {:.3} mm), impact-face diameter {:.3} mm",
+            l * 1e3,
+            l0 * 1e3,
+            d * 1e3
+        ));
+    }
+    if let (Some(front), Some(width)) = (s.cloud_front_m, s.cloud_width_m) {
+        lines.push(format!(
+            "debris cloud: leading edge {:.2} mm behind the plate (robust {:.2} mm), width {:.2} mm (robust {:.2} mm), hole {:.2} mm, front velocity {:.0} m/s",
+            front * 1e3,
+            s.cloud_front_robust_m.unwrap_or(f64::NAN) * 1e3,
+            width * 1e3,
+            s.cloud_width_robust_m.unwrap_or(f64::NAN) * 1e3,
+            s.hole_diameter_m.unwrap_or(f64::NAN) * 1e3,
+            s.front_velocity_m_s.unwrap_or(f64::NAN)
+        ));
+    }
+    lines.push(format!(
+        "energy: kinetic {:.4} J (initial {:.4} J), internal {:.4} J; failed particles {}",
+        s.kinetic_energy, s.kinetic_energy_initial, s.internal_energy, s.failed_particles
+    ));
+    lines.push(format!(
+        "memory: peak RSS {}, model {:.1} MiB",
+        s.peak_rss_bytes.map_or("unknown".into(), |b| format!("{:.1} MiB", b as f64 / 1048576.0)),
+        s.model_memory_bytes as f64 / 1048576.0
+    ));
+    lines
+}
