@@ -52,17 +52,25 @@ fn md_escape(s: &str) -> String {
     s.replace('|', "\\|")
 }
 
-fn machines_table(sets: &[Set]) -> String {
-    let mut s = String::new();
-    let _ = write!(s, "| |");
+/// The head of a Markdown table: the `first` columns, then one column per set named by
+/// `column`, and the separator line.
+fn table_head(first: &[&str], sets: &[Set], column: impl Fn(&Set) -> String) -> String {
+    let mut s = String::from("|");
+    for c in first {
+        // An empty head cell is written `| |`.
+        s.push_str(&if c.is_empty() { " |".to_string() } else { format!(" {c} |") });
+    }
     for set in sets {
-        let _ = write!(s, " {} |", set.label);
+        let _ = write!(s, " {} |", column(set));
     }
-    let _ = write!(s, "\n|---|");
-    for _ in sets {
-        let _ = write!(s, "---|");
-    }
+    s.push_str("\n|");
+    s.push_str(&"---|".repeat(first.len() + sets.len()));
     s.push('\n');
+    s
+}
+
+fn machines_table(sets: &[Set]) -> String {
+    let mut s = table_head(&[""], sets, |set| set.label.clone());
     type Getter = fn(&Set) -> String;
     let rows: Vec<(&str, Getter)> = vec![
         ("fingerprint", |x| format!("`{}`", x.campaign.fingerprint())),
@@ -138,15 +146,7 @@ fn strategy_opt_pairs() -> Vec<(Strategy, &'static str)> {
 }
 
 fn t1_table(sets: &[Set]) -> String {
-    let mut s = String::from("| model | strategy | opt |");
-    for set in sets {
-        let _ = write!(s, " T1 {} (ms/step) |", set.label);
-    }
-    s.push_str("\n|---|---|---|");
-    for _ in sets {
-        s.push_str("---|");
-    }
-    s.push('\n');
+    let mut s = table_head(&["model", "strategy", "opt"], sets, |set| format!("T1 {} (ms/step)", set.label));
     for (m, st, opt) in combos(sets) {
         let _ = write!(s, "| Model{m} | {} | {} |", tag(st), opt.to_uppercase());
         for set in sets {
@@ -431,15 +431,7 @@ fn bandwidth_sections(sets: &[Set]) -> String {
 fn claims_sections(sets: &[Set]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "## The paper's claims per machine\n");
-    let _ = write!(s, "| claim |");
-    for set in sets {
-        let _ = write!(s, " {} |", set.label);
-    }
-    s.push_str("\n|---|");
-    for _ in sets {
-        s.push_str("---|");
-    }
-    s.push('\n');
+    s.push_str(&table_head(&["claim"], sets, |set| set.label.clone()));
     for (i, (id, text)) in claims::CLAIMS.iter().enumerate() {
         let _ = write!(s, "| {id}: {text} |");
         for set in sets {
