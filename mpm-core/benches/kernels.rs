@@ -43,7 +43,7 @@ fn serial_kernels(c: &mut Criterion) {
         b.iter(|| transfer::gather(&Exec::serial(), &geom, black_box(&kin), &particles.x, &mut v, 0.0))
     });
 
-    let consts = sim.material().consts();
+    let consts = *sim.point_consts();
     let Eos::MieGruneisen(eos) = sim.material().eos else { unreachable!("copper uses Mie-Grüneisen") };
     let mut partials = vec![Default::default(); 1];
     g.bench_function("stress_update", |b| {

@@ -8,6 +8,14 @@ pub enum SimError {
     /// A configuration value is out of range.
     #[error("invalid configuration: {0}")]
     Config(String),
+    /// A material constant is out of range.
+    #[error("invalid material '{name}': {problem}; correct the material's constants")]
+    Material {
+        /// The material's name.
+        name: String,
+        /// Which constant is wrong, its admissible range and its value.
+        problem: String,
+    },
     /// The thread pool does not match the configured thread count.
     #[error("the thread pool has {got} threads but the simulation was set up for {want}: build the pool with ThreadPoolBuilder::new().num_threads({want})")]
     PoolSize {
@@ -33,6 +41,18 @@ pub enum SimError {
         step: u64,
         /// Total energy over initial total energy.
         ratio: f64,
+        /// CFL number in use.
+        cfl: f64,
+    },
+    /// Total energy rose above its initial value by more than the configured fraction.
+    #[error("step {step}: total energy rose {:.2} % above its initial value, more than the limit of {:.2} %; the run is creating energy. Reduce the CFL number (now {cfl}), keep the artificial bulk viscosity on for shocks, or raise energy_rise_limit if the rise is expected", 100.0 * rise, 100.0 * limit)]
+    EnergyRise {
+        /// The step (1-based).
+        step: u64,
+        /// `(E - W_ext - E0) / E0`.
+        rise: f64,
+        /// The configured limit (fraction).
+        limit: f64,
         /// CFL number in use.
         cfl: f64,
     },

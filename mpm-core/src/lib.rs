@@ -6,11 +6,14 @@
 //!
 //! * the MUSL step (Eqs. 1-15) with trilinear shape functions and the Jaumann stress rate:
 //!   [`solver`];
-//! * J2 plasticity with hardening `A + B eps_p^n`, the Mie-Grüneisen EOS (the paper's form
-//!   and the LS-DYNA form) and failure: [`material`];
+//! * J2 plasticity with hardening `A + B eps_p^n`, the Mie-Grüneisen EOS (Hugoniot-referenced
+//!   by default; the paper's printed Eq. 18 on request), artificial bulk viscosity and
+//!   failure: [`material`];
 //! * the three ways to do the nodal scatter, serial, array expansion and domain
 //!   decomposition, which is all that differs between them: [`strategy`];
-//! * the Taylor bar Models 1-4: [`scenario::taylor`].
+//! * the Taylor bar Models 1-4 ([`scenario::taylor`]), the hypervelocity impact
+//!   ([`scenario::impact`]) and a 1D plate impact checked against the Rankine-Hugoniot
+//!   relations ([`scenario::plate`]).
 //!
 //! Units are SI throughout. The crate has no OS-specific code and starts no threads: the
 //! caller passes the [`rayon::ThreadPool`] to run in (and pins its workers if it wants to).
@@ -48,9 +51,9 @@ pub mod transfer;
 
 pub use error::SimError;
 pub use grid::{GridGeom, GridMode, GridSpec, Wall, WallKind};
-pub use material::{Material, MgForm};
+pub use material::{BulkViscosity, Material, MgForm};
 pub use particles::Particles;
 pub use scenario::Setup;
-pub use solver::{Diagnostics, SimConfig, Simulation, DEFAULT_CFL};
+pub use solver::{Diagnostics, SimConfig, Simulation, DEFAULT_CFL, DEFAULT_ENERGY_RISE_LIMIT};
 pub use strategy::{MemoryModel, Strategy};
 pub use timers::{StageTimes, Substage};

@@ -19,10 +19,10 @@
 //! has reached its largest size (rayon's `broadcast` allocates one job list of `T` entries
 //! per parallel phase; the count of such allocations does not depend on the problem size).
 
-use crate::energy::Partial;
+use crate::energy::{EnergyBalance, Partial};
 use crate::error::SimError;
 use crate::grid::{GridGeom, GridMode, GridSpec, NodeArrays, Wall, WallLayers};
-use crate::material::{Eos, Material, PointConsts};
+use crate::material::{BulkViscosity, Eos, Material, PointConsts};
 use crate::math::{norm, Vec3};
 use crate::particles::Particles;
 use crate::scenario::Setup;
@@ -37,6 +37,9 @@ use serde::Serialize;
 /// the fastest signal (`c_p + |v_p|`) keeps the explicit update stable through impacts and
 /// leaves room for the stiffening of the Mie-Grüneisen EOS in strong compression.
 pub const DEFAULT_CFL: f64 = 0.5;
+
+/// Default [`SimConfig::energy_rise_limit`]: 5 % above the initial total energy.
+pub const DEFAULT_ENERGY_RISE_LIMIT: f64 = 0.05;
 
 /// Solver settings that are not part of the scenario.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -55,6 +58,13 @@ pub struct SimConfig {
     /// A step whose total energy exceeds this multiple of the initial total energy is
     /// reported as a blow-up.
     pub blowup_factor: f64,
+    /// A step after which the total energy (less the body forces' work) exceeds the initial
+    /// total by more than this fraction ends the run with [`SimError::EnergyRise`]
+    /// (default 0.05; `f64::INFINITY` turns the check off). See [`EnergyBalance`].
+    pub energy_rise_limit: f64,
+    /// Artificial bulk viscosity (shock capturing), on by default with `c1 = 1.5`,
+    /// `c2 = 0.06` and the cell size as length; [`BulkViscosity::OFF`] turns it off.
+    pub bulk_viscosity: BulkViscosity,
     /// Largest adaptive grid allowed (nodes).
     pub max_nodes: usize,
 }
@@ -68,6 +78,8 @@ impl Default for SimConfig {
             cfl: DEFAULT_CFL,
             body_force: [0.0; 3],
             blowup_factor: 2.0,
+            energy_rise_limit: DEFAULT_ENERGY_RISE_LIMIT,
+            bulk_viscosity: BulkViscosity::default(),
             max_nodes: 1 << 26,
         }
     }
@@ -82,6 +94,15 @@ pub struct Diagnostics {
     pub internal: f64,
     /// Linear momentum (kg m/s).
     pub momentum: Vec3,
+    /// Particles with negative specific internal energy.
+    pub negative_internal: u64,
+}
+
+impl Diagnostics {
+    /// Total energy, kinetic plus internal (J).
+    pub fn total(&self) -> f64 {
+        self.kinetic + self.internal
+    }
 }
 
 /// An explicit MPM simulation: particles, grid, material, strategy state and timers.
@@ -108,6 +129,7 @@ pub struct Simulation {
     bbox: (Vec3, Vec3),
     initial: Diagnostics,
     last: Diagnostics,
+    balance: EnergyBalance,
     node_steps: u128,
     times: StageTimes,
     poisoned: Option<u64>,
@@ -132,6 +154,14 @@ impl Simulation {
         if setup.particles.is_empty() {
             return Err(SimError::Config("the scenario has no particles".into()));
         }
+        if config.energy_rise_limit.is_nan() || config.energy_rise_limit <= 0.0 {
+            return Err(SimError::Config(format!(
+                "the energy rise limit must be a fraction > 0 (default {DEFAULT_ENERGY_RISE_LIMIT}; infinity turns the check off), got {}",
+                config.energy_rise_limit
+            )));
+        }
+        config.bulk_viscosity.validate()?;
+        setup.material.validate()?;
         let Setup { particles, material, grid: spec, walls, spacing, .. } = setup;
         let bbox = particles.bounding_box();
         let geom = match config.grid_mode {
@@ -149,10 +179,12 @@ impl Simulation {
         wall_layers.resolve(&walls, &geom);
         let mut nodes = NodeArrays::default();
         nodes.resize(geom.num_nodes());
+        let consts = material.consts().with_viscosity(config.bulk_viscosity, spec.dx);
         let initial = Diagnostics {
             kinetic: particles.kinetic_energy(),
             internal: particles.internal_energy(),
             momentum: particles.momentum(),
+            negative_internal: particles.e_int.iter().filter(|&&e| e < -consts.energy_tolerance).count() as u64,
         };
         let max_speed = particles.sound.iter().zip(&particles.v).map(|(c, v)| c + norm(*v)).fold(0.0, f64::max);
         let dt = config.cfl * spec.dx / max_speed;
@@ -164,7 +196,7 @@ impl Simulation {
             engine,
             spacing,
             partials: vec![Partial::default(); config.threads],
-            consts: material.consts(),
+            consts,
             mass_tol: 1e-12 * mean_mass,
             particles,
             material,
@@ -182,6 +214,7 @@ impl Simulation {
             bbox,
             initial,
             last: initial,
+            balance: EnergyBalance::new(initial.total()),
             node_steps: 0,
             times: StageTimes::default(),
             poisoned: None,
@@ -263,6 +296,17 @@ impl Simulation {
     /// Energies and momentum after the last step.
     pub fn diagnostics(&self) -> Diagnostics {
         self.last
+    }
+
+    /// The energy balance over the steps taken: largest rise and fall of the total energy,
+    /// negative internal energies.
+    pub fn energy_balance(&self) -> &EnergyBalance {
+        &self.balance
+    }
+
+    /// The per-particle constants the stress update runs with (material and viscosity).
+    pub fn point_consts(&self) -> &PointConsts {
+        &self.consts
     }
 
     /// Mean node count over the steps taken (the initial count before any step).
@@ -450,7 +494,18 @@ impl Simulation {
         if e0 > 0.0 && e > self.config.blowup_factor * e0 {
             return Err(SimError::EnergyBlowUp { step: step_no, ratio: e / e0, cfl: self.config.cfl });
         }
-        self.last = Diagnostics { kinetic: total.kinetic, internal: total.internal, momentum: total.momentum };
+        self.balance.add_body_force_work(self.config.body_force, self.last.momentum, total.momentum, dt);
+        let rise = self.balance.record(step_no, e, total.negative_internal);
+        if rise > self.config.energy_rise_limit {
+            let (limit, cfl) = (self.config.energy_rise_limit, self.config.cfl);
+            return Err(SimError::EnergyRise { step: step_no, rise, limit, cfl });
+        }
+        self.last = Diagnostics {
+            kinetic: total.kinetic,
+            internal: total.internal,
+            momentum: total.momentum,
+            negative_internal: total.negative_internal,
+        };
         self.bbox = (total.lo, total.hi);
         self.time += dt;
         self.steps = step_no;

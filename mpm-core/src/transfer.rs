@@ -9,7 +9,7 @@ use crate::disjoint::{partition, DisjointSlice};
 use crate::energy::Partial;
 use crate::grid::{GridGeom, NodeArrays, WallLayers};
 use crate::material::{update_point, PointConsts, PointState, PressureModel};
-use crate::math::{sym_mul_vec, Vec3};
+use crate::math::{sym_mul_vec, Sym, Vec3};
 use crate::particles::Particles;
 use crate::strategy::{Contribution, Exec};
 
@@ -146,9 +146,30 @@ pub fn gather(exec: &Exec<'_>, geom: &GridGeom, kin: &[[f64; 6]], x: &[Vec3], v:
     });
 }
 
+/// Eq. 12: the strain increment `dt sym(L)` of the velocity gradient `L` (`L[a][b] =
+/// dv_a / dx_b`), in Voigt order.
+#[inline(always)]
+fn strain_increment(l: &[[f64; 3]; 3], dt: f64) -> Sym {
+    let half_dt = 0.5 * dt;
+    [
+        dt * l[0][0],
+        dt * l[1][1],
+        dt * l[2][2],
+        half_dt * (l[1][2] + l[2][1]),
+        half_dt * (l[2][0] + l[0][2]),
+        half_dt * (l[0][1] + l[1][0]),
+    ]
+}
+
 /// Eqs. 7, 9, 12-15 and the reductions, by loop splitting: positions from the updated
 /// nodal velocities, strain and spin increments from the re-mapped ones, then the material
 /// update; worker `w` writes its sums to `partials[w]`.
+///
+/// The internal energy gains the work of the old stress over the strain increment of the
+/// mid-step nodal velocity `(v_i(k) + v_i(k+1)) / 2`. The kinetic energy changes by
+/// `dt sum_i f_i . (v_i(k) + v_i(k+1)) / 2` (the gather and the re-map use the same shape
+/// functions), so kinetic plus internal energy changes exactly by the work of the body
+/// forces: the energy balance holds to round-off (see [`crate::material::update_point`]).
 #[allow(clippy::too_many_arguments)]
 pub fn update<E: PressureModel + Sync>(
     exec: &Exec<'_>,
@@ -196,31 +217,32 @@ pub fn update<E: PressureModel + Sync>(
             let idx = cell_nodes(geom, s.cell);
             let mut vx = [0.0; 3];
             let mut l = [[0.0; 3]; 3];
+            // Gradient of the mid-step velocity (v_i(k) + v_i(k+1)) / 2, for the work of the
+            // stress in the step (v_i(k) = v_i(k+1) - dt a_i, both with the walls applied).
+            let mut lm = [[0.0; 3]; 3];
             for q in 0..8 {
                 let vn = &kin[idx[q]];
                 let vr = &remap[idx[q]];
                 let g = s.g[q];
                 for a in 0..3 {
                     vx[a] += s.w[q] * vn[a];
+                    let vm = 0.5 * (vn[a] - dt * vn[3 + a] + vr[a]);
                     for b in 0..3 {
                         l[a][b] += vr[a] * g[b];
+                        lm[a][b] += vm * g[b];
                     }
                 }
             }
-            let de = [
-                dt * l[0][0],
-                dt * l[1][1],
-                dt * l[2][2],
-                half_dt * (l[1][2] + l[2][1]),
-                half_dt * (l[2][0] + l[0][2]),
-                half_dt * (l[0][1] + l[1][0]),
-            ];
+            let de = strain_increment(&l, dt);
             let dw = [half_dt * (l[1][2] - l[2][1]), half_dt * (l[2][0] - l[0][2]), half_dt * (l[0][1] - l[1][0])];
-            update_point(
+            let de_mid = strain_increment(&lm, dt);
+            let signal = update_point(
                 consts,
                 eos,
                 &de,
+                &de_mid,
                 dw,
+                dt,
                 PointState {
                     stress: &mut stress[k],
                     eps_p: &mut eps_p[k],
@@ -239,12 +261,13 @@ pub fn update<E: PressureModel + Sync>(
             let v2 = vp[0] * vp[0] + vp[1] * vp[1] + vp[2] * vp[2];
             sum.kinetic += 0.5 * m * v2;
             sum.internal += m * e_int[k];
+            sum.negative_internal += u64::from(e_int[k] < -consts.energy_tolerance);
             for a in 0..3 {
                 sum.momentum[a] += m * vp[a];
                 sum.lo[a] = sum.lo[a].min(xp[a]);
                 sum.hi[a] = sum.hi[a].max(xp[a]);
             }
-            sum.max_speed = sum.max_speed.max(sound[k] + v2.sqrt());
+            sum.max_speed = sum.max_speed.max(signal + v2.sqrt());
             let finite =
                 (xp[0] + xp[1] + xp[2] + v2 + stress[k][0] + stress[k][1] + stress[k][2] + e_int[k]).is_finite();
             if !finite {

@@ -1,10 +1,13 @@
-//! A coarse hypervelocity impact (about 10,000 particles): conservation, failure, sane
-//! debris-cloud measurements, and AE / DD against the serial solver.
+//! A coarse hypervelocity impact (about 10,000 particles): conservation of mass, momentum
+//! and energy, failure, sane debris-cloud measurements and histories, and AE / DD against
+//! the serial solver.
 
 mod common;
 
 use common::pool;
-use mpm_core::scenario::impact::{measure, Impact, ImpactGeometry, PLATE_SIDE, SPHERE_RADIUS};
+use mpm_core::scenario::impact::{
+    measure, History, Impact, ImpactGeometry, DEFAULT_HISTORY_INTERVAL, PLATE_SIDE, SPHERE_RADIUS,
+};
 use mpm_core::{GridMode, Setup, SimConfig, Simulation, Strategy};
 
 fn coarse() -> (Setup, ImpactGeometry) {
@@ -16,7 +19,7 @@ fn config(strategy: Strategy, threads: usize) -> SimConfig {
 }
 
 #[test]
-fn coarse_impact_conserves_mass_and_momentum_fails_material_and_measures_a_cloud() {
+fn coarse_impact_conserves_mass_momentum_and_energy_fails_material_and_measures_a_cloud() {
     let (setup, geometry) = coarse();
     let n = setup.particles.len();
     assert!((5_000..20_000).contains(&n), "{n} particles");
@@ -24,9 +27,13 @@ fn coarse_impact_conserves_mass_and_momentum_fails_material_and_measures_a_cloud
     let mut sim = Simulation::new(setup, config(Strategy::Serial, 1)).unwrap();
     let pool = pool(1);
     let p0 = sim.initial().momentum;
+    let ke0 = sim.initial().kinetic;
     let end = 30.6e-6;
+    let mut history = History::new(DEFAULT_HISTORY_INTERVAL).unwrap();
+    assert!(history.observe(&sim, &geometry), "the initial state is the first sample");
     while sim.time() < end * (1.0 - 1e-12) {
         sim.step(&pool, end - sim.time()).unwrap();
+        history.observe(&sim, &geometry);
         // Mass: the grid carries exactly the particles' mass (Eq. 1, partition of unity).
         let grid_mass: f64 = sim.nodes().p2g[..sim.geom().num_nodes()].iter().map(|n| n[0]).sum();
         assert!((grid_mass / mass - 1.0).abs() < 1e-12, "grid mass {grid_mass} vs {mass}");
@@ -36,19 +43,59 @@ fn coarse_impact_conserves_mass_and_momentum_fails_material_and_measures_a_cloud
             assert!((p[d] - p0[d]).abs() < 1e-10 * p0[2].abs(), "momentum {d}: {} vs {}", p[d], p0[d]);
         }
     }
+    history.finish(&sim, &geometry);
     let failed = sim.particles().failed_count();
     assert!(failed > 0, "hypervelocity impact must fail material");
     let f = measure(sim.particles(), &geometry);
-    println!("{} steps, {failed} failed, {f:?}", sim.steps());
+    let d = sim.diagnostics();
+    let balance = sim.energy_balance();
+    let peak_internal = history.samples.iter().map(|s| s.internal).fold(0.0, f64::max);
+    let front_velocity = history.front_velocity().expect("enough samples");
+    println!(
+        "{} steps, {failed} failed, KE/KE0 {:.4}, IE/KE0 {:.4} (peak {:.4}), {balance:?}\n{f:?}\nfront velocity {front_velocity:.0} m/s",
+        sim.steps(),
+        d.kinetic / ke0,
+        d.internal / ke0,
+        peak_internal / ke0
+    );
+    // Energy: kinetic plus internal energy is conserved (the issue asks 3 %; the scheme
+    // conserves it to round-off).
+    assert!(balance.max_rise < 1e-9 && balance.max_fall < 1e-9, "{balance:?}");
+    assert!((d.total() / ke0 - 1.0).abs() < 1e-9);
+    // No negative internal energy, except for a few particles in the first steps of the
+    // contact, where a particle's energy lags the work of its stress by half a step.
+    assert_eq!(d.negative_internal, 0, "negative internal energy at the end");
+    assert!(balance.negative_internal_steps <= 5, "{balance:?}");
+    assert!(balance.negative_internal_max as usize * 100 < n, "{balance:?}");
+    // The shock heats the sphere and the plug: at the peak a fifth of the kinetic energy is
+    // internal energy; the expanding debris turns most of it back into kinetic energy.
+    assert!(peak_internal > 0.1 * ke0 && peak_internal < 0.5 * ke0, "peak internal energy {peak_internal}");
+    assert!(d.internal > 0.01 * ke0 && d.internal < 0.3 * ke0, "internal energy {}", d.internal);
+    assert!(d.internal > 0.0 && d.kinetic < ke0);
+    // The cloud.
     assert!(f.debris_particles > 50);
     assert!(f.cloud_front > 0.05 && f.cloud_front < 0.25, "front {} m", f.cloud_front);
     assert!(f.cloud_front_robust <= f.cloud_front && f.cloud_front_robust > 0.5 * f.cloud_front);
-    assert!(f.cloud_width > 2.0 * SPHERE_RADIUS && f.cloud_width < PLATE_SIDE, "width {} m", f.cloud_width);
+    // A debris cloud from a thin plate is about as wide as it is long.
+    assert!(f.cloud_width > 2.0 * SPHERE_RADIUS && f.cloud_width < 1.5 * f.cloud_front, "width {} m", f.cloud_width);
     assert!(f.cloud_width_robust <= f.cloud_width);
     assert!(f.hole_diameter > 2.0 * SPHERE_RADIUS && f.hole_diameter < 0.5 * PLATE_SIDE, "hole {} m", f.hole_diameter);
-    assert!(f.front_velocity > 0.5 * 6580.0 && f.front_velocity < 1.2 * 6580.0, "front velocity {}", f.front_velocity);
-    // The cloud's leading edge moves with about its velocity over the run.
-    assert!(f.cloud_front < f.front_velocity * end * 1.1);
+    let v = 6580.0;
+    assert!(f.leading_debris_velocity > 0.5 * v && f.leading_debris_velocity < v, "{}", f.leading_debris_velocity);
+    // The front moved at about the leading debris' speed, slower than the projectile, and
+    // its position agrees with its velocity: 30.6 us at the front velocity from the rear face
+    // at about 2 us, when the debris appeared.
+    assert!(front_velocity > 0.5 * v && front_velocity < v, "front velocity {front_velocity}");
+    assert!((front_velocity / f.leading_debris_velocity - 1.0).abs() < 0.1);
+    assert!((f.cloud_front_robust / (front_velocity * (end - 2e-6)) - 1.0).abs() < 0.1, "{}", f.cloud_front_robust);
+    // The history: a sample per microsecond from 0 to the end, energies as the solver's.
+    let s = &history.samples;
+    assert_eq!(s.len(), 32, "{} samples", s.len());
+    assert_eq!((s[0].time, s[0].cloud_front, s[0].failed), (0.0, 0.0, 0));
+    assert!(s.windows(2).all(|w| w[1].time > w[0].time && w[1].time - w[0].time < 1.5e-6));
+    let last = s.last().unwrap();
+    assert_eq!((last.time, last.total, last.failed), (sim.time(), d.total(), failed));
+    assert!(s.iter().all(|x| (x.total / ke0 - 1.0).abs() < 1e-9));
 }
 
 #[test]

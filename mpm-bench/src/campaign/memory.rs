@@ -89,7 +89,7 @@ mod tests {
         let dd8 = estimate_memory("taylor", 4, Strategy::DomainDecomposition, 8);
         assert_eq!(ae8 - ae1, 7 * (80 * 8_302_185 + BYTES_PER_THREAD));
         assert_eq!(dd8 - dd1, 7 * BYTES_PER_THREAD);
-        assert_eq!(scenario_size("impact", 1).map(|s| s.particles), Some(848_104));
+        assert_eq!(scenario_size("impact", 1).map(|s| s.particles), Some(847_888));
         assert_eq!(scenario_size("taylor", 5), None);
         // The paper's 8 GB machine: Model 4 AE at 8 threads does not fit, DD does.
         assert!(memory_verdict(ae8, Some(8 << 30), None).is_some());

@@ -1,57 +1,96 @@
-//! Equations of state: the Mie-Grüneisen EOS of paper Eq. 18 (in the paper's printed form,
-//! the default, or the LS-DYNA form) and a linear EOS for validation problems.
+//! Equations of state: the Mie-Grüneisen EOS of paper Eq. 18 and a linear EOS for
+//! validation problems.
 //!
-//! With `mu = rho/rho0 - 1` and `E` the internal energy per initial volume:
+//! With `mu = rho/rho0 - 1`, `eta = 1 - rho0/rho = mu / (1 + mu)` and `E` the internal
+//! energy per initial volume, the Mie-Grüneisen pressure is `p = p_c(mu) + gamma0 E` with
+//! the cold part `p_c`:
 //!
-//! * paper form, `mu > 0`:
-//!   `p = rho0 c0^2 mu (1 + mu) / [1 - (s - 1) mu]^2 * (1 - gamma0 mu / 2) + gamma0 E`
-//! * LS-DYNA form, `mu > 0`:
-//!   `p = rho0 c0^2 mu [1 + (1 - gamma0/2) mu] / [1 - (s - 1) mu]^2 + gamma0 E`
-//! * both, `mu <= 0`: `p = rho0 c0^2 mu + gamma0 E`
+//! * Hugoniot-referenced form ([`MgForm::Hugoniot`], the default), `mu > 0`:
+//!   `p_c = p_H (1 - gamma0 eta / 2)` with the Hugoniot
+//!   `p_H = rho0 c0^2 mu (1 + mu) / [1 - (s - 1) mu]^2`, which simplifies to
+//!   `p_c = rho0 c0^2 mu [1 + (1 - gamma0/2) mu] / [1 - (s - 1) mu]^2`. This is the form of
+//!   the paper's group's code and LS-DYNA's Grüneisen EOS with `a = 0`, `S2 = S3 = 0`. On
+//!   the Hugoniot (`E = p_H eta / 2`) it gives `p = p_H`, so shocked states satisfy the
+//!   Rankine-Hugoniot relations with `U_s = c0 + s u_p`.
+//! * paper-printed form ([`MgForm::PaperPrinted`]), `mu > 0`:
+//!   `p_c = p_H (1 - gamma0 mu / 2)`: Eq. 18 as printed, with `mu` where `eta` belongs. It
+//!   agrees with the Hugoniot form to second order in `mu` (below 0.1 % for the Taylor bar's
+//!   `mu < 0.01`) but loses its stiffness in strong compression: for lead (`gamma0 = 2`) its
+//!   cold part peaks near 38 GPa and is zero at `mu = 1`. A misprint, kept selectable; safe
+//!   only at small compression.
+//! * both, `mu <= 0`: `p_c = rho0 c0^2 mu`.
 //!
-//! The two forms agree to second order in `mu` and differ by `rho0 c0^2 gamma0 mu^3 / 2`
-//! over the denominator; both are continuous (with their first derivative) at `mu = 0`.
+//! Both forms are continuous with their first derivative at `mu = 0`.
+//!
+//! The denominator `1 - (s - 1) mu` vanishes at `mu = 1/(s - 1)` (lead: 2.22), where the
+//! pressure would become infinite. Beyond `mu_limit = MU_LIMIT_FRACTION / (s - 1)` (lead:
+//! 1.11, i.e. `rho = 2.11 rho0`; on lead's Hugoniot that is a particle velocity of about
+//! 4.6 km/s, above the 3.3 km/s of the paper's impact) the cold part is continued by its
+//! tangent at `mu_limit`, so a particle that overshoots in a shock sees a large but finite,
+//! increasing pressure.
 
 use serde::Serialize;
 
-/// Which printed form of the Mie-Grüneisen EOS to use.
+/// Which form of the Mie-Grüneisen EOS to use (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Default)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "kebab-case")]
 pub enum MgForm {
-    /// Eq. 18 exactly as the paper prints it (the default).
+    /// Hugoniot-referenced form, `p_H (1 - gamma0 eta / 2) + gamma0 E` (the default).
     #[default]
-    Paper,
-    /// The common LS-DYNA form (numerator `rho0 c0^2 mu [1 + (1 - gamma0/2) mu]`).
-    LsDyna,
+    Hugoniot,
+    /// Eq. 18 as printed, `p_H (1 - gamma0 mu / 2) + gamma0 E`: a misprint that is only safe
+    /// at small compression.
+    PaperPrinted,
 }
 
+#[allow(non_upper_case_globals)]
 impl MgForm {
-    /// Stable name (`paper` / `lsdyna`).
+    /// Every form.
+    pub const ALL: [MgForm; 2] = [MgForm::Hugoniot, MgForm::PaperPrinted];
+    /// The printed form under the name the `mpm` CLI's `--eos paper` maps to.
+    pub const Paper: MgForm = MgForm::PaperPrinted;
+    /// LS-DYNA's Grüneisen EOS with `a = 0`, `S2 = S3 = 0`: the Hugoniot form.
+    pub const LsDyna: MgForm = MgForm::Hugoniot;
+
+    /// Stable name (`hugoniot` / `paper-printed`).
     pub fn name(self) -> &'static str {
         match self {
-            MgForm::Paper => "paper",
-            MgForm::LsDyna => "lsdyna",
+            MgForm::Hugoniot => "hugoniot",
+            MgForm::PaperPrinted => "paper-printed",
         }
+    }
+}
+
+impl std::fmt::Display for MgForm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }
 
 impl std::str::FromStr for MgForm {
     type Err = String;
+    /// `hugoniot` (aliases `lsdyna`, `ls-dyna`) or `paper-printed` (alias `paper`).
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s {
-            "paper" => Ok(MgForm::Paper),
-            "lsdyna" | "ls-dyna" => Ok(MgForm::LsDyna),
-            _ => Err(format!("unknown EOS form '{s}': use 'paper' or 'lsdyna'")),
+            "hugoniot" | "lsdyna" | "ls-dyna" => Ok(MgForm::Hugoniot),
+            "paper-printed" | "paper" => Ok(MgForm::PaperPrinted),
+            _ => Err(format!(
+                "unknown EOS form '{s}': use 'hugoniot' (the Hugoniot-referenced Mie-Grüneisen EOS, alias 'lsdyna') \
+                 or 'paper-printed' (Eq. 18 as printed, alias 'paper')"
+            )),
         }
     }
 }
 
+/// The fraction of the singular compression `1/(s - 1)` beyond which the cold curve is
+/// continued by its tangent: the denominator `1 - (s - 1) mu` never drops below 1/2.
+pub const MU_LIMIT_FRACTION: f64 = 0.5;
+
 /// A pressure model usable in the stress update.
 pub trait PressureModel {
-    /// New pressure and `dp/dmu` at compression `mu`, where the new specific internal
-    /// energy is `e_known - p_new * dv / 2` (trapezoidal energy update; `dv` is the change of
-    /// specific volume `1/rho_new - 1/rho_old`).
-    fn pressure(&self, mu: f64, e_known: f64, dv: f64) -> (f64, f64);
+    /// Pressure and `dp/dmu` along an isentrope at compression `mu` and specific internal
+    /// energy `e` (J/kg); `dp/dmu / rho0` is the square of the bulk sound speed.
+    fn pressure(&self, mu: f64, e: f64) -> (f64, f64);
 }
 
 /// Mie-Grüneisen parameters (paper Tables 1 and 3).
@@ -65,11 +104,21 @@ pub struct MieGruneisen {
     pub s: f64,
     /// Grüneisen coefficient `gamma0`.
     pub gamma0: f64,
-    /// Printed form.
+    /// Form.
     pub form: MgForm,
 }
 
 impl MieGruneisen {
+    /// Compression beyond which the cold part is continued linearly (see the module docs);
+    /// infinite for `s <= 1`, whose denominator never vanishes.
+    pub fn mu_limit(&self) -> f64 {
+        if self.s > 1.0 {
+            MU_LIMIT_FRACTION / (self.s - 1.0)
+        } else {
+            f64::INFINITY
+        }
+    }
+
     /// The energy-independent part `p_c(mu)` and its derivative `dp_c/dmu`.
     #[inline(always)]
     pub fn cold(&self, mu: f64) -> (f64, f64) {
@@ -77,15 +126,26 @@ impl MieGruneisen {
         if mu <= 0.0 {
             return (k0 * mu, k0);
         }
+        let lim = self.mu_limit();
+        if mu > lim {
+            let (p, dp) = self.compressed(k0, lim);
+            return (p + dp * (mu - lim), dp);
+        }
+        self.compressed(k0, mu)
+    }
+
+    /// The cold part for `0 < mu <= mu_limit` and its derivative.
+    #[inline(always)]
+    fn compressed(&self, k0: f64, mu: f64) -> (f64, f64) {
         let d = 1.0 - (self.s - 1.0) * mu;
         let inv_d2 = 1.0 / (d * d);
         let (f, df) = match self.form {
-            MgForm::Paper => {
+            MgForm::PaperPrinted => {
                 let a = mu + mu * mu;
                 let b = 1.0 - 0.5 * self.gamma0 * mu;
                 (a * b, (1.0 + 2.0 * mu) * b - a * 0.5 * self.gamma0)
             }
-            MgForm::LsDyna => {
+            MgForm::Hugoniot => {
                 let c = 1.0 - 0.5 * self.gamma0;
                 (mu + c * mu * mu, 1.0 + 2.0 * c * mu)
             }
@@ -102,11 +162,13 @@ impl MieGruneisen {
 
 impl PressureModel for MieGruneisen {
     #[inline(always)]
-    fn pressure(&self, mu: f64, e_known: f64, dv: f64) -> (f64, f64) {
+    fn pressure(&self, mu: f64, e: f64) -> (f64, f64) {
         let (pc, dpc) = self.cold(mu);
-        // p = pc + gamma0 rho0 (e_known - p dv / 2)  =>  p (1 + gamma0 rho0 dv / 2) = ...
-        let g = self.gamma0 * self.rho0;
-        ((pc + g * e_known) / (1.0 + 0.5 * g * dv), dpc)
+        let p = pc + self.gamma0 * self.rho0 * e;
+        // Along an isentrope de = p dv = -p dmu / (rho0 (1 + mu)^2), so
+        // dp/dmu = dpc/dmu + gamma0 p / (1 + mu)^2.
+        let opm = 1.0 + mu;
+        (p, dpc + self.gamma0 * p / (opm * opm))
     }
 }
 
@@ -119,7 +181,7 @@ pub struct LinearEos {
 
 impl PressureModel for LinearEos {
     #[inline(always)]
-    fn pressure(&self, mu: f64, _e_known: f64, _dv: f64) -> (f64, f64) {
+    fn pressure(&self, mu: f64, _e: f64) -> (f64, f64) {
         (self.bulk * mu, self.bulk)
     }
 }
@@ -143,10 +205,15 @@ impl Eos {
         }
     }
 
-    /// A short description naming the form (recorded with every run).
+    /// A short description naming the form (recorded with every run): `mie-gruneisen
+    /// (hugoniot form)`, `mie-gruneisen (paper form)` for the printed Eq. 18 (the wording of
+    /// the summaries recorded so far), or `linear`.
     pub fn describe(&self) -> String {
         match self {
-            Eos::MieGruneisen(m) => format!("mie-gruneisen ({} form)", m.form.name()),
+            Eos::MieGruneisen(m) => match m.form {
+                MgForm::Hugoniot => "mie-gruneisen (hugoniot form)".into(),
+                MgForm::PaperPrinted => "mie-gruneisen (paper form)".into(),
+            },
             Eos::Linear(_) => "linear".into(),
         }
     }
@@ -160,9 +227,78 @@ mod tests {
         MieGruneisen { rho0: 11350.0, c0: 2092.0, s: 1.45, gamma0: 2.0, form }
     }
 
+    fn rel(a: f64, b: f64) -> f64 {
+        (a / b - 1.0).abs()
+    }
+
+    #[test]
+    fn lead_cold_pressures_match_hand_computed_values() {
+        // k0 = 11350 * 2092^2 = 49,672,866,400 Pa; d = 1 - 0.45 mu; gamma0 = 2.
+        // Hugoniot form: k0 mu [1 + (1 - gamma0/2) mu] / d^2 = k0 mu / d^2.
+        // Printed form:  k0 mu (1 + mu) / d^2 * (1 - gamma0 mu / 2) = k0 mu (1 + mu)(1 - mu) / d^2.
+        // (python3: k0*mu/(1-0.45*mu)**2 and k0*mu*(1+mu)*(1-mu)/(1-0.45*mu)**2)
+        let cases = [
+            (0.01, 5.012_295_803_239_136e8, 5.011_794_573_658_811_5e8),
+            (0.5, 4.135_098_139_438_085e10, 3.101_323_604_578_563_7e10),
+            (0.9, 1.262_780_305_345_667_7e11, 2.399_282_580_156_768_4e10),
+        ];
+        let (h, p) = (lead(MgForm::Hugoniot), lead(MgForm::PaperPrinted));
+        for (mu, hugoniot, printed) in cases {
+            assert!(rel(h.cold(mu).0, hugoniot) < 1e-12, "hugoniot mu={mu}: {}", h.cold(mu).0);
+            assert!(rel(p.cold(mu).0, printed) < 1e-12, "printed mu={mu}: {}", p.cold(mu).0);
+            // The energy term: gamma0 E with E = 1 GJ/m^3 adds 2 GPa to both.
+            assert!(rel(h.pressure_at(mu, 1e9), hugoniot + 2e9) < 1e-12);
+            assert!(rel(p.pressure_at(mu, 1e9), printed + 2e9) < 1e-12);
+        }
+    }
+
+    #[test]
+    fn hugoniot_form_reproduces_the_hugoniot_pressure_on_the_hugoniot() {
+        // On the Hugoniot the specific energy jump is p_H (1/rho0 - 1/rho) / 2, i.e.
+        // E = p_H eta / 2 per initial volume, and the pressure must be p_H itself.
+        let m = lead(MgForm::Hugoniot);
+        let k0 = m.rho0 * m.c0 * m.c0;
+        for mu in [0.01, 0.3, 0.9] {
+            let d = 1.0 - (m.s - 1.0) * mu;
+            let p_h = k0 * mu * (1.0 + mu) / (d * d);
+            let eta = mu / (1.0 + mu);
+            assert!(rel(m.pressure_at(mu, 0.5 * p_h * eta), p_h) < 1e-12, "mu={mu}");
+        }
+    }
+
+    #[test]
+    fn singular_compression_is_guarded_by_the_tangent() {
+        for form in MgForm::ALL {
+            let m = lead(form);
+            let lim = m.mu_limit();
+            assert!(rel(lim, 0.5 / 0.45) < 1e-15);
+            let (p_lim, d_lim) = m.cold(lim);
+            // Continuous with its slope at the limit.
+            let below = m.cold(lim * (1.0 - 1e-9));
+            let k0 = m.rho0 * m.c0 * m.c0;
+            assert!((below.0 - p_lim).abs() < 1e-7 * k0 && rel(below.1, d_lim) < 1e-6, "{form:?}");
+            // Linear beyond it, and finite at and past the singular compression 1/(s - 1).
+            for mu in [1.0 / 0.45, 3.0, 10.0] {
+                let (p, d) = m.cold(mu);
+                assert!(p.is_finite() && d == d_lim, "{form:?} mu={mu}");
+                assert!(rel(p, p_lim + d_lim * (mu - lim)) < 1e-14);
+            }
+        }
+        // For the Hugoniot form the cold pressure grows monotonically without bound, and
+        // stays below a terapascal even at the singular compression.
+        let h = lead(MgForm::Hugoniot);
+        let mut prev = 0.0;
+        for i in 1..=300 {
+            let (p, d) = h.cold(0.01 * i as f64);
+            assert!(p > prev && d > 0.0);
+            prev = p;
+        }
+        assert!(h.cold(1.0 / 0.45).0 < 1e12, "{}", h.cold(1.0 / 0.45).0);
+    }
+
     #[test]
     fn continuous_with_its_slope_at_mu_zero() {
-        for form in [MgForm::Paper, MgForm::LsDyna] {
+        for form in MgForm::ALL {
             let m = lead(form);
             let e = 3.0e8;
             let h = 1e-9;
@@ -181,8 +317,8 @@ mod tests {
     }
 
     #[test]
-    fn paper_and_lsdyna_forms_differ_only_at_third_order() {
-        let (p, l) = (lead(MgForm::Paper), lead(MgForm::LsDyna));
+    fn printed_and_hugoniot_forms_differ_only_at_third_order() {
+        let (p, l) = (lead(MgForm::PaperPrinted), lead(MgForm::Hugoniot));
         let k0 = p.rho0 * p.c0 * p.c0;
         for mu in [0.01, 0.1, 0.3] {
             let d = 1.0 - (p.s - 1.0) * mu;
@@ -194,9 +330,9 @@ mod tests {
 
     #[test]
     fn derivative_matches_finite_difference() {
-        for form in [MgForm::Paper, MgForm::LsDyna] {
+        for form in MgForm::ALL {
             let m = lead(form);
-            for mu in [-0.05, 0.02, 0.2, 0.4] {
+            for mu in [-0.05, 0.02, 0.2, 0.4, 0.9, 1.5] {
                 let h = 1e-7;
                 let fd = (m.cold(mu + h).0 - m.cold(mu - h).0) / (2.0 * h);
                 let (_, d) = m.cold(mu);
@@ -206,11 +342,29 @@ mod tests {
     }
 
     #[test]
-    fn implicit_energy_update_is_consistent() {
-        let m = lead(MgForm::Paper);
-        let (mu, e_known, dv) = (0.1, 1.0e4, -2e-6);
-        let (p, _) = m.pressure(mu, e_known, dv);
-        let e_new = e_known - 0.5 * p * dv;
-        assert!((p - m.pressure_at(mu, m.rho0 * e_new)).abs() < 1e-6 * p.abs());
+    fn isentropic_slope_includes_the_energy_term() {
+        // dp/dmu along de = -p dv against a finite difference.
+        let m = lead(MgForm::Hugoniot);
+        let (mu, e) = (0.4, 5.0e5);
+        let (p, slope) = m.pressure(mu, e);
+        assert_eq!(p, m.pressure_at(mu, m.rho0 * e));
+        let h = 1e-6;
+        let dv = 1.0 / (m.rho0 * (1.0 + mu + h)) - 1.0 / (m.rho0 * (1.0 + mu));
+        let (p2, _) = m.pressure(mu + h, e - p * dv);
+        assert!(rel((p2 - p) / h, slope) < 1e-5, "{} vs {slope}", (p2 - p) / h);
+    }
+
+    #[test]
+    fn names_parse_back_and_old_names_are_aliases() {
+        for form in MgForm::ALL {
+            assert_eq!(form.name().parse::<MgForm>().unwrap(), form);
+        }
+        assert_eq!("lsdyna".parse::<MgForm>().unwrap(), MgForm::Hugoniot);
+        assert_eq!("paper".parse::<MgForm>().unwrap(), MgForm::PaperPrinted);
+        assert_eq!(MgForm::LsDyna, MgForm::Hugoniot);
+        assert_eq!(MgForm::Paper, MgForm::PaperPrinted);
+        assert_eq!(MgForm::default(), MgForm::Hugoniot);
+        let e = "ideal-gas".parse::<MgForm>().unwrap_err();
+        assert!(e.contains("hugoniot") && e.contains("paper-printed"), "{e}");
     }
 }

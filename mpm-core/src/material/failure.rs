@@ -1,6 +1,9 @@
 //! Failure (paper Section 2, hypervelocity problem only): a particle fails when its
-//! effective plastic strain reaches `eps_f` or its pressure drops below `p_min`; from then on
-//! its stress is zero and it keeps its mass and velocity.
+//! effective plastic strain reaches `eps_f` or its pressure drops below `p_min`. From then on
+//! it carries no deviatoric stress and no tension: its pressure still comes from the EOS
+//! (plus the artificial viscosity) but is clipped at `p >= 0` (see
+//! [`super::update_point`]), so failed material still resists compression and cannot pass
+//! through other material.
 
 use serde::Serialize;
 

@@ -1,22 +1,26 @@
 //! Material models (paper Section 2): J2 plasticity with hardening `A + B eps_p^n`
-//! ([`j2`]), a pressure from an equation of state ([`eos`]) and failure ([`failure`]).
+//! ([`j2`]), a pressure from an equation of state ([`eos`]) plus an artificial bulk
+//! viscosity ([`viscosity`]), and failure ([`failure`]).
 //!
 //! The stress update of one particle ([`update_point`]) follows the paper's Eq. 15: the old
 //! stress is rotated by the Jaumann increment, the deviator takes an elastic trial step and
-//! a radial return, the pressure comes from the EOS at the new density, and the internal
-//! energy is advanced with the trapezoidal rule (the EOS energy term makes the new pressure
-//! depend on the new energy; both are solved together in closed form because the
-//! Mie-Grüneisen pressure is linear in energy). The update is generic over the EOS, so the
-//! choice of EOS is dispatched once per particle chunk, never per particle.
+//! a radial return, the internal energy gains the work of the stress that acted in the step,
+//! the pressure comes from the EOS at the new density and energy, and the viscosity `q` is
+//! added in compression. A failed particle keeps only its pressure, clipped at zero. The
+//! update is generic over the EOS, so the choice of EOS is dispatched once per particle
+//! chunk, never per particle.
 
 pub mod eos;
 pub mod failure;
 pub mod j2;
+pub mod viscosity;
 
 pub use eos::{Eos, LinearEos, MgForm, MieGruneisen, PressureModel};
 pub use failure::Failure;
 pub use j2::Hardening;
+pub use viscosity::{BulkViscosity, ViscosityTerms};
 
+use crate::error::SimError;
 use crate::math::{ddot, deviator, Sym, Vec3};
 use serde::Serialize;
 
@@ -109,16 +113,83 @@ impl Material {
     /// The constants the stress update needs, precomputed.
     pub fn consts(&self) -> PointConsts {
         let g = self.shear_modulus();
+        let c = self.reference_sound_speed();
         PointConsts {
             g,
             rho0: self.density,
             hardening: self.hardening,
             failure: self.failure,
             four_thirds_g: 4.0 / 3.0 * g,
-            c_failed: self.reference_sound_speed(),
+            viscosity: ViscosityTerms::default(),
+            energy_tolerance: NEGATIVE_ENERGY_TOLERANCE * c * c,
         }
     }
+
+    /// Check that the constants describe a material the solver can run: a clear error naming
+    /// the constant and the admissible range otherwise.
+    pub fn validate(&self) -> Result<(), SimError> {
+        let bad = |problem: String| Err(SimError::Material { name: self.name.clone(), problem });
+        let positive = |what: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                bad(format!("{what} must be a finite number > 0, got {v}"))
+            }
+        };
+        positive("the density (kg/m^3)", self.density)?;
+        positive("Young's modulus E (Pa)", self.youngs)?;
+        if !(self.poisson > 0.0 && self.poisson < 0.5) {
+            return bad(format!("Poisson's ratio must lie strictly between 0 and 0.5, got {}", self.poisson));
+        }
+        let h = &self.hardening;
+        if h.a.is_nan() || h.a <= 0.0 {
+            return bad(format!(
+                "the initial yield stress A must be > 0 Pa (infinite for an elastic material), got {}",
+                h.a
+            ));
+        }
+        if !(h.b.is_finite() && h.b >= 0.0) {
+            return bad(format!("the hardening modulus B must be a finite number >= 0 Pa, got {}", h.b));
+        }
+        positive("the hardening exponent n", h.n)?;
+        match self.eos {
+            Eos::MieGruneisen(m) => {
+                if (m.rho0 / self.density - 1.0).abs() > 1e-12 {
+                    return bad(format!(
+                        "the Mie-Grüneisen reference density rho0 = {} must equal the material density {}",
+                        m.rho0, self.density
+                    ));
+                }
+                positive("the bulk sound speed c0 (m/s)", m.c0)?;
+                if !(m.s.is_finite() && m.s >= 1.0) {
+                    return bad(format!("the Hugoniot slope s must be a finite number >= 1, got {}", m.s));
+                }
+                if !(m.gamma0.is_finite() && m.gamma0 >= 0.0) {
+                    return bad(format!(
+                        "the Grüneisen coefficient gamma0 must be a finite number >= 0, got {}",
+                        m.gamma0
+                    ));
+                }
+            }
+            Eos::Linear(l) => positive("the bulk modulus K of the linear EOS (Pa)", l.bulk)?,
+        }
+        if let Some(f) = self.failure {
+            positive("the failure plastic strain eps_f", f.eps_f)?;
+            if !(f.p_min.is_finite() && f.p_min <= 0.0) {
+                return bad(format!("the failure pressure p_min must be a finite tension (<= 0 Pa), got {}", f.p_min));
+            }
+        }
+        Ok(())
+    }
 }
+
+/// A particle's specific internal energy counts as negative below `-NEGATIVE_ENERGY_TOLERANCE
+/// c^2` (`c` the material's reference sound speed; lead 0.05 J/kg, copper 0.2 J/kg). The work
+/// of a step is the old stress times the step's strain (see [`update_point`]), so where an
+/// elastic strain reverses a particle's energy lags its stored elastic energy by about
+/// `c^2 de^2 / 2` for a strain step `de`: below this tolerance for steps up to 1.4e-4, as in
+/// the elastic parts of the Taylor bar (whose most negative energy is 0.06 J/kg, 2.6e-9 c^2).
+pub const NEGATIVE_ENERGY_TOLERANCE: f64 = 1e-8;
 
 /// Per-material constants used in the hot loop.
 #[derive(Clone, Copy, Debug)]
@@ -133,8 +204,18 @@ pub struct PointConsts {
     pub failure: Option<Failure>,
     /// `4 G / 3` (Pa).
     pub four_thirds_g: f64,
-    /// Sound speed kept by a failed particle (it still limits the time step).
-    pub c_failed: f64,
+    /// Artificial bulk viscosity on the simulation's grid (off in [`Material::consts`]).
+    pub viscosity: ViscosityTerms,
+    /// Specific internal energies above `-energy_tolerance` (J/kg) count as not negative:
+    /// [`NEGATIVE_ENERGY_TOLERANCE`] times the squared reference sound speed.
+    pub energy_tolerance: f64,
+}
+
+impl PointConsts {
+    /// The same constants with the artificial bulk viscosity `v` on a grid of cell size `dx`.
+    pub fn with_viscosity(self, v: BulkViscosity, dx: f64) -> Self {
+        Self { viscosity: v.on_grid(dx), ..self }
+    }
 }
 
 /// State of one particle touched by the stress update.
@@ -155,57 +236,72 @@ pub struct PointState<'a> {
 
 /// Update density, stress, plastic strain, internal energy, sound speed and failure of one
 /// particle for the strain increment `de` and spin increment `dw` (`[w_yz, w_zx, w_xy]`)
-/// of Eqs. 12-13 (paper Eqs. 14, 15, 17, 18).
+/// of Eqs. 12-13 over the time step `dt` (paper Eqs. 14, 15, 17, 18). Returns the speed that
+/// limits the next time step: the sound speed, raised by the artificial viscosity in
+/// compression (see [`viscosity`]).
+///
+/// Internal energy: `e += sigma_old : de_mid / rho_old`, the work of the stress that acted in
+/// this step (the step's nodal forces came from `sigma_old` and the volume `m / rho_old`)
+/// over the strain increment `de_mid` of the mid-step nodal velocity `(v_i(k) + v_i(k+1)) / 2`
+/// (see [`crate::transfer::update`]). That is exactly the work the kinetic energy lost to the
+/// stress in the step, so kinetic plus internal energy is conserved to round-off: a shock
+/// turns kinetic energy into heat and nothing is lost or created (the trapezoidal rule,
+/// `(sigma_old + sigma_new) / 2 : de`, counts work of a stress that has not acted yet and
+/// creates energy where the stress jumps, as at an impact). The new pressure then follows
+/// from the EOS at the new density and energy. The stored stress is the total stress
+/// `s - (p + q) I`, so the viscosity's work enters the energy like the pressure's. A failed
+/// particle has `s = 0` and its `p + q` clipped at `>= 0`.
 #[inline(always)]
-pub fn update_point<E: PressureModel>(c: &PointConsts, eos: &E, de: &Sym, dw: Vec3, st: PointState<'_>) {
+pub fn update_point<E: PressureModel>(
+    c: &PointConsts,
+    eos: &E,
+    de: &Sym,
+    de_mid: &Sym,
+    dw: Vec3,
+    dt: f64,
+    st: PointState<'_>,
+) -> f64 {
     let rho_old = *st.rho;
-    let rho_new = rho_old / (1.0 + de[0] + de[1] + de[2]); // Eq. 14
+    let tr_de = de[0] + de[1] + de[2];
+    let rho_new = rho_old / (1.0 + tr_de); // Eq. 14
     *st.rho = rho_new;
-    if *st.failed {
-        *st.sound = c.c_failed;
-        return;
-    }
     let sigma = *st.stress;
-    let p_old = -(sigma[0] + sigma[1] + sigma[2]) / 3.0;
-    // Jaumann rotation of the old stress (Eq. 15); its deviator is the rotated s_old.
-    let rot = crate::math::jaumann(&sigma, dw);
-    let s_rot = deviator(&[
-        sigma[0] + rot[0],
-        sigma[1] + rot[1],
-        sigma[2] + rot[2],
-        sigma[3] + rot[3],
-        sigma[4] + rot[4],
-        sigma[5] + rot[5],
-    ]);
-    let de_dev = deviator(de);
-    let two_g = 2.0 * c.g;
-    let trial: Sym = std::array::from_fn(|i| s_rot[i] + two_g * de_dev[i]);
-    let (s_new, eps_p_new) = j2::radial_return(trial, *st.eps_p, c.g, &c.hardening);
-    *st.eps_p = eps_p_new;
-
-    // Internal energy (per unit mass), trapezoidal in stress:
-    // e_new = e_old + s_mid:de / rho_mid - (p_old + p_new)/2 * (1/rho_new - 1/rho_old)
-    let s_mid: Sym = std::array::from_fn(|i| 0.5 * (s_rot[i] + s_new[i]));
-    let rho_mid = 0.5 * (rho_old + rho_new);
-    let dv = 1.0 / rho_new - 1.0 / rho_old;
-    let e_known = *st.e_int + ddot(&s_mid, &de_dev) / rho_mid - 0.5 * p_old * dv;
-    let mu = rho_new / c.rho0 - 1.0;
-    let (p_new, dp_dmu) = eos.pressure(mu, e_known, dv);
-    let e_new = e_known - 0.5 * p_new * dv;
+    let e_new = *st.e_int + ddot(&sigma, de_mid) / rho_old;
     *st.e_int = e_new;
-
-    // Sound speed for the next step: c^2 = dp/drho + (4G/3)/rho.
-    let c2 = (dp_dmu / c.rho0).max(0.0) + c.four_thirds_g / rho_new;
-    *st.sound = c2.sqrt();
-
-    if let Some(f) = c.failure {
-        if f.fails(eps_p_new, p_new) {
-            *st.failed = true;
-            *st.stress = [0.0; 6];
-            return;
-        }
+    let mut failed = *st.failed;
+    let s_new = if failed {
+        [0.0; 6]
+    } else {
+        // Jaumann rotation of the old stress (Eq. 15), elastic trial deviator, radial return.
+        let rot = crate::math::jaumann(&sigma, dw);
+        let s_rot = deviator(&std::array::from_fn(|i| sigma[i] + rot[i]));
+        let de_dev = deviator(de);
+        let two_g = 2.0 * c.g;
+        let trial = std::array::from_fn(|i| s_rot[i] + two_g * de_dev[i]);
+        let (s_new, eps_p_new) = j2::radial_return(trial, *st.eps_p, c.g, &c.hardening);
+        *st.eps_p = eps_p_new;
+        s_new
+    };
+    let (q, big_q) = c.viscosity.q(rho_new, *st.sound, tr_de / dt);
+    let (p, dp_dmu) = eos.pressure(rho_new / c.rho0 - 1.0, e_new);
+    if !failed && c.failure.is_some_and(|f| f.fails(*st.eps_p, p)) {
+        failed = true;
+        *st.failed = true;
     }
-    *st.stress = [s_new[0] - p_new, s_new[1] - p_new, s_new[2] - p_new, s_new[3], s_new[4], s_new[5]];
+    *st.stress = if failed {
+        let p_total = (p + q).max(0.0);
+        [-p_total, -p_total, -p_total, 0.0, 0.0, 0.0]
+    } else {
+        let p_total = p + q;
+        [s_new[0] - p_total, s_new[1] - p_total, s_new[2] - p_total, s_new[3], s_new[4], s_new[5]]
+    };
+
+    // Sound speed for the next step: c^2 = dp/drho, plus (4G/3)/rho while the particle
+    // carries shear stress.
+    let shear = if failed { 0.0 } else { c.four_thirds_g / rho_new };
+    let sound = ((dp_dmu / c.rho0).max(0.0) + shear).sqrt();
+    *st.sound = sound;
+    viscosity::signal_speed(big_q, sound)
 }
 
 #[cfg(test)]
@@ -213,13 +309,62 @@ mod tests {
     use super::*;
     use crate::math::{trace, von_mises};
 
-    fn state() -> (Sym, f64, f64, f64, f64, bool) {
-        ([0.0; 6], 0.0, 0.0, 8930.0, 0.0, false)
+    /// A time step for the unit tests (s).
+    const DT: f64 = 1e-8;
+
+    /// One particle's state.
+    struct Point {
+        s: Sym,
+        eps_p: f64,
+        e: f64,
+        rho: f64,
+        sound: f64,
+        failed: bool,
+    }
+
+    impl Point {
+        fn at_rest(m: &Material) -> Self {
+            Self { s: [0.0; 6], eps_p: 0.0, e: 0.0, rho: m.density, sound: m.reference_sound_speed(), failed: false }
+        }
+
+        /// One stress update with strain increment `de`, also at mid-step (a steady rate),
+        /// no spin; the signal speed.
+        fn step<E: PressureModel>(&mut self, c: &PointConsts, eos: &E, de: Sym) -> f64 {
+            update_point(
+                c,
+                eos,
+                &de,
+                &de,
+                [0.0; 3],
+                DT,
+                PointState {
+                    stress: &mut self.s,
+                    eps_p: &mut self.eps_p,
+                    e_int: &mut self.e,
+                    rho: &mut self.rho,
+                    sound: &mut self.sound,
+                    failed: &mut self.failed,
+                },
+            )
+        }
+
+        fn pressure(&self) -> f64 {
+            -trace(&self.s) / 3.0
+        }
+    }
+
+    fn mg(m: &Material) -> MieGruneisen {
+        let Eos::MieGruneisen(eos) = m.eos else { unreachable!("{} uses Mie-Grüneisen", m.name) };
+        eos
+    }
+
+    fn uniform(e: f64) -> Sym {
+        [e, e, e, 0.0, 0.0, 0.0]
     }
 
     #[test]
     fn copper_derived_constants_match_the_paper() {
-        let m = Material::ofhc_copper(MgForm::Paper);
+        let m = Material::ofhc_copper(MgForm::Hugoniot);
         assert!((m.bulk_modulus() / 1e9 - 130.0).abs() < 0.05);
         assert!((m.shear_modulus() / 1e9 - 43.33).abs() < 0.01);
         assert!((m.p_wave_speed() - 4586.0).abs() < 1.0);
@@ -227,96 +372,161 @@ mod tests {
     }
 
     #[test]
-    fn elastic_uniaxial_strain_gives_lame_stresses() {
+    fn elastic_uniaxial_strain_gives_lame_stresses_and_stores_the_work() {
         let m = Material::elastic("e", 8930.0, 117e9, 0.35);
-        let c = m.consts();
         let Eos::Linear(eos) = m.eos else { unreachable!() };
-        let (mut s, mut ep, mut e, mut rho, mut snd, mut f) = state();
-        let eps = -1e-5;
-        update_point(
-            &c,
-            &eos,
-            &[0.0, 0.0, eps, 0.0, 0.0, 0.0],
-            [0.0; 3],
-            PointState {
-                stress: &mut s,
-                eps_p: &mut ep,
-                e_int: &mut e,
-                rho: &mut rho,
-                sound: &mut snd,
-                failed: &mut f,
-            },
-        );
+        let mut pt = Point::at_rest(&m);
+        let (eps, n) = (-1e-5, 100);
+        let mut work = 0.0;
+        for _ in 0..n {
+            // The energy gains the old stress times the increment, per unit mass.
+            let (s_old, rho_old) = (pt.s, pt.rho);
+            pt.step(&m.consts(), &eos, [0.0, 0.0, eps / n as f64, 0.0, 0.0, 0.0]);
+            work += s_old[2] * eps / n as f64 / rho_old;
+            assert!((pt.e - work).abs() <= 1e-14 * work, "{} vs {work}", pt.e);
+        }
+        let s = pt.s;
         let k = m.bulk_modulus();
         let g = m.shear_modulus();
         // sigma_zz = (K + 4G/3) eps (to first order), sigma_xx = (K - 2G/3) eps
         assert!((s[2] / ((k + 4.0 / 3.0 * g) * eps) - 1.0).abs() < 1e-4, "{s:?}");
         assert!((s[0] / ((k - 2.0 / 3.0 * g) * eps) - 1.0).abs() < 1e-4, "{s:?}");
-        // Stored energy 1/2 sigma eps per volume.
+        // Stored energy 1/2 sigma eps per volume, to the 1/n of the lagging stress.
         let w = 0.5 * (k + 4.0 / 3.0 * g) * eps * eps / 8930.0;
-        assert!((e / w - 1.0).abs() < 1e-3, "{e} vs {w}");
-        assert!((snd - m.p_wave_speed()).abs() / m.p_wave_speed() < 1e-4);
+        assert!((pt.e / (w * (1.0 - 1.0 / n as f64)) - 1.0).abs() < 1e-3, "{} vs {w}", pt.e);
+        assert!((pt.sound - m.p_wave_speed()).abs() / m.p_wave_speed() < 1e-4);
     }
 
     #[test]
     fn plastic_shear_lands_on_the_hardened_surface() {
-        let m = Material::ofhc_copper(MgForm::Paper);
-        let c = m.consts();
-        let Eos::MieGruneisen(eos) = m.eos else { unreachable!() };
-        let (mut s, mut ep, mut e, mut rho, mut snd, mut f) = state();
+        let m = Material::ofhc_copper(MgForm::Hugoniot);
+        let (c, eos) = (m.consts(), mg(&m));
+        let mut pt = Point::at_rest(&m);
         for _ in 0..20 {
-            update_point(
-                &c,
-                &eos,
-                &[0.0, 0.0, 0.0, 0.0, 0.0, 1e-3],
-                [0.0; 3],
-                PointState {
-                    stress: &mut s,
-                    eps_p: &mut ep,
-                    e_int: &mut e,
-                    rho: &mut rho,
-                    sound: &mut snd,
-                    failed: &mut f,
-                },
-            );
+            pt.step(&c, &eos, [0.0, 0.0, 0.0, 0.0, 0.0, 1e-3]);
         }
-        assert!(ep > 0.0);
-        let j = von_mises(&deviator(&s));
-        let y = m.hardening.yield_stress(ep);
+        assert!(pt.eps_p > 0.0);
+        let j = von_mises(&deviator(&pt.s));
+        let y = m.hardening.yield_stress(pt.eps_p);
         assert!((j - y).abs() / y < 1e-12, "J={j} yield={y}");
         // Pure shear keeps the density, so the pressure is the Grüneisen term of the plastic
         // heating alone: p = gamma0 rho0 e.
-        assert_eq!(rho, 8930.0);
-        let p = -trace(&s) / 3.0;
+        assert_eq!(pt.rho, 8930.0);
+        let (p, e) = (pt.pressure(), pt.e);
         assert!((p - 1.96 * 8930.0 * e).abs() < 1e-9 * p, "p = {p}, gamma0 rho0 e = {}", 1.96 * 8930.0 * e);
         assert!(e > 0.0, "plastic work heats the material");
     }
 
     #[test]
     fn lead_fails_in_tension_below_p_min_and_then_carries_no_stress() {
-        let m = Material::lead(MgForm::Paper);
-        let c = m.consts();
-        let Eos::MieGruneisen(eos) = m.eos else { unreachable!() };
-        let (mut s, mut ep, mut e, _, mut snd, mut f) = state();
-        let mut rho = 11350.0;
+        let m = Material::lead(MgForm::Hugoniot);
+        let (c, eos) = (m.consts(), mg(&m));
+        let mut pt = Point::at_rest(&m);
         // 3 % volumetric expansion: p = rho0 c0^2 mu ~ -1.5 GPa at mu ~ -0.03.
         for _ in 0..10 {
-            update_point(
-                &c,
-                &eos,
-                &[0.004, 0.004, 0.004, 0.0, 0.0, 0.0],
-                [0.0; 3],
-                PointState {
-                    stress: &mut s,
-                    eps_p: &mut ep,
-                    e_int: &mut e,
-                    rho: &mut rho,
-                    sound: &mut snd,
-                    failed: &mut f,
-                },
-            );
+            pt.step(&c, &eos, uniform(0.004));
         }
-        assert!(f, "particle should have failed in tension");
-        assert_eq!(s, [0.0; 6]);
+        assert!(pt.failed, "particle should have failed in tension");
+        assert_eq!(pt.s, [0.0; 6]);
+        // Lead in strong compression keeps its stiffness: no failure on p < p_min.
+        let mut pt = Point::at_rest(&m);
+        for _ in 0..60 {
+            pt.step(&c, &eos, uniform(-0.004));
+        }
+        assert!(pt.rho > 1.9 * m.density && !pt.failed && pt.pressure() > 50e9, "{} Pa", pt.pressure());
+    }
+
+    #[test]
+    fn failed_particle_keeps_its_pressure_in_compression_and_carries_no_tension() {
+        let m = Material::lead(MgForm::Hugoniot);
+        let (c, eos) = (m.consts(), mg(&m));
+        let mut pt = Point { failed: true, ..Point::at_rest(&m) };
+        // Compression, with shear: the stress is a pure pressure from the EOS.
+        for _ in 0..10 {
+            pt.step(&c, &eos, [-0.001, -0.0005, -0.0002, 0.0003, 0.0, -0.0002]);
+        }
+        let mu = pt.rho / m.density - 1.0;
+        let p = pt.pressure();
+        assert!(p > 0.0);
+        assert!(pt.s[0] == pt.s[1] && pt.s[1] == pt.s[2] && pt.s[3..] == [0.0; 3], "no deviator: {:?}", pt.s);
+        assert!((p - eos.pressure_at(mu, m.density * pt.e)).abs() < 1e-9 * p, "p = EOS(mu, E)");
+        assert_eq!(pt.eps_p, 0.0, "no plastic flow once failed");
+        assert!(pt.e > 0.0, "compression heats it");
+        // Expansion well past the reference density: the EOS gives tension, the particle none.
+        for _ in 0..10 {
+            pt.step(&c, &eos, uniform(0.001));
+        }
+        assert!(pt.rho < m.density && eos.pressure_at(pt.rho / m.density - 1.0, m.density * pt.e) < 0.0);
+        assert_eq!(pt.s, [0.0; 6], "clipped at p >= 0: {:?}", pt.s);
+        // Once separated, it does no work and keeps its energy, in tension and back.
+        let e_sep = pt.e;
+        for de in [0.003, -0.002, 0.001] {
+            pt.step(&c, &eos, uniform(de));
+            assert_eq!((pt.s, pt.e), ([0.0; 6], e_sep));
+        }
+    }
+
+    #[test]
+    fn bulk_viscosity_adds_pressure_in_compression_only_and_its_work_to_the_energy() {
+        let m = Material::lead(MgForm::Hugoniot);
+        let eos = mg(&m);
+        let off = m.consts();
+        let on = off.with_viscosity(BulkViscosity::default(), 2e-3);
+        // Compression at tr D = -3e-3 / 1e-8 s = -3e5 /s.
+        let (mut a, mut b) = (Point::at_rest(&m), Point::at_rest(&m));
+        let speed_off = a.step(&off, &eos, uniform(-1e-3));
+        let speed_on = b.step(&on, &eos, uniform(-1e-3));
+        let (q, big_q) = on.viscosity.q(b.rho, m.reference_sound_speed(), -3e-3 / DT);
+        assert!(q > 0.0);
+        // From rest no work was done yet: the same EOS pressure, plus q.
+        assert_eq!((a.e, b.e), (0.0, 0.0));
+        assert!((b.pressure() - a.pressure() - q).abs() < 1e-12 * b.pressure());
+        assert_eq!(speed_off, a.sound);
+        assert!((speed_on - viscosity::signal_speed(big_q, b.sound)).abs() < 1e-9 * speed_on);
+        assert!(speed_on > b.sound);
+        // The next step's work includes q's: e_on - e_off = q tr(de) / rho (compression).
+        let rho = b.rho;
+        a.step(&off, &eos, uniform(-1e-3));
+        b.step(&on, &eos, uniform(-1e-3));
+        assert!(((b.e - a.e) / (q * 3e-3 / rho) - 1.0).abs() < 1e-9, "{} vs {}", b.e - a.e, q * 3e-3 / rho);
+        // Expansion: identical with and without viscosity.
+        let (mut a, mut b) = (Point::at_rest(&m), Point::at_rest(&m));
+        let (sa, sb) = (a.step(&off, &eos, uniform(1e-3)), b.step(&on, &eos, uniform(1e-3)));
+        assert_eq!((a.s, a.e, sa), (b.s, b.e, sb));
+    }
+
+    #[test]
+    fn paper_materials_are_valid_and_bad_constants_are_named() {
+        for m in [
+            Material::ofhc_copper(MgForm::Hugoniot),
+            Material::lead(MgForm::PaperPrinted),
+            Material::elastic("e", 1000.0, 1e6, 0.3),
+        ] {
+            m.validate().unwrap();
+        }
+        let lead = Material::lead(MgForm::Hugoniot);
+        let with_eos = |f: &dyn Fn(&mut MieGruneisen)| {
+            let mut eos = mg(&lead);
+            f(&mut eos);
+            Material { eos: Eos::MieGruneisen(eos), ..lead.clone() }
+        };
+        let cases = [
+            (Material { youngs: 0.0, ..lead.clone() }, "Young's modulus"),
+            (Material { poisson: 0.5, ..lead.clone() }, "Poisson's ratio"),
+            (Material { poisson: -0.1, ..lead.clone() }, "Poisson's ratio"),
+            (Material { density: -1.0, ..lead.clone() }, "density"),
+            (with_eos(&|e| e.s = 0.9), "slope s"),
+            (with_eos(&|e| e.c0 = 0.0), "c0"),
+            (with_eos(&|e| e.rho0 = 8930.0), "reference density"),
+            (with_eos(&|e| e.gamma0 = f64::NAN), "gamma0"),
+            (Material { failure: Some(Failure { eps_f: 3.0, p_min: 1e6 }), ..lead.clone() }, "p_min"),
+            (Material { hardening: Hardening { a: 0.0, b: 1.0, n: 1.0 }, ..lead.clone() }, "yield stress A"),
+        ];
+        for (m, what) in cases {
+            let e = m.validate().unwrap_err();
+            assert!(matches!(e, SimError::Material { .. }), "{e:?}");
+            let msg = e.to_string();
+            assert!(msg.contains(what) && msg.contains("lead"), "{what}: {msg}");
+        }
     }
 }

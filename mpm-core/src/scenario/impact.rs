@@ -3,24 +3,28 @@
 //! with failure), compared at 30.6 µs after impact with a flash radiograph of the debris
 //! cloud.
 //!
-//! Geometry: the flight direction is `+z`. The plate fills `[-70, 70] mm^2 x [0, 6.35] mm`,
-//! so its front face is `z = 0` and its rear face `z = 6.35 mm`; the sphere's centre starts
-//! on the axis at `z = -(R + h/2)` so the bodies touch at `t = 0` (impact time 0).
+//! Particles, as the particle generator of the paper's group (MPM3D) makes them, which gives
+//! the paper's counts exactly: every particle has mass `rho0 h^3` for the spacing `h`;
+//! * plate: a block of `n x n x t` particles at spacing `h`, cell-centred (the first particle
+//!   `h/2` from the block's corner), `n = round(140 mm / h)`, `t = round(6.35 mm / h)`:
+//!   264 x 264 x 12 at 0.53 mm (139.92 mm square, 6.36 mm thick), 667 x 667 x 30 at 0.21 mm;
+//! * sphere: with `k = round(R / h)` (14 at 0.53 mm, 36 at 0.21 mm), the points
+//!   `centre + ((i - 1/2) h, (j - 1/2) h, (l - 1/2) h)`, `i, j, l` in `1-k ..= k`, that lie
+//!   strictly inside the radius `k h`: 11,536 at 0.53 mm (19.5 g), 195,360 at 0.21 mm
+//!   (20.5 g);
+//! * totals 847,888 and 13,542,030, the paper's counts.
 //!
-//! Particles: both bodies are seeded on cell-centred lattices of spacing `h` (default
-//! 0.53 mm): the plate with `round(140 mm / h)^2 x round(6.35 mm / h)` points (spacings
-//! adjusted per axis so its dimensions are exact), the sphere with the points of a lattice of
-//! spacing `h` centred on it that lie inside `R`. Default: 264 x 264 x 12 = 836,352 plate +
-//! 11,752 sphere = 848,104 particles (paper: 847,888, +0.03 %); at 0.21 mm, 667 x 667 x 30 +
-//! 191,256 = 13,537,926 (paper: 13,542,030, -0.03 %). Each body's particles share its true
-//! mass (`rho V / count`): the sphere weighs 20.06 g.
+//! Geometry: the flight direction is `+z`. The plate fills `[-n h/2, n h/2]^2 x [0, t h]`, so
+//! its front face is `z = 0` and its rear face `z = t h`; the sphere's centre is on the axis
+//! at `z = -k h`, so the sphere of radius `k h` its points fill touches the plate at `t = 0`
+//! and its nearest particles are one spacing from the plate's (impact time 0).
 //!
 //! Grid: cubic cells of `cell` (default 2.12 mm, so 4 x 4 x 4 particles per cell; 1.06 and
 //! 1.59 mm are the paper's other options) on a lattice anchored at the plate's corner
-//! `(-70, -70, 0) mm`, normally adaptive (it follows the debris cloud).
+//! `(-n h/2, -n h/2, 0)`, normally adaptive (it follows the debris cloud).
 //!
 //! Measurements ([`measure`]), all at the current state, with "debris" = every particle
-//! beyond the plate's rear face (`z > 6.35 mm`):
+//! beyond the plate's rear face:
 //! * `cloud_front`: distance of the farthest debris particle centre from the rear face;
 //!   `cloud_front_robust`: the same for the position beyond which lies 0.1 % of the debris
 //!   mass (a few stray particles cannot move it);
@@ -28,8 +32,14 @@
 //!   distance of a debris particle centre from the flight axis; `cloud_width_robust`: twice
 //!   the radius containing 99.9 % of the debris mass;
 //! * `hole_diameter`: twice the smallest distance from the axis of a plate particle still
-//!   inside the plate's slab `0 <= z <= 6.35 mm` (the rim of the hole);
-//! * `front_velocity`: mass-weighted mean z-velocity of the debris beyond the robust front.
+//!   inside the plate's slab `0 <= z <= t h` (the rim of the hole);
+//! * `leading_debris_velocity`: mass-weighted mean z-velocity of the debris beyond the robust
+//!   front (the speed of the leading 0.1 % of the debris now, not the speed at which the
+//!   front has moved).
+//!
+//! Histories ([`History`]): the figures and energies sampled about every microsecond, and
+//! [`History::front_velocity`], the least-squares slope of the robust front over the last
+//! quarter of the run: the speed at which the cloud's leading edge has actually moved.
 
 use super::{lattice, Setup};
 use crate::error::SimError;
@@ -37,6 +47,7 @@ use crate::grid::GridSpec;
 use crate::material::{Material, MgForm};
 use crate::math::Vec3;
 use crate::particles::Particles;
+use crate::solver::Simulation;
 use serde::Serialize;
 
 /// Sphere radius (m).
@@ -53,6 +64,12 @@ pub const DEFAULT_SPACING: f64 = 0.53e-3;
 pub const DEFAULT_CELL: f64 = 2.12e-3;
 /// The radiograph comparison time after impact (s).
 pub const DEFAULT_END_TIME: f64 = 30.6e-6;
+/// Default interval between history samples (s).
+pub const DEFAULT_HISTORY_INTERVAL: f64 = 1e-6;
+/// Particles of the paper's small model (0.53 mm spacing).
+pub const PAPER_SMALL_MODEL_PARTICLES: usize = 847_888;
+/// Particles of the paper's large model (0.21 mm spacing).
+pub const PAPER_LARGE_MODEL_PARTICLES: usize = 13_542_030;
 
 /// A sphere-on-plate impact.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -69,7 +86,7 @@ pub struct Impact {
 
 impl Default for Impact {
     fn default() -> Self {
-        Self { spacing: DEFAULT_SPACING, cell: DEFAULT_CELL, velocity: IMPACT_VELOCITY, eos: MgForm::Paper }
+        Self { spacing: DEFAULT_SPACING, cell: DEFAULT_CELL, velocity: IMPACT_VELOCITY, eos: MgForm::default() }
     }
 }
 
@@ -82,11 +99,34 @@ pub struct ImpactGeometry {
     pub rear_face: f64,
 }
 
+/// The sphere's lattice points in half-spacing units: the odd integers `(a, b, c)` =
+/// `(2i - 1, 2j - 1, 2l - 1)`, `i, j, l` in `1-k ..= k`, with `a^2 + b^2 + c^2 < 4 k^2`
+/// (strictly inside the radius `k h`, decided exactly in integers), x fastest.
+fn sphere_points(k: usize) -> impl Iterator<Item = [i64; 3]> {
+    let k = k as i64;
+    let odd = move || (1 - k..=k).map(|i| 2 * i - 1);
+    let r2 = 4 * k * k;
+    odd()
+        .flat_map(move |c| odd().flat_map(move |b| odd().map(move |a| [a, b, c])))
+        .filter(move |p| p[0] * p[0] + p[1] * p[1] + p[2] * p[2] < r2)
+}
+
 impl Impact {
-    /// Plate lattice counts `[nx, ny, nz]`.
+    /// Plate lattice counts `[n, n, t]`.
     pub fn plate_counts(&self) -> [usize; 3] {
         let n = (PLATE_SIDE / self.spacing).round().max(1.0) as usize;
         [n, n, (PLATE_THICKNESS / self.spacing).round().max(1.0) as usize]
+    }
+
+    /// `k = round(R / h)`: the sphere's lattice has `2k` points across.
+    pub fn sphere_k(&self) -> usize {
+        (SPHERE_RADIUS / self.spacing).round().max(1.0) as usize
+    }
+
+    /// Particles of the plate and of the sphere, counted without generating them.
+    pub fn particle_counts(&self) -> (usize, usize) {
+        let [nx, ny, nz] = self.plate_counts();
+        (nx * ny * nz, sphere_points(self.sphere_k()).count())
     }
 
     /// Build the plate and sphere particles and the grid.
@@ -107,30 +147,23 @@ impl Impact {
         }
         let material = Material::lead(self.eos);
         let c = material.reference_sound_speed();
-        let half = 0.5 * PLATE_SIDE;
-        let n = self.plate_counts();
-        let hp = [PLATE_SIDE / n[0] as f64, PLATE_SIDE / n[1] as f64, PLATE_THICKNESS / n[2] as f64];
-        let plate = lattice::cell_centred([-half, -half, 0.0], hp, n, |_| true);
-        let r = SPHERE_RADIUS;
         let h = self.spacing;
-        let zc = -(r + 0.5 * h);
-        // An even number of lattice cells across, so the points sit at half-spacings from the
-        // centre (cell-centred, like every lattice of this crate).
-        let m = ((2.0 * r / h).ceil() as usize + 2).next_multiple_of(2);
-        let lo = -(m as f64) * 0.5 * h;
-        let sphere = lattice::cell_centred([lo, lo, zc + lo], [h; 3], [m, m, m], |p| {
-            p[0] * p[0] + p[1] * p[1] + (p[2] - zc) * (p[2] - zc) <= r * r
-        });
-        let mut particles = Particles::with_capacity(plate.len() + sphere.len());
-        let plate_mass = material.density * PLATE_SIDE * PLATE_SIDE * PLATE_THICKNESS / plate.len() as f64;
+        let n = self.plate_counts();
+        let half = 0.5 * n[0] as f64 * h;
+        let plate = lattice::cell_centred([-half, -half, 0.0], [h; 3], n, |_| true);
+        let k = self.sphere_k();
+        let zc = -(k as f64) * h;
+        let mass = material.density * h * h * h;
+        let (_, sphere_count) = self.particle_counts();
+        let mut particles = Particles::with_capacity(plate.len() + sphere_count);
         for x in &plate {
-            particles.push(*x, [0.0; 3], plate_mass, material.density, c);
+            particles.push(*x, [0.0; 3], mass, material.density, c);
         }
-        let sphere_mass = material.density * 4.0 / 3.0 * std::f64::consts::PI * r.powi(3) / sphere.len() as f64;
-        for x in &sphere {
-            particles.push(*x, [0.0, 0.0, self.velocity], sphere_mass, material.density, c);
+        for [a, b, l] in sphere_points(k) {
+            let x = [0.5 * h * a as f64, 0.5 * h * b as f64, zc + 0.5 * h * l as f64];
+            particles.push(x, [0.0, 0.0, self.velocity], mass, material.density, c);
         }
-        let cells_xy = (PLATE_SIDE / self.cell).ceil() as usize;
+        let rear_face = n[2] as f64 * h;
         let setup = Setup {
             scenario: "impact".into(),
             model: format!("impact-h{:.2}mm-dx{:.2}mm", h * 1e3, self.cell * 1e3),
@@ -139,12 +172,16 @@ impl Impact {
             grid: GridSpec {
                 dx: self.cell,
                 anchor: [-half, -half, 0.0],
-                cells: [cells_xy, cells_xy, (PLATE_THICKNESS / self.cell).ceil() as usize],
+                cells: [
+                    (2.0 * half / self.cell).ceil() as usize,
+                    (2.0 * half / self.cell).ceil() as usize,
+                    (rear_face / self.cell).ceil() as usize,
+                ],
             },
             walls: vec![],
             spacing: [h; 3],
         };
-        Ok((setup, ImpactGeometry { plate_particles: plate.len(), rear_face: PLATE_THICKNESS }))
+        Ok((setup, ImpactGeometry { plate_particles: plate.len(), rear_face }))
     }
 }
 
@@ -161,7 +198,12 @@ pub struct CloudFigures {
     pub cloud_width_robust: f64,
     /// Diameter of the hole in the plate (m); `NaN` when no plate particle is left in the slab.
     pub hole_diameter: f64,
-    /// Mass-weighted z-velocity of the debris beyond the robust front (m/s).
+    /// Mass-weighted z-velocity of the debris beyond the robust front (m/s): how fast the
+    /// leading 0.1 % of the debris moves now.
+    pub leading_debris_velocity: f64,
+    /// The same value as `leading_debris_velocity`, under the name the `mpm` CLI's summary
+    /// reads (`front_velocity_m_s`); the speed at which the front has moved is
+    /// [`History::front_velocity`].
     pub front_velocity: f64,
     /// Mass of the debris (kg).
     pub debris_mass: f64,
@@ -211,6 +253,7 @@ pub fn measure(p: &Particles, g: &ImpactGeometry) -> CloudFigures {
             cloud_width: 0.0,
             cloud_width_robust: 0.0,
             hole_diameter: if hole_r2.is_finite() { 2.0 * hole_r2.sqrt() } else { f64::NAN },
+            leading_debris_velocity: 0.0,
             front_velocity: 0.0,
             debris_mass: 0.0,
             debris_particles: 0,
@@ -231,9 +274,107 @@ pub fn measure(p: &Particles, g: &ImpactGeometry) -> CloudFigures {
         cloud_width: 2.0 * rmax.sqrt(),
         cloud_width_robust: 2.0 * r_robust,
         hole_diameter: if hole_r2.is_finite() { 2.0 * hole_r2.sqrt() } else { f64::NAN },
+        leading_debris_velocity: mv / m,
         front_velocity: mv / m,
         debris_mass: mass,
         debris_particles: debris,
+    }
+}
+
+/// One sample of an impact's history.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct HistorySample {
+    /// Time after impact (s).
+    pub time: f64,
+    /// Farthest debris particle beyond the rear face (m).
+    pub cloud_front: f64,
+    /// Front ignoring the leading 0.1 % of the debris mass (m).
+    pub cloud_front_robust: f64,
+    /// Largest debris diameter normal to the flight axis (m).
+    pub cloud_width: f64,
+    /// Diameter containing 99.9 % of the debris mass (m).
+    pub cloud_width_robust: f64,
+    /// Kinetic energy (J).
+    pub kinetic: f64,
+    /// Internal energy (J).
+    pub internal: f64,
+    /// Total energy (J).
+    pub total: f64,
+    /// Failed particles.
+    pub failed: usize,
+}
+
+impl HistorySample {
+    /// Measure `sim` now.
+    pub fn of(sim: &Simulation, geometry: &ImpactGeometry) -> Self {
+        let f = measure(sim.particles(), geometry);
+        let d = sim.diagnostics();
+        Self {
+            time: sim.time(),
+            cloud_front: f.cloud_front,
+            cloud_front_robust: f.cloud_front_robust,
+            cloud_width: f.cloud_width,
+            cloud_width_robust: f.cloud_width_robust,
+            kinetic: d.kinetic,
+            internal: d.internal,
+            total: d.total(),
+            failed: sim.particles().failed_count(),
+        }
+    }
+}
+
+/// An impact's history: a sample at the first step in every `interval` of time (and, by
+/// [`History::finish`], at the end).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct History {
+    /// Interval between samples (s).
+    pub interval: f64,
+    /// The samples, in time order.
+    pub samples: Vec<HistorySample>,
+    #[serde(skip)]
+    last_slot: Option<u64>,
+}
+
+impl History {
+    /// An empty history sampling every `interval` seconds.
+    pub fn new(interval: f64) -> Result<Self, SimError> {
+        if !(interval.is_finite() && interval > 0.0) {
+            return Err(SimError::Config(format!(
+                "the history interval must be a positive time in s (default {DEFAULT_HISTORY_INTERVAL}), got {interval}"
+            )));
+        }
+        Ok(Self { interval, samples: Vec::new(), last_slot: None })
+    }
+
+    /// Record a sample of `sim` if it has entered a new interval since the last sample (or
+    /// none was taken yet); whether it did.
+    pub fn observe(&mut self, sim: &Simulation, geometry: &ImpactGeometry) -> bool {
+        let slot = (sim.time() / self.interval).floor() as u64;
+        if self.last_slot.is_some_and(|s| slot <= s) {
+            return false;
+        }
+        self.last_slot = Some(slot);
+        self.samples.push(HistorySample::of(sim, geometry));
+        true
+    }
+
+    /// Record the final state, unless the last sample already is at this time.
+    pub fn finish(&mut self, sim: &Simulation, geometry: &ImpactGeometry) {
+        if self.samples.last().is_none_or(|s| s.time < sim.time()) {
+            self.last_slot = Some((sim.time() / self.interval).floor() as u64);
+            self.samples.push(HistorySample::of(sim, geometry));
+        }
+    }
+
+    /// The speed at which the debris cloud's leading edge has moved: the least-squares
+    /// slope of the robust front against time over the samples in the last quarter of the
+    /// sampled time span (m/s). `None` with fewer than two samples there.
+    pub fn front_velocity(&self) -> Option<f64> {
+        let (first, last) = (self.samples.first()?, self.samples.last()?);
+        let from = last.time - 0.25 * (last.time - first.time);
+        let points: Vec<(f64, f64)> =
+            self.samples.iter().filter(|s| s.time >= from).map(|s| (s.time, s.cloud_front_robust)).collect();
+        super::fit_line(&points).map(|(slope, _)| slope)
     }
 }
 
@@ -279,21 +420,59 @@ mod tests {
     use super::*;
 
     #[test]
-    fn default_model_has_the_papers_particle_count_within_0_2_percent() {
-        let (s, g) = Impact::default().setup().unwrap();
+    fn small_model_has_the_papers_particle_count_and_layout() {
+        let imp = Impact::default();
+        assert_eq!(imp.plate_counts(), [264, 264, 12]);
+        assert_eq!(imp.sphere_k(), 14);
+        assert_eq!(imp.particle_counts(), (836_352, 11_536));
+        let (s, g) = imp.setup().unwrap();
         assert_eq!(g.plate_particles, 836_352);
-        assert_eq!(s.particles.len(), 848_104);
-        assert!((s.particles.len() as f64 / 847_888.0 - 1.0).abs() < 0.002);
+        assert_eq!(s.particles.len(), PAPER_SMALL_MODEL_PARTICLES);
+        let h = DEFAULT_SPACING;
+        let m = 11350.0 * h * h * h;
+        assert!(s.particles.mass.iter().all(|&x| x == m), "every particle weighs rho0 h^3");
+        // Sphere 11,536 h^3 rho0 = 19.5 g; plate 139.92 mm square, 6.36 mm thick.
         let sphere_mass: f64 = s.particles.mass[g.plate_particles..].iter().sum();
-        assert!((sphere_mass - 0.02006).abs() < 1e-4, "{sphere_mass}");
-        let (lo, hi) = s.particles.bounding_box();
-        assert!(hi[2] < PLATE_THICKNESS && lo[2] < -2.0 * SPHERE_RADIUS + 1e-3);
+        assert!((sphere_mass - 0.01950).abs() < 5e-5, "{sphere_mass}");
+        assert!((g.rear_face - 12.0 * h).abs() < 1e-15);
+        let plate = &s.particles.x[..g.plate_particles];
+        let (xmin, xmax) =
+            plate.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x[0]), b.max(x[0])));
+        assert!((xmax - xmin - 263.0 * h).abs() < 1e-12 && (xmax + xmin).abs() < 1e-12);
+        // The sphere's nearest particle is one spacing from the plate's first layer, on axis
+        // at half-spacings, all strictly inside k h of the centre (0, 0, -k h).
+        let k = 14.0 * h;
+        let sphere = &s.particles.x[g.plate_particles..];
+        let front = sphere.iter().map(|x| x[2]).fold(f64::NEG_INFINITY, f64::max);
+        assert!((0.5 * h - front - h).abs() < 1e-12, "gap {}", 0.5 * h - front);
+        assert!(sphere.iter().all(|x| x[0] * x[0] + x[1] * x[1] + (x[2] + k).powi(2) < k * k));
+        assert!(s.particles.v[g.plate_particles..].iter().all(|v| *v == [0.0, 0.0, IMPACT_VELOCITY]));
     }
 
     #[test]
-    fn large_model_count_is_within_0_2_percent() {
+    fn large_model_has_the_papers_particle_count() {
         let imp = Impact { spacing: 0.21e-3, cell: 1.0e-3, ..Default::default() };
         assert_eq!(imp.plate_counts(), [667, 667, 30]);
+        assert_eq!(imp.sphere_k(), 36);
+        let (plate, sphere) = imp.particle_counts();
+        assert_eq!((plate, sphere), (13_346_670, 195_360));
+        assert_eq!(plate + sphere, PAPER_LARGE_MODEL_PARTICLES);
+        // 195,360 (0.21 mm)^3 x 11350 kg/m^3 = 20.5 g.
+        assert!((sphere as f64 * 11350.0 * 0.21e-3f64.powi(3) - 0.0205).abs() < 5e-5);
+    }
+
+    #[test]
+    fn sphere_points_are_the_odd_lattice_strictly_inside_k() {
+        // k = 1: the 8 points (+-1/2, +-1/2, +-1/2) h lie at sqrt(3)/2 h < h.
+        assert_eq!(sphere_points(1).count(), 8);
+        // k = 2: of the 64 points of the 4^3 lattice, those with a^2 + b^2 + c^2 < 16 in
+        // odd half-units: (1,1,1) 8, (1,1,3) 24 -> 32; (1,3,3) = 19 and (3,3,3) = 27 are out.
+        assert_eq!(sphere_points(2).count(), 32);
+        // Counting and generating agree, and points on the boundary sphere are excluded.
+        for k in [3, 7, 14] {
+            let r2 = 4 * (k as i64) * (k as i64);
+            assert!(sphere_points(k).all(|p| p.iter().all(|c| c % 2 != 0) && p.iter().map(|c| c * c).sum::<i64>() < r2));
+        }
     }
 
     #[test]
@@ -315,6 +494,44 @@ mod tests {
         assert!(f.cloud_front_robust < 1001.0, "the stray particle is ignored: {}", f.cloud_front_robust);
         assert!(f.cloud_width_robust < 2.0, "{}", f.cloud_width_robust);
         assert_eq!(f.hole_diameter, 6.0);
+    }
+
+    fn sample(time: f64, front: f64) -> HistorySample {
+        HistorySample {
+            time,
+            cloud_front: front,
+            cloud_front_robust: front,
+            cloud_width: 0.0,
+            cloud_width_robust: 0.0,
+            kinetic: 0.0,
+            internal: 0.0,
+            total: 0.0,
+            failed: 0,
+        }
+    }
+
+    #[test]
+    fn front_velocity_is_the_slope_over_the_last_quarter() {
+        let mut h = History::new(1e-6).unwrap();
+        assert_eq!(h.front_velocity(), None);
+        // The front accelerates until 30 us, then moves at 5 km/s with +-0.1 mm of noise
+        // alternating about the last quarter's centre (35 us), which leaves its slope alone:
+        // only the last quarter (30-40 us) counts.
+        for k in 0..=40 {
+            let t = k as f64 * 1e-6;
+            let front = if k <= 30 { 1e8 * t * t } else { 0.09 + 5000.0 * (t - 30e-6) };
+            let noise = if k < 30 {
+                0.0
+            } else if k % 2 == 0 {
+                1e-4
+            } else {
+                -1e-4
+            };
+            h.samples.push(sample(t, front + noise));
+        }
+        let v = h.front_velocity().unwrap();
+        assert!((v - 5000.0).abs() < 1e-6, "{v}");
+        assert!(History::new(0.0).is_err() && History::new(f64::NAN).is_err());
     }
 
     #[test]

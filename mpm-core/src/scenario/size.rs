@@ -2,7 +2,8 @@
 //! needs to plan runs (the memory guard, progress estimates, the rows of skipped runs).
 //!
 //! * Taylor bar Models 1-4: the counts of [`taylor::ModelSpec`] (Table 2).
-//! * Impact: the particles of [`impact::Impact::setup`], counted without seeding them, and
+//! * Impact: the particles of [`impact::Impact::setup`], counted without seeding them
+//!   ([`impact::Impact::particle_counts`]), and
 //!   the nodes of the adaptive grid around the debris cloud at 30.6 µs (about
 //!   160 x 160 x 220 mm, measured on the small model), an upper estimate.
 //! * Memory ([`ModelSize::memory_bytes`]): bytes per particle and per node fitted to the
@@ -32,7 +33,7 @@ pub const BASE_BYTES: u64 = 16 << 20;
 pub const BYTES_PER_THREAD: u64 = 2 << 20;
 
 /// The impact models of a campaign, numbered 1-4: `(particle spacing, cell size)` in
-/// metres. 1-3 are the paper's small model (0.53 mm spacing, 848,104 particles) with its
+/// metres. 1-3 are the paper's small model (0.53 mm spacing, 847,888 particles) with its
 /// three cell sizes 2.12 / 1.59 / 1.06 mm; 4 is the large model (0.21 mm, 13.5 M particles,
 /// 1.0 mm cells).
 pub const IMPACT_MODELS: [(f64, f64); 4] =
@@ -60,11 +61,10 @@ impl ModelSize {
     /// The impact at lattice `spacing` with grid `cell` (m): its particles, and the nodes of
     /// the adaptive grid around the debris cloud at the paper's comparison time.
     pub fn impact(spacing: f64, cell: f64) -> Self {
-        let set_up = impact::Impact { spacing, cell, ..impact::Impact::default() };
-        let plate: usize = set_up.plate_counts().iter().product();
+        let (plate, sphere) = impact::Impact { spacing, cell, ..impact::Impact::default() }.particle_counts();
         let n = |len: f64| (len / cell).ceil() as u64 + 1;
         let nodes = IMPACT_CLOUD_BOX.iter().map(|&len| n(len)).product();
-        Self { particles: (plate + sphere_particles(spacing)) as u64, nodes }
+        Self { particles: (plate + sphere) as u64, nodes }
     }
 
     /// Estimated peak memory of a run of this model with `strategy` on `threads` workers
@@ -81,31 +81,6 @@ impl ModelSize {
         };
         base + model + scatter
     }
-}
-
-/// Points of the impact sphere's lattice at spacing `h`: the lattice cells of an even count
-/// across the sphere whose centres lie within its radius (as [`impact::Impact::setup`]
-/// seeds them, with the same arithmetic, so the count is exact).
-fn sphere_particles(h: f64) -> usize {
-    let radius = impact::SPHERE_RADIUS;
-    let centre_z = -(radius + 0.5 * h);
-    let across = ((2.0 * radius / h).ceil() as usize + 2).next_multiple_of(2);
-    let corner = -(across as f64) * 0.5 * h;
-    let at = |i: usize, lo: f64| lo + (i as f64 + 0.5) * h;
-    let mut count = 0;
-    for k in 0..across {
-        let dz = at(k, centre_z + corner) - centre_z;
-        for j in 0..across {
-            let y = at(j, corner);
-            count += (0..across)
-                .filter(|&i| {
-                    let x = at(i, corner);
-                    x * x + y * y + dz * dz <= radius * radius
-                })
-                .count();
-        }
-    }
-    count
 }
 
 #[cfg(test)]
@@ -127,8 +102,8 @@ mod tests {
             let (setup, _) = impact::Impact { spacing, ..impact::Impact::default() }.setup().unwrap();
             assert_eq!(ModelSize::impact(spacing, 2.12e-3).particles, setup.particles.len() as u64, "{spacing}");
         }
-        assert_eq!(ModelSize::impact(0.53e-3, 2.12e-3).particles, 848_104);
-        assert_eq!(ModelSize::impact(0.21e-3, 1.0e-3).particles, 13_537_926);
+        assert_eq!(ModelSize::impact(0.53e-3, 2.12e-3).particles, 847_888);
+        assert_eq!(ModelSize::impact(0.21e-3, 1.0e-3).particles, 13_542_030);
         assert_eq!(ModelSize::impact(0.53e-3, 2.12e-3).nodes, 77 * 77 * 105);
     }
 

@@ -135,7 +135,7 @@ pub struct TaylorBar {
 
 impl Default for TaylorBar {
     fn default() -> Self {
-        Self { model: 1, velocity: DEFAULT_VELOCITY, eos: MgForm::Paper, wall: WallKind::Slip }
+        Self { model: 1, velocity: DEFAULT_VELOCITY, eos: MgForm::default(), wall: WallKind::Slip }
     }
 }
 

@@ -88,7 +88,7 @@ pub fn two_spheres(material: Material, r: f64, dx: f64, v: f64, ppc: usize) -> S
 /// A small hypervelocity-like impact in free flight: a lead sphere at 3 km/s striking a
 /// lead plate, no walls, adaptive grid.
 pub fn mini_impact() -> Setup {
-    let material = Material::lead(mpm_core::MgForm::Paper);
+    let material = Material::lead(mpm_core::MgForm::default());
     let dx = 1.0e-3;
     let r = 2.0e-3;
     let (plate_lo, plate_hi) = ([-6e-3, -6e-3, -1.5e-3], [6e-3, 6e-3, 0.0]);

@@ -31,7 +31,7 @@ the program prints the error with its step number and exits with status 1.";
 
 pub const IMPACT_EXAMPLES: &str = "\
 Examples:
-  # The paper's small model (848,104 particles, 2.12 mm cells) to 30.6 µs after impact,
+  # The paper's small model (847,888 particles, 2.12 mm cells) to 30.6 µs after impact,
   # domain decomposition on 2 pinned threads, with a radiograph-style picture
   mpm run impact --strategy dd --threads 2 --cpus 0,1 --json impact.json --radiograph pictures
 
@@ -88,8 +88,8 @@ pub enum Scenario {
 /// Options of the hypervelocity impact scenario.
 #[derive(Debug, Args)]
 pub struct ImpactArgs {
-    /// Particle lattice spacing, m. 0.53e-3 gives the paper's small model (848,104 particles;
-    /// paper 847,888), 0.21e-3 the large one (13.5 M).
+    /// Particle lattice spacing, m. 0.53e-3 gives the paper's small model (847,888 particles),
+    /// 0.21e-3 the large one (13,542,030).
     #[arg(long, value_name = "M", default_value_t = impact::DEFAULT_SPACING, value_parser = parse_length)]
     pub spacing: f64,
 
