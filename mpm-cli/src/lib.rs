@@ -8,9 +8,10 @@
 //! * [`pinning`]: the rayon pool of a run with worker `j` pinned to CPU `j`, the workers'
 //!   placement read back, and the one CPU-list parser;
 //! * [`vtk`]: VTU snapshots and a `.pvd` collection for ParaView;
-//! * [`picture`]: the embedded font of every figure and the radiograph-style view of the
-//!   debris cloud;
-//! * [`atomic`]: atomic file writes.
+//! * [`picture`]: the embedded font of every figure, the radiograph-style view of the
+//!   debris cloud and its history;
+//! * [`atomic`]: atomic file writes;
+//! * [`group_digits`]: counts printed for people (`1,234,567`).
 //!
 //! Pinning and measurement policy (affinity, `/proc/self/status`) live here; the solver crate
 //! `mpm-core` has no OS code.
@@ -20,3 +21,27 @@ pub mod picture;
 pub mod pinning;
 pub mod summary;
 pub mod vtk;
+
+/// `1234567` as `1,234,567`.
+pub fn group_digits(n: u64) -> String {
+    let s = n.to_string();
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i) % 3 == 0 {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn digits_are_grouped_by_three() {
+        assert_eq!(super::group_digits(0), "0");
+        assert_eq!(super::group_digits(999), "999");
+        assert_eq!(super::group_digits(1_000), "1,000");
+        assert_eq!(super::group_digits(13_542_030), "13,542,030");
+    }
+}

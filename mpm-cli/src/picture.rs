@@ -1,11 +1,11 @@
-//! Pictures: the font every figure uses, and the radiograph-style side view of the debris
-//! cloud (paper Section 6).
+//! Pictures: the font every figure uses, the radiograph-style side view of the debris cloud
+//! (paper Section 6) and the cloud's history (front and width against time).
 //!
 //! Text is rendered with DejaVu Sans compiled into the program (crate `dejavu`), registered
 //! with plotters' `ab_glyph` backend: no figure depends on the fonts a machine has installed.
 
 use anyhow::{Context, Result};
-use mpm_core::scenario::impact::radiograph;
+use mpm_core::scenario::impact::{radiograph, HistorySample};
 use mpm_core::Particles;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
@@ -105,6 +105,63 @@ pub fn write_radiograph(
     Ok(())
 }
 
+/// Draw the debris cloud's leading edge and width against time (µs) as a PNG of `size`
+/// pixels: extreme values as dashed lines, robust ones (ignoring the outermost 0.1 % of the
+/// debris mass) as solid lines with markers at the samples.
+pub fn write_history_plot(path: &Path, samples: &[HistorySample], size: (u32, u32)) -> Result<()> {
+    register_fonts();
+    let t_end = samples.iter().map(|s| s.time * 1e6).fold(0.0f64, f64::max).max(1e-3);
+    let top = samples.iter().map(|s| s.cloud_front.max(s.cloud_width) * 1e3).fold(0.0f64, f64::max);
+    let top = if top > 0.0 { 1.08 * top } else { 1.0 };
+    let root = BitMapBackend::new(path, size).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Debris cloud behind the plate", ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0.0..t_end * 1.02, 0.0..top)?;
+    chart
+        .configure_mesh()
+        .x_desc("time after impact (µs)")
+        .y_desc("distance (mm)")
+        .label_style(("sans-serif", 14))
+        .draw()?;
+    type Pick = fn(&HistorySample) -> f64;
+    let series: [(&str, Pick, RGBColor, bool); 4] = [
+        ("leading edge, extreme", |s| s.cloud_front, BLUE, false),
+        ("leading edge, robust", |s| s.cloud_front_robust, BLUE, true),
+        ("width, extreme", |s| s.cloud_width, RED, false),
+        ("width, robust", |s| s.cloud_width_robust, RED, true),
+    ];
+    for (label, pick, colour, robust) in series {
+        let pts: Vec<(f64, f64)> = samples.iter().map(|s| (s.time * 1e6, pick(s) * 1e3)).collect();
+        let style = colour.stroke_width(if robust { 2 } else { 1 });
+        if robust {
+            chart
+                .draw_series(LineSeries::new(pts.clone(), style))?
+                .label(label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+            chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))?;
+        } else {
+            chart.draw_series(DashedLineSeries::new(pts, 6, 4, style))?.label(label).legend(move |at| {
+                EmptyElement::at(at)
+                    + PathElement::new(vec![(0, 0), (7, 0)], style)
+                    + PathElement::new(vec![(13, 0), (20, 0)], style)
+            });
+        }
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .draw()?;
+    root.present().with_context(|| format!("cannot write the history plot {}", path.display()))?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -120,5 +177,29 @@ mod tests {
         let bytes = std::fs::read(&path).unwrap();
         assert_eq!(&bytes[1..4], b"PNG");
         assert!(bytes.len() > 2000);
+    }
+
+    #[test]
+    fn history_png_is_written() {
+        let sample = |t: f64| HistorySample {
+            time: t * 1e-6,
+            cloud_front: 6.0e-3 * t,
+            cloud_front_robust: 5.8e-3 * t,
+            cloud_width: 3.0e-3 * t,
+            cloud_width_robust: 2.5e-3 * t,
+            kinetic: 1.0,
+            internal: 0.0,
+            total: 1.0,
+            failed: 0,
+        };
+        let samples: Vec<HistorySample> = (0..=30).map(|t| sample(t as f64)).collect();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("h.png");
+        write_history_plot(&path, &samples, (800, 500)).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+        assert!(bytes.len() > 2000);
+        // No samples still gives a (blank) figure rather than an error.
+        write_history_plot(&path, &[], (400, 300)).unwrap();
     }
 }

@@ -5,7 +5,8 @@
 //! (seconds, metres, joules, bytes). Key conventions:
 //!
 //! * `wall_s` is the wall-clock time of the whole stepping loop (all steps, warm-up
-//!   included; VTU output excluded and reported as `output_s`). `grid_stage_s`,
+//!   included; output (VTU snapshots, pictures) and the scenario's sampling during the run
+//!   (impact history, plate shock front) excluded and reported as `output_s`). `grid_stage_s`,
 //!   `particle_stage_s` and `substages` cover the same steps, from the solver's own
 //!   stage timers (paper split: grid-node stage Eqs. 1-6, particle stage Eqs. 7-15).
 //! * The steady-state figures leave out the first `warmup_steps` steps:
@@ -21,9 +22,18 @@
 //!   end, so exactly `L0 = 25.4 mm` at `t = 0`); the impact-face diameter is taken from
 //!   particle centres. `length_convention` says so in the file itself.
 //! * Impact figures (`cloud_front_m`, `cloud_front_robust_m`, `cloud_width_m`,
-//!   `cloud_width_robust_m`, `hole_diameter_m`, `front_velocity_m_s`) are measured by
-//!   [`mpm_core::scenario::impact::measure`] from particle centres; the robust variants
+//!   `cloud_width_robust_m`, `hole_diameter_m`, `leading_debris_velocity_m_s`) are measured
+//!   by [`mpm_core::scenario::impact::measure`] from particle centres; the robust variants
 //!   ignore the outermost 0.1 % of the debris mass (see that module for the definitions).
+//!   `cloud_history` samples them with the energies about every microsecond and at the end;
+//!   `front_velocity_m_s` is [`History::front_velocity`], the slope of the robust front over
+//!   the last quarter of the run.
+//! * Plate impact figures (`shock_speed_m_s`, `shock_pressure_pa`, `particle_velocity_m_s`,
+//!   their Rankine-Hugoniot values `rh_*` and relative errors `*_rel_error`) come from
+//!   [`mpm_core::scenario::plate::ShockTracker`]; `plate_configuration` says what was run.
+//! * `bulk_viscosity` and `energy_rise_limit` are the run's settings; `energy` its energy
+//!   bookkeeping ([`EnergyReport`]). Summaries written before these existed read back with
+//!   them `null`.
 //! * `worker_busy_s` holds, per worker, the steady-state seconds it spent in its own shares
 //!   of the parallel phases (AE and DD; `null` for the serial strategy), and
 //!   `load_imbalance` their largest over their mean (1 = balanced). Both strategies give
@@ -33,9 +43,10 @@
 //!   steps, including step 0 (the initial state) and the last step.
 
 use crate::pinning::PinnedPool;
-use mpm_core::scenario::impact::{self, CloudFigures, ImpactGeometry};
+use mpm_core::scenario::impact::{self, CloudFigures, History, HistorySample, ImpactGeometry};
+use mpm_core::scenario::plate::{PlateGeometry, PlateResult};
 use mpm_core::scenario::taylor::{measure, TaylorFigures};
-use mpm_core::{Simulation, StageTimes, Strategy};
+use mpm_core::{BulkViscosity, Simulation, StageTimes, Strategy};
 use serde::de::{MapAccess, Visitor};
 use serde::ser::SerializeMap;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
@@ -51,6 +62,70 @@ pub const TARGET: &str = env!("MPM_TARGET");
 
 /// How the Taylor bar lengths are measured (written into every Taylor summary).
 pub const LENGTH_CONVENTION: &str = "length: z-extent of particle centres plus one layer spacing (exactly L0 at t = 0); face diameter: from particle centres";
+
+/// What the plate scenario runs (written into every plate summary).
+pub const PLATE_CONFIGURATION: &str = "one lead slab (Table 3, no failure) moving onto a rigid wall at z = 0, in a 2 x 2-cell column with roller side walls (uniaxial strain): the shock runs from the wall into the slab and the particle velocity jump is the impact speed";
+
+/// The energy bookkeeping of a run: energies at the start and the end, and the extremes of
+/// the balance [`mpm_core::energy::EnergyBalance`] over the steps.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EnergyReport {
+    /// Kinetic energy at `t = 0` (J).
+    pub initial_kinetic_j: f64,
+    /// Internal energy at `t = 0` (J).
+    pub initial_internal_j: f64,
+    /// Total energy at `t = 0` (J).
+    pub initial_total_j: f64,
+    /// Kinetic energy at the end (J).
+    pub final_kinetic_j: f64,
+    /// Internal energy at the end (J).
+    pub final_internal_j: f64,
+    /// Total energy at the end (J).
+    pub final_total_j: f64,
+    /// Work of the body forces (J).
+    pub body_force_work_j: f64,
+    /// Largest relative rise of the total energy less the body forces' work over its initial
+    /// value, after any step (0 if it never rose).
+    pub max_rise: f64,
+    /// The step of the largest rise (0: none).
+    pub max_rise_step: u64,
+    /// Largest relative fall (0 if it never fell).
+    pub max_fall: f64,
+    /// The step of the largest fall (0: none).
+    pub max_fall_step: u64,
+    /// Particles with negative internal energy at the end.
+    pub negative_internal_final: u64,
+    /// Most particles with negative internal energy after any one step.
+    pub negative_internal_max: u64,
+    /// Steps after which some particle had negative internal energy.
+    pub negative_internal_steps: u64,
+    /// The first such step.
+    pub first_negative_internal_step: Option<u64>,
+}
+
+impl EnergyReport {
+    /// The bookkeeping of `sim` now.
+    pub fn of(sim: &Simulation) -> Self {
+        let (init, last, b) = (sim.initial(), sim.diagnostics(), sim.energy_balance());
+        Self {
+            initial_kinetic_j: init.kinetic,
+            initial_internal_j: init.internal,
+            initial_total_j: init.total(),
+            final_kinetic_j: last.kinetic,
+            final_internal_j: last.internal,
+            final_total_j: last.total(),
+            body_force_work_j: b.external_work,
+            max_rise: b.max_rise,
+            max_rise_step: b.max_rise_step,
+            max_fall: b.max_fall,
+            max_fall_step: b.max_fall_step,
+            negative_internal_final: last.negative_internal,
+            negative_internal_max: b.negative_internal_max,
+            negative_internal_steps: b.negative_internal_steps,
+            first_negative_internal_step: b.first_negative_internal_step,
+        }
+    }
+}
 
 /// Why the stepping loop stopped.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -222,7 +297,7 @@ pub fn load_imbalance(busy: &[f64]) -> Option<f64> {
 pub struct Timing {
     /// Whole stepping loop, VTU output excluded (s).
     pub wall_s: f64,
-    /// Time spent writing VTU snapshots (s).
+    /// Time spent writing snapshots and pictures and sampling histories (s).
     pub output_s: f64,
     /// Steps counted as warm-up (the first ones; at most the steps taken).
     pub warmup_steps: u64,
@@ -271,6 +346,11 @@ pub struct RunContext<'a> {
     pub taylor: Option<(TaylorFigures, [f64; 3])>,
     /// Impact: which particles are the plate and where its rear face is.
     pub impact: Option<ImpactGeometry>,
+    /// Impact: the cloud's history.
+    pub cloud_history: Option<History>,
+    /// Plate: the plate and the shock measurements (`None` when the front was not tracked
+    /// long enough).
+    pub plate: Option<(PlateGeometry, Option<PlateResult>)>,
     /// The program's arguments.
     pub command_line: Vec<String>,
     /// Wall-clock start of the run, seconds since the Unix epoch.
@@ -304,7 +384,7 @@ pub struct Summary {
     pub target: String,
     /// Grid mode: `fixed` or `adaptive`.
     pub grid_mode: String,
-    /// Equation of state, e.g. `mie-gruneisen (paper form)`.
+    /// Equation of state, `mie-gruneisen (hugoniot form)` or `mie-gruneisen (paper-printed form)`.
     pub eos: String,
     /// Material name.
     pub material: String,
@@ -346,7 +426,7 @@ pub struct Summary {
     pub end_reason: EndReason,
     /// Wall time of the whole stepping loop, warm-up included, output excluded (s).
     pub wall_s: f64,
-    /// Time spent writing VTU snapshots (s).
+    /// Time spent writing snapshots and pictures and sampling histories (s).
     pub output_s: f64,
     /// Grid-node stage (Eqs. 1-6), all steps (s).
     pub grid_stage_s: f64,
@@ -439,7 +519,8 @@ pub struct Summary {
     /// Impact: diameter of the hole in the plate (m).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hole_diameter_m: Option<f64>,
-    /// Impact: mass-weighted z-velocity of the debris beyond the robust front (m/s).
+    /// Impact: the speed at which the robust front moved, the least-squares slope of
+    /// `cloud_history`'s robust front over the last quarter of the run (m/s).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub front_velocity_m_s: Option<f64>,
     /// Impact: debris mass beyond the rear face (kg).
@@ -451,6 +532,62 @@ pub struct Summary {
     /// DD patch layout `[px, py, pz]` (DD only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dd_layout: Option<[usize; 3]>,
+    /// Artificial bulk viscosity coefficients `{c1, c2}` (`0, 0`: off).
+    #[serde(default)]
+    pub bulk_viscosity: Option<BulkViscosity>,
+    /// Fraction of the initial total energy by which a rise stops the run; `null` when the
+    /// check was off.
+    #[serde(default)]
+    pub energy_rise_limit: Option<f64>,
+    /// Energy bookkeeping.
+    #[serde(default)]
+    pub energy: Option<EnergyReport>,
+    /// Impact: mass-weighted z-velocity of the debris beyond the robust front at the end
+    /// (m/s): how fast the leading 0.1 % of the debris moves now.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub leading_debris_velocity_m_s: Option<f64>,
+    /// Impact: the cloud's figures and the energies about every microsecond and at the end.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cloud_history: Option<Vec<HistorySample>>,
+    /// Plate: what was run ([`PLATE_CONFIGURATION`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plate_configuration: Option<String>,
+    /// Plate: slab length (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slab_length_m: Option<f64>,
+    /// Plate: measured shock speed relative to the undisturbed slab (m/s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shock_speed_m_s: Option<f64>,
+    /// Plate: shocked normal stress `-sigma_zz`, volume average behind the front (Pa).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shock_pressure_pa: Option<f64>,
+    /// Plate: shocked mean pressure `-tr(sigma)/3`, volume average (Pa).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shock_mean_pressure_pa: Option<f64>,
+    /// Plate: particle velocity jump across the shock (m/s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub particle_velocity_m_s: Option<f64>,
+    /// Plate: Rankine-Hugoniot shock speed `c0 + s u_p` (m/s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rh_shock_speed_m_s: Option<f64>,
+    /// Plate: Rankine-Hugoniot pressure `rho0 U_s u_p` (Pa).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rh_pressure_pa: Option<f64>,
+    /// Plate: Rankine-Hugoniot particle velocity (the impact speed, m/s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rh_particle_velocity_m_s: Option<f64>,
+    /// Plate: `shock_speed_m_s / rh_shock_speed_m_s - 1`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shock_speed_rel_error: Option<f64>,
+    /// Plate: `shock_pressure_pa / rh_pressure_pa - 1`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shock_pressure_rel_error: Option<f64>,
+    /// Plate: `particle_velocity_m_s / rh_particle_velocity_m_s - 1`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub particle_velocity_rel_error: Option<f64>,
+    /// Plate: front samples in the shock tracker's path.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shock_front_samples: Option<usize>,
     /// The program's arguments.
     pub command_line: Vec<String>,
     /// Wall-clock start of the run, seconds since the Unix epoch.
@@ -464,6 +601,7 @@ impl Summary {
         s.fill_timing(sim, ctx.timing);
         s.fill_placement(&ctx);
         s.fill_physics(sim, &ctx);
+        s.fill_energy_and_shock(sim, &ctx);
         s.model_name = ctx.model_name;
         s.history = ctx.history;
         s.command_line = ctx.command_line;
@@ -583,8 +721,40 @@ impl Summary {
             self.cloud_width_m = Some(c.cloud_width);
             self.cloud_width_robust_m = Some(c.cloud_width_robust);
             self.hole_diameter_m = Some(c.hole_diameter);
-            self.front_velocity_m_s = Some(c.front_velocity);
+            self.leading_debris_velocity_m_s = Some(c.leading_debris_velocity);
             self.debris_mass_kg = Some(c.debris_mass);
+        }
+    }
+
+    /// The shock-capturing settings, the energy bookkeeping, the impact's history and the
+    /// plate's shock against Rankine-Hugoniot.
+    fn fill_energy_and_shock(&mut self, sim: &Simulation, ctx: &RunContext<'_>) {
+        let cfg = sim.config();
+        self.bulk_viscosity = Some(cfg.bulk_viscosity);
+        self.energy_rise_limit = cfg.energy_rise_limit.is_finite().then_some(cfg.energy_rise_limit);
+        self.energy = Some(EnergyReport::of(sim));
+        if let Some(h) = &ctx.cloud_history {
+            self.front_velocity_m_s = h.front_velocity();
+            self.cloud_history = Some(h.samples.clone());
+        }
+        if let Some((g, result)) = &ctx.plate {
+            let t = g.theory();
+            self.plate_configuration = Some(PLATE_CONFIGURATION.to_string());
+            self.slab_length_m = Some(g.length);
+            self.rh_shock_speed_m_s = Some(t.shock_speed);
+            self.rh_pressure_pa = Some(t.pressure);
+            self.rh_particle_velocity_m_s = Some(t.particle_velocity);
+            if let Some(r) = result {
+                let rel = |a: f64, b: f64| a / b - 1.0;
+                self.shock_speed_m_s = Some(r.shock_speed);
+                self.shock_pressure_pa = Some(r.shocked.normal_stress);
+                self.shock_mean_pressure_pa = Some(r.shocked.pressure);
+                self.particle_velocity_m_s = Some(r.shocked.particle_velocity);
+                self.shock_speed_rel_error = Some(rel(r.shock_speed, t.shock_speed));
+                self.shock_pressure_rel_error = Some(rel(r.shocked.normal_stress, t.pressure));
+                self.particle_velocity_rel_error = Some(rel(r.shocked.particle_velocity, t.particle_velocity));
+                self.shock_front_samples = Some(r.samples);
+            }
         }
     }
 }

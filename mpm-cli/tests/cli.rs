@@ -1,5 +1,5 @@
 //! The `mpm` program through its real binary: help, Table 2 counts, the JSON summary's keys,
-//! strategies, pinning, oversubscription, bad input and VTU output.
+//! strategies, pinning, oversubscription, bad input, VTU output, the impact and the plate.
 
 use mpm_cli::summary::Summary;
 use mpm_core::Strategy;
@@ -89,6 +89,8 @@ fn help_teaches_the_commands_and_every_flag() {
         "--steps",
         "--grid",
         "--cfl",
+        "--q",
+        "--energy-rise-limit",
         "--strategy",
         "--threads",
         "--cpus",
@@ -105,8 +107,13 @@ fn help_teaches_the_commands_and_every_flag() {
     for must in [
         "m/s",
         "[default: 40]",
-        "[default: 0.5]",
-        "[default: paper]",
+        "Default: 0.5 for",
+        "0.2 for the plate",
+        "[default: hugoniot]",
+        "paper-printed",
+        "safe only at small compression",
+        "[default: 1.5,0.06]",
+        "[default: 0.05]",
         "[default: frictionless]",
         "fixed for the Taylor bar",
         "[default: serial]",
@@ -208,6 +215,9 @@ const REQUIRED_KEYS: &[&str] = &[
     "momentum",
     "failed_particles",
     "history",
+    "bulk_viscosity",
+    "energy_rise_limit",
+    "energy",
     "initial_length_m",
     "final_length_m",
     "initial_face_diameter_m",
@@ -249,7 +259,16 @@ fn json_has_exactly_the_golden_keys() {
     // The build script exports the level this test (and so the binary) was built with.
     assert_eq!(v["opt_level"], concat!("o", env!("MPM_OPT_LEVEL")));
     assert_eq!(v["profile"], env!("MPM_PROFILE"));
-    assert_eq!(v["eos"], "mie-gruneisen (paper form)");
+    assert_eq!(v["eos"], "mie-gruneisen (hugoniot form)");
+    assert_eq!(f(&v["bulk_viscosity"], "c1"), 1.5);
+    assert_eq!(f(&v["bulk_viscosity"], "c2"), 0.06);
+    assert_eq!(f(&v, "energy_rise_limit"), 0.05);
+    let e = &v["energy"];
+    assert_eq!(f(e, "initial_kinetic_j"), f(&v, "kinetic_energy_initial"));
+    assert_eq!(f(e, "final_internal_j"), f(&v, "internal_energy"));
+    assert!((f(e, "final_total_j") / f(e, "initial_total_j") - 1.0).abs() < 1e-9, "{e}");
+    assert!(f(e, "max_rise") < 1e-9 && f(e, "max_fall") < 1e-9, "{e}");
+    assert_eq!(u(e, "negative_internal_steps"), 0);
     assert_eq!(v["wall"], "frictionless");
     assert_eq!(v["grid_mode"], "fixed");
     assert_eq!(u(&v, "steps"), 12);
@@ -383,6 +402,56 @@ fn bad_input_is_a_clear_error() {
     rejects(&["--model", "1", "--every", "10"], "--vtk");
     rejects(&["--model", "1", "--steps", "5", "--warmup", "5"], "no steady-state steps");
     rejects(&["--model", "1", "--strategy", "bogus"], "invalid value 'bogus'");
+    rejects(&["--model", "1", "--q", "1.5"], "two numbers C1,C2");
+    rejects(&["--model", "1", "--q", "-1,0"], "finite number >= 0");
+    rejects(&["--model", "1", "--energy-rise-limit", "0"], "energy rise limit");
+    rejects(&["--model", "1", "--eos", "ideal-gas"], "invalid value 'ideal-gas'");
+}
+
+/// `--eos paper` is the printed form, `--eos lsdyna` the Hugoniot form; `--q 0,0` turns the
+/// viscosity off; an infinite energy-rise limit is written as `null`.
+#[test]
+fn eos_aliases_and_physics_options_reach_the_summary() {
+    let (v, _) = run_json(&["--model", "1", "--steps", "2", "--quiet", "--eos", "paper", "--q", "0,0"]);
+    assert_eq!(v["eos"], "mie-gruneisen (paper-printed form)");
+    assert_eq!(f(&v["bulk_viscosity"], "c1"), 0.0);
+    assert_eq!(f(&v["bulk_viscosity"], "c2"), 0.0);
+    let (v, _) =
+        run_json(&["--model", "1", "--steps", "2", "--quiet", "--eos", "lsdyna", "--energy-rise-limit", "inf"]);
+    assert_eq!(v["eos"], "mie-gruneisen (hugoniot form)");
+    assert!(v["energy_rise_limit"].is_null());
+    assert_eq!(f(&v, "cfl"), 0.5);
+}
+
+/// A limit below round-off stops the run at the first step whose energy rose at all.
+#[test]
+fn energy_rise_above_the_limit_stops_the_run_without_a_summary() {
+    solver_fails(&["--model", "1", "--energy-rise-limit", "1e-300", "--steps", "100"], "total energy rose");
+}
+
+/// The plate at 3 km/s (default slab, CFL 0.2): shock speed within 3 % and shocked pressure
+/// within 5 % of Rankine-Hugoniot, from the JSON; the human summary prints both.
+#[test]
+fn plate_at_3_km_s_matches_rankine_hugoniot() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("plate.json");
+    let out = mpm(&["run", "plate", "--velocity", "3000", "--json", json.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["scenario"], "plate");
+    assert_eq!(f(&v, "cfl"), 0.2);
+    assert_eq!(v["end_reason"], "end_time");
+    assert!(v["plate_configuration"].as_str().unwrap().contains("rigid wall"));
+    let rel = |a: &str, b: &str| f(&v, a) / f(&v, b) - 1.0;
+    assert_eq!(f(&v, "rh_shock_speed_m_s"), 2092.0 + 1.45 * 3000.0);
+    assert!(rel("shock_speed_m_s", "rh_shock_speed_m_s").abs() < 0.03, "{}", v["shock_speed_m_s"]);
+    assert!(rel("shock_pressure_pa", "rh_pressure_pa").abs() < 0.05, "{}", v["shock_pressure_pa"]);
+    assert!(rel("particle_velocity_m_s", "rh_particle_velocity_m_s").abs() < 0.02);
+    assert_eq!(f(&v, "shock_speed_rel_error"), rel("shock_speed_m_s", "rh_shock_speed_m_s"));
+    assert!(f(&v["energy"], "max_rise") < 1e-9 && f(&v["energy"], "max_fall") < 1e-9);
+    let s = text(&out.stdout);
+    assert!(s.contains("measured vs Rankine-Hugoniot") && s.contains("shock speed"), "{s}");
+    serde_json::from_value::<Summary>(v).unwrap();
 }
 
 #[test]
@@ -401,34 +470,28 @@ fn unwritable_json_path_is_detected_before_the_run() {
     rejects(&["--model", "1", "--json", dir.path().to_str().unwrap()], "is a directory");
 }
 
-#[test]
-fn solver_failure_prints_the_step_and_writes_no_summary() {
-    // 500 m/s with CFL 1 splashes copper out of the fixed grid within ~100 steps.
+/// A Taylor run with `args` that the solver stops: exit status 1, the step and `says` in the
+/// message, no summary.
+fn solver_fails(args: &[&str], says: &str) {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("x.json");
-    let out = mpm(&[
-        "run",
-        "taylor",
-        "--model",
-        "1",
-        "--velocity",
-        "500",
-        "--cfl",
-        "1",
-        "--steps",
-        "400",
-        "--quiet",
-        "--json",
-        json.to_str().unwrap(),
-    ]);
+    let mut all = vec!["run", "taylor", "--quiet", "--json", json.to_str().unwrap()];
+    all.extend_from_slice(args);
+    let out = mpm(&all);
     let err = text(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("the simulation failed"), "{err}");
     assert!(err.contains("step "), "{err}");
-    assert!(err.contains("left the fixed grid"), "{err}");
+    assert!(err.contains(says), "{err}");
     assert!(!err.contains("panicked"), "{err}");
     assert!(!json.exists());
     assert_no_temp_files(dir.path());
+}
+
+#[test]
+fn solver_failure_prints_the_step_and_writes_no_summary() {
+    // 500 m/s with CFL 1 splashes copper out of the fixed grid within ~100 steps.
+    solver_fails(&["--model", "1", "--velocity", "500", "--cfl", "1", "--steps", "400"], "left the fixed grid");
 }
 
 #[test]
@@ -476,11 +539,25 @@ fn impact_run_reports_the_cloud_and_draws_a_radiograph() {
         "cloud_width_robust_m",
         "hole_diameter_m",
         "front_velocity_m_s",
+        "leading_debris_velocity_m_s",
     ] {
         let x = v[key].as_f64().unwrap_or_else(|| panic!("{key} missing"));
         assert!(x.is_finite() && x > 0.0, "{key} = {x}");
     }
     assert!(v["failed_particles"].as_u64().unwrap() > 0);
-    let png = std::fs::read(pics.join("radiograph_final.png")).unwrap();
-    assert_eq!(&png[1..4], b"PNG");
+    // A sample in every microsecond from t = 0, and the end.
+    let h = v["cloud_history"].as_array().unwrap();
+    assert_eq!(h.len(), 11, "{h:?}");
+    assert_eq!(h[0]["time"].as_f64(), Some(0.0));
+    assert_eq!(h[10]["time"].as_f64(), v["sim_time"].as_f64());
+    assert_eq!(h[10]["cloud_front_robust"].as_f64(), v["cloud_front_robust_m"].as_f64());
+    assert!(h.windows(2).all(|w| w[0]["time"].as_f64() < w[1]["time"].as_f64()));
+    for k in ["cloud_front", "cloud_width", "cloud_width_robust", "kinetic", "internal", "total", "failed"] {
+        assert!(h[10][k].as_f64().is_some(), "{k}");
+    }
+    for name in ["radiograph_final.png", "history.png"] {
+        let png = std::fs::read(pics.join(name)).unwrap();
+        assert_eq!(&png[1..4], b"PNG", "{name}");
+    }
+    serde_json::from_value::<Summary>(v).unwrap();
 }

@@ -43,14 +43,9 @@ pub enum MgForm {
     PaperPrinted,
 }
 
-#[allow(non_upper_case_globals)]
 impl MgForm {
     /// Every form.
     pub const ALL: [MgForm; 2] = [MgForm::Hugoniot, MgForm::PaperPrinted];
-    /// The printed form under the name the `mpm` CLI's `--eos paper` maps to.
-    pub const Paper: MgForm = MgForm::PaperPrinted;
-    /// LS-DYNA's Grüneisen EOS with `a = 0`, `S2 = S3 = 0`: the Hugoniot form.
-    pub const LsDyna: MgForm = MgForm::Hugoniot;
 
     /// Stable name (`hugoniot` / `paper-printed`).
     pub fn name(self) -> &'static str {
@@ -206,13 +201,13 @@ impl Eos {
     }
 
     /// A short description naming the form (recorded with every run): `mie-gruneisen
-    /// (hugoniot form)`, `mie-gruneisen (paper form)` for the printed Eq. 18 (the wording of
-    /// the summaries recorded so far), or `linear`.
+    /// (hugoniot form)`, `mie-gruneisen (paper-printed form)` for Eq. 18 as printed, or
+    /// `linear`.
     pub fn describe(&self) -> String {
         match self {
             Eos::MieGruneisen(m) => match m.form {
                 MgForm::Hugoniot => "mie-gruneisen (hugoniot form)".into(),
-                MgForm::PaperPrinted => "mie-gruneisen (paper form)".into(),
+                MgForm::PaperPrinted => "mie-gruneisen (paper-printed form)".into(),
             },
             Eos::Linear(_) => "linear".into(),
         }
@@ -361,8 +356,6 @@ mod tests {
         }
         assert_eq!("lsdyna".parse::<MgForm>().unwrap(), MgForm::Hugoniot);
         assert_eq!("paper".parse::<MgForm>().unwrap(), MgForm::PaperPrinted);
-        assert_eq!(MgForm::LsDyna, MgForm::Hugoniot);
-        assert_eq!(MgForm::Paper, MgForm::PaperPrinted);
         assert_eq!(MgForm::default(), MgForm::Hugoniot);
         let e = "ideal-gas".parse::<MgForm>().unwrap_err();
         assert!(e.contains("hugoniot") && e.contains("paper-printed"), "{e}");

@@ -48,7 +48,7 @@ use crate::material::{Material, MgForm};
 use crate::math::Vec3;
 use crate::particles::Particles;
 use crate::solver::Simulation;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Sphere radius (m).
 pub const SPHERE_RADIUS: f64 = 7.5e-3;
@@ -201,10 +201,6 @@ pub struct CloudFigures {
     /// Mass-weighted z-velocity of the debris beyond the robust front (m/s): how fast the
     /// leading 0.1 % of the debris moves now.
     pub leading_debris_velocity: f64,
-    /// The same value as `leading_debris_velocity`, under the name the `mpm` CLI's summary
-    /// reads (`front_velocity_m_s`); the speed at which the front has moved is
-    /// [`History::front_velocity`].
-    pub front_velocity: f64,
     /// Mass of the debris (kg).
     pub debris_mass: f64,
     /// Particles in the debris.
@@ -254,7 +250,6 @@ pub fn measure(p: &Particles, g: &ImpactGeometry) -> CloudFigures {
             cloud_width_robust: 0.0,
             hole_diameter: if hole_r2.is_finite() { 2.0 * hole_r2.sqrt() } else { f64::NAN },
             leading_debris_velocity: 0.0,
-            front_velocity: 0.0,
             debris_mass: 0.0,
             debris_particles: 0,
         };
@@ -275,14 +270,13 @@ pub fn measure(p: &Particles, g: &ImpactGeometry) -> CloudFigures {
         cloud_width_robust: 2.0 * r_robust,
         hole_diameter: if hole_r2.is_finite() { 2.0 * hole_r2.sqrt() } else { f64::NAN },
         leading_debris_velocity: mv / m,
-        front_velocity: mv / m,
         debris_mass: mass,
         debris_particles: debris,
     }
 }
 
 /// One sample of an impact's history.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct HistorySample {
     /// Time after impact (s).
     pub time: f64,

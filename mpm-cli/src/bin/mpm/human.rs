@@ -1,22 +1,9 @@
 //! The summary of a run for people (stdout), unless `--quiet`.
 
-use mpm_cli::pinning;
 use mpm_cli::summary::{EndReason, Summary, OPT_LEVEL};
 use mpm_cli::vtk::SnapshotWriter;
+use mpm_cli::{group_digits, pinning};
 use std::path::Path;
-
-/// `1234567` as `1,234,567`.
-fn group(n: u64) -> String {
-    let s = n.to_string();
-    let mut out = String::new();
-    for (i, c) in s.chars().enumerate() {
-        if i > 0 && (s.len() - i) % 3 == 0 {
-            out.push(',');
-        }
-        out.push(c);
-    }
-    out
-}
 
 /// Print the summary for people. A closed stdout (e.g. `| head`) must not panic: write
 /// errors are ignored.
@@ -43,9 +30,9 @@ fn configuration(s: &Summary) -> Vec<String> {
     let model = format!(
         "{what} at {} m/s: {} particles, {} cells, {} nodes ({} grid, dx = {:.4} mm)",
         s.velocity_m_s,
-        group(s.particles as u64),
-        group(s.cells as u64),
-        group(s.nodes as u64),
+        group_digits(s.particles as u64),
+        group_digits(s.cells as u64),
+        group_digits(s.nodes as u64),
         s.grid_mode,
         s.dx_m * 1e3
     );
@@ -81,7 +68,7 @@ fn timing(s: &Summary) -> Vec<String> {
     };
     let mut lines = vec![format!(
         "steps: {} to t = {:.3} µs ({reason}), dt first {:.3e} s",
-        group(s.steps),
+        group_digits(s.steps),
         s.sim_time * 1e6,
         s.dt_first
     )];
@@ -131,23 +118,59 @@ fn physics(s: &Summary) -> Vec<String> {
     }
     if let (Some(front), Some(width)) = (s.cloud_front_m, s.cloud_width_m) {
         lines.push(format!(
-            "debris cloud: leading edge {:.2} mm behind the plate (robust {:.2} mm), width {:.2} mm (robust {:.2} mm), hole {:.2} mm, front velocity {:.0} m/s",
+            "debris cloud: leading edge {:.2} mm behind the plate (robust {:.2} mm), width {:.2} mm (robust {:.2} mm), hole {:.2} mm, front velocity {:.0} m/s (fitted), leading debris {:.0} m/s",
             front * 1e3,
             s.cloud_front_robust_m.unwrap_or(f64::NAN) * 1e3,
             width * 1e3,
             s.cloud_width_robust_m.unwrap_or(f64::NAN) * 1e3,
             s.hole_diameter_m.unwrap_or(f64::NAN) * 1e3,
-            s.front_velocity_m_s.unwrap_or(f64::NAN)
+            s.front_velocity_m_s.unwrap_or(f64::NAN),
+            s.leading_debris_velocity_m_s.unwrap_or(f64::NAN)
         ));
     }
+    lines.extend(shock(s));
     lines.push(format!(
         "energy: kinetic {:.4} J (initial {:.4} J), internal {:.4} J; failed particles {}",
         s.kinetic_energy, s.kinetic_energy_initial, s.internal_energy, s.failed_particles
     ));
+    if let Some(e) = &s.energy {
+        lines.push(format!(
+            "energy balance: total {:.4} J -> {:.4} J, largest rise {:.2e} (step {}), largest fall {:.2e} (step {}); negative internal energy after {} step(s) (at most {} particles)",
+            e.initial_total_j,
+            e.final_total_j,
+            e.max_rise,
+            e.max_rise_step,
+            e.max_fall,
+            e.max_fall_step,
+            e.negative_internal_steps,
+            e.negative_internal_max
+        ));
+    }
     lines.push(format!(
         "memory: peak RSS {}, model {:.1} MiB",
         s.peak_rss_bytes.map_or("unknown".into(), |b| format!("{:.1} MiB", b as f64 / 1048576.0)),
         s.model_memory_bytes as f64 / 1048576.0
     ));
     lines
+}
+
+/// The plate's shock, measured against Rankine-Hugoniot.
+fn shock(s: &Summary) -> Vec<String> {
+    let (Some(us_rh), Some(p_rh), Some(up_rh)) = (s.rh_shock_speed_m_s, s.rh_pressure_pa, s.rh_particle_velocity_m_s)
+    else {
+        return Vec::new();
+    };
+    let (Some(us), Some(p), Some(up)) = (s.shock_speed_m_s, s.shock_pressure_pa, s.particle_velocity_m_s) else {
+        return vec![format!(
+            "shock: not measured (the front was not tracked long enough; run to the default end time); Rankine-Hugoniot: U_s {us_rh:.1} m/s, p {:.3} GPa, u_p {up_rh:.1} m/s",
+            p_rh * 1e-9
+        )];
+    };
+    let pct = |a: f64, b: f64| 100.0 * (a / b - 1.0);
+    vec![
+        "shock (measured vs Rankine-Hugoniot):".to_string(),
+        format!("  shock speed      {us:10.1} m/s  vs {us_rh:10.1} m/s  ({:+.2} %)", pct(us, us_rh)),
+        format!("  pressure -s_zz   {:10.3} GPa  vs {:10.3} GPa  ({:+.2} %)", p * 1e-9, p_rh * 1e-9, pct(p, p_rh)),
+        format!("  particle vel.    {up:10.1} m/s  vs {up_rh:10.1} m/s  ({:+.2} %)", pct(up, up_rh)),
+    ]
 }

@@ -33,14 +33,11 @@ fn main() {
 /// Run the command the user gave.
 fn dispatch(cli: Cli) -> Result<()> {
     let command_line: Vec<String> = std::env::args().collect();
-    match cli.command {
-        Command::Run(RunCmd { scenario: Scenario::Taylor(args) }) => {
-            let run = ScenarioRun::Taylor(args);
-            run::run_scenario(&run, command_line)
-        }
-        Command::Run(RunCmd { scenario: Scenario::Impact(args) }) => {
-            let run = ScenarioRun::Impact(args);
-            run::run_scenario(&run, command_line)
-        }
-    }
+    let Command::Run(RunCmd { scenario }) = cli.command;
+    let run = match scenario {
+        Scenario::Taylor(args) => ScenarioRun::Taylor(args),
+        Scenario::Impact(args) => ScenarioRun::Impact(args),
+        Scenario::Plate(args) => ScenarioRun::Plate(args),
+    };
+    run::run_scenario(&run, command_line)
 }

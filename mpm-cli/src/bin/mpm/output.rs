@@ -5,10 +5,10 @@
 use crate::scenario::ScenarioRun;
 use anyhow::{bail, Context, Result};
 use mpm_cli::atomic;
-use mpm_cli::picture::{write_radiograph, RadiographNotes};
+use mpm_cli::picture::{write_history_plot, write_radiograph, RadiographNotes};
 use mpm_cli::summary::Summary;
 use mpm_cli::vtk::SnapshotWriter;
-use mpm_core::scenario::impact::{self, ImpactGeometry};
+use mpm_core::scenario::impact::{self, History, ImpactGeometry};
 use mpm_core::Simulation;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -81,6 +81,21 @@ impl Outputs {
             }
         }
         self.spent += t0.elapsed();
+        Ok(())
+    }
+
+    /// With `--radiograph DIR`: the cloud's history as `DIR/history.png` (its path printed
+    /// unless `quiet`), timed.
+    pub fn history_plot(&mut self, history: &History, quiet: bool) -> Result<()> {
+        if let Some((dir, _)) = &self.radiographs {
+            let t0 = Instant::now();
+            let path = dir.join("history.png");
+            write_history_plot(&path, &history.samples, (900, 600))?;
+            self.spent += t0.elapsed();
+            if !quiet {
+                eprintln!("history: {}", path.display());
+            }
+        }
         Ok(())
     }
 

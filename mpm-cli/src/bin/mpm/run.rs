@@ -11,7 +11,8 @@ use crate::scenario::{Prepared, ScenarioRun};
 use anyhow::{bail, Context, Result};
 use mpm_cli::pinning::{self, PinnedPool};
 use mpm_cli::summary::{EndReason, HistoryPoint, HistoryRecorder, RunContext, Summary, Timing};
-use mpm_core::scenario::impact::ImpactGeometry;
+use mpm_core::scenario::impact::{History, ImpactGeometry, DEFAULT_HISTORY_INTERVAL};
+use mpm_core::scenario::plate::{PlateGeometry, ShockTracker};
 use mpm_core::{GridMode, SimConfig, Simulation, Strategy};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -54,7 +55,7 @@ impl Plan {
         let step_limit = o.steps;
         let end_time = match (o.end_time, step_limit) {
             (Some(t), _) => Some(t),
-            (None, None) => Some(scenario.default_end_time()),
+            (None, None) => Some(scenario.default_end_time()?),
             (None, Some(_)) => None,
         };
         if let (Some(w), Some(n)) = (o.warmup, step_limit) {
@@ -139,7 +140,9 @@ fn simulation(scenario: &ScenarioRun, plan: &Plan, setup: mpm_core::Setup) -> Re
             Some(GridArg::Adaptive) => GridMode::Adaptive,
             None => scenario.default_grid(),
         },
-        cfl: o.cfl,
+        cfl: scenario.cfl(),
+        bulk_viscosity: o.q,
+        energy_rise_limit: o.energy_rise_limit,
         ..SimConfig::default()
     };
     Simulation::new(setup, config).context("cannot set up the simulation")
@@ -162,6 +165,40 @@ fn install_interrupt_handler() -> Arc<AtomicBool> {
 fn record(history: &mut HistoryRecorder, sim: &Simulation) {
     let d = sim.diagnostics();
     history.record(HistoryPoint { step: sim.steps(), time: sim.time(), kinetic: d.kinetic, internal: d.internal });
+}
+
+/// What a run measures while it steps besides the energy history: the impact's cloud
+/// history, the plate's shock front.
+struct Tracking {
+    cloud: Option<(History, ImpactGeometry)>,
+    shock: Option<ShockTracker>,
+}
+
+impl Tracking {
+    fn new(impact: Option<ImpactGeometry>, plate: Option<PlateGeometry>) -> Result<Self> {
+        let cloud = match impact {
+            Some(g) => Some((History::new(DEFAULT_HISTORY_INTERVAL)?, g)),
+            None => None,
+        };
+        Ok(Self { cloud, shock: plate.map(ShockTracker::new) })
+    }
+
+    /// Sample the current state (the history only when a new interval has begun).
+    fn observe(&mut self, sim: &Simulation) {
+        if let Some((h, g)) = &mut self.cloud {
+            h.observe(sim, g);
+        }
+        if let Some(t) = &mut self.shock {
+            t.observe(sim);
+        }
+    }
+
+    /// The last history sample at the final state.
+    fn finish(&mut self, sim: &Simulation) {
+        if let Some((h, g)) = &mut self.cloud {
+            h.finish(sim, g);
+        }
+    }
 }
 
 /// Mark the end of the warm-up: the loop's wall time so far (output excluded), the stage
@@ -193,6 +230,7 @@ fn step_loop(
     sim: &mut Simulation,
     outputs: &mut Outputs,
     history: &mut HistoryRecorder,
+    tracking: &mut Tracking,
 ) -> Result<(EndReason, Timing)> {
     let mut timing = Timing { warmup_steps: ctx.warmup, ..Timing::default() };
     let mut warm_done = ctx.warmup == 0;
@@ -218,6 +256,9 @@ fn step_loop(
                 )));
             }
             record(history, sim);
+            let t0 = Instant::now();
+            tracking.observe(sim);
+            outputs.spent += t0.elapsed();
             if !warm_done && sim.steps() >= ctx.warmup {
                 warm_done = true;
                 mark_warmup(&mut timing, sim, loop_start.elapsed().saturating_sub(outputs.spent).as_secs_f64());
@@ -243,7 +284,7 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
     let plan = Plan::check(scenario)?;
     let mut outputs = Outputs::open(scenario)?;
     let pool = start_pool(&plan)?;
-    let Prepared { setup, model, velocity, wall, taylor, impact } = scenario.build()?;
+    let Prepared { setup, model, velocity, wall, taylor, impact, plate } = scenario.build()?;
     let model_name = setup.model.clone();
     let mut sim = simulation(scenario, &plan, setup)?;
     let (cells, nodes) = (sim.geom().num_cells(), sim.geom().num_nodes());
@@ -252,6 +293,8 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
 
     let mut history = HistoryRecorder::new();
     record(&mut history, &sim);
+    let mut tracking = Tracking::new(impact, plate)?;
+    tracking.observe(&sim);
     outputs.initial(&sim)?;
     let progress = Progress::new(o.quiet, plan.end_time, plan.step_limit);
     let ctx = LoopContext {
@@ -263,8 +306,13 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
         geometry: impact.as_ref(),
         describe: scenario.describe(),
     };
-    let (end_reason, mut timing) = step_loop(&ctx, &mut sim, &mut outputs, &mut history)?;
+    let (end_reason, mut timing) = step_loop(&ctx, &mut sim, &mut outputs, &mut history, &mut tracking)?;
+    tracking.finish(&sim);
     outputs.finish(&sim, impact.as_ref(), o.quiet)?;
+    let cloud_history = tracking.cloud.map(|(h, _)| h);
+    if let Some(h) = &cloud_history {
+        outputs.history_plot(h, o.quiet)?;
+    }
     timing.output_s = outputs.spent.as_secs_f64();
     if let Some(p) = &progress {
         p.bar.finish_and_clear();
@@ -288,6 +336,8 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
         history: history.finish(200),
         taylor,
         impact,
+        cloud_history,
+        plate: plate.map(|g| (g, tracking.shock.as_ref().and_then(|t| t.result(&sim)))),
         command_line,
         started_unix_s,
     };

@@ -1,16 +1,22 @@
-//! The scenario a run asks for (Taylor bar or impact) and its model, built from the options.
+//! The scenario a run asks for (Taylor bar, impact or plate) and its model, built from the
+//! options.
 
-use crate::cli::{EosArg, ImpactArgs, RunOptions, TaylorArgs, WallArg};
+use crate::cli::{EosArg, ImpactArgs, PlateArgs, RunOptions, TaylorArgs, WallArg};
 use anyhow::{Context, Result};
 use mpm_core::scenario::impact;
+use mpm_core::scenario::plate::{PlateGeometry, PlateImpact};
 use mpm_core::scenario::taylor::{self, TaylorBar};
-use mpm_core::{GridMode, MgForm, WallKind};
+use mpm_core::{GridMode, MgForm, WallKind, DEFAULT_CFL};
 use std::path::Path;
+
+/// The plate scenario's default CFL number (see `--cfl`): its shock speed is the measurement.
+pub const PLATE_CFL: f64 = 0.2;
 
 /// The scenario a run was asked for.
 pub enum ScenarioRun {
     Taylor(TaylorArgs),
     Impact(ImpactArgs),
+    Plate(PlateArgs),
 }
 
 /// A scenario built and ready to run.
@@ -21,13 +27,29 @@ pub struct Prepared {
     pub wall: &'static str,
     pub taylor: Option<(taylor::TaylorFigures, [f64; 3])>,
     pub impact: Option<impact::ImpactGeometry>,
+    pub plate: Option<PlateGeometry>,
 }
 
 pub fn eos_of(e: EosArg) -> MgForm {
     match e {
-        EosArg::Paper => MgForm::Paper,
-        EosArg::Lsdyna => MgForm::LsDyna,
+        EosArg::Hugoniot => MgForm::Hugoniot,
+        EosArg::PaperPrinted => MgForm::PaperPrinted,
     }
+}
+
+fn plate_of(args: &PlateArgs) -> PlateImpact {
+    PlateImpact {
+        velocity: args.velocity,
+        length: args.length,
+        cell: args.cell,
+        particles_per_cell: usize::from(args.particles_per_cell),
+        eos: eos_of(args.eos.eos),
+    }
+}
+
+/// Build the plate of `args`.
+fn plate_setup(args: &PlateArgs) -> Result<(mpm_core::Setup, PlateGeometry)> {
+    plate_of(args).setup().context("cannot set up the plate impact")
 }
 
 impl ScenarioRun {
@@ -35,6 +57,7 @@ impl ScenarioRun {
         match self {
             ScenarioRun::Taylor(a) => &a.run,
             ScenarioRun::Impact(a) => &a.run,
+            ScenarioRun::Plate(a) => &a.run,
         }
     }
 
@@ -42,6 +65,7 @@ impl ScenarioRun {
         match self {
             ScenarioRun::Taylor(_) => "taylor",
             ScenarioRun::Impact(_) => "impact",
+            ScenarioRun::Plate(_) => "plate",
         }
     }
 
@@ -51,21 +75,36 @@ impl ScenarioRun {
             ScenarioRun::Impact(a) => {
                 format!("impact, spacing {} mm, cell {} mm", a.spacing * 1e3, a.cell * 1e3)
             }
+            ScenarioRun::Plate(a) => {
+                format!("plate impact at {} m/s, slab {} mm, cell {} mm", a.velocity, a.length * 1e3, a.cell * 1e3)
+            }
         }
     }
 
-    pub fn default_end_time(&self) -> f64 {
-        match self {
+    /// The end time without `--end-time` and `--steps`: the paper's, or for the plate when
+    /// the shock has crossed [`mpm_core::scenario::plate::END_FRACTION`] of the slab.
+    pub fn default_end_time(&self) -> Result<f64> {
+        Ok(match self {
             ScenarioRun::Taylor(_) => taylor::DEFAULT_END_TIME,
             ScenarioRun::Impact(_) => impact::DEFAULT_END_TIME,
-        }
+            ScenarioRun::Plate(a) => plate_setup(a)?.1.end_time(),
+        })
     }
 
     pub fn default_grid(&self) -> GridMode {
         match self {
-            ScenarioRun::Taylor(_) => GridMode::Fixed,
+            ScenarioRun::Taylor(_) | ScenarioRun::Plate(_) => GridMode::Fixed,
             ScenarioRun::Impact(_) => GridMode::Adaptive,
         }
+    }
+
+    /// The CFL number: `--cfl`, else the scenario's default.
+    pub fn cfl(&self) -> f64 {
+        let default = match self {
+            ScenarioRun::Plate(_) => PLATE_CFL,
+            ScenarioRun::Taylor(_) | ScenarioRun::Impact(_) => DEFAULT_CFL,
+        };
+        self.options().cfl.unwrap_or(default)
     }
 
     pub fn build(&self) -> Result<Prepared> {
@@ -74,7 +113,7 @@ impl ScenarioRun {
                 let bar = TaylorBar {
                     model: args.model,
                     velocity: args.velocity,
-                    eos: eos_of(args.eos),
+                    eos: eos_of(args.eos.eos),
                     wall: match args.wall {
                         WallArg::Frictionless => WallKind::Slip,
                         WallArg::Sticking => WallKind::Stick,
@@ -90,6 +129,7 @@ impl ScenarioRun {
                     wall: args.wall.name(),
                     taylor: Some((figures, spacing)),
                     impact: None,
+                    plate: None,
                 })
             }
             ScenarioRun::Impact(args) => {
@@ -97,7 +137,7 @@ impl ScenarioRun {
                     spacing: args.spacing,
                     cell: args.cell,
                     velocity: args.velocity,
-                    eos: eos_of(args.eos),
+                    eos: eos_of(args.eos.eos),
                 };
                 let (setup, geometry) = imp.setup().context("cannot set up the impact")?;
                 Ok(Prepared {
@@ -107,6 +147,19 @@ impl ScenarioRun {
                     wall: "none",
                     taylor: None,
                     impact: Some(geometry),
+                    plate: None,
+                })
+            }
+            ScenarioRun::Plate(args) => {
+                let (setup, geometry) = plate_setup(args)?;
+                Ok(Prepared {
+                    setup,
+                    model: 0,
+                    velocity: args.velocity,
+                    wall: "frictionless",
+                    taylor: None,
+                    impact: None,
+                    plate: Some(geometry),
                 })
             }
         }
@@ -116,7 +169,7 @@ impl ScenarioRun {
     pub fn radiograph(&self) -> Option<(&Path, Option<u64>)> {
         match self {
             ScenarioRun::Impact(a) => a.radiograph.as_deref().map(|d| (d, a.radiograph_every)),
-            ScenarioRun::Taylor(_) => None,
+            ScenarioRun::Taylor(_) | ScenarioRun::Plate(_) => None,
         }
     }
 }
