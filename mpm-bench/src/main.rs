@@ -12,7 +12,7 @@ use mpm_bench::campaign::solver::{self, Solver};
 use mpm_bench::machine::placement::{PinPolicy, PAPER_THREADS};
 use mpm_bench::machine::topology::{self, Machine};
 use mpm_bench::machine::{bandwidth, fingerprint};
-use mpm_bench::report::{comparison, figures};
+use mpm_bench::report::{comparison, figures, impact_table};
 use mpm_cli::atomic::write_atomic;
 use mpm_core::Strategy;
 use std::path::{Path, PathBuf};
@@ -38,7 +38,8 @@ use std::time::Duration;
         mpm-bench figures --results results/     # Figures 7-14 of the newest campaign -> paper-figures/\n  \
         mpm-bench claims --results results/      # the paper's claims C1-C6 on this machine\n  \
         mpm-bench regress --baseline A --current B   # CI gate on parallel efficiency\n  \
-        mpm-bench report A B --out compare.md    # compare machines\n\n\
+        mpm-bench report A B --out compare.md    # compare machines\n  \
+        mpm-bench impact-table --results results/impact   # table of the impact runs\n\n\
         Run `mpm-bench <command> --help` for every flag of a command."
 )]
 struct Cli {
@@ -95,6 +96,8 @@ enum Cmd {
     Regress(regress::RegressArgs),
     /// Hardware comparison report (Markdown + figures) over two or more campaigns.
     Report(comparison::ReportArgs),
+    /// Markdown table of the impact runs under a folder, from their JSON summaries.
+    ImpactTable(impact_table::ImpactTableArgs),
     /// Measure the memory-bandwidth ceiling (STREAM triad) per thread count and pinning.
     Bandwidth(bandwidth::BandwidthArgs),
     /// Parallel efficiency as paired ratios of interleaved blocks in one process (noisy hosts).
@@ -218,6 +221,7 @@ fn main() {
             }
         }),
         Cmd::Report(a) => comparison::run(a),
+        Cmd::ImpactTable(a) => impact_table::run(a),
         Cmd::Bandwidth(a) => {
             measure_and_report(a.out.as_deref(), "--out", || bandwidth::measure_all(&a), bandwidth::table)
         }

@@ -2,8 +2,10 @@
 //!
 //! * [`plot`]: panels, legends and PNG/SVG output;
 //! * [`figures`]: the paper's Figures 7-14 and the memory figure;
-//! * [`comparison`]: the hardware comparison report (Markdown with its figures).
+//! * [`comparison`]: the hardware comparison report (Markdown with its figures);
+//! * [`impact_table`]: the table of the committed impact runs.
 
 pub mod comparison;
 pub mod figures;
+pub mod impact_table;
 pub mod plot;
