@@ -10,6 +10,8 @@
 //!   and the LS-DYNA form) and failure: [`material`];
 //! * the three ways to do the nodal scatter, serial, array expansion and domain
 //!   decomposition, which is all that differs between them: [`strategy`];
+//! * the parallel region a step runs in, its phases and the per-worker parts of shared
+//!   arrays, with a safe API: [`parallel`];
 //! * the Taylor bar Models 1-4: [`scenario::taylor`].
 //!
 //! Units are SI throughout. The crate has no OS-specific code and starts no threads: the
@@ -31,18 +33,17 @@
 //! # Ok::<(), mpm_core::SimError>(())
 //! ```
 
-pub mod disjoint;
 pub mod energy;
 pub mod error;
 pub mod grid;
 pub mod material;
 pub mod math;
+pub mod parallel;
 pub mod particles;
 pub mod scenario;
 pub mod shape;
 pub mod solver;
 pub mod strategy;
-pub mod team;
 pub mod timers;
 pub mod transfer;
 
@@ -54,3 +55,8 @@ pub use scenario::Setup;
 pub use solver::{Diagnostics, SimConfig, Simulation, DEFAULT_CFL};
 pub use strategy::{MemoryModel, Strategy};
 pub use timers::{StageTimes, Substage};
+
+/// Bytes held by `v`'s allocation (its capacity, not its length).
+pub(crate) fn capacity_bytes<T>(v: &Vec<T>) -> usize {
+    v.capacity() * std::mem::size_of::<T>()
+}
