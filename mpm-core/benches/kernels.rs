@@ -1,16 +1,19 @@
 //! Criterion micro-benchmarks of the solver's kernels on the Taylor bar:
 #![allow(missing_docs)] // criterion_group! generates undocumented items
 //! P2G scatter, G2P gather, stress update (serial, Model 1), and the parallel strategies'
-//! own work: AE assembly, DD binning and DD assembly (Model 2, 2 threads).
+//! own work: AE assembly, DD binning and DD assembly (Model 2, 2 threads). The parallel
+//! kernels run as phases of one parallel region of a `Team`, as in the solver's step.
 //!
 //! `cargo bench -p mpm-core --bench kernels` (the `bench` profile inherits `release`).
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
 use mpm_core::material::Eos;
+use mpm_core::parallel::{Exec, Team};
 use mpm_core::scenario::taylor::TaylorBar;
-use mpm_core::strategy::{array_expansion, serial, DomainDecomposition, Exec};
-use mpm_core::{transfer, SimConfig, Simulation, Strategy};
+use mpm_core::strategy::{array_expansion, serial, DomainDecomposition, ScatterStrategy};
+use mpm_core::{transfer, SimConfig, Simulation};
 use std::hint::black_box;
+use std::time::{Duration, Instant};
 
 /// A simulation of `model` after a few steps, so nodes and stresses are not trivial.
 fn warmed(model: u8) -> Simulation {
@@ -56,29 +59,52 @@ fn serial_kernels(c: &mut Criterion) {
     g.finish();
 }
 
+/// Time `iters` runs of `kernel` as phases of one region of `team` (workers awake between
+/// phases, as in a step).
+fn in_region(team: &Team, pool: &rayon::ThreadPool, iters: u64, mut kernel: impl FnMut(&Exec<'_>) + Send) -> Duration {
+    team.region(pool, |exec| {
+        let start = Instant::now();
+        for _ in 0..iters {
+            kernel(exec);
+        }
+        start.elapsed()
+    })
+    .expect("the team matches the pool")
+}
+
 fn strategy_kernels(c: &mut Criterion) {
     let sim = warmed(2);
     let geom = *sim.geom();
     let x = sim.particles().x.clone();
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+    let threads = 2;
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+    let team = Team::new(threads);
     let nn = geom.num_nodes();
     let mut g = c.benchmark_group("model2-2threads");
     g.sample_size(20);
 
-    let exec = Exec::new(&pool, Strategy::ArrayExpansion);
-    let copies = vec![[1.0; 7]; 2 * nn];
+    let copies = vec![[1.0; 7]; threads * nn];
     let mut global = vec![[0.0; 7]; nn];
     g.throughput(Throughput::Elements(nn as u64));
-    g.bench_function("ae_assembly", |b| b.iter(|| array_expansion::assemble(&exec, &mut global, black_box(&copies))));
+    g.bench_function("ae_assembly", |b| {
+        b.iter_custom(|iters| {
+            in_region(&team, &pool, iters, |exec| array_expansion::assemble(exec, &mut global, black_box(&copies)))
+        })
+    });
 
-    let exec = Exec::new(&pool, Strategy::DomainDecomposition);
-    let mut dd = DomainDecomposition::new(2);
+    let mut dd = DomainDecomposition::new(threads);
     g.throughput(Throughput::Elements(x.len() as u64));
-    g.bench_function("dd_binning", |b| b.iter(|| dd.prepare(&exec, &geom, black_box(&x))));
+    g.bench_function("dd_binning", |b| {
+        b.iter_custom(|iters| in_region(&team, &pool, iters, |exec| dd.prepare(exec, &geom, black_box(&x))))
+    });
 
     let subgrids = vec![[1.0; 7]; dd.subgrid_nodes()];
     g.throughput(Throughput::Elements(nn as u64));
-    g.bench_function("dd_assembly", |b| b.iter(|| dd.assemble(&exec, &geom, &mut global, black_box(&subgrids))));
+    g.bench_function("dd_assembly", |b| {
+        b.iter_custom(|iters| {
+            in_region(&team, &pool, iters, |exec| dd.assemble(exec, &geom, &mut global, black_box(&subgrids)))
+        })
+    });
     g.finish();
 }
 

@@ -10,9 +10,17 @@
 //! Node arrays are contiguous and indexed `i + (nx+1) (j + (ny+1) k)`. They only grow: a
 //! smaller grid reuses the capacity, so steady-state steps do not allocate.
 
+use crate::capacity_bytes;
 use crate::math::Vec3;
 use crate::shape::{self, Shape};
 use serde::Serialize;
+
+/// Values per node of the P2G scatter (Eqs. 1-5): mass, momentum (3), force (3).
+pub const P2G_WIDTH: usize = 7;
+/// Values per node after the grid update (Eq. 6): velocity (3), acceleration (3).
+pub const KIN_WIDTH: usize = 6;
+/// Values per node of the MUSL re-map (Eq. 11): momentum (3), turned into velocity.
+pub const REMAP_WIDTH: usize = 3;
 
 /// How the grid follows the particles.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Default)]
@@ -115,6 +123,12 @@ impl GridGeom {
     pub fn node_index(&self, i: usize, j: usize, k: usize) -> usize {
         let n = self.node_dims();
         i + n[0] * (j + n[1] * k)
+    }
+
+    /// Global indices of the 8 nodes of `cell`, in shape-function order.
+    #[inline(always)]
+    pub fn cell_nodes(&self, cell: [usize; 3]) -> [usize; 8] {
+        shape::cell_nodes(self.node_dims(), cell)
     }
 
     /// Position of node `(i, j, k)`.
@@ -264,24 +278,24 @@ impl WallLayers {
 #[derive(Clone, Debug, Default)]
 pub struct NodeArrays {
     /// `[m, p_x, p_y, p_z, f_x, f_y, f_z]` per node: the scatter of Eqs. 1-5.
-    pub p2g: Vec<[f64; 7]>,
+    pub p2g: Vec<[f64; P2G_WIDTH]>,
     /// `[v_x, v_y, v_z, a_x, a_y, a_z]` per node after Eq. 6: `v = p(k+1)/m`, `a = f/m`.
-    pub kin: Vec<[f64; 6]>,
+    pub kin: Vec<[f64; KIN_WIDTH]>,
     /// Re-mapped momentum of Eq. 11, turned into the re-mapped velocity in place.
-    pub remap: Vec<[f64; 3]>,
+    pub remap: Vec<[f64; REMAP_WIDTH]>,
 }
 
 impl NodeArrays {
     /// Resize to `n` nodes, growing capacity only when needed.
     pub fn resize(&mut self, n: usize) {
-        self.p2g.resize(n, [0.0; 7]);
-        self.kin.resize(n, [0.0; 6]);
-        self.remap.resize(n, [0.0; 3]);
+        self.p2g.resize(n, [0.0; P2G_WIDTH]);
+        self.kin.resize(n, [0.0; KIN_WIDTH]);
+        self.remap.resize(n, [0.0; REMAP_WIDTH]);
     }
 
     /// Bytes held (by capacity).
     pub fn bytes(&self) -> usize {
-        self.p2g.capacity() * 56 + self.kin.capacity() * 48 + self.remap.capacity() * 24
+        capacity_bytes(&self.p2g) + capacity_bytes(&self.kin) + capacity_bytes(&self.remap)
     }
 }
 

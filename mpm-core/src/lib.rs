@@ -11,6 +11,8 @@
 //!   failure: [`material`];
 //! * the three ways to do the nodal scatter, serial, array expansion and domain
 //!   decomposition, which is all that differs between them: [`strategy`];
+//! * the parallel region a step runs in, its phases and the per-worker parts of shared
+//!   arrays, with a safe API: [`parallel`];
 //! * the Taylor bar Models 1-4 ([`scenario::taylor`]), the hypervelocity impact
 //!   ([`scenario::impact`]) and a 1D plate impact checked against the Rankine-Hugoniot
 //!   relations ([`scenario::plate`]).
@@ -34,18 +36,17 @@
 //! # Ok::<(), mpm_core::SimError>(())
 //! ```
 
-pub mod disjoint;
 pub mod energy;
 pub mod error;
 pub mod grid;
 pub mod material;
 pub mod math;
+pub mod parallel;
 pub mod particles;
 pub mod scenario;
 pub mod shape;
 pub mod solver;
 pub mod strategy;
-pub mod team;
 pub mod timers;
 pub mod transfer;
 
@@ -57,3 +58,8 @@ pub use scenario::Setup;
 pub use solver::{Diagnostics, SimConfig, Simulation, DEFAULT_CFL, DEFAULT_ENERGY_RISE_LIMIT};
 pub use strategy::{MemoryModel, Strategy};
 pub use timers::{StageTimes, Substage};
+
+/// Bytes held by `v`'s allocation (its capacity, not its length).
+pub(crate) fn capacity_bytes<T>(v: &Vec<T>) -> usize {
+    v.capacity() * std::mem::size_of::<T>()
+}

@@ -5,6 +5,7 @@
 //! failure flag, plus the current sound speed (for the time step). A hot loop reads only the
 //! arrays it needs, and a parallel phase splits each array into the same disjoint chunks.
 
+use crate::capacity_bytes;
 use crate::math::{Sym, Vec3};
 
 /// The particle state, one array per variable, all of the same length.
@@ -115,15 +116,14 @@ impl Particles {
 
     /// Memory held by the arrays (bytes, by capacity).
     pub fn bytes(&self) -> usize {
-        use std::mem::size_of;
-        self.x.capacity() * size_of::<Vec3>()
-            + self.v.capacity() * size_of::<Vec3>()
-            + self.mass.capacity() * 8
-            + self.rho.capacity() * 8
-            + self.stress.capacity() * size_of::<Sym>()
-            + self.eps_p.capacity() * 8
-            + self.e_int.capacity() * 8
-            + self.sound.capacity() * 8
-            + self.failed.capacity()
+        capacity_bytes(&self.x)
+            + capacity_bytes(&self.v)
+            + capacity_bytes(&self.mass)
+            + capacity_bytes(&self.rho)
+            + capacity_bytes(&self.stress)
+            + capacity_bytes(&self.eps_p)
+            + capacity_bytes(&self.e_int)
+            + capacity_bytes(&self.sound)
+            + capacity_bytes(&self.failed)
     }
 }

@@ -59,6 +59,16 @@ pub fn evaluate(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> Shape 
     Shape { cell, w, g }
 }
 
+/// Indices of the 8 nodes of `cell` in a box of nodes numbered `i + dims[0] (j + dims[1] k)`
+/// (`dims` nodes per axis, `cell` counted from the box's first cell), in the order
+/// `q = a + 2 b + 4 c` of [`Shape`]. The one node-index rule of every scatter and gather.
+#[inline(always)]
+pub fn cell_nodes(dims: [usize; 3], cell: [usize; 3]) -> [usize; 8] {
+    let (sy, sz) = (dims[0], dims[0] * dims[1]);
+    let b = cell[0] + sy * cell[1] + sz * cell[2];
+    [b, b + 1, b + sy, b + sy + 1, b + sz, b + sz + 1, b + sz + sy, b + sz + sy + 1]
+}
+
 /// Cell index along one axis of a point at `xi` cell widths from the origin (clamped).
 #[inline(always)]
 pub fn axis_cell(xi: f64, cells: usize) -> usize {
@@ -84,6 +94,20 @@ mod tests {
         for d in 0..3 {
             let gs: f64 = s.g.iter().map(|g| g[d]).sum();
             assert!(gs.abs() < 1e-12);
+        }
+    }
+
+    /// Node `q` of a cell is the node at offset `(q & 1, (q >> 1) & 1, q >> 2)`.
+    #[test]
+    fn cell_nodes_follow_the_shape_function_order() {
+        let dims = [4, 3, 5];
+        let index = |n: [usize; 3]| n[0] + dims[0] * (n[1] + dims[1] * n[2]);
+        for cell in [[0, 0, 0], [2, 1, 3], [1, 0, 2]] {
+            let idx = cell_nodes(dims, cell);
+            for (q, &i) in idx.iter().enumerate() {
+                let off = [q & 1, (q >> 1) & 1, q >> 2];
+                assert_eq!(i, index(std::array::from_fn(|d| cell[d] + off[d])), "cell {cell:?} node {q}");
+            }
         }
     }
 

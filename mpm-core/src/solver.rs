@@ -15,23 +15,25 @@
 //!
 //! Shape functions are evaluated at the positions of step `k` throughout the step (positions
 //! move only in the last pass). Both scatters go through the [`crate::strategy`]; every other
-//! pass is split across workers by loop splitting. The step allocates nothing once the grid
-//! has reached its largest size (rayon's `broadcast` allocates one job list of `T` entries
-//! per parallel phase; the count of such allocations does not depend on the problem size).
+//! pass is split across workers by loop splitting. A parallel step is one parallel region of
+//! the simulation's [`Team`] ([`crate::parallel`]). The step allocates nothing once the grid
+//! has reached its largest size, except rayon's job list for the region's one `broadcast`
+//! (`T` entries; the count of such allocations does not depend on the problem size).
 
 use crate::energy::{EnergyBalance, Partial};
 use crate::error::SimError;
-use crate::grid::{GridGeom, GridMode, GridSpec, NodeArrays, Wall, WallLayers};
+use crate::grid::{GridGeom, GridMode, GridSpec, NodeArrays, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH};
 use crate::material::{BulkViscosity, Eos, Material, PointConsts};
 use crate::math::{norm, Vec3};
+use crate::parallel::{Exec, RegionError, Team};
 use crate::particles::Particles;
 use crate::scenario::Setup;
-use crate::strategy::{Engine, Exec, Strategy};
-use crate::team::Team;
+use crate::strategy::{DomainDecomposition, Engine, Strategy};
 use crate::timers::{Lap, StageTimes, Substage};
-use crate::transfer;
+use crate::{capacity_bytes, transfer};
 use rayon::ThreadPool;
 use serde::Serialize;
+use std::sync::Arc;
 
 /// Default CFL number. The paper does not give its value; 0.5 of the cell crossing time of
 /// the fastest signal (`c_p + |v_p|`) keeps the explicit update stable through impacts and
@@ -117,8 +119,11 @@ pub struct Simulation {
     geom: GridGeom,
     nodes: NodeArrays,
     engine: Engine,
-    buf7: Vec<[f64; 7]>,
-    buf3: Vec<[f64; 3]>,
+    /// Each worker's part of the P2G scatter before assembly (AE copies or DD sub-grids);
+    /// empty for the serial strategy, which scatters into `nodes.p2g` directly.
+    p2g_parts: Vec<[f64; P2G_WIDTH]>,
+    /// The same for the re-map scatter.
+    remap_parts: Vec<[f64; REMAP_WIDTH]>,
     partials: Vec<Partial>,
     consts: PointConsts,
     mass_tol: f64,
@@ -133,21 +138,16 @@ pub struct Simulation {
     node_steps: u128,
     times: StageTimes,
     poisoned: Option<u64>,
-    team: Team,
+    /// The workers of the parallel strategies, built once; `None` for the serial strategy.
+    /// Shared (`Arc`) only so that a step can hold the team while it borrows the rest of
+    /// the simulation mutably.
+    team: Option<Arc<Team>>,
 }
 
 impl Simulation {
     /// Set up a simulation of `setup` with `config`.
     pub fn new(setup: Setup, config: SimConfig) -> Result<Self, SimError> {
-        if config.threads == 0 {
-            return Err(SimError::Config("threads must be at least 1".into()));
-        }
-        if config.strategy == Strategy::Serial && config.threads != 1 {
-            return Err(SimError::Config(format!(
-                "the serial strategy runs on 1 thread, not {}: use strategy 'ae' or 'dd' for more",
-                config.threads
-            )));
-        }
+        config.strategy.check_threads(config.threads).map_err(SimError::Config)?;
         if !(config.cfl > 0.0 && config.cfl <= 1.0) {
             return Err(SimError::Config(format!("CFL number must be in (0, 1], got {}", config.cfl)));
         }
@@ -191,7 +191,7 @@ impl Simulation {
         // Size the strategy's buffers for the initial grid now, so that memory figures are
         // right before the first step and the first step does not allocate either.
         let mut engine = Engine::new(config.strategy, config.threads);
-        let scatter_nodes = engine.reserve(&geom);
+        let parts_len = engine.reserve(&geom);
         Ok(Self {
             engine,
             spacing,
@@ -205,8 +205,8 @@ impl Simulation {
             wall_layers,
             geom,
             nodes,
-            buf7: vec![[0.0; 7]; scatter_nodes],
-            buf3: vec![[0.0; 3]; scatter_nodes],
+            p2g_parts: vec![[0.0; P2G_WIDTH]; parts_len],
+            remap_parts: vec![[0.0; REMAP_WIDTH]; parts_len],
             time: 0.0,
             steps: 0,
             dt_next: dt,
@@ -218,7 +218,7 @@ impl Simulation {
             node_steps: 0,
             times: StageTimes::default(),
             poisoned: None,
-            team: Team::new(config.threads),
+            team: config.strategy.is_parallel().then(|| Arc::new(Team::new(config.threads))),
             config,
         })
     }
@@ -325,75 +325,50 @@ impl Simulation {
     /// largest over the mean is the load imbalance: the strategies give every worker an
     /// equal share, so a large value means a worker's CPU was slowed from outside the run.
     pub fn worker_busy(&self) -> Option<Vec<f64>> {
-        (self.config.strategy != Strategy::Serial).then(|| self.team.busy_seconds().collect())
+        self.team.as_ref().map(|team| team.busy_seconds().collect())
     }
 
     /// Domain-decomposition state, if the strategy is DD.
-    pub fn domain_decomposition(&self) -> Option<&crate::strategy::DomainDecomposition> {
-        match &self.engine {
-            Engine::Dd(dd) => Some(dd),
-            _ => None,
-        }
+    pub fn domain_decomposition(&self) -> Option<&DomainDecomposition> {
+        self.engine.domain_decomposition()
     }
 
     /// Bytes held by particles, nodal arrays, scatter buffers and strategy tables.
     pub fn memory_bytes(&self) -> usize {
         self.particles.bytes()
             + self.nodes.bytes()
-            + self.buf7.capacity() * 56
-            + self.buf3.capacity() * 24
+            + capacity_bytes(&self.p2g_parts)
+            + capacity_bytes(&self.remap_parts)
             + self.engine.bytes()
     }
 
     /// Advance one step of at most `dt_max` seconds inside `pool`.
     ///
-    /// The step runs on the pool's threads (`pool.install`); a caller that steps many
-    /// times should call this from inside `pool.install` itself, which saves a hand-over
-    /// to the pool per step (100-300 µs measured). On error the state is left as the failing step made it and further steps return
-    /// [`SimError::Poisoned`].
+    /// The step runs on the pool's threads (serial: `pool.install`; AE and DD: one
+    /// parallel region of the simulation's team, which needs a pool of exactly
+    /// `config.threads` threads). A caller that steps many times should call this from
+    /// inside `pool.install` itself, which saves a hand-over to the pool per step (100-300 µs
+    /// measured). On error the state is left as the failing step made it and further steps
+    /// return [`SimError::Poisoned`].
     pub fn step(&mut self, pool: &ThreadPool, dt_max: f64) -> Result<(), SimError> {
         if let Some(s) = self.poisoned {
             return Err(SimError::Poisoned(s));
         }
-        let want = self.config.threads;
-        if self.config.strategy != Strategy::Serial && pool.current_num_threads() != want {
-            return Err(SimError::PoolSize { got: pool.current_num_threads(), want });
-        }
-        let result = if self.config.strategy == Strategy::Serial {
-            pool.install(|| self.step_inner(&Exec::serial(), dt_max))
-        } else {
-            self.step_team(pool, dt_max)
+        let result = match self.team.clone() {
+            None => pool.install(|| self.step_inner(&Exec::serial(), dt_max)),
+            // One parallel region: worker 0 drives the step, the other workers serve its
+            // phases and stay awake in between.
+            Some(team) => match team.region(pool, |exec| self.step_inner(exec, dt_max)) {
+                Ok(result) => result,
+                Err(RegionError::PoolSize { got, want }) => return Err(SimError::PoolSize { got, want }),
+                Err(RegionError::Busy) => {
+                    unreachable!("only a step enters the simulation's team, and steps take &mut self")
+                }
+            },
         };
         if result.is_err() {
             self.poisoned = Some(self.steps + 1);
         }
-        result
-    }
-
-    /// One step as one parallel region: worker 0 drives the step, the other workers serve
-    /// its phases and stay awake in between (see [`crate::team`]).
-    fn step_team(&mut self, pool: &ThreadPool, dt_max: f64) -> Result<(), SimError> {
-        let mut team = std::mem::replace(&mut self.team, Team::new(0));
-        team.reset();
-        let driver = std::sync::Mutex::new((Some(&mut *self), None));
-        pool.broadcast(|ctx| {
-            if ctx.index() == 0 {
-                let mut slot = driver.lock().unwrap_or_else(|e| e.into_inner());
-                let sim = slot.0.take().expect("worker 0 drives the step once");
-                let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    sim.step_inner(&Exec::team(&team), dt_max)
-                }));
-                team.finish();
-                match outcome {
-                    Ok(r) => slot.1 = Some(r),
-                    Err(p) => std::panic::resume_unwind(p),
-                }
-            } else {
-                team.serve(ctx.index());
-            }
-        });
-        let result = driver.into_inner().unwrap_or_else(|e| e.into_inner()).1.expect("the driver ran the step");
-        self.team = team;
         result
     }
 
@@ -428,18 +403,11 @@ impl Simulation {
         {
             let (particles, bf) = (&self.particles, self.config.body_force);
             let p2g = |p: usize| transfer::p2g(&geom, particles, bf, p);
-            self.engine.scatter(
-                exec,
-                &geom,
-                n,
-                &mut self.nodes.p2g,
-                &mut self.buf7,
-                &p2g,
-                &mut self.times,
-                &mut lap,
-                (Substage::Scatter, Substage::Assembly),
-            );
+            self.engine.scatter(exec, &geom, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
         }
+        lap.lap(&mut self.times, Substage::Scatter);
+        self.engine.assemble(exec, &geom, &mut self.nodes.p2g, &self.p2g_parts);
+        lap.lap(&mut self.times, Substage::Assembly);
         transfer::grid_update(exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::GridUpdate);
 
@@ -449,18 +417,10 @@ impl Simulation {
         {
             let particles = &self.particles;
             let remap = |p: usize| transfer::remap(&geom, particles, p);
-            self.engine.scatter(
-                exec,
-                &geom,
-                n,
-                &mut self.nodes.remap,
-                &mut self.buf3,
-                &remap,
-                &mut self.times,
-                &mut lap,
-                (Substage::RemapScatter, Substage::RemapAssembly),
-            );
+            self.engine.scatter(exec, &geom, n, &mut self.nodes.remap, &mut self.remap_parts, &remap);
         }
+        lap.lap(&mut self.times, Substage::RemapScatter);
+        self.engine.assemble(exec, &geom, &mut self.nodes.remap, &self.remap_parts);
         transfer::remap_velocity(exec, &geom, &self.wall_layers, &mut self.nodes, self.mass_tol);
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
@@ -471,7 +431,7 @@ impl Simulation {
             Eos::Linear(ref l) => transfer::update(exec, &geom, nodes, particles, consts, l, dt, fixed, partials),
         }
         let mut total = Partial::default();
-        for p in &self.partials[..exec.workers] {
+        for p in &self.partials[..exec.workers()] {
             total.merge(p);
         }
         lap.lap(&mut self.times, Substage::StressUpdate);

@@ -5,24 +5,24 @@
 //!
 //! They are public so that benchmarks measure exactly the code the solver runs.
 
-use crate::disjoint::{partition, DisjointSlice};
 use crate::energy::Partial;
-use crate::grid::{GridGeom, NodeArrays, WallLayers};
+use crate::grid::{GridGeom, NodeArrays, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
 use crate::material::{update_point, PointConsts, PointState, PressureModel};
 use crate::math::{sym_mul_vec, Sym, Vec3};
+use crate::parallel::{partition, Exec, Split};
 use crate::particles::Particles;
-use crate::strategy::{Contribution, Exec};
+use crate::strategy::Contribution;
 
 /// Eqs. 1-5 for particle `p`: mass `m_p S_ip`, momentum `m_p v_p S_ip` and force
 /// `-V_p sigma_p . G_ip + m_p S_ip b` at its 8 nodes, as `[m, p_x, p_y, p_z, f_x, f_y, f_z]`.
 #[inline(always)]
-pub fn p2g(geom: &GridGeom, particles: &Particles, body_force: Vec3, p: usize) -> Contribution<7> {
+pub fn p2g(geom: &GridGeom, particles: &Particles, body_force: Vec3, p: usize) -> Contribution<P2G_WIDTH> {
     let s = geom.shape(particles.x[p]);
     let m = particles.mass[p];
     let vol = m / particles.rho[p];
     let vp = particles.v[p];
     let stress = &particles.stress[p];
-    let mut c = [[0.0; 7]; 8];
+    let mut c = [[0.0; P2G_WIDTH]; 8];
     for q in 0..8 {
         let t = sym_mul_vec(stress, s.g[q]);
         let mw = m * s.w[q];
@@ -41,21 +41,12 @@ pub fn p2g(geom: &GridGeom, particles: &Particles, body_force: Vec3, p: usize) -
 
 /// Eq. 11 for particle `p`: momentum `m_p v_p(k+1) S_ip` at its 8 nodes.
 #[inline(always)]
-pub fn remap(geom: &GridGeom, particles: &Particles, p: usize) -> Contribution<3> {
+pub fn remap(geom: &GridGeom, particles: &Particles, p: usize) -> Contribution<REMAP_WIDTH> {
     let s = geom.shape(particles.x[p]);
     let m = particles.mass[p];
     let v = particles.v[p];
     let mv = [m * v[0], m * v[1], m * v[2]];
     Contribution { cell: s.cell, c: s.w.map(|w| [mv[0] * w, mv[1] * w, mv[2] * w]) }
-}
-
-/// Global indices of the 8 nodes of `cell`, in shape-function order.
-#[inline(always)]
-pub fn cell_nodes(geom: &GridGeom, cell: [usize; 3]) -> [usize; 8] {
-    let n = geom.node_dims();
-    let (sy, sz) = (n[0], n[0] * n[1]);
-    let b = cell[0] + sy * cell[1] + sz * cell[2];
-    [b, b + 1, b + sy, b + sy + 1, b + sz, b + sz + 1, b + sz + sy, b + sz + sy + 1]
 }
 
 /// Visit every node of the grid with its wall mask (1 = free component, 0 = constrained),
@@ -67,12 +58,10 @@ where
 {
     let d = geom.node_dims();
     let rows = d[1] * d[2];
+    let t = exec.workers();
     let has_x = walls.x_layers().next().is_some();
-    let shared = DisjointSlice::new(out);
-    exec.run(|w| {
-        let r = partition(rows, exec.workers, w);
-        // SAFETY: workers own disjoint row ranges, hence disjoint node ranges.
-        let mine = unsafe { shared.range_mut(r.start * d[0]..r.end * d[0]) };
+    exec.for_each_chunk_mut(Split::EvenRows(d[0]).of(out), |w, mine| {
+        let r = partition(rows, t, w);
         for (ri, row) in r.enumerate() {
             let mask_row = walls.row_mask(row % d[1], row / d[1]);
             for i in 0..d[0] {
@@ -99,7 +88,7 @@ pub fn grid_update(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: 
                 o[3 + k] = f * inv;
             }
         } else {
-            *o = [0.0; 6];
+            *o = [0.0; KIN_WIDTH];
         }
     });
 }
@@ -116,22 +105,20 @@ pub fn remap_velocity(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, node
                 o[k] *= inv * mask[k];
             }
         } else {
-            *o = [0.0; 3];
+            *o = [0.0; REMAP_WIDTH];
         }
     });
 }
 
 /// Eqs. 8, 10: `v_p += dt sum_i S_ip a_i`, by loop splitting.
-pub fn gather(exec: &Exec<'_>, geom: &GridGeom, kin: &[[f64; 6]], x: &[Vec3], v: &mut [Vec3], dt: f64) {
+pub fn gather(exec: &Exec<'_>, geom: &GridGeom, kin: &[[f64; KIN_WIDTH]], x: &[Vec3], v: &mut [Vec3], dt: f64) {
+    assert_eq!(x.len(), v.len(), "one velocity per position");
     let n = x.len();
-    let vs = DisjointSlice::new(v);
-    exec.run(|w| {
-        let r = partition(n, exec.workers, w);
-        // SAFETY: workers own disjoint particle chunks.
-        let vw = unsafe { vs.range_mut(r.clone()) };
-        for (vp, xp) in vw.iter_mut().zip(&x[r]) {
+    let t = exec.workers();
+    exec.for_each_chunk_mut(Split::Even.of(v), |w, vw| {
+        for (vp, xp) in vw.iter_mut().zip(&x[partition(n, t, w)]) {
             let s = geom.shape(*xp);
-            let idx = cell_nodes(geom, s.cell);
+            let idx = geom.cell_nodes(s.cell);
             let mut acc = [0.0; 3];
             for q in 0..8 {
                 let a = &kin[idx[q]];
@@ -185,36 +172,26 @@ pub fn update<E: PressureModel + Sync>(
     let n = particles.len();
     let Particles { x, v, mass, rho, stress, eps_p, e_int, sound, failed } = particles;
     let (v, mass) = (&v[..], &mass[..]);
-    let xs = DisjointSlice::new(&mut x[..]);
-    let rhos = DisjointSlice::new(&mut rho[..]);
-    let stresses = DisjointSlice::new(&mut stress[..]);
-    let eps = DisjointSlice::new(&mut eps_p[..]);
-    let es = DisjointSlice::new(&mut e_int[..]);
-    let sounds = DisjointSlice::new(&mut sound[..]);
-    let fails = DisjointSlice::new(&mut failed[..]);
-    let parts = DisjointSlice::new(partials);
     let (kin, remap) = (&nodes.kin, &nodes.remap);
     let half_dt = 0.5 * dt;
-    exec.run(|w| {
-        let r = partition(n, exec.workers, w);
-        // SAFETY: worker w owns particle chunk r of every array and partial slot w.
-        let (x, rho, stress, eps_p, e_int, sound, failed, acc) = unsafe {
-            (
-                xs.range_mut(r.clone()),
-                rhos.range_mut(r.clone()),
-                stresses.range_mut(r.clone()),
-                eps.range_mut(r.clone()),
-                es.range_mut(r.clone()),
-                sounds.range_mut(r.clone()),
-                fails.range_mut(r.clone()),
-                parts.get_mut(w),
-            )
-        };
+    let t = exec.workers();
+    let chunks = (
+        Split::Even.of(x),
+        Split::Even.of(rho),
+        Split::Even.of(stress),
+        Split::Even.of(eps_p),
+        Split::Even.of(e_int),
+        Split::Even.of(sound),
+        Split::Even.of(failed),
+        Split::Blocks(1).of(partials),
+    );
+    exec.for_each_chunk_mut(chunks, |w, (x, rho, stress, eps_p, e_int, sound, failed, acc)| {
+        let r = partition(n, t, w);
         let mut sum = Partial::default();
         for k in 0..r.len() {
             let p = r.start + k;
             let s = geom.shape(x[k]);
-            let idx = cell_nodes(geom, s.cell);
+            let idx = geom.cell_nodes(s.cell);
             let mut vx = [0.0; 3];
             let mut l = [[0.0; 3]; 3];
             // Gradient of the mid-step velocity (v_i(k) + v_i(k+1)) / 2, for the work of the
@@ -278,6 +255,6 @@ pub fn update<E: PressureModel + Sync>(
                 sum.first_outside.get_or_insert(p);
             }
         }
-        *acc = sum;
+        acc[0] = sum;
     });
 }

@@ -1,6 +1,6 @@
-//! Every parallel strategy against the serial oracle at every thread count, and bitwise
-//! reproducibility for a fixed strategy and thread count. Runs with more threads than this
-//! machine has cores too (oversubscription must work).
+//! Every parallel strategy (all of [`Strategy::ALL`] but serial) against the serial oracle at
+//! every thread count, and bitwise reproducibility for a fixed strategy and thread count.
+//! Runs with more threads than this machine has cores too (oversubscription must work).
 
 mod common;
 
@@ -38,7 +38,7 @@ fn assert_close(oracle: &Particles, other: &Particles, what: &str) {
 
 fn check_all(setup: &Setup, grid_mode: GridMode, steps: usize) {
     let oracle = run(setup, Strategy::Serial, 1, grid_mode, steps);
-    for strategy in [Strategy::ArrayExpansion, Strategy::DomainDecomposition] {
+    for strategy in Strategy::ALL.into_iter().filter(|s| s.is_parallel()) {
         for threads in THREADS {
             let sim = run(setup, strategy, threads, grid_mode, steps);
             assert_eq!(sim.steps(), oracle.steps());

@@ -4,24 +4,34 @@
 //! `A(:) = sum_j A_list(:, j)` (Eq. 16). No races and no atomics; the memory grows with
 //! `(T - 1) x` the nodal arrays, and the assembly with `N x T`.
 
-use super::{Contribution, Exec, NodeBox};
-use crate::disjoint::{partition, DisjointSlice};
+use super::{Contribution, NodeBox, ScatterStrategy};
 use crate::grid::GridGeom;
+use crate::math::Vec3;
+use crate::parallel::{partition, Exec, Split};
 
-/// Scatter particle chunk `j` into column `j` of `buf` (sized `N x T`, column-major).
-pub fn scatter<const K: usize, F>(exec: &Exec<'_>, geom: &GridGeom, n: usize, buf: &mut Vec<[f64; K]>, kernel: &F)
+/// The array-expansion strategy for `threads` threads (one copy of the arrays per thread).
+#[derive(Clone, Copy, Debug)]
+pub struct ArrayExpansion {
+    threads: usize,
+}
+
+impl ArrayExpansion {
+    /// State for `threads` threads.
+    pub fn new(threads: usize) -> Self {
+        Self { threads }
+    }
+}
+
+/// Scatter particle chunk `j` into column `j` of `columns` (sized `N x T`, column-major).
+pub fn scatter<const K: usize, F>(exec: &Exec<'_>, geom: &GridGeom, n: usize, columns: &mut Vec<[f64; K]>, kernel: &F)
 where
     F: Fn(usize) -> Contribution<K> + Sync,
 {
     let nn = geom.num_nodes();
-    let t = exec.workers;
-    buf.resize(nn * t, [0.0; K]);
+    let t = exec.workers();
+    columns.resize(nn * t, [0.0; K]);
     let bx = NodeBox::grid(geom);
-    let columns = DisjointSlice::new(&mut buf[..]);
-    exec.run(|j| {
-        // SAFETY: column j (nodes j*nn..(j+1)*nn) is touched only by worker j, and every
-        // broadcast index runs exactly once.
-        let column = unsafe { columns.range_mut(j * nn..(j + 1) * nn) };
+    exec.for_each_chunk_mut(Split::Blocks(nn).of(columns), |j, column| {
         column.fill([0.0; K]);
         for p in partition(n, t, j) {
             bx.add(column, &kernel(p));
@@ -29,18 +39,15 @@ where
     });
 }
 
-/// Eq. 16: `global[i] = sum_j buf[j][i]`, summed in thread order, parallel over nodes.
-pub fn assemble<const K: usize>(exec: &Exec<'_>, global: &mut [[f64; K]], buf: &[[f64; K]]) {
+/// Eq. 16: `global[i] = sum_j columns[j][i]`, summed in thread order, parallel over nodes.
+pub fn assemble<const K: usize>(exec: &Exec<'_>, global: &mut [[f64; K]], columns: &[[f64; K]]) {
     let nn = global.len();
-    let t = exec.workers;
-    let out = DisjointSlice::new(global);
-    exec.run(|w| {
+    let t = exec.workers();
+    exec.for_each_chunk_mut(Split::Even.of(global), |w, dst| {
         let r = partition(nn, t, w);
-        // SAFETY: partition ranges are disjoint and each worker index runs once.
-        let dst = unsafe { out.range_mut(r.clone()) };
-        dst.copy_from_slice(&buf[r.clone()]);
+        dst.copy_from_slice(&columns[r.clone()]);
         for j in 1..t {
-            let src = &buf[j * nn + r.start..j * nn + r.end];
+            let src = &columns[j * nn + r.start..j * nn + r.end];
             for (a, b) in dst.iter_mut().zip(src) {
                 for k in 0..K {
                     a[k] += b[k];
@@ -48,4 +55,34 @@ pub fn assemble<const K: usize>(exec: &Exec<'_>, global: &mut [[f64; K]], buf: &
             }
         }
     });
+}
+
+impl ScatterStrategy for ArrayExpansion {
+    fn reserve(&mut self, geom: &GridGeom) -> usize {
+        geom.num_nodes() * self.threads
+    }
+
+    fn prepare(&mut self, _exec: &Exec<'_>, _geom: &GridGeom, _x: &[Vec3]) {}
+
+    fn scatter<const K: usize, F>(
+        &self,
+        exec: &Exec<'_>,
+        geom: &GridGeom,
+        n: usize,
+        _global: &mut [[f64; K]],
+        parts: &mut Vec<[f64; K]>,
+        kernel: &F,
+    ) where
+        F: Fn(usize) -> Contribution<K> + Sync,
+    {
+        scatter(exec, geom, n, parts, kernel);
+    }
+
+    fn assemble<const K: usize>(&self, exec: &Exec<'_>, _geom: &GridGeom, global: &mut [[f64; K]], parts: &[[f64; K]]) {
+        assemble(exec, global, parts);
+    }
+
+    fn bytes(&self) -> usize {
+        0
+    }
 }

@@ -18,18 +18,19 @@
 //!    sub-grid into the global arrays (within one patch every local node is a distinct global
 //!    node, so the loop has no race). The global arrays are not zeroed first: a node's
 //!    lowest-numbered patch (its *first* patch) stores its value, later patches add theirs.
-//!    The patches cover the grid, so every node is stored once per assembly. This halves the
-//!    bytes the assembly moves (it is bound by memory bandwidth: on Model 3 it took as long
-//!    on 2 threads as on 1 when it also zeroed and re-read the global arrays).
+//!    The patches cover the grid, so every node is stored once per assembly. Zeroing the
+//!    global arrays first would double the bytes the assembly moves, and the assembly is
+//!    bound by memory bandwidth.
 //!
 //! The MUSL re-map (Eq. 11) reuses the same binning, sub-grids and assembly. With the
 //! adaptive grid the patches are re-cut over the particles' current bounding box every step,
 //! which is the paper's load balance.
 
-use super::{Contribution, Exec, NodeBox};
-use crate::disjoint::{partition, DisjointSlice};
+use super::{Contribution, NodeBox, ScatterStrategy};
 use crate::grid::GridGeom;
 use crate::math::Vec3;
+use crate::parallel::{partition, DisjointSlice, Exec, Split};
+use std::mem::size_of;
 
 /// The patch layout `[px, py, pz]` for `threads` patches over a grid of `cells`.
 ///
@@ -129,8 +130,8 @@ impl Patch {
 }
 
 /// Row padding (in `u32`) of the per-thread tables: one 64-byte cache line, so that threads
-/// incrementing their own counters never share a line (measured: without it, binning at 2
-/// threads was 1.5x slower than at 1).
+/// incrementing their own counters never share a line (sharing one makes every increment a
+/// coherence miss: binning at 2 threads ran 1.5x slower than at 1 without the padding).
 const ROW_STRIDE: usize = 16;
 
 /// The paper's particle binning tables.
@@ -155,14 +156,14 @@ pub struct Binning {
 }
 
 impl Binning {
-    /// Bin `n` particles into `patches` patches with `exec.workers` threads; `patch(p)` is
+    /// Bin `n` particles into `patches` patches with `exec.workers()` threads; `patch(p)` is
     /// particle `p`'s patch.
     pub fn build<F>(&mut self, exec: &Exec<'_>, n: usize, patches: usize, patch: &F)
     where
         F: Fn(usize) -> usize + Sync,
     {
         assert!(n < u32::MAX as usize, "more than 2^32 - 1 particles");
-        let t = exec.workers;
+        let t = exec.workers();
         let stride = patches.div_ceil(ROW_STRIDE) * ROW_STRIDE;
         self.threads = t;
         self.patches = patches;
@@ -172,23 +173,19 @@ impl Binning {
         self.cursor.resize(t * stride, 0);
         self.patnp.resize(patches, 0);
 
-        // Counting pass: thread t counts its particles per patch.
-        {
-            let patch_of = DisjointSlice::new(&mut self.patch_of[..]);
-            let counts = DisjointSlice::new(&mut self.patnp_th[..]);
-            exec.run(|w| {
-                let r = partition(n, t, w);
-                // SAFETY: particle group w and row w of patnp_th belong to worker w only.
-                let (mine, row) =
-                    unsafe { (patch_of.range_mut(r.clone()), counts.range_mut(w * stride..w * stride + patches)) };
+        // Counting pass: thread w counts its particles per patch in row w of patnp_th.
+        exec.for_each_chunk_mut(
+            (Split::Even.of(&mut self.patch_of), Split::Blocks(stride).of(&mut self.patnp_th)),
+            |w, (mine, row)| {
+                let row = &mut row[..patches];
                 row.fill(0);
-                for (slot, p) in mine.iter_mut().zip(r) {
+                for (slot, p) in mine.iter_mut().zip(partition(n, t, w)) {
                     let j = patch(p);
                     *slot = j as u32;
                     row[j] += 1;
                 }
-            });
-        }
+            },
+        );
 
         // patnp = column sums; write cursors = exclusive prefix sums down each column.
         for j in 0..patches {
@@ -206,25 +203,23 @@ impl Binning {
             self.pindex[j * rows + self.patnp[j] as usize..(j + 1) * rows].fill(0);
         }
 
-        // Writing pass: every thread writes its particles' ids in its own rows.
-        {
-            let pindex = DisjointSlice::new(&mut self.pindex[..]);
-            let cursor = DisjointSlice::new(&mut self.cursor[..]);
-            let patch_of = &self.patch_of;
-            exec.run(|w| {
-                // SAFETY: row w of the cursor table belongs to worker w only.
-                let cur = unsafe { cursor.range_mut(w * stride..w * stride + patches) };
-                for p in partition(n, t, w) {
-                    let j = patch_of[p] as usize;
-                    let slot = j * rows + cur[j] as usize;
-                    cur[j] += 1;
-                    // SAFETY: worker w's slots in column j are rows
-                    // [sum_{t<w} patnp_th(t, j), sum_{t<=w} patnp_th(t, j)), disjoint from
-                    // every other worker's, and each is written once.
-                    unsafe { *pindex.get_mut(slot) = p as u32 + 1 };
-                }
-            });
-        }
+        // Writing pass: every thread writes its particles' ids in its own rows of Pindex,
+        // advancing its own row of write cursors.
+        let pindex = DisjointSlice::new(&mut self.pindex);
+        let patch_of = &self.patch_of;
+        exec.for_each_chunk_mut(Split::Blocks(stride).of(&mut self.cursor), |w, cur| {
+            for p in partition(n, t, w) {
+                let j = patch_of[p] as usize;
+                let slot = j * rows + cur[j] as usize;
+                cur[j] += 1;
+                // SAFETY: worker w's slots in column j are rows
+                // [sum_{v<w} patnp_th(v, j), sum_{v<=w} patnp_th(v, j)): the cursor starts at
+                // the first and advances once per particle of chunk w in patch j, and the
+                // counting pass counted exactly those particles (same chunk, same patch_of).
+                // So the slots of different workers are disjoint and each is written once.
+                unsafe { *pindex.get_mut(slot) = p as u32 + 1 };
+            }
+        });
     }
 
     /// `patnp_th(t, j)`.
@@ -253,11 +248,12 @@ impl Binning {
     }
 
     fn bytes(&self) -> usize {
-        4 * (self.patch_of.capacity()
-            + self.patnp_th.capacity()
-            + self.cursor.capacity()
-            + self.patnp.capacity()
-            + self.pindex.capacity())
+        size_of::<u32>()
+            * (self.patch_of.capacity()
+                + self.patnp_th.capacity()
+                + self.cursor.capacity()
+                + self.patnp.capacity()
+                + self.pindex.capacity())
     }
 }
 
@@ -356,8 +352,23 @@ impl DomainDecomposition {
         q[2] + pz * (q[1] + py * q[0])
     }
 
+    /// Nodes in all sub-grids together.
+    pub fn subgrid_nodes(&self) -> usize {
+        *self.offsets.last().unwrap_or(&0)
+    }
+}
+
+/// The DD strategy: [`ScatterStrategy::prepare`] cuts the patches for the grid (if it
+/// changed) and bins the particles; the scatter fills the sub-grids; the assembly adds them
+/// into the global arrays patch by patch.
+impl ScatterStrategy for DomainDecomposition {
+    fn reserve(&mut self, geom: &GridGeom) -> usize {
+        self.cut(geom);
+        self.subgrid_nodes()
+    }
+
     /// Cut the patches for `geom` (if it changed) and bin the particles at `x`.
-    pub fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
+    fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
         self.cut(geom);
         let g = *geom;
         let mut binning = std::mem::take(&mut self.binning);
@@ -369,16 +380,20 @@ impl DomainDecomposition {
         self.binning = binning;
     }
 
-    /// Thread `j` zeroes sub-grid `j` and scatters patch `j`'s particles into it.
-    pub fn scatter<const K: usize, F>(&self, exec: &Exec<'_>, buf: &mut Vec<[f64; K]>, kernel: &F)
-    where
+    /// Thread `j` zeroes sub-grid `j` of `subgrids` and scatters patch `j`'s particles into it.
+    fn scatter<const K: usize, F>(
+        &self,
+        exec: &Exec<'_>,
+        _geom: &GridGeom,
+        _n: usize,
+        _global: &mut [[f64; K]],
+        subgrids: &mut Vec<[f64; K]>,
+        kernel: &F,
+    ) where
         F: Fn(usize) -> Contribution<K> + Sync,
     {
-        buf.resize(*self.offsets.last().unwrap_or(&0), [0.0; K]);
-        let subgrids = DisjointSlice::new(&mut buf[..]);
-        exec.run(|j| {
-            // SAFETY: sub-grid j (offsets[j]..offsets[j+1]) is touched only by worker j.
-            let sub = unsafe { subgrids.range_mut(self.offsets[j]..self.offsets[j + 1]) };
+        subgrids.resize(self.subgrid_nodes(), [0.0; K]);
+        exec.for_each_chunk_mut(Split::Offsets(&self.offsets).of(subgrids), |j, sub| {
             sub.fill([0.0; K]);
             let bx = self.patches[j].node_box();
             for &id in self.binning.column(j) {
@@ -389,27 +404,30 @@ impl DomainDecomposition {
 
     /// For each patch in turn, parallel over the patch's local node rows: store the
     /// sub-grid into `global` at the nodes whose first patch it is, add it elsewhere.
-    pub fn assemble<const K: usize>(
+    fn assemble<const K: usize>(
         &self,
         exec: &Exec<'_>,
         geom: &GridGeom,
         global: &mut [[f64; K]],
-        buf: &[[f64; K]],
+        subgrids: &[[f64; K]],
     ) {
-        debug_assert_eq!(self.cut_for.map(|g| g.num_nodes()), Some(global.len()), "patches cut for this grid");
-        let t = exec.workers;
+        // The row ranges below are disjoint only for the grid the patches were cut for.
+        assert!(self.cut_for == Some(*geom), "DD assembly on a grid the patches were not cut for");
+        let t = exec.workers();
         let out = DisjointSlice::new(global);
         for (j, patch) in self.patches.iter().enumerate() {
             let d = patch.node_dims();
             let rows = d[1] * d[2];
-            let sub = &buf[self.offsets[j]..self.offsets[j + 1]];
+            let sub = &subgrids[self.offsets[j]..self.offsets[j + 1]];
             exec.run(|w| {
                 for r in partition(rows, t, w) {
                     let (lj, lk) = (r % d[1], r / d[1]);
                     let g0 = geom.node_index(patch.cell_lo[0], patch.cell_lo[1] + lj, patch.cell_lo[2] + lk);
-                    // SAFETY: within one patch, distinct local rows are distinct global
-                    // rows (globalnode is injective), workers take disjoint local rows, and
-                    // patches are assembled one broadcast after another.
+                    // SAFETY: the patches were cut for `geom` (asserted above), so local row
+                    // (lj, lk) of this patch is the d[0] nodes of global row (lo_y + lj,
+                    // lo_z + lk) from x = lo_x, inside that row: distinct local rows are
+                    // disjoint global ranges. Workers take disjoint local rows (one
+                    // partition) and the patches are assembled one phase after another.
                     let dst = unsafe { out.range_mut(g0..g0 + d[0]) };
                     let src = &sub[r * d[0]..(r + 1) * d[0]];
                     // Along a row only the first node can have a lower patch in x.
@@ -430,13 +448,8 @@ impl DomainDecomposition {
         }
     }
 
-    /// Nodes in all sub-grids together.
-    pub fn subgrid_nodes(&self) -> usize {
-        *self.offsets.last().unwrap_or(&0)
-    }
-
-    pub(crate) fn bytes(&self) -> usize {
-        self.binning.bytes() + self.part_of_cell.iter().map(|v| v.capacity() * 4).sum::<usize>()
+    fn bytes(&self) -> usize {
+        self.binning.bytes() + self.part_of_cell.iter().map(crate::capacity_bytes).sum::<usize>()
     }
 }
 
@@ -444,17 +457,21 @@ impl DomainDecomposition {
 mod tests {
     use super::*;
     use crate::grid::GridSpec;
-    use crate::strategy::Strategy;
+    use crate::parallel::Team;
+
+    /// Run `f` in a parallel region of `threads` workers: the executor the solver uses.
+    fn in_region<R: Send>(threads: usize, f: impl FnOnce(&Exec<'_>) -> R + Send) -> R {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        Team::new(threads).region(&pool, f).unwrap()
+    }
 
     /// The paper's worked example: 16 particles, 4 patches, 4 threads.
     #[test]
     fn reproduces_the_papers_binning_example() {
         let membership: [&[usize]; 4] = [&[2, 3, 5, 11], &[1, 6, 7, 16], &[8, 10, 14], &[4, 9, 12, 13, 15]];
         let patch_of = |p: usize| membership.iter().position(|m| m.contains(&(p + 1))).unwrap();
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
-        let exec = Exec::new(&pool, Strategy::DomainDecomposition);
         let mut b = Binning::default();
-        b.build(&exec, 16, 4, &patch_of);
+        in_region(4, |exec| b.build(exec, 16, 4, &patch_of));
 
         let patnp_th: Vec<Vec<u32>> = (0..4).map(|t| (0..4).map(|j| b.patnp_th(t, j)).collect()).collect();
         assert_eq!(patnp_th, vec![vec![2, 1, 0, 1], vec![1, 2, 1, 0], vec![1, 0, 1, 2], vec![0, 1, 1, 2]]);
@@ -470,12 +487,10 @@ mod tests {
     #[test]
     fn binning_lists_every_particle_once_for_any_thread_count() {
         for threads in [1, 2, 3, 5, 8] {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            let exec = Exec::new(&pool, Strategy::DomainDecomposition);
             let mut b = Binning::default();
             let n = 10_007;
             let patch = |p: usize| (p * 7919) % threads;
-            b.build(&exec, n, threads, &patch);
+            in_region(threads, |exec| b.build(exec, n, threads, &patch));
             let mut seen = vec![0u8; n];
             for j in 0..threads {
                 let col = b.column(j);
@@ -541,8 +556,6 @@ mod tests {
         for cells in [[5, 3, 7], [1, 1, 2], [4, 1, 1]] {
             let geom = GridGeom::fixed(&GridSpec { dx: 1.0, anchor: [0.0; 3], cells });
             for threads in [1, 2, 3, 4, 6, 8] {
-                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-                let exec = Exec::new(&pool, Strategy::DomainDecomposition);
                 let mut dd = DomainDecomposition::new(threads);
                 dd.cut(&geom);
                 // Distinct small integers and halves: their sums are exact, so equality is exact.
@@ -557,7 +570,7 @@ mod tests {
                     }
                 }
                 let mut global = vec![[f64::NAN; 2]; geom.num_nodes()];
-                dd.assemble(&exec, &geom, &mut global, &buf);
+                in_region(threads, |exec| dd.assemble(exec, &geom, &mut global, &buf));
                 assert_eq!(global, want, "cells {cells:?}, {threads} threads");
             }
         }

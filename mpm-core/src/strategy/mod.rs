@@ -10,21 +10,27 @@
 //!
 //! Both parallel strategies split the particle stage by loop splitting (thread `j` owns
 //! particle chunk `j`) and reduce energies per thread in a fixed order. Every parallel phase
-//! is one [`rayon::ThreadPool::broadcast`], so worker `j` always gets share `j`: results
-//! depend on the thread count, never on work stealing, and a given strategy and thread count
-//! reproduces bitwise.
+//! gives worker `j` share `j` ([`crate::parallel`]): results depend on the thread count,
+//! never on timing, and a given strategy and thread count reproduces bitwise.
+//!
+//! A strategy is a type implementing [`ScatterStrategy`] in its own file, plus one arm in
+//! each exhaustive match over [`Strategy`] (below) and over the solver's `Engine` (its
+//! variants and the `dispatch!` macro, also below). Nothing else in the crate names a
+//! strategy.
 
 pub mod array_expansion;
 pub mod domain_decomposition;
 pub mod serial;
 
 use crate::grid::GridGeom;
-use crate::team::Team;
-use crate::timers::{Lap, StageTimes, Substage};
-use rayon::ThreadPool;
+use crate::math::Vec3;
+use crate::parallel::Exec;
+use crate::shape;
 use serde::{Deserialize, Serialize};
 
+pub use array_expansion::ArrayExpansion;
 pub use domain_decomposition::{patch_layout, Binning, DomainDecomposition, Patch};
+pub use serial::Serial;
 
 /// Which scatter strategy the solver uses: the one type for the solver, the `mpm` program,
 /// the JSON summary, the campaign matrix, the CSV rows and the analysis.
@@ -158,10 +164,8 @@ impl NodeBox {
     /// Add a particle's contribution (its cell must lie in the box).
     #[inline(always)]
     pub fn add<const K: usize>(&self, data: &mut [[f64; K]], con: &Contribution<K>) {
-        let (sy, sz) = (self.dims[0], self.dims[0] * self.dims[1]);
-        let base = (con.cell[0] - self.lo[0]) + sy * (con.cell[1] - self.lo[1]) + sz * (con.cell[2] - self.lo[2]);
-        let idx =
-            [base, base + 1, base + sy, base + sy + 1, base + sz, base + sz + 1, base + sz + sy, base + sz + sy + 1];
+        let local = std::array::from_fn(|d| con.cell[d] - self.lo[d]);
+        let idx = shape::cell_nodes(self.dims, local);
         for q in 0..8 {
             let d = &mut data[idx[q]];
             for k in 0..K {
@@ -171,134 +175,122 @@ impl NodeBox {
     }
 }
 
-/// Runs a phase on every worker: `f(j)` once for each `j` in `0..workers`.
-pub struct Exec<'a> {
-    kind: ExecKind<'a>,
-    /// Number of workers (shares).
-    pub workers: usize,
+/// What a scatter strategy does. The solver calls, every step: [`prepare`] once, then for
+/// each of the two scatters (P2G, re-map) [`scatter`] and [`assemble`], timing them as the
+/// `scatter` and `assembly` sub-stages.
+///
+/// `parts` is the strategy's own scatter target (per-thread copies, sub-grids), kept by the
+/// solver between steps so that steady-state steps do not allocate.
+///
+/// [`prepare`]: ScatterStrategy::prepare
+/// [`scatter`]: ScatterStrategy::scatter
+/// [`assemble`]: ScatterStrategy::assemble
+pub trait ScatterStrategy {
+    /// Get ready for `geom` (re-cut whatever depends on the grid) and return the length of
+    /// `parts` the scatter will need (0 if it scatters straight into the global arrays).
+    fn reserve(&mut self, geom: &GridGeom) -> usize;
+
+    /// Per-step work before the first scatter, given the particle positions `x`.
+    fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]);
+
+    /// Add `kernel(p)` of every particle `p < n`, either into `global` (zeroed first) or
+    /// into `parts` for [`ScatterStrategy::assemble`] to sum into `global`.
+    #[allow(clippy::too_many_arguments)]
+    fn scatter<const K: usize, F>(
+        &self,
+        exec: &Exec<'_>,
+        geom: &GridGeom,
+        n: usize,
+        global: &mut [[f64; K]],
+        parts: &mut Vec<[f64; K]>,
+        kernel: &F,
+    ) where
+        F: Fn(usize) -> Contribution<K> + Sync;
+
+    /// Make `global` the sum of what [`ScatterStrategy::scatter`] put into `parts` (nothing
+    /// to do if it scattered into `global`).
+    fn assemble<const K: usize>(&self, exec: &Exec<'_>, geom: &GridGeom, global: &mut [[f64; K]], parts: &[[f64; K]]);
+
+    /// Bytes held by the strategy's own tables (not `parts`).
+    fn bytes(&self) -> usize;
 }
 
-enum ExecKind<'a> {
-    Serial,
-    Pool(&'a ThreadPool),
-    Team(&'a Team),
-}
-
-impl<'a> Exec<'a> {
-    /// The executor of `strategy` in `pool`: one share on the calling thread for the serial
-    /// strategy, one `broadcast` per phase otherwise (worker `j` runs share `j`).
-    pub fn new(pool: &'a ThreadPool, strategy: Strategy) -> Self {
-        match strategy {
-            Strategy::Serial => Self::serial(),
-            _ => Self { kind: ExecKind::Pool(pool), workers: pool.current_num_threads() },
-        }
-    }
-
-    /// One share, run on the calling thread.
-    pub fn serial() -> Self {
-        Self { kind: ExecKind::Serial, workers: 1 }
-    }
-
-    /// Phases run by a [`Team`] whose workers stay awake between phases (call from the
-    /// team's driver, worker 0).
-    pub fn team(team: &'a Team) -> Self {
-        Self { kind: ExecKind::Team(team), workers: team.workers() }
-    }
-
-    /// Run `f(j)` for every worker `j`, worker `j` on pool thread `j`.
-    #[inline]
-    pub fn run<F: Fn(usize) + Sync>(&self, f: F) {
-        match self.kind {
-            ExecKind::Serial => f(0),
-            ExecKind::Pool(pool) => {
-                pool.broadcast(|ctx| f(ctx.index()));
-            }
-            ExecKind::Team(team) => team.run(&f),
-        }
-    }
-}
-
-/// The strategy's per-simulation state.
+/// The strategy of a simulation, with its per-simulation state.
 #[derive(Debug)]
 pub(crate) enum Engine {
-    Serial,
-    Ae(usize),
+    Serial(Serial),
+    Ae(ArrayExpansion),
     Dd(Box<DomainDecomposition>),
+}
+
+/// Run `$body` with `$s` bound to the engine's strategy (one arm per strategy).
+macro_rules! dispatch {
+    ($engine:expr, $s:ident => $body:expr) => {
+        match $engine {
+            Engine::Serial($s) => $body,
+            Engine::Ae($s) => $body,
+            Engine::Dd($s) => $body,
+        }
+    };
 }
 
 impl Engine {
     pub fn new(strategy: Strategy, threads: usize) -> Self {
         match strategy {
-            Strategy::Serial => Engine::Serial,
-            Strategy::ArrayExpansion => Engine::Ae(threads),
+            Strategy::Serial => Engine::Serial(Serial),
+            Strategy::ArrayExpansion => Engine::Ae(ArrayExpansion::new(threads)),
             Strategy::DomainDecomposition => Engine::Dd(Box::new(DomainDecomposition::new(threads))),
         }
     }
 
-    /// Cut DD patches for `geom` and return the scatter buffer length the strategy needs
-    /// (nodes x threads for AE, all sub-grids for DD, 0 for serial).
+    /// See [`ScatterStrategy::reserve`].
     pub fn reserve(&mut self, geom: &GridGeom) -> usize {
-        match self {
-            Engine::Serial => 0,
-            Engine::Ae(threads) => geom.num_nodes() * *threads,
-            Engine::Dd(dd) => {
-                dd.cut(geom);
-                dd.subgrid_nodes()
-            }
-        }
+        dispatch!(self, s => s.reserve(geom))
     }
 
-    /// Per-step preparation: DD re-cuts its patches when the grid changed and bins the
-    /// particles (`patch_of_point` gives a position's patch).
-    pub fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[crate::math::Vec3]) {
-        if let Engine::Dd(dd) = self {
-            dd.prepare(exec, geom, x);
-        }
+    /// See [`ScatterStrategy::prepare`].
+    pub fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
+        dispatch!(self, s => s.prepare(exec, geom, x))
     }
 
-    /// Scatter every particle's `kernel(p)` into `global` (zeroed first), using `buf` for
-    /// the per-thread copies or sub-grids, and charge the scatter and assembly times.
-    #[allow(clippy::too_many_arguments)]
+    /// See [`ScatterStrategy::scatter`].
+    #[inline]
     pub fn scatter<const K: usize, F>(
         &self,
         exec: &Exec<'_>,
         geom: &GridGeom,
         n: usize,
         global: &mut [[f64; K]],
-        buf: &mut Vec<[f64; K]>,
+        parts: &mut Vec<[f64; K]>,
         kernel: &F,
-        times: &mut StageTimes,
-        lap: &mut Lap,
-        stages: (Substage, Substage),
     ) where
         F: Fn(usize) -> Contribution<K> + Sync,
     {
-        match self {
-            Engine::Serial => {
-                serial::scatter(geom, n, global, kernel);
-                lap.lap(times, stages.0);
-                lap.lap(times, stages.1);
-            }
-            Engine::Ae(_) => {
-                array_expansion::scatter(exec, geom, n, buf, kernel);
-                lap.lap(times, stages.0);
-                array_expansion::assemble(exec, global, buf);
-                lap.lap(times, stages.1);
-            }
-            Engine::Dd(dd) => {
-                dd.scatter(exec, buf, kernel);
-                lap.lap(times, stages.0);
-                dd.assemble(exec, geom, global, buf);
-                lap.lap(times, stages.1);
-            }
-        }
+        dispatch!(self, s => s.scatter(exec, geom, n, global, parts, kernel))
     }
 
-    /// Bytes held by the strategy's own index structures (not the scatter buffers).
+    /// See [`ScatterStrategy::assemble`].
+    #[inline]
+    pub fn assemble<const K: usize>(
+        &self,
+        exec: &Exec<'_>,
+        geom: &GridGeom,
+        global: &mut [[f64; K]],
+        parts: &[[f64; K]],
+    ) {
+        dispatch!(self, s => s.assemble(exec, geom, global, parts))
+    }
+
+    /// See [`ScatterStrategy::bytes`].
     pub fn bytes(&self) -> usize {
+        dispatch!(self, s => s.bytes())
+    }
+
+    /// The domain-decomposition state, if this is DD.
+    pub fn domain_decomposition(&self) -> Option<&DomainDecomposition> {
         match self {
-            Engine::Dd(dd) => dd.bytes(),
-            _ => 0,
+            Engine::Dd(dd) => Some(dd),
+            Engine::Serial(_) | Engine::Ae(_) => None,
         }
     }
 }

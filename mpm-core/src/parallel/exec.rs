@@ -1,0 +1,133 @@
+//! [`Exec`]: runs a phase on every worker, on the calling thread (serial) or on the team of
+//! the current parallel region.
+
+use super::disjoint::ChunkSet;
+use super::team::Team;
+use std::marker::PhantomData;
+
+/// Runs a phase on every worker: share `w` once for each `w` in `0..workers()`, and returns
+/// when all shares have finished (a barrier).
+///
+/// Made by [`Exec::serial`] (one share, on the calling thread) or handed to the closure of
+/// [`Team::region`] (share `w` on pool thread `w`). An `Exec` is neither `Send` nor `Sync`:
+/// it stays on the thread that drives the phases, and a phase's shares (which must be `Sync`)
+/// cannot capture it, so phases never nest.
+pub struct Exec<'a> {
+    kind: Kind<'a>,
+    workers: usize,
+    _driver_only: PhantomData<*const ()>,
+}
+
+#[derive(Clone, Copy)]
+enum Kind<'a> {
+    Serial,
+    Team(&'a Team),
+}
+
+impl Exec<'static> {
+    /// One share, run on the calling thread.
+    pub fn serial() -> Self {
+        Self { kind: Kind::Serial, workers: 1, _driver_only: PhantomData }
+    }
+}
+
+impl<'a> Exec<'a> {
+    /// The executor of `team`'s current region: only [`Team::region`] makes one, on the
+    /// region's driver.
+    pub(super) fn team(team: &'a Team) -> Self {
+        Self { kind: Kind::Team(team), workers: team.workers(), _driver_only: PhantomData }
+    }
+
+    /// Number of workers (shares per phase).
+    pub fn workers(&self) -> usize {
+        self.workers
+    }
+
+    /// Run `f(w)` for every worker `w`, worker `w` on pool thread `w`; return when all have
+    /// finished. A panic in a share is re-raised here after every share has finished.
+    #[inline]
+    pub fn run<F: Fn(usize) + Sync>(&self, f: F) {
+        match self.kind {
+            Kind::Serial => f(0),
+            // SAFETY: `Team::run` must be called by the driver of the team's current region,
+            // not from inside one of its phases. An `Exec` of this kind is made only by
+            // `Team::region`, on its driver, and lives no longer than the region; it cannot
+            // leave the driver's thread (neither `Send` nor `Sync`), and a share cannot
+            // capture it (shares are `Sync`), so this call is the driver's, between phases.
+            Kind::Team(team) => unsafe { team.run(&f) },
+        }
+    }
+
+    /// Run a phase in which worker `w` gets part `w` of every array in `chunks` (a
+    /// [`Parts`](super::Parts) made by [`Split::of`](super::Split::of), or a tuple of them):
+    /// `f(w, part)`.
+    ///
+    /// The splits are checked before the phase starts (a split whose parts would overlap or
+    /// leave the array panics here), so each element is reached by one worker only.
+    #[inline]
+    pub fn for_each_chunk_mut<C, F>(&self, chunks: C, f: F)
+    where
+        C: ChunkSet,
+        F: Fn(usize, C::Part) + Sync,
+    {
+        let workers = self.workers;
+        chunks.check(workers);
+        self.run(|w| {
+            // SAFETY: `check` passed for `workers`, and `run` calls share w exactly once for
+            // every w in 0..workers, so part w is taken once. `chunks` was moved into this
+            // call, so no part is taken again after the phase while its borrow lasts.
+            let part = unsafe { chunks.part(w, workers) };
+            f(w, part);
+        });
+    }
+}
+
+#[cfg(all(test, not(loom)))]
+mod tests {
+    use super::super::{partition, Split, Team};
+    use super::*;
+
+    /// Every worker writes its own part of three arrays cut three ways; each element is
+    /// written once, by its owner, with the serial and the team executors.
+    #[test]
+    fn every_element_is_written_once_by_its_owner() {
+        for workers in [1, 2, 3, 5] {
+            let n = 1001;
+            let mut even = vec![0usize; n];
+            let mut blocks = vec![0usize; 4 * workers];
+            let offsets: Vec<usize> = (0..=workers).map(|w| w * w).collect();
+            let mut ragged = vec![0usize; workers * workers];
+            let mut phase = |exec: &Exec<'_>| {
+                exec.for_each_chunk_mut(
+                    (
+                        Split::Even.of(&mut even),
+                        Split::Blocks(4).of(&mut blocks),
+                        Split::Offsets(&offsets).of(&mut ragged),
+                    ),
+                    |w, (e, b, r)| {
+                        for v in e.iter_mut().chain(b).chain(r) {
+                            *v += w + 1;
+                        }
+                    },
+                )
+            };
+            if workers == 1 {
+                phase(&Exec::serial());
+            } else {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(workers).build().unwrap();
+                Team::new(workers).region(&pool, phase).unwrap();
+            }
+            for (i, v) in even.iter().enumerate() {
+                let owner = (0..workers).find(|&w| partition(n, workers, w).contains(&i)).unwrap();
+                assert_eq!(*v, owner + 1, "{workers} workers, even element {i}");
+            }
+            for (i, v) in blocks.iter().enumerate() {
+                assert_eq!(*v, i / 4 + 1, "{workers} workers, block element {i}");
+            }
+            for (i, v) in ragged.iter().enumerate() {
+                let owner = (0..workers).find(|&w| (offsets[w]..offsets[w + 1]).contains(&i)).unwrap();
+                assert_eq!(*v, owner + 1, "{workers} workers, ragged element {i}");
+            }
+        }
+    }
+}
