@@ -401,8 +401,7 @@ impl Simulation {
         let geom = self.geom;
         let n = self.particles.len();
         {
-            let (particles, bf) = (&self.particles, self.config.body_force);
-            let p2g = |p: usize| transfer::p2g(&geom, particles, bf, p);
+            let p2g = transfer::P2g { geom: &geom, particles: &self.particles, body_force: self.config.body_force };
             self.engine.scatter(exec, &geom, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
         }
         lap.lap(&mut self.times, Substage::Scatter);
@@ -415,8 +414,7 @@ impl Simulation {
         transfer::gather(exec, &geom, &self.nodes.kin, &self.particles.x, &mut self.particles.v, dt);
         lap.lap(&mut self.times, Substage::Gather);
         {
-            let particles = &self.particles;
-            let remap = |p: usize| transfer::remap(&geom, particles, p);
+            let remap = transfer::Remap { geom: &geom, particles: &self.particles };
             self.engine.scatter(exec, &geom, n, &mut self.nodes.remap, &mut self.remap_parts, &remap);
         }
         lap.lap(&mut self.times, Substage::RemapScatter);

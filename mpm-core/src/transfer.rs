@@ -11,7 +11,7 @@ use crate::material::{update_point, PointConsts, PointState, PressureModel};
 use crate::math::{sym_mul_vec, Sym, Vec3};
 use crate::parallel::{partition, Exec, Split};
 use crate::particles::Particles;
-use crate::strategy::Contribution;
+use crate::strategy::{Contribution, Kernel};
 
 /// Eqs. 1-5 for particle `p`: mass `m_p S_ip`, momentum `m_p v_p S_ip` and force
 /// `-V_p sigma_p . G_ip + m_p S_ip b` at its 8 nodes, as `[m, p_x, p_y, p_z, f_x, f_y, f_z]`.
@@ -47,6 +47,40 @@ pub fn remap(geom: &GridGeom, particles: &Particles, p: usize) -> Contribution<R
     let v = particles.v[p];
     let mv = [m * v[0], m * v[1], m * v[2]];
     Contribution { cell: s.cell, c: s.w.map(|w| [mv[0] * w, mv[1] * w, mv[2] * w]) }
+}
+
+/// The P2G kernel ([`p2g`]) as a scatter [`Kernel`].
+#[derive(Clone, Copy)]
+pub struct P2g<'a> {
+    /// The grid of this step.
+    pub geom: &'a GridGeom,
+    /// The particles at step `k`.
+    pub particles: &'a Particles,
+    /// Body force per unit mass (m/s^2).
+    pub body_force: Vec3,
+}
+
+impl Kernel<P2G_WIDTH> for P2g<'_> {
+    #[inline(always)]
+    fn contribution(&self, p: usize) -> Contribution<P2G_WIDTH> {
+        p2g(self.geom, self.particles, self.body_force, p)
+    }
+}
+
+/// The re-map kernel ([`remap`]) as a scatter [`Kernel`].
+#[derive(Clone, Copy)]
+pub struct Remap<'a> {
+    /// The grid of this step.
+    pub geom: &'a GridGeom,
+    /// The particles with their updated velocities.
+    pub particles: &'a Particles,
+}
+
+impl Kernel<REMAP_WIDTH> for Remap<'_> {
+    #[inline(always)]
+    fn contribution(&self, p: usize) -> Contribution<REMAP_WIDTH> {
+        remap(self.geom, self.particles, p)
+    }
 }
 
 /// Visit every node of the grid with its wall mask (1 = free component, 0 = constrained),

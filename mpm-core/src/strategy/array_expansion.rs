@@ -4,7 +4,7 @@
 //! `A(:) = sum_j A_list(:, j)` (Eq. 16). No races and no atomics; the memory grows with
 //! `(T - 1) x` the nodal arrays, and the assembly with `N x T`.
 
-use super::{Contribution, NodeBox, ScatterStrategy};
+use super::{Kernel, NodeBox, ScatterStrategy};
 use crate::grid::GridGeom;
 use crate::math::Vec3;
 use crate::parallel::{partition, Exec, Split};
@@ -25,7 +25,7 @@ impl ArrayExpansion {
 /// Scatter particle chunk `j` into column `j` of `columns` (sized `N x T`, column-major).
 pub fn scatter<const K: usize, F>(exec: &Exec<'_>, geom: &GridGeom, n: usize, columns: &mut Vec<[f64; K]>, kernel: &F)
 where
-    F: Fn(usize) -> Contribution<K> + Sync,
+    F: Kernel<K>,
 {
     let nn = geom.num_nodes();
     let t = exec.workers();
@@ -34,7 +34,7 @@ where
     exec.for_each_chunk_mut(Split::Blocks(nn).of(columns), |j, column| {
         column.fill([0.0; K]);
         for p in partition(n, t, j) {
-            bx.add(column, &kernel(p));
+            bx.add(column, &kernel.contribution(p));
         }
     });
 }
@@ -73,7 +73,7 @@ impl ScatterStrategy for ArrayExpansion {
         parts: &mut Vec<[f64; K]>,
         kernel: &F,
     ) where
-        F: Fn(usize) -> Contribution<K> + Sync,
+        F: Kernel<K>,
     {
         scatter(exec, geom, n, parts, kernel);
     }

@@ -26,7 +26,7 @@
 //! adaptive grid the patches are re-cut over the particles' current bounding box every step,
 //! which is the paper's load balance.
 
-use super::{Contribution, NodeBox, ScatterStrategy};
+use super::{Kernel, NodeBox, ScatterStrategy};
 use crate::grid::GridGeom;
 use crate::math::Vec3;
 use crate::parallel::{partition, DisjointSlice, Exec, Split};
@@ -390,14 +390,14 @@ impl ScatterStrategy for DomainDecomposition {
         subgrids: &mut Vec<[f64; K]>,
         kernel: &F,
     ) where
-        F: Fn(usize) -> Contribution<K> + Sync,
+        F: Kernel<K>,
     {
         subgrids.resize(self.subgrid_nodes(), [0.0; K]);
         exec.for_each_chunk_mut(Split::Offsets(&self.offsets).of(subgrids), |j, sub| {
             sub.fill([0.0; K]);
             let bx = self.patches[j].node_box();
             for &id in self.binning.column(j) {
-                bx.add(sub, &kernel(id as usize - 1));
+                bx.add(sub, &kernel.contribution(id as usize - 1));
             }
         });
     }

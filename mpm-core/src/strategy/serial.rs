@@ -1,7 +1,7 @@
 //! The serial scatter: every particle straight into the global nodal arrays. It is the
 //! oracle every parallel strategy is tested against.
 
-use super::{Contribution, NodeBox, ScatterStrategy};
+use super::{Kernel, NodeBox, ScatterStrategy};
 use crate::grid::GridGeom;
 use crate::math::Vec3;
 use crate::parallel::Exec;
@@ -13,12 +13,12 @@ pub struct Serial;
 /// Zero `global` and add `kernel(p)` for every particle in order.
 pub fn scatter<const K: usize, F>(geom: &GridGeom, n: usize, global: &mut [[f64; K]], kernel: &F)
 where
-    F: Fn(usize) -> Contribution<K>,
+    F: Kernel<K>,
 {
     global.fill([0.0; K]);
     let bx = NodeBox::grid(geom);
     for p in 0..n {
-        bx.add(global, &kernel(p));
+        bx.add(global, &kernel.contribution(p));
     }
 }
 
@@ -38,7 +38,7 @@ impl ScatterStrategy for Serial {
         _parts: &mut Vec<[f64; K]>,
         kernel: &F,
     ) where
-        F: Fn(usize) -> Contribution<K> + Sync,
+        F: Kernel<K>,
     {
         scatter(geom, n, global, kernel);
     }
