@@ -70,9 +70,15 @@ pub fn cell_nodes(dims: [usize; 3], cell: [usize; 3]) -> [usize; 8] {
 }
 
 /// Cell index along one axis of a point at `xi` cell widths from the origin (clamped).
+///
+/// `floor` without calling it: `max(0)` first (which also maps NaN to 0), then the cast
+/// truncates a non-negative number, which is its floor (and saturates above `usize::MAX`).
+/// The result equals `xi.floor().max(0.0) as usize` for every `xi`; the baseline x86-64
+/// target has no rounding instruction, so `floor` was a libm call, four times a step
+/// for every particle and axis (12 % of the instructions of a Taylor bar step).
 #[inline(always)]
 pub fn axis_cell(xi: f64, cells: usize) -> usize {
-    (xi.floor().max(0.0) as usize).min(cells - 1)
+    (xi.max(0.0) as usize).min(cells - 1)
 }
 
 /// The cell containing `x` (same clamping as [`evaluate`]).
