@@ -156,6 +156,7 @@ fn write_manifest(dir: &Path, t: &str) {
     let m = Manifest {
         manifest_version: MANIFEST_VERSION,
         campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
+        reference: false,
         campaign: serde_json::Value::Null,
         machine: info,
         software: SoftwareInfo {

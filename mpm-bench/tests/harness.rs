@@ -145,16 +145,77 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
     let keys: HashSet<_> = rows.iter().map(Row::key).collect();
     assert_eq!(keys.len(), 8);
     assert!(rows.iter().all(|r| r.status == Status::Ok && r.campaign_id == "smoke"));
-    // Again: nothing to do.
+    // Again: nothing to do, and nothing rewritten.
+    let before = std::fs::read(s.dir.join("manifest.json")).unwrap();
     let mut r = MockRunner::default();
     let s = run_mock(&c, &m, dir.path(), &mut r);
     assert_eq!((s.counts.written, r.calls.len()), (0, 0));
     assert_eq!(read_rows(&csv).unwrap().len(), 8);
-    // Manifest and sessions.
+    assert_eq!(std::fs::read(s.dir.join("manifest.json")).unwrap(), before, "a no-op run rewrote the manifest");
+    // Manifest and sessions: one per session that ran something, each with its machine.
     let man = mpm_bench::campaign::manifest::read(&s.dir.join("manifest.json")).unwrap();
-    assert_eq!(man.sessions.len(), 3);
+    assert_eq!(man.sessions.len(), 2);
+    assert!(man
+        .sessions
+        .iter()
+        .all(|s| s.machine.as_ref().is_some_and(|mi| mi.fingerprint == man.machine.fingerprint)));
     assert_eq!(man.machine.fingerprint, fingerprint::fingerprint(&m));
     assert!(s.dir.starts_with(dir.path().join(&man.machine.fingerprint)));
+}
+
+/// Copy the campaign folder `from` to `to` (files of the top level and `json/`).
+fn copy_campaign(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to.join("json")).unwrap();
+    for sub in ["", "json"] {
+        for e in std::fs::read_dir(from.join(sub)).unwrap().flatten() {
+            if e.file_type().unwrap().is_file() {
+                std::fs::copy(e.path(), to.join(sub).join(e.file_name())).unwrap();
+            }
+        }
+    }
+}
+
+/// The resume rule: a campaign copied into the folder of another machine's fingerprint is
+/// not resumed there (a new folder `<id>-2` starts, said in one line) unless
+/// `--resume-foreign`; rows of other solver binaries are not resumed either; a reference
+/// campaign is never resumed.
+#[test]
+fn foreign_and_reference_campaigns_are_not_resumed() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let (a, b) = (laptop(), Machine::synthetic("pack:1 core:4 pu:1").unwrap());
+    let flag = Arc::new(AtomicBool::new(false));
+    let mut r = MockRunner { interrupt_after: Some((3, flag.clone())), ..MockRunner::default() };
+    let s = runner::execute(&c, &a, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
+    let copied = runner::campaign_dir(dir.path(), &b, &c);
+    assert_ne!(copied, s.dir);
+    copy_campaign(&s.dir, &copied);
+    // On machine b: the copy is another machine's; a new folder takes all 8 runs.
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &b, dir.path(), &mut r);
+    assert_eq!(s.dir, copied.with_file_name("smoke-2"));
+    assert_eq!((s.counts.already_done, r.calls.len()), (0, 8));
+    assert_eq!(read_rows(&copied.join("runs.csv")).unwrap().len(), 3, "the copy was not touched");
+    // With --resume-foreign the copy is resumed: the other 5 runs.
+    let o = ExecOptions { resume_foreign: true, ..opts(dir.path()) };
+    let mut r = MockRunner::default();
+    let s = runner::execute(&c, &b, &mock_solvers(&c), &mut r, &o, &AtomicBool::new(false)).unwrap();
+    assert_eq!((s.dir.as_path(), s.counts.already_done, r.calls.len()), (copied.as_path(), 3, 5));
+    // Same machine, rebuilt solver: not resumed either.
+    let rebuilt: Vec<Solver> =
+        mock_solvers(&c).into_iter().map(|s| Solver { sha256: "fedcba9876543210".into(), ..s }).collect();
+    let mut r = MockRunner::default();
+    let s = runner::execute(&c, &a, &rebuilt, &mut r, &opts(dir.path()), &AtomicBool::new(false)).unwrap();
+    assert!(s.dir.ends_with("smoke-2") && r.calls.len() == 8, "{}", s.dir.display());
+    // A reference campaign is refused even with --resume-foreign.
+    let mpath = copied.join("manifest.json");
+    let mut man = mpm_bench::campaign::manifest::read(&mpath).unwrap();
+    man.reference = true;
+    mpm_bench::campaign::manifest::write(&mpath, &man).unwrap();
+    let mut r = MockRunner::default();
+    let s = runner::execute(&c, &b, &mock_solvers(&c), &mut r, &o, &AtomicBool::new(false)).unwrap();
+    assert_eq!(s.dir, copied.with_file_name("smoke-2"));
+    assert_eq!(r.calls.len(), 0, "smoke-2 of machine b is complete and resumable");
 }
 
 #[test]
