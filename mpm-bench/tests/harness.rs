@@ -42,6 +42,13 @@ fn run_mock(c: &Campaign, m: &Machine, out: &Path, r: &mut MockRunner) -> runner
     runner::execute(c, m, &mock_solvers(c), r, &opts(out), &flag).unwrap()
 }
 
+/// Run `c` on `m` into `out` with the mock runner interrupted after 3 runs.
+fn interrupted_after_3(c: &Campaign, m: &Machine, out: &Path) -> runner::ExecSummary {
+    let flag = Arc::new(AtomicBool::new(false));
+    let mut r = MockRunner { interrupt_after: Some((3, flag.clone())), ..MockRunner::default() };
+    runner::execute(c, m, &mock_solvers(c), &mut r, &opts(out), &flag).unwrap()
+}
+
 #[test]
 fn matrix_expansion_covers_every_cell() {
     let quick = campaign("quick", &Overrides::default());
@@ -128,10 +135,8 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
     let dir = tempfile::tempdir().unwrap();
     let c = campaign("smoke", &Overrides::default());
     let m = laptop();
-    let flag = Arc::new(AtomicBool::new(false));
     // Interrupted after 3 runs: exactly 3 valid rows.
-    let mut r = MockRunner { interrupt_after: Some((3, flag.clone())), ..MockRunner::default() };
-    let s = runner::execute(&c, &m, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
+    let s = interrupted_after_3(&c, &m, dir.path());
     assert!(s.counts.interrupted);
     assert_eq!(s.counts.written, 3);
     let csv = s.dir.join("runs.csv");
@@ -184,9 +189,7 @@ fn foreign_and_reference_campaigns_are_not_resumed() {
     let dir = tempfile::tempdir().unwrap();
     let c = campaign("smoke", &Overrides::default());
     let (a, b) = (laptop(), Machine::synthetic("pack:1 core:4 pu:1").unwrap());
-    let flag = Arc::new(AtomicBool::new(false));
-    let mut r = MockRunner { interrupt_after: Some((3, flag.clone())), ..MockRunner::default() };
-    let s = runner::execute(&c, &a, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
+    let s = interrupted_after_3(&c, &a, dir.path());
     let copied = runner::campaign_dir(dir.path(), &b, &c);
     assert_ne!(copied, s.dir);
     copy_campaign(&s.dir, &copied);
@@ -470,4 +473,145 @@ fn sigint_leaves_a_valid_csv_and_the_campaign_resumes() {
     let rows = read_rows(&d.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), 8);
     assert_eq!(rows.iter().map(Row::key).collect::<HashSet<_>>().len(), 8);
+}
+
+/// A torn last line of runs.csv (a write cut short) is moved aside before the file is
+/// parsed, the analysis commands read around it with a warning, and resuming redoes that run:
+/// the campaign completes with no duplicate and no lost row.
+#[test]
+fn torn_last_line_is_moved_aside_and_the_campaign_completes() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let m = laptop();
+    let s = interrupted_after_3(&c, &m, dir.path());
+    let csv = s.dir.join("runs.csv");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let last = text.lines().last().unwrap();
+    let torn = format!("{}{}", &text[..text.len() - last.len() - 1], &last[..last.len() / 2]);
+    std::fs::write(&csv, &torn).unwrap();
+    let claims = bench().args(["claims", "--results", s.dir.to_str().unwrap()]).output().unwrap();
+    let err = String::from_utf8_lossy(&claims.stderr);
+    assert!(claims.status.success(), "claims failed on a torn file: {err}");
+    assert!(err.contains("torn line"), "{err}");
+    assert_eq!(std::fs::read_to_string(&csv).unwrap(), torn, "analysis must not change the file");
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &m, dir.path(), &mut r);
+    assert_eq!((s.counts.already_done, r.calls.len()), (2, 6), "the torn run is redone");
+    let rows = read_rows(&csv).unwrap();
+    assert_eq!(rows.len(), 8);
+    assert_eq!(rows.iter().map(Row::key).collect::<HashSet<_>>().len(), 8, "no duplicate");
+    let aside: Vec<_> = std::fs::read_dir(&s.dir)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with("runs.csv.torn-"))
+        .collect();
+    assert_eq!(aside.len(), 1);
+    assert_eq!(std::fs::read_to_string(aside[0].path()).unwrap(), &last[..last.len() / 2]);
+}
+
+/// A stand-in for `mpm`: reserves its summary file the way `mpm` does
+/// (`.<name>.tmp.<pid>`), writes its pid to `$FAKE_PIDFILE`, then fails at once
+/// (`$FAKE_FAIL` set) or runs for five minutes.
+const FAKE_SOLVER: &str = r#"#!/bin/sh
+while [ $# -gt 0 ]; do
+    if [ "$1" = --json ]; then json="$2"; fi
+    shift
+done
+: > "$(dirname "$json")/.$(basename "$json").tmp.$$"
+echo $$ > "$FAKE_PIDFILE.part" && mv "$FAKE_PIDFILE.part" "$FAKE_PIDFILE"
+if [ -n "$FAKE_FAIL" ]; then exit 3; fi
+exec sleep 300
+"#;
+
+/// `mpm-bench run` of one configuration with the fake solver in `dir`, into `dir/out`.
+fn fake_campaign(dir: &Path, fail: bool) -> Command {
+    use std::os::unix::fs::PermissionsExt;
+    let solver = dir.join("fake-mpm");
+    if !solver.exists() {
+        std::fs::write(&solver, FAKE_SOLVER).unwrap();
+        std::fs::set_permissions(&solver, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    let _ = std::fs::remove_file(dir.join("pid"));
+    let mut cmd = bench();
+    cmd.args(["run", "--preset", "smoke", "--models", "1", "--threads", "1", "--strategies", "dd", "--opt", "o3"])
+        .args(["--no-build", "--quiet", "--out", dir.join("out").to_str().unwrap()])
+        .env("MPM_BENCH_SOLVER_O3", &solver)
+        .env("FAKE_PIDFILE", dir.join("pid"))
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null());
+    if fail {
+        cmd.env("FAKE_FAIL", "1");
+    }
+    cmd
+}
+
+/// The pid the fake solver wrote (waits up to 20 s for it).
+fn fake_solver_pid(dir: &Path) -> i32 {
+    for _ in 0..400 {
+        if let Some(pid) = std::fs::read_to_string(dir.join("pid")).ok().and_then(|s| s.trim().parse().ok()) {
+            return pid;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    panic!("the fake solver did not start");
+}
+
+/// Whether process `pid` is gone (or a zombie waiting for its new parent to reap it),
+/// waiting up to 5 s.
+fn gone(pid: i32) -> bool {
+    for _ in 0..100 {
+        match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+            Err(_) => return true,
+            Ok(stat) if stat.rsplit_once(')').is_some_and(|(_, rest)| rest.trim_start().starts_with('Z')) => {
+                return true
+            }
+            Ok(_) => std::thread::sleep(std::time::Duration::from_millis(50)),
+        }
+    }
+    false
+}
+
+/// Temporary files (`.<name>.tmp.<pid>`) anywhere under `dir`.
+fn temp_files(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            out.extend(temp_files(&p));
+        } else if mpm_cli::atomic::temp_file_pid(&e.file_name().to_string_lossy()).is_some() {
+            out.push(p);
+        }
+    }
+    out
+}
+
+/// SIGKILL of the harness takes its solver child with it (parent-death signal); the child's
+/// temporary file is swept when the campaign is opened again.
+#[test]
+fn sigkill_of_the_harness_leaves_no_solver_running() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut harness = fake_campaign(dir.path(), false).spawn().unwrap();
+    let solver = fake_solver_pid(dir.path());
+    harness.kill().unwrap();
+    harness.wait().unwrap();
+    assert!(gone(solver), "solver {solver} still runs after SIGKILL of the harness");
+    assert_eq!(temp_files(dir.path()).len(), 1, "the killed solver's reserved file is left");
+    let again = fake_campaign(dir.path(), true).status().unwrap();
+    assert!(again.success());
+    assert_eq!(temp_files(dir.path()), Vec::<std::path::PathBuf>::new(), "stale temporary files are swept");
+}
+
+/// SIGTERM and SIGINT stop the campaign (exit 130), kill the solver and leave no temporary
+/// file behind.
+#[test]
+fn sigterm_and_sigint_leave_no_temporary_files() {
+    for signal in ["-TERM", "-INT"] {
+        let dir = tempfile::tempdir().unwrap();
+        let mut harness = fake_campaign(dir.path(), false).spawn().unwrap();
+        let solver = fake_solver_pid(dir.path());
+        assert!(Command::new("kill").args([signal, &harness.id().to_string()]).status().unwrap().success());
+        assert_eq!(harness.wait().unwrap().code(), Some(130), "{signal}");
+        assert!(gone(solver), "{signal}: solver still runs");
+        assert_eq!(temp_files(dir.path()), Vec::<std::path::PathBuf>::new(), "{signal}");
+    }
 }

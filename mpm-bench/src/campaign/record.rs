@@ -2,8 +2,13 @@
 //!
 //! Rows are appended and flushed (and synced) right after each run, so an interrupted
 //! campaign keeps every finished run. Reading back ([`read_rows`]) checks the header first and
-//! names any missing column. A partial last line (a kill in the middle of a write) is cut off
-//! when the file is opened for appending again ([`CsvLog::open`]).
+//! names any missing column.
+//!
+//! A torn last line (power loss, disk full, a kill in the middle of a write: no trailing
+//! newline, or fewer fields than the header) is found before the file is parsed
+//! ([`complete_len`]). Readers ([`read_rows`], used by every analysis command) warn and read
+//! the complete rows; the campaign runner ([`repair_torn_tail`], also in [`CsvLog::open`])
+//! moves the torn bytes to `runs.csv.torn-<time>`, says so, and redoes that run.
 //!
 //! Units are SI (seconds, bytes, joules, metres). Lists of CPUs are written space-separated
 //! (`"0 1"`). Empty cells mean "not measured" (for example every measurement of a skipped row).
@@ -12,7 +17,7 @@ use anyhow::{bail, Context, Result};
 use mpm_core::Strategy;
 use serde::{Deserialize, Serialize};
 use std::fs::{File, OpenOptions};
-use std::io::{Read, Seek, SeekFrom, Write};
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 /// Version of the row layout; bump it whenever a column is added, removed or renamed.
@@ -259,12 +264,71 @@ pub fn parse_cpus_cell(s: &str) -> Vec<usize> {
     s.split_whitespace().filter_map(|t| t.parse().ok()).collect()
 }
 
-/// Read every row of a results CSV, checking the header first.
+/// Length in bytes of the complete part of a results CSV: the header and every record that
+/// ends in a newline and has as many fields as the header. What follows is a torn tail.
+pub fn complete_len(bytes: &[u8]) -> usize {
+    let mut len = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1);
+    loop {
+        let mut r = csv::ReaderBuilder::new().has_headers(true).flexible(true).from_reader(&bytes[..len]);
+        let width = match r.headers() {
+            Ok(h) => h.len(),
+            Err(_) => return len,
+        };
+        let mut last: Option<(usize, usize)> = None;
+        let mut rec = csv::StringRecord::new();
+        while let Ok(true) = r.read_record(&mut rec) {
+            let start = rec.position().map_or(0, |p| p.byte() as usize);
+            last = Some((start, rec.len()));
+        }
+        match last {
+            Some((start, fields)) if fields < width && start < len => len = start,
+            _ => return len,
+        }
+    }
+}
+
+/// Read every row of a results CSV, checking the header first. A torn last line is left
+/// out with a warning (the file is not changed).
 pub fn read_rows(path: &Path) -> Result<Vec<Row>> {
-    let mut r = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .from_path(path)
-        .with_context(|| format!("cannot open {}", path.display()))?;
+    let bytes = std::fs::read(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let good = complete_len(&bytes);
+    if good < bytes.len() {
+        eprintln!(
+            "warning: {} ends in a torn line ({} bytes: an interrupted write); reading the complete rows only \
+             (resuming the campaign moves it aside and redoes that run)",
+            path.display(),
+            bytes.len() - good
+        );
+    }
+    parse_rows(&bytes[..good], path)
+}
+
+/// Move a torn tail of `path` (see [`complete_len`]) to `<name>.torn-<UTC time>` beside it
+/// and cut the file to its complete rows; say so on stderr. Returns the new file, if any.
+pub fn repair_torn_tail(path: &Path) -> Result<Option<PathBuf>> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let good = complete_len(&bytes);
+    if good == bytes.len() {
+        return Ok(None);
+    }
+    let stamp: String = crate::util::now_rfc3339().chars().filter(|c| c.is_ascii_alphanumeric()).collect();
+    let name = path.file_name().map_or_else(|| "runs.csv".into(), |n| n.to_string_lossy().into_owned());
+    let aside = path.with_file_name(format!("{name}.torn-{stamp}"));
+    mpm_cli::atomic::write_atomic(&aside, &bytes[good..])?;
+    let f = OpenOptions::new().write(true).open(path).with_context(|| format!("cannot repair {}", path.display()))?;
+    f.set_len(good as u64).with_context(|| format!("cannot repair {}", path.display()))?;
+    f.sync_all().ok();
+    eprintln!(
+        "warning: {} ended in a torn line (an interrupted write); moved it to {}; its run will be redone",
+        path.display(),
+        aside.display()
+    );
+    Ok(Some(aside))
+}
+
+/// Parse the rows of a CSV's complete part, checking the header first.
+fn parse_rows(bytes: &[u8], path: &Path) -> Result<Vec<Row>> {
+    let mut r = csv::ReaderBuilder::new().has_headers(true).from_reader(bytes);
     let have: Vec<String> = r
         .headers()
         .with_context(|| format!("cannot read the header of {}", path.display()))?
@@ -297,8 +361,11 @@ pub struct CsvLog {
 
 impl CsvLog {
     /// Open (creating if needed) `path` for appending. An existing file must carry this
-    /// harness' header; a partial last line left by a kill is cut off.
+    /// harness' header; a torn last line is moved aside first ([`repair_torn_tail`]).
     pub fn open(path: &Path) -> Result<Self> {
+        if path.is_file() {
+            repair_torn_tail(path)?;
+        }
         let mut file = OpenOptions::new()
             .read(true)
             .append(true)
@@ -314,16 +381,11 @@ impl CsvLog {
             file.write_all(&bytes).with_context(|| format!("cannot write {}", path.display()))?;
             file.sync_data().ok();
         } else {
-            if text.last() != Some(&b'\n') {
-                let keep = text.iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1);
-                eprintln!("warning: {} ended in a partial line (interrupted write); dropping it", path.display());
-                file.set_len(keep as u64).with_context(|| format!("cannot repair {}", path.display()))?;
-                file.seek(SeekFrom::End(0))?;
-            }
             // Validate every row, then demand this schema's exact header: rows appended
             // under another header would be misread.
-            read_rows(path)?;
-            let have: Vec<String> = csv::Reader::from_path(path)?.headers()?.iter().map(str::to_string).collect();
+            parse_rows(&text, path)?;
+            let have: Vec<String> =
+                csv::Reader::from_reader(text.as_slice()).headers()?.iter().map(str::to_string).collect();
             if have != Row::header() {
                 bail!(
                     "{} was written by another version of the harness (its columns differ from schema version \
@@ -381,11 +443,47 @@ mod tests {
         let rows = read_rows(&p).unwrap();
         assert_eq!(rows, vec![row.clone()]);
         assert_eq!(parse_cpus_cell(&rows[0].requested_cpus), vec![0, 1, 0, 1]);
-        // A torn last line is dropped on reopen.
+        // A torn last line is moved aside on reopen.
         std::fs::OpenOptions::new().append(true).open(&p).unwrap().write_all(b"1,abc,").unwrap();
         let mut log = CsvLog::open(&p).unwrap();
         log.append(&row).unwrap();
         assert_eq!(read_rows(&p).unwrap().len(), 2);
+        let aside: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().starts_with("runs.csv.torn-"))
+            .collect();
+        assert_eq!(aside.len(), 1);
+        assert_eq!(std::fs::read(aside[0].path()).unwrap(), b"1,abc,");
+    }
+
+    /// Both kinds of torn tail are found before parsing: no trailing newline, and a line
+    /// with fewer fields than the header; readers skip them, the repair moves them aside.
+    #[test]
+    fn torn_tails_are_found_read_around_and_moved_aside() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("runs.csv");
+        let row = Row { schema_version: SCHEMA_VERSION, model: 1, threads: 2, wall_s: Some(0.5), ..Row::default() };
+        let mut log = CsvLog::open(&p).unwrap();
+        log.append(&row).unwrap();
+        log.append(&Row { model: 2, ..row.clone() }).unwrap();
+        drop(log);
+        let good = std::fs::read(&p).unwrap();
+        assert_eq!(complete_len(&good), good.len());
+        let line = String::from_utf8(good.clone()).unwrap().lines().last().unwrap().to_string();
+        let half = &line[..line.len() / 2];
+        for tail in [half.to_string(), format!("{half}\n"), line.clone()] {
+            let torn = [good.as_slice(), tail.as_bytes()].concat();
+            assert_eq!(complete_len(&torn), good.len(), "{tail:?}");
+            std::fs::write(&p, &torn).unwrap();
+            assert_eq!(read_rows(&p).unwrap().len(), 2, "the reader reads around {tail:?}");
+            assert_eq!(std::fs::read(&p).unwrap(), torn, "reading changes nothing");
+            let aside = repair_torn_tail(&p).unwrap().unwrap();
+            assert_eq!(std::fs::read(&p).unwrap(), good);
+            assert_eq!(std::fs::read(&aside).unwrap(), tail.as_bytes());
+            std::fs::remove_file(aside).unwrap();
+        }
+        assert_eq!(repair_torn_tail(&p).unwrap(), None);
     }
 
     #[test]

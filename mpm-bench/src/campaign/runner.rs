@@ -13,8 +13,8 @@ use super::manifest::{self, BinaryInfo, Manifest, Session};
 use super::matrix::{Campaign, RunSpec};
 use super::memory::{available_memory, estimate_memory, memory_verdict, scenario_size};
 use super::preset::OptLevel;
-use super::process::{RunOutput, RunRequest, Runner};
-use super::record::{cpus_cell, read_rows, CsvLog, Row, RunKey, Status, SCHEMA_VERSION};
+use super::process::{remove_stale_temp_files, RunOutput, RunRequest, Runner};
+use super::record::{cpus_cell, read_rows, repair_torn_tail, CsvLog, Row, RunKey, Status, SCHEMA_VERSION};
 use super::solver::{workspace_root, Solver};
 use crate::machine::fingerprint;
 use crate::machine::placement::PinPolicy;
@@ -46,6 +46,7 @@ pub fn install_interrupt_handler() -> Arc<AtomicBool> {
             let result = ctrlc::set_handler(move || {
                 f.store(true, Ordering::SeqCst);
                 if count.fetch_add(1, Ordering::SeqCst) >= 1 {
+                    super::process::kill_live_child();
                     eprintln!("\ninterrupted twice: exiting now (finished rows are in the CSV)");
                     std::process::exit(130);
                 }
@@ -245,6 +246,9 @@ impl Plan {
         let dir = choose_folder(campaign, machine, &SessionIdentity::of(machine, solvers), opts)?;
         let csv_path = dir.join("runs.csv");
         let order = campaign.ordered(campaign.seed);
+        if csv_path.is_file() && !opts.fresh && !opts.dry_run {
+            repair_torn_tail(&csv_path)?;
+        }
         let existing = if csv_path.is_file() && !opts.fresh { read_rows(&csv_path)? } else { Vec::new() };
         let done = done_keys(&existing, opts.retry_failed);
         let planned = order.len();
@@ -301,6 +305,10 @@ impl Plan {
         let log = CsvLog::open(&self.csv_path)?;
         let json_dir = dir.join("json");
         std::fs::create_dir_all(&json_dir).with_context(|| format!("cannot create {}", json_dir.display()))?;
+        let stale = remove_stale_temp_files(dir) + remove_stale_temp_files(&json_dir);
+        if stale > 0 {
+            eprintln!("note: removed {stale} temporary file(s) left by a killed run in {}", dir.display());
+        }
         Ok((log, json_dir))
     }
 
