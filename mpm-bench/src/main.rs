@@ -9,6 +9,7 @@ use mpm_bench::campaign::preset::{self, OptLevel};
 use mpm_bench::campaign::process::{MockRunner, ProcessRunner};
 use mpm_bench::campaign::runner::{self, ExecOptions};
 use mpm_bench::campaign::solver::{self, Solver};
+use mpm_bench::campaign::watch::WatchSettings;
 use mpm_bench::machine::placement::{PinPolicy, PAPER_THREADS};
 use mpm_bench::machine::topology::{self, Machine};
 use mpm_bench::machine::{bandwidth, fingerprint};
@@ -347,6 +348,7 @@ fn cmd_run(a: RunArgs) -> Result<()> {
         retry_failed: a.retry_failed,
         fresh: a.fresh,
         resume_foreign: a.resume_foreign,
+        watch: Some(WatchSettings::default()),
         quiet: a.quiet,
         command: std::env::args().collect::<Vec<_>>().join(" "),
     };

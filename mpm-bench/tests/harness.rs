@@ -221,6 +221,38 @@ fn foreign_and_reference_campaigns_are_not_resumed() {
     assert_eq!(r.calls.len(), 0, "smoke-2 of machine b is complete and resumable");
 }
 
+/// With the host watch on, every run row records the host's load before and after it, the
+/// steal during it and the calibration ratio, and is flagged exactly by the rule; the
+/// session's start calibration is in the manifest.
+#[test]
+fn host_load_is_recorded_around_every_run() {
+    use mpm_bench::campaign::watch::WatchSettings;
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let m = laptop();
+    let w = WatchSettings {
+        window: std::time::Duration::from_millis(60),
+        calibrate_every: 3,
+        start_window: std::time::Duration::from_millis(10),
+    };
+    let o = ExecOptions { watch: Some(w), ..opts(dir.path()) };
+    let s =
+        runner::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &o, &AtomicBool::new(false)).unwrap();
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 8);
+    for r in &rows {
+        assert!(r.host_load1_before.is_some() && r.host_load1_after.is_some(), "{}", r.run_id);
+        assert!(r.host_others_running_before.is_some() && r.host_others_running_after.is_some());
+        assert!(r.host_cpus_busy_before.is_some_and(|b| (0.0..=1.0).contains(&b)), "{:?}", r.host_cpus_busy_before);
+        assert!(r.host_cpus_busy_after.is_some() && r.calib_spin_ratio.is_some() && r.calib_copy_ratio.is_some());
+        let why = r.host_reading().noise(r.threads, m.usable_pus().len());
+        assert_eq!(r.host_noisy, why.is_some());
+        assert_eq!(r.host_noise, why.unwrap_or_default());
+    }
+    let man = mpm_bench::campaign::manifest::read(&s.dir.join("manifest.json")).unwrap();
+    assert!(man.sessions[0].calibration.is_some_and(|c| c.spin_s > 0.0 && c.copy_s > 0.0));
+}
+
 #[test]
 fn memory_guard_skips_with_a_reason() {
     let dir = tempfile::tempdir().unwrap();
@@ -292,7 +324,7 @@ fn pinning_none_passes_no_cpus() {
 /// Snapshot of the CSV header: changing it must be deliberate (bump SCHEMA_VERSION).
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 2);
+    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 3);
     let want = "schema_version,campaign_id,run_id,timestamp,git_commit,git_dirty,machine_id,binary_sha256,seed,\
 order_index,scenario,model,particles,cells,nodes,mean_nodes,grid_mode,strategy,opt_level,threads,pin_policy,\
 requested_cpus,observed_cpus,oversubscribed,rep,warmup_steps,step_limit,end_time_s,steps,sim_time_s,end_reason,\
@@ -300,7 +332,9 @@ dt_first_s,wall_s,process_wall_s,grid_stage_s,particle_stage_s,sub_grid_fit_s,su
 sub_assembly_s,sub_grid_update_s,sub_gather_s,sub_remap_scatter_s,sub_remap_assembly_s,sub_stress_update_s,\
 steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,peak_rss_bytes,mem_estimate_bytes,exit_code,\
 kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
-failed_particles,status,reason";
+failed_particles,host_load1_before,host_load1_after,host_others_running_before,host_others_running_after,\
+host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,\
+status,reason";
     assert_eq!(Row::header().join(","), want);
 }
 
@@ -457,13 +491,19 @@ fn sigint_leaves_a_valid_csv_and_the_campaign_resumes() {
     let args = ["run", "--preset", "smoke", "--mock", "--out", out, "--quiet"];
     let child =
         bench().args(args).env("MPM_BENCH_MOCK_DELAY_MS", "400").stderr(std::process::Stdio::null()).spawn().unwrap();
-    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let c = campaign("smoke", &Overrides::default());
+    let d = runner::campaign_dir(dir.path(), &Machine::detect().unwrap(), &c);
+    // Interrupt once the first row is written (the start calibration takes about a second).
+    for _ in 0..600 {
+        if std::fs::read_to_string(d.join("runs.csv")).is_ok_and(|t| t.lines().count() >= 2) {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
     let killed = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
     assert!(killed.success());
     let status = child.wait_with_output().unwrap().status;
     assert_eq!(status.code(), Some(130), "an interrupted campaign exits 130");
-    let c = campaign("smoke", &Overrides::default());
-    let d = runner::campaign_dir(dir.path(), &Machine::detect().unwrap(), &c);
     let rows = read_rows(&d.join("runs.csv")).unwrap();
     assert!(!rows.is_empty() && rows.len() < 8, "{} rows", rows.len());
     let man = mpm_bench::campaign::manifest::read(&d.join("manifest.json")).unwrap();

@@ -17,6 +17,7 @@
 //! (`mpm-bench run` starts a new folder instead; see the README's "Results").
 
 use crate::machine::fingerprint::MachineInfo;
+use crate::machine::load::Calibration;
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -115,6 +116,9 @@ pub struct Session {
     /// The software of this session.
     #[serde(default)]
     pub software: Option<SoftwareInfo>,
+    /// The host calibration at the session's start (rows store their ratio to it).
+    #[serde(default)]
+    pub calibration: Option<Calibration>,
 }
 
 /// `manifest.json`.

@@ -13,6 +13,7 @@
 //! Units are SI (seconds, bytes, joules, metres). Lists of CPUs are written space-separated
 //! (`"0 1"`). Empty cells mean "not measured" (for example every measurement of a skipped row).
 
+use crate::machine::load::{HostReading, Probe};
 use anyhow::{bail, Context, Result};
 use mpm_core::Strategy;
 use serde::{Deserialize, Serialize};
@@ -21,10 +22,27 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 /// Version of the row layout; bump it whenever a column is added, removed or renamed.
-pub const SCHEMA_VERSION: u32 = 2;
+/// Schema 3 added the host's load and calibration (`host_*`, `calib_*`, `host_noisy`).
+pub const SCHEMA_VERSION: u32 = 3;
 
-/// Columns added in schema 2; files of schema 1 lack them and still read (as empty).
-const ADDED_IN_V2: [&str; 2] = ["worker_busy_s", "load_imbalance"];
+/// Columns added since schema 1; older files lack them and still read (as empty / false).
+const ADDED_SINCE_V1: [&str; 13] = [
+    // schema 2
+    "worker_busy_s",
+    "load_imbalance",
+    // schema 3
+    "host_load1_before",
+    "host_load1_after",
+    "host_others_running_before",
+    "host_others_running_after",
+    "host_cpus_busy_before",
+    "host_cpus_busy_after",
+    "host_steal_frac",
+    "calib_spin_ratio",
+    "calib_copy_ratio",
+    "host_noisy",
+    "host_noise",
+];
 
 /// Outcome of one run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -192,11 +210,78 @@ pub struct Row {
     /// Failed particles at the end.
     pub failed_particles: Option<u64>,
 
+    // ---- host load (since schema 3; see `machine::load` for the rule) ----
+    /// 1-minute load average just before the run.
+    #[serde(default)]
+    pub host_load1_before: Option<f64>,
+    /// 1-minute load average just after the run.
+    #[serde(default)]
+    pub host_load1_after: Option<f64>,
+    /// Other runnable tasks in a quiet window just before the run (median of samples).
+    #[serde(default)]
+    pub host_others_running_before: Option<u32>,
+    /// Other runnable tasks in a quiet window just after the run.
+    #[serde(default)]
+    pub host_others_running_after: Option<u32>,
+    /// Busy fraction of the run's CPUs (all CPUs when not pinned) with other work in the
+    /// window before the run.
+    #[serde(default)]
+    pub host_cpus_busy_before: Option<f64>,
+    /// The same in the window after the run.
+    #[serde(default)]
+    pub host_cpus_busy_after: Option<f64>,
+    /// Fraction of the CPU time stolen by the hypervisor during the run.
+    #[serde(default)]
+    pub host_steal_frac: Option<f64>,
+    /// The spin calibration last taken before the run over the session start's.
+    #[serde(default)]
+    pub calib_spin_ratio: Option<f64>,
+    /// The memory-copy calibration over the session start's.
+    #[serde(default)]
+    pub calib_copy_ratio: Option<f64>,
+    /// The host was busy around the run: left out of claims and regress unless
+    /// `--include-noisy`, grey in figures.
+    #[serde(default)]
+    pub host_noisy: bool,
+    /// Why the row is `host_noisy` (empty when it is not).
+    #[serde(default)]
+    pub host_noise: String,
+
     // ---- status ----
     /// `ok`, `skipped`, `failed` or `invalid`.
     pub status: Status,
     /// Why a row is not `ok` (empty when it is).
     pub reason: String,
+}
+
+impl Row {
+    /// The host reading this row records.
+    pub fn host_reading(&self) -> HostReading {
+        let probe = |load1, others_running, cpus_busy| Probe { load1, others_running, cpus_busy };
+        HostReading {
+            before: probe(self.host_load1_before, self.host_others_running_before, self.host_cpus_busy_before),
+            after: probe(self.host_load1_after, self.host_others_running_after, self.host_cpus_busy_after),
+            steal: self.host_steal_frac,
+            spin_ratio: self.calib_spin_ratio,
+            copy_ratio: self.calib_copy_ratio,
+        }
+    }
+
+    /// Record `h` and flag the row by the `host_noisy` rule for a host of `pus` usable PUs.
+    pub fn set_host(&mut self, h: &HostReading, pus: usize) {
+        self.host_load1_before = h.before.load1;
+        self.host_load1_after = h.after.load1;
+        self.host_others_running_before = h.before.others_running;
+        self.host_others_running_after = h.after.others_running;
+        self.host_cpus_busy_before = h.before.cpus_busy;
+        self.host_cpus_busy_after = h.after.cpus_busy;
+        self.host_steal_frac = h.steal;
+        self.calib_spin_ratio = h.spin_ratio;
+        self.calib_copy_ratio = h.copy_ratio;
+        let why = h.noise(self.threads, pus);
+        self.host_noisy = why.is_some();
+        self.host_noise = why.unwrap_or_default();
+    }
 }
 
 /// What identifies a configuration for resuming: two rows with the same key ran the same
@@ -336,8 +421,11 @@ fn parse_rows(bytes: &[u8], path: &Path) -> Result<Vec<Row>> {
         .map(str::to_string)
         .collect();
     let want = Row::header();
-    let missing: Vec<&str> =
-        want.iter().filter(|c| !have.contains(c) && !ADDED_IN_V2.contains(&c.as_str())).map(String::as_str).collect();
+    let missing: Vec<&str> = want
+        .iter()
+        .filter(|c| !have.contains(c) && !ADDED_SINCE_V1.contains(&c.as_str()))
+        .map(String::as_str)
+        .collect();
     if !missing.is_empty() {
         bail!(
             "{} is missing column(s) {} (this harness writes schema version {SCHEMA_VERSION}); \
@@ -496,6 +584,15 @@ mod tests {
         assert!(err.contains("observed_cpus"), "{err}");
     }
 
+    /// The committed reference campaign (schema 2) still reads, every row quiet.
+    #[test]
+    fn committed_schema_2_campaign_reads() {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results/d02fbfc20d44/quick/runs.csv");
+        let rows = read_rows(&p).unwrap();
+        assert_eq!(rows.len(), 80);
+        assert!(rows.iter().all(|r| r.schema_version == 2 && !r.host_noisy && r.host_steal_frac.is_none()));
+    }
+
     /// A schema-1 file (without the load-imbalance columns) still reads: its rows get
     /// empty values there and everything else intact. Appending to it is refused.
     #[test]
@@ -506,17 +603,17 @@ mod tests {
         let mut w = csv::Writer::from_writer(Vec::new());
         w.serialize(&row).unwrap();
         let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
-        // Drop the two schema-2 columns from header and row.
+        // Drop the columns of schemas 2 and 3 from header and row.
         let drop = |line: &str, idx: &[usize]| {
             line.split(',').enumerate().filter(|(i, _)| !idx.contains(i)).map(|(_, c)| c).collect::<Vec<_>>().join(",")
         };
         let header = Row::header();
-        let idx: Vec<usize> = ADDED_IN_V2.iter().map(|c| header.iter().position(|h| h == c).unwrap()).collect();
+        let idx: Vec<usize> = ADDED_SINCE_V1.iter().map(|c| header.iter().position(|h| h == c).unwrap()).collect();
         let old: String = text.lines().map(|l| drop(l, &idx) + "\n").collect();
         assert!(!old.lines().next().unwrap().contains("load_imbalance"));
         std::fs::write(&p, old).unwrap();
         let rows = read_rows(&p).unwrap();
         assert_eq!(rows, vec![row]);
-        assert!(CsvLog::open(&p).is_err(), "appending schema-2 rows to a schema-1 file must be refused");
+        assert!(CsvLog::open(&p).is_err(), "appending schema-3 rows to a schema-1 file must be refused");
     }
 }

@@ -16,7 +16,9 @@ use super::preset::OptLevel;
 use super::process::{remove_stale_temp_files, RunOutput, RunRequest, Runner};
 use super::record::{cpus_cell, read_rows, repair_torn_tail, CsvLog, Row, RunKey, Status, SCHEMA_VERSION};
 use super::solver::{workspace_root, Solver};
+use super::watch::{HostWatch, WatchSettings};
 use crate::machine::fingerprint;
+use crate::machine::load::Calibration;
 use crate::machine::placement::PinPolicy;
 use crate::machine::topology::{format_cpu_list, human_bytes, Machine};
 use crate::util::now_rfc3339;
@@ -82,6 +84,8 @@ pub struct ExecOptions {
     /// Append to a campaign folder whose rows came from another machine or other solver
     /// binaries (otherwise a new folder is started).
     pub resume_foreign: bool,
+    /// Watch the host's load around each run (`None`: the `host_*` columns stay empty).
+    pub watch: Option<WatchSettings>,
 }
 
 /// What a campaign session did.
@@ -353,6 +357,7 @@ impl ManifestLog {
         opts: &ExecOptions,
         dir: &Path,
         counts: manifest::SessionCounts,
+        calibration: Option<Calibration>,
     ) -> Result<Self> {
         let ws = workspace_root();
         let git = manifest::git_info(ws.as_deref());
@@ -382,6 +387,7 @@ impl ManifestLog {
             git,
             machine: Some(machine_info),
             software: Some(software),
+            calibration,
             ..Session::default()
         });
         manifest::write(&path, &man)?;
@@ -455,7 +461,7 @@ impl CampaignProgress {
                     _ if !row.reason.is_empty() => format!(" ({})", row.reason),
                     _ => String::new(),
                 }
-            );
+            ) + &if row.host_noisy { format!(" [host busy: {}]", row.host_noise) } else { String::new() };
             if self.bar.is_hidden() {
                 eprintln!("{line}");
             } else {
@@ -481,6 +487,7 @@ impl RunContext<'_> {
     fn run_one(
         &self,
         runner: &mut dyn Runner,
+        mut watch: Option<&mut HostWatch>,
         solver: &Solver,
         spec: &RunSpec,
         order_index: usize,
@@ -504,12 +511,17 @@ impl RunContext<'_> {
                 json_path: self.json_dir.join(format!("{run_id}.json")),
                 timeout: self.campaign.timeout,
             };
+            let probe_cpus = req.cpus.clone().unwrap_or_default();
+            let before = watch.as_deref_mut().map(|w| w.before_run(&probe_cpus));
             let out = runner.run(&req);
             if out.interrupted || self.interrupted.load(Ordering::SeqCst) {
                 let _ = std::fs::remove_file(&req.json_path);
                 return Ok(None);
             }
             fill_from_output(&mut row, &req, &out);
+            if let (Some(w), Some(b)) = (watch, before) {
+                row.set_host(&w.after_run(&probe_cpus, b), self.machine.usable_pus().len());
+            }
         }
         row.run_id = run_id;
         row.timestamp = now_rfc3339();
@@ -560,7 +572,9 @@ pub fn execute(
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
     }
     let (mut log, json_dir) = plan.open_folder(opts.fresh)?;
-    let mut manifest = ManifestLog::start(campaign, machine, solvers, opts, &plan.dir, counts)?;
+    let mut watch = opts.watch.map(|w| HostWatch::start(w, machine.usable_pus().len()));
+    let calibration = watch.as_ref().map(HostWatch::calibration);
+    let mut manifest = ManifestLog::start(campaign, machine, solvers, opts, &plan.dir, counts, calibration)?;
     let progress = CampaignProgress::new(&plan.todo, !opts.quiet);
     let solver_of: HashMap<OptLevel, &Solver> = solvers.iter().map(|s| (s.opt, s)).collect();
     let mut attempts: HashMap<RunKey, usize> = HashMap::new();
@@ -579,7 +593,7 @@ pub fn execute(
         let attempt = attempts.entry(spec.key()).or_default();
         let run_id = format!("{}-a{}", spec.key().0, *attempt);
         *attempt += 1;
-        let Some(row) = ctx.run_one(runner, solver, spec, *order_index, run_id)? else {
+        let Some(row) = ctx.run_one(runner, watch.as_mut(), solver, spec, *order_index, run_id)? else {
             counts.interrupted = true;
             break;
         };
