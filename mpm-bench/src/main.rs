@@ -30,7 +30,7 @@ use std::time::Duration;
         Runs the paper's matrix (Taylor bar Models 1-4 x threads x strategies AE/DD x \
         optimisation levels O3/O0 x repetitions), each run a fresh `mpm` process pinned the \
         way you ask, and records one CSV row per run plus a manifest of the machine and \
-        software under results/<machine-fingerprint>/<campaign-id>/.",
+        software under results/local/<machine-fingerprint>/<campaign-id>/.",
     after_help = "Examples:\n  \
         mpm-bench topology                       # this machine and where workers would go\n  \
         mpm-bench run --preset smoke             # ~1 minute check of the whole chain\n  \

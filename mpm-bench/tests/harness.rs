@@ -353,6 +353,13 @@ fn resume_refuses_a_csv_with_missing_columns() {
     assert!(msg.contains("missing column") && msg.contains("observed_cpus"), "{msg}");
     // The old file is untouched.
     assert_eq!(std::fs::read_to_string(d.join("runs.csv")).unwrap(), "schema_version,campaign_id,model\n1,smoke,1\n");
+    // A readable file of an older schema (here without the schema-3 column host_noise) is
+    // not appended to: a new folder starts.
+    let header: Vec<String> = Row::header().into_iter().filter(|h| h != "host_noise").collect();
+    std::fs::write(d.join("runs.csv"), header.join(",") + "\n").unwrap();
+    let mut r = MockRunner::default();
+    let s = runner::execute(&c, &m, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
+    assert_eq!((s.dir, r.calls.len()), (d.with_file_name("smoke-2"), 8));
 }
 
 fn bench() -> Command {

@@ -183,8 +183,8 @@ fn short_hash(sha256: &str) -> String {
 
 /// The folder this session appends to. The resume rule: the campaign's folder
 /// `<out_root>/<fingerprint>/<id>` when it is new, or when its rows (and manifest) come from
-/// this machine and these solver binaries (any machine and binaries with `--resume-foreign`);
-/// never a reference campaign. Otherwise the first of `<id>-2`, `<id>-3`, ... that qualifies,
+/// this machine and these solver binaries (any machine and binaries with `--resume-foreign`)
+/// and its CSV has this harness's columns; never a reference campaign. Otherwise the first of `<id>-2`, `<id>-3`, ... that qualifies,
 /// said in one line.
 pub fn choose_folder(
     campaign: &Campaign,
@@ -224,11 +224,22 @@ fn refusal(dir: &Path, who: &SessionIdentity, opts: &ExecOptions) -> Result<Opti
     if manifest.as_ref().is_some_and(|m| m.reference) {
         return Ok(Some("is a reference campaign (read-only)".into()));
     }
-    if opts.fresh || opts.resume_foreign {
+    if opts.fresh {
         return Ok(None);
     }
     let csv = dir.join("runs.csv");
     let rows = if csv.is_file() { read_rows(&csv)? } else { Vec::new() };
+    if csv.is_file() {
+        let mut r = csv::Reader::from_path(&csv).with_context(|| format!("cannot open {}", csv.display()))?;
+        let header = r.headers().with_context(|| format!("cannot read the header of {}", csv.display()))?;
+        if !header.iter().eq(Row::header().iter().map(String::as_str)) {
+            let v = rows.first().map_or_else(|| "another".into(), |r| r.schema_version.to_string());
+            return Ok(Some(format!("was written with CSV schema {v} (this harness writes {SCHEMA_VERSION})")));
+        }
+    }
+    if opts.resume_foreign {
+        return Ok(None);
+    }
     Ok(who.foreign(&rows, manifest.as_ref()).map(|why| format!("{why} (--resume-foreign appends anyway)")))
 }
 
