@@ -175,14 +175,17 @@ pub struct Provenance {
     pub git_commit: String,
     /// Uncommitted changes when it was built (`None` when unknown).
     pub git_dirty: Option<bool>,
-    /// SHA-256 of the running executable (`/proc/self/exe`), hex; `unknown` if unreadable.
+    /// SHA-256 of the running executable (`/proc/self/exe`: the image that runs, even if
+    /// its file was replaced since), hex; `unknown` if unreadable.
     pub binary_sha256: String,
 }
 
 impl Provenance {
     /// Provenance of this process: this host, this binary and the build constants.
     pub fn of_this_process() -> Self {
-        let exe = std::env::current_exe().ok();
+        // /proc/self/exe opens the running image even if the file was rebuilt meanwhile.
+        let proc_exe = Path::new("/proc/self/exe");
+        let exe = if proc_exe.exists() { Some(proc_exe.to_path_buf()) } else { std::env::current_exe().ok() };
         Self {
             host: HostIdentity::read(),
             rustc: RUSTC.to_string(),
