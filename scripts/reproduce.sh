@@ -4,8 +4,13 @@
 # threads 1/2/4/6/8, with step limits: about 20 minutes on 2 cores), then regenerate the
 # paper's Figures 7-14 and check its claims from this machine's results.
 #
-# Re-running resumes the campaign (finished runs are skipped). Options are passed on to
-# `mpm-bench run`, e.g. `scripts/reproduce.sh --reps 3` or `--preset smoke`.
+# Results go to results/local/<machine-fingerprint>/<campaign>/ (not tracked by git). The
+# committed reference campaigns under results/<fingerprint>/ are never written: they are
+# elsewhere, and marked "reference" in their manifest, which `mpm-bench run` refuses as a
+# resume target. Re-running on the same machine with the same solver binaries resumes the
+# campaign (finished runs are skipped); another machine or a rebuilt solver starts a new
+# folder. Options are passed on to `mpm-bench run`, e.g. `scripts/reproduce.sh --reps 3` or
+# `--preset smoke`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/bootstrap.sh
@@ -32,7 +37,7 @@ target/o3/mpm-bench topology
 
 step "campaign: preset $preset"
 campaign_log=$(mktemp)
-target/o3/mpm-bench run --preset "$preset" --no-build "${args[@]}" | tee "$campaign_log"
+target/o3/mpm-bench run --preset "$preset" --out results/local --no-build "${args[@]}" | tee "$campaign_log"
 campaign=$(sed -n 's/^campaign folder: //p' "$campaign_log" | tail -n 1)
 rm -f "$campaign_log"
 if [ -z "$campaign" ] || [ ! -f "$campaign/runs.csv" ]; then

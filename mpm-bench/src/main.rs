@@ -9,6 +9,7 @@ use mpm_bench::campaign::preset::{self, OptLevel};
 use mpm_bench::campaign::process::{MockRunner, ProcessRunner};
 use mpm_bench::campaign::runner::{self, ExecOptions};
 use mpm_bench::campaign::solver::{self, Solver};
+use mpm_bench::campaign::watch::WatchSettings;
 use mpm_bench::machine::placement::{PinPolicy, PAPER_THREADS};
 use mpm_bench::machine::topology::{self, Machine};
 use mpm_bench::machine::{bandwidth, fingerprint};
@@ -29,7 +30,7 @@ use std::time::Duration;
         Runs the paper's matrix (Taylor bar Models 1-4 x threads x strategies AE/DD x \
         optimisation levels O3/O0 x repetitions), each run a fresh `mpm` process pinned the \
         way you ask, and records one CSV row per run plus a manifest of the machine and \
-        software under results/<machine-fingerprint>/<campaign-id>/.",
+        software under results/local/<machine-fingerprint>/<campaign-id>/.",
     after_help = "Examples:\n  \
         mpm-bench topology                       # this machine and where workers would go\n  \
         mpm-bench run --preset smoke             # ~1 minute check of the whole chain\n  \
@@ -72,11 +73,14 @@ enum Cmd {
             and o0 first (or located with --no-build). Runs are shuffled with a recorded \
             seed, repetition by repetition, so drift does not bias one cell.\n\n\
             Results go to <out>/<machine-fingerprint>/<campaign-id>/ as runs.csv (one row per \
-            run, appended as soon as it ends), manifest.json (machine and software) and \
-            topology.xml. The campaign id is the preset name plus the overrides, so the same \
-            command resumes into the same folder: configurations already in runs.csv are \
-            skipped. Ctrl-C stops after the current run is cleaned up; every finished run is \
-            kept. Runs whose estimated memory does not fit are recorded as skipped; runs with \
+            run, appended as soon as it ends), manifest.json (machine and software of every \
+            session, append-only) and topology.xml. The campaign id is the preset name plus the \
+            overrides, so the same command resumes into the same folder: configurations \
+            already in runs.csv are skipped. A folder is resumed only when its rows come from \
+            this machine (fingerprint) and these solver binaries (SHA-256); otherwise the run \
+            says so and starts <campaign-id>-2 (or -3, ...), unless --resume-foreign. \
+            Reference campaigns (\"reference\": true in manifest.json) are never resumed. \
+            Ctrl-C stops after the current run is cleaned up; every finished run is kept. Runs whose estimated memory does not fit are recorded as skipped; runs with \
             more threads than usable PUs are flagged oversubscribed; runs whose workers were \
             not on the requested CPUs are recorded invalid.",
         after_help = "Examples:\n  \
@@ -181,8 +185,9 @@ struct RunArgs {
     /// guard: runs that would not fit are recorded as skipped.
     #[arg(long, value_name = "SIZE")]
     mem_limit: Option<String>,
-    /// Root folder of the results tree.
-    #[arg(long, value_name = "DIR", default_value = "results")]
+    /// Root folder of the results tree. The default, results/local, is not tracked by git:
+    /// the committed reference campaigns under results/<fingerprint>/ are never written.
+    #[arg(long, value_name = "DIR", default_value = "results/local")]
     out: PathBuf,
     /// Seed of the shuffled run order (default: the preset's). Recorded in every row.
     #[arg(long, value_name = "N")]
@@ -196,6 +201,11 @@ struct RunArgs {
     /// Move an existing runs.csv aside and start the campaign over.
     #[arg(long)]
     fresh: bool,
+    /// Append to the campaign folder even when its rows came from another machine or
+    /// other solver binaries (by default a new folder <id>-2, <id>-3, ... is started).
+    /// Reference campaigns are never appended to.
+    #[arg(long)]
+    resume_foreign: bool,
     /// Do not build the solver; use the existing target/o3/mpm and target/o0/mpm
     /// (or MPM_BENCH_SOLVER_O3 / MPM_BENCH_SOLVER_O0).
     #[arg(long)]
@@ -337,6 +347,8 @@ fn cmd_run(a: RunArgs) -> Result<()> {
         dry_run: a.dry_run,
         retry_failed: a.retry_failed,
         fresh: a.fresh,
+        resume_foreign: a.resume_foreign,
+        watch: Some(WatchSettings::default()),
         quiet: a.quiet,
         command: std::env::args().collect::<Vec<_>>().join(" "),
     };

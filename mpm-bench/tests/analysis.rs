@@ -6,7 +6,7 @@ use mpm_bench::analysis::regress::{self, Outcome, RegressArgs};
 use mpm_bench::analysis::results::load_campaign;
 use mpm_bench::analysis::stats::{Analysis, CellKey, Stage, StatsOptions};
 use mpm_bench::campaign::manifest::{self, GitInfo, Manifest, SoftwareInfo, MANIFEST_VERSION};
-use mpm_bench::campaign::record::{CsvLog, Row, Status, SCHEMA_VERSION};
+use mpm_bench::campaign::record::{read_rows, CsvLog, Row, Status, SCHEMA_VERSION};
 use mpm_bench::machine::bandwidth;
 use mpm_bench::machine::fingerprint;
 use mpm_bench::machine::topology::Machine;
@@ -156,6 +156,7 @@ fn write_manifest(dir: &Path, t: &str) {
     let m = Manifest {
         manifest_version: MANIFEST_VERSION,
         campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
+        reference: false,
         campaign: serde_json::Value::Null,
         machine: info,
         software: SoftwareInfo {
@@ -332,6 +333,7 @@ fn regress_args(base: &Path, cur: &Path) -> RegressArgs {
         stages: vec!["total".into()],
         include_oversubscribed: false,
         pin: None,
+        include_noisy: false,
     }
 }
 
@@ -358,6 +360,52 @@ fn regress_passes_against_itself_and_fails_on_a_20_percent_efficiency_drop() {
     let r = regress::evaluate(&regress_args(&base, &cur)).unwrap();
     let eff = r.regressions.iter().find(|c| c.metric == "efficiency").unwrap();
     assert!((eff.ratio.value - 0.8).abs() < 1e-9, "{:?}", eff.ratio);
+}
+
+/// Rows measured on a busy host (`host_noisy`) are left out of regress and claims unless
+/// `--include-noisy`, and their points are grey in the figures.
+#[test]
+fn noisy_rows_are_excluded_unless_asked_and_grey_in_figures() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = write_campaign(&tmp.path().join("base"), &Craft::default());
+    let cur = write_campaign(&tmp.path().join("cur"), &Craft::default());
+    // Three more repetitions of every parallel run, three times slower, on a busy host.
+    let csv = cur.join("runs.csv");
+    let extra: Vec<Row> = read_rows(&csv)
+        .unwrap()
+        .into_iter()
+        .filter(|r| r.threads > 1 && r.status == Status::Ok)
+        .flat_map(|r| {
+            (10..13).map(move |rep| Row {
+                rep,
+                run_id: format!("{}-busy{rep}", r.run_id),
+                steady_s_per_step: r.steady_s_per_step.map(|t| 3.0 * t),
+                grid_stage_s: r.grid_stage_s.map(|t| 3.0 * t),
+                particle_stage_s: r.particle_stage_s.map(|t| 3.0 * t),
+                host_noisy: true,
+                host_noise: "its CPUs 60 % busy with other work before the run".into(),
+                ..r.clone()
+            })
+        })
+        .collect();
+    let mut log = CsvLog::open(&csv).unwrap();
+    for r in &extra {
+        log.append(r).unwrap();
+    }
+    let r = regress::evaluate(&regress_args(&base, &cur)).unwrap();
+    assert_eq!(r.exit_code(), 0, "noisy rows must not count: {}", r.reason);
+    let r = regress::evaluate(&RegressArgs { include_noisy: true, ..regress_args(&base, &cur) }).unwrap();
+    assert_eq!(r.exit_code(), 1, "with --include-noisy the slow rows count: {}", r.reason);
+    let quiet = load_campaign(&cur).unwrap().without_noisy(false);
+    assert_eq!(quiet.rows.len(), load_campaign(&base).unwrap().rows.len());
+    assert_eq!(load_campaign(&cur).unwrap().without_noisy(true).rows.len(), quiet.rows.len() + extra.len());
+    // Figures keep every row; the noisy cells' points are grey, the others not.
+    let an = analysis(&cur);
+    let spec = figures::PAPER_FIGURES.iter().find(|f| f.number == 8).unwrap();
+    let pts: Vec<_> =
+        figures::paper_panels(&an, spec).into_iter().flat_map(|p| p.lines).flat_map(|l| l.points).collect();
+    assert!(pts.iter().any(|p| p.grey) && pts.iter().any(|p| !p.grey));
+    assert!(pts.iter().all(|p| p.grey == (p.x > 1.0)), "grey exactly where noisy rows are");
 }
 
 #[test]
@@ -487,8 +535,13 @@ fn on_campaign_from_env() {
     let Ok(dir) = std::env::var("MPM_ANALYSIS_DIR") else { return };
     let out = PathBuf::from(std::env::var("MPM_ANALYSIS_OUT").unwrap_or_else(|_| "/tmp/mpm-analysis".into()));
     figures::run(FiguresArgs { results: dir.clone().into(), out: out.join("figures"), pin: None }).unwrap();
-    claims::run(claims::ClaimsArgs { results: dir.clone().into(), markdown: Some(out.join("claims.md")), pin: None })
-        .unwrap();
+    claims::run(claims::ClaimsArgs {
+        results: dir.clone().into(),
+        markdown: Some(out.join("claims.md")),
+        pin: None,
+        include_noisy: false,
+    })
+    .unwrap();
     let code = regress::run(RegressArgs {
         json: Some(out.join("regress.json")),
         ..regress_args(Path::new(&dir), Path::new(&dir))

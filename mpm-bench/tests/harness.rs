@@ -42,6 +42,13 @@ fn run_mock(c: &Campaign, m: &Machine, out: &Path, r: &mut MockRunner) -> runner
     runner::execute(c, m, &mock_solvers(c), r, &opts(out), &flag).unwrap()
 }
 
+/// Run `c` on `m` into `out` with the mock runner interrupted after 3 runs.
+fn interrupted_after_3(c: &Campaign, m: &Machine, out: &Path) -> runner::ExecSummary {
+    let flag = Arc::new(AtomicBool::new(false));
+    let mut r = MockRunner { interrupt_after: Some((3, flag.clone())), ..MockRunner::default() };
+    runner::execute(c, m, &mock_solvers(c), &mut r, &opts(out), &flag).unwrap()
+}
+
 #[test]
 fn matrix_expansion_covers_every_cell() {
     let quick = campaign("quick", &Overrides::default());
@@ -128,10 +135,8 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
     let dir = tempfile::tempdir().unwrap();
     let c = campaign("smoke", &Overrides::default());
     let m = laptop();
-    let flag = Arc::new(AtomicBool::new(false));
     // Interrupted after 3 runs: exactly 3 valid rows.
-    let mut r = MockRunner { interrupt_after: Some((3, flag.clone())), ..MockRunner::default() };
-    let s = runner::execute(&c, &m, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
+    let s = interrupted_after_3(&c, &m, dir.path());
     assert!(s.counts.interrupted);
     assert_eq!(s.counts.written, 3);
     let csv = s.dir.join("runs.csv");
@@ -145,16 +150,107 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
     let keys: HashSet<_> = rows.iter().map(Row::key).collect();
     assert_eq!(keys.len(), 8);
     assert!(rows.iter().all(|r| r.status == Status::Ok && r.campaign_id == "smoke"));
-    // Again: nothing to do.
+    // Again: nothing to do, and nothing rewritten.
+    let before = std::fs::read(s.dir.join("manifest.json")).unwrap();
     let mut r = MockRunner::default();
     let s = run_mock(&c, &m, dir.path(), &mut r);
     assert_eq!((s.counts.written, r.calls.len()), (0, 0));
     assert_eq!(read_rows(&csv).unwrap().len(), 8);
-    // Manifest and sessions.
+    assert_eq!(std::fs::read(s.dir.join("manifest.json")).unwrap(), before, "a no-op run rewrote the manifest");
+    // Manifest and sessions: one per session that ran something, each with its machine.
     let man = mpm_bench::campaign::manifest::read(&s.dir.join("manifest.json")).unwrap();
-    assert_eq!(man.sessions.len(), 3);
+    assert_eq!(man.sessions.len(), 2);
+    assert!(man
+        .sessions
+        .iter()
+        .all(|s| s.machine.as_ref().is_some_and(|mi| mi.fingerprint == man.machine.fingerprint)));
     assert_eq!(man.machine.fingerprint, fingerprint::fingerprint(&m));
     assert!(s.dir.starts_with(dir.path().join(&man.machine.fingerprint)));
+}
+
+/// Copy the campaign folder `from` to `to` (files of the top level and `json/`).
+fn copy_campaign(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to.join("json")).unwrap();
+    for sub in ["", "json"] {
+        for e in std::fs::read_dir(from.join(sub)).unwrap().flatten() {
+            if e.file_type().unwrap().is_file() {
+                std::fs::copy(e.path(), to.join(sub).join(e.file_name())).unwrap();
+            }
+        }
+    }
+}
+
+/// The resume rule: a campaign copied into the folder of another machine's fingerprint is
+/// not resumed there (a new folder `<id>-2` starts, said in one line) unless
+/// `--resume-foreign`; rows of other solver binaries are not resumed either; a reference
+/// campaign is never resumed.
+#[test]
+fn foreign_and_reference_campaigns_are_not_resumed() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let (a, b) = (laptop(), Machine::synthetic("pack:1 core:4 pu:1").unwrap());
+    let s = interrupted_after_3(&c, &a, dir.path());
+    let copied = runner::campaign_dir(dir.path(), &b, &c);
+    assert_ne!(copied, s.dir);
+    copy_campaign(&s.dir, &copied);
+    // On machine b: the copy is another machine's; a new folder takes all 8 runs.
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &b, dir.path(), &mut r);
+    assert_eq!(s.dir, copied.with_file_name("smoke-2"));
+    assert_eq!((s.counts.already_done, r.calls.len()), (0, 8));
+    assert_eq!(read_rows(&copied.join("runs.csv")).unwrap().len(), 3, "the copy was not touched");
+    // With --resume-foreign the copy is resumed: the other 5 runs.
+    let o = ExecOptions { resume_foreign: true, ..opts(dir.path()) };
+    let mut r = MockRunner::default();
+    let s = runner::execute(&c, &b, &mock_solvers(&c), &mut r, &o, &AtomicBool::new(false)).unwrap();
+    assert_eq!((s.dir.as_path(), s.counts.already_done, r.calls.len()), (copied.as_path(), 3, 5));
+    // Same machine, rebuilt solver: not resumed either.
+    let rebuilt: Vec<Solver> =
+        mock_solvers(&c).into_iter().map(|s| Solver { sha256: "fedcba9876543210".into(), ..s }).collect();
+    let mut r = MockRunner::default();
+    let s = runner::execute(&c, &a, &rebuilt, &mut r, &opts(dir.path()), &AtomicBool::new(false)).unwrap();
+    assert!(s.dir.ends_with("smoke-2") && r.calls.len() == 8, "{}", s.dir.display());
+    // A reference campaign is refused even with --resume-foreign.
+    let mpath = copied.join("manifest.json");
+    let mut man = mpm_bench::campaign::manifest::read(&mpath).unwrap();
+    man.reference = true;
+    mpm_bench::campaign::manifest::write(&mpath, &man).unwrap();
+    let mut r = MockRunner::default();
+    let s = runner::execute(&c, &b, &mock_solvers(&c), &mut r, &o, &AtomicBool::new(false)).unwrap();
+    assert_eq!(s.dir, copied.with_file_name("smoke-2"));
+    assert_eq!(r.calls.len(), 0, "smoke-2 of machine b is complete and resumable");
+}
+
+/// With the host watch on, every run row records the host's load before and after it, the
+/// steal during it and the calibration ratio, and is flagged exactly by the rule; the
+/// session's start calibration is in the manifest.
+#[test]
+fn host_load_is_recorded_around_every_run() {
+    use mpm_bench::campaign::watch::WatchSettings;
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let m = laptop();
+    let w = WatchSettings {
+        window: std::time::Duration::from_millis(60),
+        calibrate_every: 3,
+        start_window: std::time::Duration::from_millis(10),
+    };
+    let o = ExecOptions { watch: Some(w), ..opts(dir.path()) };
+    let s =
+        runner::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &o, &AtomicBool::new(false)).unwrap();
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 8);
+    for r in &rows {
+        assert!(r.host_load1_before.is_some() && r.host_load1_after.is_some(), "{}", r.run_id);
+        assert!(r.host_others_running_before.is_some() && r.host_others_running_after.is_some());
+        assert!(r.host_cpus_busy_before.is_some_and(|b| (0.0..=1.0).contains(&b)), "{:?}", r.host_cpus_busy_before);
+        assert!(r.host_cpus_busy_after.is_some() && r.calib_spin_ratio.is_some() && r.calib_copy_ratio.is_some());
+        let why = r.host_reading().noise(r.threads, m.usable_pus().len());
+        assert_eq!(r.host_noisy, why.is_some());
+        assert_eq!(r.host_noise, why.unwrap_or_default());
+    }
+    let man = mpm_bench::campaign::manifest::read(&s.dir.join("manifest.json")).unwrap();
+    assert!(man.sessions[0].calibration.is_some_and(|c| c.spin_s > 0.0 && c.copy_s > 0.0));
 }
 
 #[test]
@@ -228,7 +324,7 @@ fn pinning_none_passes_no_cpus() {
 /// Snapshot of the CSV header: changing it must be deliberate (bump SCHEMA_VERSION).
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 2);
+    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 3);
     let want = "schema_version,campaign_id,run_id,timestamp,git_commit,git_dirty,machine_id,binary_sha256,seed,\
 order_index,scenario,model,particles,cells,nodes,mean_nodes,grid_mode,strategy,opt_level,threads,pin_policy,\
 requested_cpus,observed_cpus,oversubscribed,rep,warmup_steps,step_limit,end_time_s,steps,sim_time_s,end_reason,\
@@ -236,7 +332,9 @@ dt_first_s,wall_s,process_wall_s,grid_stage_s,particle_stage_s,sub_grid_fit_s,su
 sub_assembly_s,sub_grid_update_s,sub_gather_s,sub_remap_scatter_s,sub_remap_assembly_s,sub_stress_update_s,\
 steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,peak_rss_bytes,mem_estimate_bytes,exit_code,\
 kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
-failed_particles,status,reason";
+failed_particles,host_load1_before,host_load1_after,host_others_running_before,host_others_running_after,\
+host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,\
+status,reason";
     assert_eq!(Row::header().join(","), want);
 }
 
@@ -255,6 +353,13 @@ fn resume_refuses_a_csv_with_missing_columns() {
     assert!(msg.contains("missing column") && msg.contains("observed_cpus"), "{msg}");
     // The old file is untouched.
     assert_eq!(std::fs::read_to_string(d.join("runs.csv")).unwrap(), "schema_version,campaign_id,model\n1,smoke,1\n");
+    // A readable file of an older schema (here without the schema-3 column host_noise) is
+    // not appended to: a new folder starts.
+    let header: Vec<String> = Row::header().into_iter().filter(|h| h != "host_noise").collect();
+    std::fs::write(d.join("runs.csv"), header.join(",") + "\n").unwrap();
+    let mut r = MockRunner::default();
+    let s = runner::execute(&c, &m, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
+    assert_eq!((s.dir, r.calls.len()), (d.with_file_name("smoke-2"), 8));
 }
 
 fn bench() -> Command {
@@ -393,13 +498,19 @@ fn sigint_leaves_a_valid_csv_and_the_campaign_resumes() {
     let args = ["run", "--preset", "smoke", "--mock", "--out", out, "--quiet"];
     let child =
         bench().args(args).env("MPM_BENCH_MOCK_DELAY_MS", "400").stderr(std::process::Stdio::null()).spawn().unwrap();
-    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let c = campaign("smoke", &Overrides::default());
+    let d = runner::campaign_dir(dir.path(), &Machine::detect().unwrap(), &c);
+    // Interrupt once the first row is written (the start calibration takes about a second).
+    for _ in 0..600 {
+        if std::fs::read_to_string(d.join("runs.csv")).is_ok_and(|t| t.lines().count() >= 2) {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
     let killed = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
     assert!(killed.success());
     let status = child.wait_with_output().unwrap().status;
     assert_eq!(status.code(), Some(130), "an interrupted campaign exits 130");
-    let c = campaign("smoke", &Overrides::default());
-    let d = runner::campaign_dir(dir.path(), &Machine::detect().unwrap(), &c);
     let rows = read_rows(&d.join("runs.csv")).unwrap();
     assert!(!rows.is_empty() && rows.len() < 8, "{} rows", rows.len());
     let man = mpm_bench::campaign::manifest::read(&d.join("manifest.json")).unwrap();
@@ -409,4 +520,145 @@ fn sigint_leaves_a_valid_csv_and_the_campaign_resumes() {
     let rows = read_rows(&d.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), 8);
     assert_eq!(rows.iter().map(Row::key).collect::<HashSet<_>>().len(), 8);
+}
+
+/// A torn last line of runs.csv (a write cut short) is moved aside before the file is
+/// parsed, the analysis commands read around it with a warning, and resuming redoes that run:
+/// the campaign completes with no duplicate and no lost row.
+#[test]
+fn torn_last_line_is_moved_aside_and_the_campaign_completes() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let m = laptop();
+    let s = interrupted_after_3(&c, &m, dir.path());
+    let csv = s.dir.join("runs.csv");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let last = text.lines().last().unwrap();
+    let torn = format!("{}{}", &text[..text.len() - last.len() - 1], &last[..last.len() / 2]);
+    std::fs::write(&csv, &torn).unwrap();
+    let claims = bench().args(["claims", "--results", s.dir.to_str().unwrap()]).output().unwrap();
+    let err = String::from_utf8_lossy(&claims.stderr);
+    assert!(claims.status.success(), "claims failed on a torn file: {err}");
+    assert!(err.contains("torn line"), "{err}");
+    assert_eq!(std::fs::read_to_string(&csv).unwrap(), torn, "analysis must not change the file");
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &m, dir.path(), &mut r);
+    assert_eq!((s.counts.already_done, r.calls.len()), (2, 6), "the torn run is redone");
+    let rows = read_rows(&csv).unwrap();
+    assert_eq!(rows.len(), 8);
+    assert_eq!(rows.iter().map(Row::key).collect::<HashSet<_>>().len(), 8, "no duplicate");
+    let aside: Vec<_> = std::fs::read_dir(&s.dir)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with("runs.csv.torn-"))
+        .collect();
+    assert_eq!(aside.len(), 1);
+    assert_eq!(std::fs::read_to_string(aside[0].path()).unwrap(), &last[..last.len() / 2]);
+}
+
+/// A stand-in for `mpm`: reserves its summary file the way `mpm` does
+/// (`.<name>.tmp.<pid>`), writes its pid to `$FAKE_PIDFILE`, then fails at once
+/// (`$FAKE_FAIL` set) or runs for five minutes.
+const FAKE_SOLVER: &str = r#"#!/bin/sh
+while [ $# -gt 0 ]; do
+    if [ "$1" = --json ]; then json="$2"; fi
+    shift
+done
+: > "$(dirname "$json")/.$(basename "$json").tmp.$$"
+echo $$ > "$FAKE_PIDFILE.part" && mv "$FAKE_PIDFILE.part" "$FAKE_PIDFILE"
+if [ -n "$FAKE_FAIL" ]; then exit 3; fi
+exec sleep 300
+"#;
+
+/// `mpm-bench run` of one configuration with the fake solver in `dir`, into `dir/out`.
+fn fake_campaign(dir: &Path, fail: bool) -> Command {
+    use std::os::unix::fs::PermissionsExt;
+    let solver = dir.join("fake-mpm");
+    if !solver.exists() {
+        std::fs::write(&solver, FAKE_SOLVER).unwrap();
+        std::fs::set_permissions(&solver, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    let _ = std::fs::remove_file(dir.join("pid"));
+    let mut cmd = bench();
+    cmd.args(["run", "--preset", "smoke", "--models", "1", "--threads", "1", "--strategies", "dd", "--opt", "o3"])
+        .args(["--no-build", "--quiet", "--out", dir.join("out").to_str().unwrap()])
+        .env("MPM_BENCH_SOLVER_O3", &solver)
+        .env("FAKE_PIDFILE", dir.join("pid"))
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null());
+    if fail {
+        cmd.env("FAKE_FAIL", "1");
+    }
+    cmd
+}
+
+/// The pid the fake solver wrote (waits up to 20 s for it).
+fn fake_solver_pid(dir: &Path) -> i32 {
+    for _ in 0..400 {
+        if let Some(pid) = std::fs::read_to_string(dir.join("pid")).ok().and_then(|s| s.trim().parse().ok()) {
+            return pid;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    panic!("the fake solver did not start");
+}
+
+/// Whether process `pid` is gone (or a zombie waiting for its new parent to reap it),
+/// waiting up to 5 s.
+fn gone(pid: i32) -> bool {
+    for _ in 0..100 {
+        match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+            Err(_) => return true,
+            Ok(stat) if stat.rsplit_once(')').is_some_and(|(_, rest)| rest.trim_start().starts_with('Z')) => {
+                return true
+            }
+            Ok(_) => std::thread::sleep(std::time::Duration::from_millis(50)),
+        }
+    }
+    false
+}
+
+/// Temporary files (`.<name>.tmp.<pid>`) anywhere under `dir`.
+fn temp_files(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            out.extend(temp_files(&p));
+        } else if mpm_cli::atomic::temp_file_pid(&e.file_name().to_string_lossy()).is_some() {
+            out.push(p);
+        }
+    }
+    out
+}
+
+/// SIGKILL of the harness takes its solver child with it (parent-death signal); the child's
+/// temporary file is swept when the campaign is opened again.
+#[test]
+fn sigkill_of_the_harness_leaves_no_solver_running() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut harness = fake_campaign(dir.path(), false).spawn().unwrap();
+    let solver = fake_solver_pid(dir.path());
+    harness.kill().unwrap();
+    harness.wait().unwrap();
+    assert!(gone(solver), "solver {solver} still runs after SIGKILL of the harness");
+    assert_eq!(temp_files(dir.path()).len(), 1, "the killed solver's reserved file is left");
+    let again = fake_campaign(dir.path(), true).status().unwrap();
+    assert!(again.success());
+    assert_eq!(temp_files(dir.path()), Vec::<std::path::PathBuf>::new(), "stale temporary files are swept");
+}
+
+/// SIGTERM and SIGINT stop the campaign (exit 130), kill the solver and leave no temporary
+/// file behind.
+#[test]
+fn sigterm_and_sigint_leave_no_temporary_files() {
+    for signal in ["-TERM", "-INT"] {
+        let dir = tempfile::tempdir().unwrap();
+        let mut harness = fake_campaign(dir.path(), false).spawn().unwrap();
+        let solver = fake_solver_pid(dir.path());
+        assert!(Command::new("kill").args([signal, &harness.id().to_string()]).status().unwrap().success());
+        assert_eq!(harness.wait().unwrap().code(), Some(130), "{signal}");
+        assert!(gone(solver), "{signal}: solver still runs");
+        assert_eq!(temp_files(dir.path()), Vec::<std::path::PathBuf>::new(), "{signal}");
+    }
 }

@@ -20,8 +20,42 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     result.with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// `dir/.name.tmp.<pid>` for a target `dir/name`.
+/// `dir/.name.tmp.<pid>` for a target `dir/name` (this process's id).
 pub fn temp_path_for(path: &Path) -> PathBuf {
+    temp_path_for_pid(path, std::process::id())
+}
+
+/// `dir/.name.tmp.<pid>` for a target `dir/name` written by process `pid` (the harness
+/// removes a killed child's leftover with it).
+pub fn temp_path_for_pid(path: &Path, pid: u32) -> PathBuf {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
-    path.with_file_name(format!(".{name}.tmp.{}", std::process::id()))
+    path.with_file_name(format!(".{name}.tmp.{pid}"))
+}
+
+/// The process id of a temporary file named by [`temp_path_for_pid`] (`None` for any other
+/// name).
+pub fn temp_file_pid(file_name: &str) -> Option<u32> {
+    let (stem, pid) = file_name.rsplit_once(".tmp.")?;
+    (stem.starts_with('.') && stem.len() > 1).then_some(())?;
+    pid.parse().ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temp_names_carry_the_writer_pid() {
+        let p = temp_path_for_pid(Path::new("/x/run.json"), 4321);
+        assert_eq!(p, Path::new("/x/.run.json.tmp.4321"));
+        assert_eq!(temp_file_pid(".run.json.tmp.4321"), Some(4321));
+        assert_eq!(temp_file_pid("run.json.tmp.4321"), None, "not one of ours: no leading dot");
+        assert_eq!(temp_file_pid(".run.json.tmp.x"), None);
+        assert_eq!(temp_file_pid("runs.csv"), None);
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("a.json");
+        write_atomic(&target, b"{}").unwrap();
+        assert_eq!(std::fs::read(&target).unwrap(), b"{}");
+        assert!(!temp_path_for(&target).exists());
+    }
 }

@@ -11,12 +11,15 @@
 //! * [`picture`]: the embedded font of every figure, the radiograph-style view of the
 //!   debris cloud and its history;
 //! * [`atomic`]: atomic file writes;
+//! * [`identity`]: the host's identity (CPU, caches, SMT, machine id) and the build's
+//!   provenance (commit, dirty flag, rustc, binary SHA-256);
 //! * [`group_digits`]: counts printed for people (`1,234,567`).
 //!
 //! Pinning and measurement policy (affinity, `/proc/self/status`) live here; the solver crate
 //! `mpm-core` has no OS code.
 
 pub mod atomic;
+pub mod identity;
 pub mod picture;
 pub mod pinning;
 pub mod summary;

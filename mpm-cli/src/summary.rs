@@ -39,9 +39,13 @@
 //!   `load_imbalance` their largest over their mean (1 = balanced). Both strategies give
 //!   every worker an equal share, so an imbalance well above 1 on a shared machine means a
 //!   worker's CPU was slowed from outside the run: read such a run's timing with care.
+//! * `provenance` ([`Provenance`]) names the source of the run: the host (CPU vendor,
+//!   family, model, stepping, microcode, caches, SMT, hashed machine id, kernel), the rustc,
+//!   git commit and dirty flag the binary was built with, and the binary's SHA-256.
 //! * `history` holds about 200 samples `{step, time, kinetic, internal}` evenly spaced in
 //!   steps, including step 0 (the initial state) and the last step.
 
+use crate::identity::Provenance;
 use crate::pinning::PinnedPool;
 use mpm_core::scenario::impact::{self, CloudFigures, History, HistorySample, ImpactGeometry};
 use mpm_core::scenario::plate::{PlateGeometry, PlateResult};
@@ -592,6 +596,11 @@ pub struct Summary {
     pub command_line: Vec<String>,
     /// Wall-clock start of the run, seconds since the Unix epoch.
     pub started_unix_s: f64,
+    /// Where the run came from: host identity and kernel, rustc, git commit and dirty flag,
+    /// the binary's SHA-256 (the command line is `command_line`). `null` in summaries
+    /// written before it existed.
+    #[serde(default)]
+    pub provenance: Option<Provenance>,
 }
 
 impl Summary {
@@ -605,6 +614,7 @@ impl Summary {
         s.model_name = ctx.model_name;
         s.history = ctx.history;
         s.command_line = ctx.command_line;
+        s.provenance = Some(Provenance::of_this_process());
         s
     }
 

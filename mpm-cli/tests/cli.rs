@@ -225,6 +225,7 @@ const REQUIRED_KEYS: &[&str] = &[
     "length_convention",
     "command_line",
     "started_unix_s",
+    "provenance",
 ];
 
 const SUBSTAGES: &[&str] = &[
@@ -292,6 +293,37 @@ fn json_has_exactly_the_golden_keys() {
     let k0 = f(&v, "kinetic_energy_initial");
     assert!((k0 - 0.5 * 10.28e-3 * 40.0 * 40.0).abs() < 0.01 * k0, "{k0}");
     assert!(f(&v, "kinetic_energy") < k0);
+}
+
+/// Every summary names its source: host identity and kernel, rustc, commit and dirty flag of
+/// the build, and the SHA-256 of the very binary that ran; `--version` names commit and profile.
+#[test]
+fn summary_and_version_carry_provenance() {
+    let (v, _) = run_json(&["--model", "1", "--steps", "1", "--quiet"]);
+    let p = &v["provenance"];
+    let want = mpm_cli::identity::sha256_file(Path::new(MPM)).unwrap();
+    assert_eq!(p["binary_sha256"], want.as_str(), "{p}");
+    assert_eq!(p["git_commit"], mpm_cli::identity::GIT_COMMIT);
+    assert!(p["git_commit"].as_str().unwrap().len() == 40 || p["git_commit"] == "unknown", "{p}");
+    assert!(p["git_dirty"].is_boolean() || p["git_dirty"].is_null(), "{p}");
+    assert!(p["rustc"].as_str().unwrap().starts_with("rustc "), "{p}");
+    let host = &p["host"];
+    let kernel = std::fs::read_to_string("/proc/sys/kernel/osrelease").unwrap();
+    assert_eq!(host["kernel"], kernel.trim());
+    for k in ["cpu_vendor", "cpu_family", "cpu_model", "cpu_stepping", "microcode", "smt"] {
+        assert!(host[k].as_str().is_some_and(|s| !s.is_empty()), "{k}: {host}");
+    }
+    assert!(host["caches"].is_array(), "{host}");
+    if Path::new("/etc/machine-id").is_file() {
+        assert_eq!(host["machine_id_sha256"].as_str().unwrap().len(), 64, "{host}");
+    }
+    assert!(v["command_line"].as_array().unwrap().iter().any(|a| a == "--steps"));
+    let out = mpm(&["--version"]);
+    let line = text(&out.stdout);
+    assert!(out.status.success());
+    let commit: String = mpm_cli::identity::GIT_COMMIT.chars().take(12).collect();
+    assert!(line.contains(&format!("commit {commit}")), "{line}");
+    assert!(line.contains(&format!("profile {}", env!("MPM_PROFILE"))), "{line}");
 }
 
 /// The harness reads the summary back as the typed [`Summary`]: every key the program

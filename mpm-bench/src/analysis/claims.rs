@@ -44,6 +44,9 @@ pub struct ClaimsArgs {
     /// Pinning policy to analyse when the campaign has several (default: close, else the first).
     #[arg(long)]
     pub pin: Option<String>,
+    /// Keep rows measured on a busy host (host_noisy), left out by default.
+    #[arg(long)]
+    pub include_noisy: bool,
 }
 
 /// A claim's verdict.
@@ -494,7 +497,7 @@ pub fn markdown(results: &[ClaimResult], heading: &str) -> String {
 
 /// `mpm-bench claims`.
 pub fn run(args: ClaimsArgs) -> Result<()> {
-    let c = load_campaign(&args.results)?;
+    let c = load_campaign(&args.results)?.without_noisy(args.include_noisy);
     let an = c.analyse(args.pin.as_deref());
     let res = evaluate(&c, &an);
     println!("Claims of the paper on campaign {} (machine {}, {})", c.id(), c.fingerprint(), c.dir.display());

@@ -63,6 +63,9 @@ pub struct RegressArgs {
     /// Pinning policy to compare when a campaign has several (default: close, else the first).
     #[arg(long)]
     pub pin: Option<String>,
+    /// Keep rows measured on a busy host (host_noisy), left out by default.
+    #[arg(long)]
+    pub include_noisy: bool,
 }
 
 /// What one check found.
@@ -248,8 +251,8 @@ pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
         bail!("--tolerance {} is out of range: give a fraction such as 0.05 for 5 %", args.tolerance);
     }
     let stages: Vec<Stage> = args.stages.iter().map(|s| Stage::parse(s)).collect::<Result<_>>()?;
-    let base = load_campaign(&args.baseline).context("reading --baseline")?;
-    let cur = load_campaign(&args.current).context("reading --current")?;
+    let base = load_campaign(&args.baseline).context("reading --baseline")?.without_noisy(args.include_noisy);
+    let cur = load_campaign(&args.current).context("reading --current")?.without_noisy(args.include_noisy);
     let (bs, cs) = (side(&base), side(&cur));
     let mut report = RegressReport {
         verdict: "incomparable".into(),

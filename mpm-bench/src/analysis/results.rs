@@ -40,6 +40,21 @@ impl Campaign {
             .unwrap_or_else(|| "unknown".into())
     }
 
+    /// The campaign without its `host_noisy` rows (unless `include_noisy`), saying on
+    /// stderr how many were left out. Claims and regress use it; figures keep the rows and
+    /// draw them grey.
+    pub fn without_noisy(mut self, include_noisy: bool) -> Self {
+        let noisy = self.rows.iter().filter(|r| r.host_noisy).count();
+        if noisy > 0 && !include_noisy {
+            self.rows.retain(|r| !r.host_noisy);
+            eprintln!(
+                "note: {}: left out {noisy} row(s) measured on a busy host (host_noisy; --include-noisy keeps them)",
+                self.dir.display()
+            );
+        }
+        self
+    }
+
     /// Analyse the rows with default options.
     pub fn analyse(&self, pin: Option<&str>) -> Analysis {
         Analysis::from_rows(&self.rows, pin, &StatsOptions::default())

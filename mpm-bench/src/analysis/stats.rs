@@ -315,6 +315,8 @@ pub struct Cell {
     pub peak_rss: Vec<f64>,
     /// Any repetition (of any status) ran more threads than usable cores.
     pub oversubscribed: bool,
+    /// Measured (`ok`) repetitions taken on a busy host (`host_noisy`).
+    pub noisy: usize,
     /// Rows that are not `ok`: status and reason.
     pub not_ok: Vec<(Status, String)>,
     /// The memory guard's largest estimate for this cell (bytes).
@@ -351,6 +353,7 @@ impl Cell {
             return false;
         };
         self.times[0].push(total);
+        self.noisy += usize::from(r.host_noisy);
         for (i, st) in [Stage::Grid, Stage::Particle].into_iter().enumerate() {
             if let Some(t) = st.time_per_step(r) {
                 self.times[i + 1].push(t);
@@ -389,6 +392,8 @@ pub struct Point {
     pub efficiency: Option<Estimate>,
     /// More threads than usable cores: not a scaling point.
     pub oversubscribed: bool,
+    /// Some repetition of the cell or of its base was measured on a busy host.
+    pub noisy: bool,
 }
 
 impl Point {
@@ -518,6 +523,7 @@ impl Analysis {
         let serial = CellKey { threads: 1, strategy: Strategy::Serial, ..key.clone() };
         let base_key =
             [own, serial].into_iter().find(|k| self.cells.get(k).is_some_and(|c| !c.times(stage).is_empty()));
+        let noisy = cell.noisy > 0 || base_key.as_ref().is_some_and(|bk| self.cells[bk].noisy > 0);
         let (base, speedup) = match base_key {
             Some(bk) => {
                 let bs = self.cells[&bk].times(stage);
@@ -532,7 +538,7 @@ impl Analysis {
             None => (None, None),
         };
         let efficiency = speedup.map(|s| s.scale(1.0 / key.threads as f64));
-        Point { key: key.clone(), stage, time, base, speedup, efficiency, oversubscribed: cell.oversubscribed }
+        Point { key: key.clone(), stage, time, base, speedup, efficiency, oversubscribed: cell.oversubscribed, noisy }
     }
 
     /// The point of a cell and stage.

@@ -5,10 +5,19 @@
 //! version, the workspace's Cargo profiles, RUSTFLAGS, the solver binaries' SHA-256, relevant
 //! environment variables (`RAYON_*`, `OMP_*`, `MPM_*`, `HWLOC_*`, `MALLOC_*`, `LD_PRELOAD`,
 //! ...), the CPU frequency governor where readable, the kernel, and the git commit with a
-//! dirty flag. Each invocation of `mpm-bench run` on the campaign adds a [`Session`] (seed,
-//! command line, counts). The hwloc topology is exported beside it as `topology.xml`.
+//! dirty flag.
+//!
+//! The manifest is append-only: the top-level `machine` and `software` are those of the
+//! session that created the campaign and are never rewritten; each invocation of `mpm-bench
+//! run` that has runs to do adds a [`Session`] with its own machine, software, binaries, seed,
+//! command line and counts (a run with nothing to do writes nothing). The hwloc topology is
+//! exported beside it as `topology.xml` once, when the campaign is created.
+//!
+//! `reference: true` marks a committed reference campaign: read-only, never a resume target
+//! (`mpm-bench run` starts a new folder instead; see the README's "Results").
 
 use crate::machine::fingerprint::MachineInfo;
+use crate::machine::load::Calibration;
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -100,6 +109,16 @@ pub struct Session {
     pub binaries: Vec<BinaryInfo>,
     /// Git state at the start.
     pub git: GitInfo,
+    /// The machine this session ran on (`null` in manifests written before sessions
+    /// recorded it).
+    #[serde(default)]
+    pub machine: Option<MachineInfo>,
+    /// The software of this session.
+    #[serde(default)]
+    pub software: Option<SoftwareInfo>,
+    /// The host calibration at the session's start (rows store their ratio to it).
+    #[serde(default)]
+    pub calibration: Option<Calibration>,
 }
 
 /// `manifest.json`.
@@ -111,11 +130,14 @@ pub struct Manifest {
     pub campaign_id: String,
     /// The resolved campaign (matrix, budgets, overrides).
     pub campaign: serde_json::Value,
-    /// Machine.
+    /// A committed reference campaign: read-only, refused as a resume target.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub reference: bool,
+    /// Machine of the session that created the campaign.
     pub machine: MachineInfo,
-    /// Software environment (as of the latest session).
+    /// Software environment of the session that created the campaign.
     pub software: SoftwareInfo,
-    /// Every session that ran on this campaign.
+    /// Every session that ran on this campaign, each with its own machine and software.
     pub sessions: Vec<Session>,
 }
 

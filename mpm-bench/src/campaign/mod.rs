@@ -6,6 +6,7 @@
 //! * [`solver`]: building, locating and hashing the `mpm` binaries;
 //! * [`process`]: one run as a child process (and the mock runner for tests);
 //! * [`runner`]: the loop over the runs, with resume and Ctrl-C;
+//! * [`watch`]: the host's load and calibration around each run (`host_noisy`);
 //! * [`record`]: the CSV row; [`manifest`]: the machine and software of a campaign.
 //!
 //! It uses the machine layer ([`crate::machine`]) and nothing of analysis or report.
@@ -18,3 +19,4 @@ pub mod process;
 pub mod record;
 pub mod runner;
 pub mod solver;
+pub mod watch;

@@ -2,6 +2,11 @@
 //! the runners: [`ProcessRunner`] spawns `mpm run ... --json FILE --quiet` as a fresh
 //! process (clean memory figure, no state carried over); [`MockRunner`] fakes it in
 //! microseconds for tests.
+//!
+//! A child dies with the harness (Linux parent-death signal, set between fork and exec), and
+//! the temporary summary file of a child killed mid-run (timeout, Ctrl-C, SIGTERM) is removed
+//! at once; leftovers of a harness killed outright are swept when the campaign is opened again
+//! ([`remove_stale_temp_files`]).
 
 use super::matrix::RunSpec;
 use super::memory::{estimate_memory, impact_variant, scenario_size};
@@ -10,10 +15,10 @@ use mpm_cli::summary::{EndReason, Substages, Summary};
 use mpm_core::scenario::size::ModelSize;
 use mpm_core::Strategy;
 use std::io::Read;
-use std::path::PathBuf;
-use std::process::{Command, Stdio};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// Everything one run needs.
@@ -96,6 +101,71 @@ impl ProcessRunner {
     }
 }
 
+/// The child in progress and its summary's temporary file, for [`kill_live_child`].
+static LIVE_CHILD: Mutex<Option<(u32, PathBuf)>> = Mutex::new(None);
+
+/// Kill the solver child in progress (if any) and remove its temporary summary file: the
+/// harness is about to exit without cleaning up (a second Ctrl-C).
+pub fn kill_live_child() {
+    let live = LIVE_CHILD.lock().unwrap_or_else(|e| e.into_inner()).take();
+    if let Some((pid, tmp)) = live {
+        if let Ok(pid) = libc::pid_t::try_from(pid) {
+            // SAFETY: kill(2) has no memory-safety preconditions; `pid` is our own child,
+            // not yet reaped (the runner clears LIVE_CHILD before it waits for the child).
+            unsafe { libc::kill(pid, libc::SIGKILL) };
+        }
+        let _ = std::fs::remove_file(tmp);
+    }
+}
+
+/// Remove temporary files (`.<name>.tmp.<pid>`) in `dir` left by processes that no longer
+/// run (a solver or harness killed mid-write). Returns how many were removed.
+pub fn remove_stale_temp_files(dir: &Path) -> usize {
+    let Ok(rd) = std::fs::read_dir(dir) else { return 0 };
+    let mut removed = 0;
+    for e in rd.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = mpm_cli::atomic::temp_file_pid(&name) else { continue };
+        if pid != std::process::id() && !process_runs(pid) && std::fs::remove_file(e.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
+}
+
+/// Whether process `pid` exists and is not a zombie (`/proc/<pid>/stat`, state after the
+/// command name).
+fn process_runs(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|s| s.rsplit_once(')').map(|(_, rest)| !rest.trim_start().starts_with('Z')))
+        .unwrap_or(false)
+}
+
+/// `mpm` dies with the harness: the parent-death signal is SIGKILL, so a harness killed by
+/// any signal (SIGKILL included) leaves no solver running on the pinned CPUs.
+fn die_with_parent(cmd: &mut Command) {
+    use std::os::unix::process::CommandExt;
+    let parent = libc::pid_t::try_from(std::process::id()).unwrap_or(libc::pid_t::MAX);
+    // SAFETY: the closure runs in the forked child before exec, where only async-signal-safe
+    // calls are allowed: it calls prctl(2) and getppid(2) and builds io::Errors from raw OS
+    // codes (no allocation, no locks), and touches only `parent`, an integer copied in.
+    // Linux sends the signal when the thread that forked the child exits; the campaign loop
+    // spawns every child from the one thread that runs it, for the campaign's whole life.
+    unsafe {
+        cmd.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL as libc::c_ulong, 0, 0, 0) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The parent may have died between fork and prctl: then nobody would signal us.
+            if libc::getppid() != parent {
+                return Err(std::io::Error::from_raw_os_error(libc::ESRCH));
+            }
+            Ok(())
+        });
+    }
+}
+
 impl Runner for ProcessRunner {
     fn run(&mut self, req: &RunRequest) -> RunOutput {
         let start = Instant::now();
@@ -104,6 +174,7 @@ impl Runner for ProcessRunner {
         cmd.args(req.args()).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::piped());
         // Rayon and OpenMP variables must not change the thread count behind our back.
         cmd.env_remove("RAYON_NUM_THREADS");
+        die_with_parent(&mut cmd);
         let mut child = match cmd.spawn() {
             Ok(c) => c,
             Err(e) => {
@@ -113,6 +184,8 @@ impl Runner for ProcessRunner {
                 }
             }
         };
+        let tmp = mpm_cli::atomic::temp_path_for_pid(&req.json_path, child.id());
+        *LIVE_CHILD.lock().unwrap_or_else(|e| e.into_inner()) = Some((child.id(), tmp.clone()));
         let mut stderr = child.stderr.take();
         let reader = std::thread::spawn(move || {
             let mut s = String::new();
@@ -121,47 +194,59 @@ impl Runner for ProcessRunner {
             }
             s
         });
+        let mut out = self.wait(&mut child, req, start);
+        // A child killed mid-run leaves its reserved summary file behind.
+        let _ = std::fs::remove_file(&tmp);
+        out.process_wall_s = start.elapsed().as_secs_f64();
+        let text = reader.join().unwrap_or_default();
+        out.stderr_tail = tail(&text, 3);
+        out
+    }
+}
+
+impl ProcessRunner {
+    /// Wait for `child`: its exit, or a kill on interrupt or timeout.
+    fn wait(&self, child: &mut Child, req: &RunRequest, start: Instant) -> RunOutput {
         let mut out = RunOutput::default();
+        let stop = |child: &mut Child| {
+            LIVE_CHILD.lock().unwrap_or_else(|e| e.into_inner()).take();
+            let _ = child.kill();
+            let _ = child.wait();
+        };
         loop {
             match child.try_wait() {
                 Ok(Some(status)) => {
+                    LIVE_CHILD.lock().unwrap_or_else(|e| e.into_inner()).take();
                     out.exit_code = status.code();
                     if status.code().is_none() {
                         use std::os::unix::process::ExitStatusExt;
                         out.error = Some(format!("killed by signal {}", status.signal().unwrap_or(0)));
                     }
-                    break;
+                    return out;
                 }
                 Ok(None) => {}
                 Err(e) => {
                     out.error = Some(format!("cannot wait for the solver: {e}"));
-                    let _ = child.kill();
-                    let _ = child.wait();
-                    break;
+                    stop(child);
+                    return out;
                 }
             }
             if self.interrupted.load(Ordering::SeqCst) {
-                let _ = child.kill();
-                let _ = child.wait();
+                stop(child);
                 out.interrupted = true;
                 out.error = Some("interrupted".into());
-                break;
+                return out;
             }
             if req.timeout.is_some_and(|t| start.elapsed() > t) {
-                let _ = child.kill();
-                let _ = child.wait();
+                stop(child);
                 out.error = Some(format!(
                     "timed out after {}",
                     humantime::format_duration(Duration::from_secs(start.elapsed().as_secs()))
                 ));
-                break;
+                return out;
             }
             std::thread::sleep(Duration::from_millis(20));
         }
-        out.process_wall_s = start.elapsed().as_secs_f64();
-        let text = reader.join().unwrap_or_default();
-        out.stderr_tail = tail(&text, 3);
-        out
     }
 }
 

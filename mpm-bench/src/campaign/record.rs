@@ -2,24 +2,47 @@
 //!
 //! Rows are appended and flushed (and synced) right after each run, so an interrupted
 //! campaign keeps every finished run. Reading back ([`read_rows`]) checks the header first and
-//! names any missing column. A partial last line (a kill in the middle of a write) is cut off
-//! when the file is opened for appending again ([`CsvLog::open`]).
+//! names any missing column.
+//!
+//! A torn last line (power loss, disk full, a kill in the middle of a write: no trailing
+//! newline, or fewer fields than the header) is found before the file is parsed
+//! ([`complete_len`]). Readers ([`read_rows`], used by every analysis command) warn and read
+//! the complete rows; the campaign runner ([`repair_torn_tail`], also in [`CsvLog::open`])
+//! moves the torn bytes to `runs.csv.torn-<time>`, says so, and redoes that run.
 //!
 //! Units are SI (seconds, bytes, joules, metres). Lists of CPUs are written space-separated
 //! (`"0 1"`). Empty cells mean "not measured" (for example every measurement of a skipped row).
 
+use crate::machine::load::{HostReading, Probe};
 use anyhow::{bail, Context, Result};
 use mpm_core::Strategy;
 use serde::{Deserialize, Serialize};
 use std::fs::{File, OpenOptions};
-use std::io::{Read, Seek, SeekFrom, Write};
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 /// Version of the row layout; bump it whenever a column is added, removed or renamed.
-pub const SCHEMA_VERSION: u32 = 2;
+/// Schema 3 added the host's load and calibration (`host_*`, `calib_*`, `host_noisy`).
+pub const SCHEMA_VERSION: u32 = 3;
 
-/// Columns added in schema 2; files of schema 1 lack them and still read (as empty).
-const ADDED_IN_V2: [&str; 2] = ["worker_busy_s", "load_imbalance"];
+/// Columns added since schema 1; older files lack them and still read (as empty / false).
+const ADDED_SINCE_V1: [&str; 13] = [
+    // schema 2
+    "worker_busy_s",
+    "load_imbalance",
+    // schema 3
+    "host_load1_before",
+    "host_load1_after",
+    "host_others_running_before",
+    "host_others_running_after",
+    "host_cpus_busy_before",
+    "host_cpus_busy_after",
+    "host_steal_frac",
+    "calib_spin_ratio",
+    "calib_copy_ratio",
+    "host_noisy",
+    "host_noise",
+];
 
 /// Outcome of one run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -187,11 +210,78 @@ pub struct Row {
     /// Failed particles at the end.
     pub failed_particles: Option<u64>,
 
+    // ---- host load (since schema 3; see `machine::load` for the rule) ----
+    /// 1-minute load average just before the run.
+    #[serde(default)]
+    pub host_load1_before: Option<f64>,
+    /// 1-minute load average just after the run.
+    #[serde(default)]
+    pub host_load1_after: Option<f64>,
+    /// Other runnable tasks in a quiet window just before the run (median of samples).
+    #[serde(default)]
+    pub host_others_running_before: Option<u32>,
+    /// Other runnable tasks in a quiet window just after the run.
+    #[serde(default)]
+    pub host_others_running_after: Option<u32>,
+    /// Busy fraction of the run's CPUs (all CPUs when not pinned) with other work in the
+    /// window before the run.
+    #[serde(default)]
+    pub host_cpus_busy_before: Option<f64>,
+    /// The same in the window after the run.
+    #[serde(default)]
+    pub host_cpus_busy_after: Option<f64>,
+    /// Fraction of the CPU time stolen by the hypervisor during the run.
+    #[serde(default)]
+    pub host_steal_frac: Option<f64>,
+    /// The spin calibration last taken before the run over the session start's.
+    #[serde(default)]
+    pub calib_spin_ratio: Option<f64>,
+    /// The memory-copy calibration over the session start's.
+    #[serde(default)]
+    pub calib_copy_ratio: Option<f64>,
+    /// The host was busy around the run: left out of claims and regress unless
+    /// `--include-noisy`, grey in figures.
+    #[serde(default)]
+    pub host_noisy: bool,
+    /// Why the row is `host_noisy` (empty when it is not).
+    #[serde(default)]
+    pub host_noise: String,
+
     // ---- status ----
     /// `ok`, `skipped`, `failed` or `invalid`.
     pub status: Status,
     /// Why a row is not `ok` (empty when it is).
     pub reason: String,
+}
+
+impl Row {
+    /// The host reading this row records.
+    pub fn host_reading(&self) -> HostReading {
+        let probe = |load1, others_running, cpus_busy| Probe { load1, others_running, cpus_busy };
+        HostReading {
+            before: probe(self.host_load1_before, self.host_others_running_before, self.host_cpus_busy_before),
+            after: probe(self.host_load1_after, self.host_others_running_after, self.host_cpus_busy_after),
+            steal: self.host_steal_frac,
+            spin_ratio: self.calib_spin_ratio,
+            copy_ratio: self.calib_copy_ratio,
+        }
+    }
+
+    /// Record `h` and flag the row by the `host_noisy` rule for a host of `pus` usable PUs.
+    pub fn set_host(&mut self, h: &HostReading, pus: usize) {
+        self.host_load1_before = h.before.load1;
+        self.host_load1_after = h.after.load1;
+        self.host_others_running_before = h.before.others_running;
+        self.host_others_running_after = h.after.others_running;
+        self.host_cpus_busy_before = h.before.cpus_busy;
+        self.host_cpus_busy_after = h.after.cpus_busy;
+        self.host_steal_frac = h.steal;
+        self.calib_spin_ratio = h.spin_ratio;
+        self.calib_copy_ratio = h.copy_ratio;
+        let why = h.noise(self.threads, pus);
+        self.host_noisy = why.is_some();
+        self.host_noise = why.unwrap_or_default();
+    }
 }
 
 /// What identifies a configuration for resuming: two rows with the same key ran the same
@@ -259,12 +349,71 @@ pub fn parse_cpus_cell(s: &str) -> Vec<usize> {
     s.split_whitespace().filter_map(|t| t.parse().ok()).collect()
 }
 
-/// Read every row of a results CSV, checking the header first.
+/// Length in bytes of the complete part of a results CSV: the header and every record that
+/// ends in a newline and has as many fields as the header. What follows is a torn tail.
+pub fn complete_len(bytes: &[u8]) -> usize {
+    let mut len = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1);
+    loop {
+        let mut r = csv::ReaderBuilder::new().has_headers(true).flexible(true).from_reader(&bytes[..len]);
+        let width = match r.headers() {
+            Ok(h) => h.len(),
+            Err(_) => return len,
+        };
+        let mut last: Option<(usize, usize)> = None;
+        let mut rec = csv::StringRecord::new();
+        while let Ok(true) = r.read_record(&mut rec) {
+            let start = rec.position().map_or(0, |p| p.byte() as usize);
+            last = Some((start, rec.len()));
+        }
+        match last {
+            Some((start, fields)) if fields < width && start < len => len = start,
+            _ => return len,
+        }
+    }
+}
+
+/// Read every row of a results CSV, checking the header first. A torn last line is left
+/// out with a warning (the file is not changed).
 pub fn read_rows(path: &Path) -> Result<Vec<Row>> {
-    let mut r = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .from_path(path)
-        .with_context(|| format!("cannot open {}", path.display()))?;
+    let bytes = std::fs::read(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let good = complete_len(&bytes);
+    if good < bytes.len() {
+        eprintln!(
+            "warning: {} ends in a torn line ({} bytes: an interrupted write); reading the complete rows only \
+             (resuming the campaign moves it aside and redoes that run)",
+            path.display(),
+            bytes.len() - good
+        );
+    }
+    parse_rows(&bytes[..good], path)
+}
+
+/// Move a torn tail of `path` (see [`complete_len`]) to `<name>.torn-<UTC time>` beside it
+/// and cut the file to its complete rows; say so on stderr. Returns the new file, if any.
+pub fn repair_torn_tail(path: &Path) -> Result<Option<PathBuf>> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let good = complete_len(&bytes);
+    if good == bytes.len() {
+        return Ok(None);
+    }
+    let stamp: String = crate::util::now_rfc3339().chars().filter(|c| c.is_ascii_alphanumeric()).collect();
+    let name = path.file_name().map_or_else(|| "runs.csv".into(), |n| n.to_string_lossy().into_owned());
+    let aside = path.with_file_name(format!("{name}.torn-{stamp}"));
+    mpm_cli::atomic::write_atomic(&aside, &bytes[good..])?;
+    let f = OpenOptions::new().write(true).open(path).with_context(|| format!("cannot repair {}", path.display()))?;
+    f.set_len(good as u64).with_context(|| format!("cannot repair {}", path.display()))?;
+    f.sync_all().ok();
+    eprintln!(
+        "warning: {} ended in a torn line (an interrupted write); moved it to {}; its run will be redone",
+        path.display(),
+        aside.display()
+    );
+    Ok(Some(aside))
+}
+
+/// Parse the rows of a CSV's complete part, checking the header first.
+fn parse_rows(bytes: &[u8], path: &Path) -> Result<Vec<Row>> {
+    let mut r = csv::ReaderBuilder::new().has_headers(true).from_reader(bytes);
     let have: Vec<String> = r
         .headers()
         .with_context(|| format!("cannot read the header of {}", path.display()))?
@@ -272,8 +421,11 @@ pub fn read_rows(path: &Path) -> Result<Vec<Row>> {
         .map(str::to_string)
         .collect();
     let want = Row::header();
-    let missing: Vec<&str> =
-        want.iter().filter(|c| !have.contains(c) && !ADDED_IN_V2.contains(&c.as_str())).map(String::as_str).collect();
+    let missing: Vec<&str> = want
+        .iter()
+        .filter(|c| !have.contains(c) && !ADDED_SINCE_V1.contains(&c.as_str()))
+        .map(String::as_str)
+        .collect();
     if !missing.is_empty() {
         bail!(
             "{} is missing column(s) {} (this harness writes schema version {SCHEMA_VERSION}); \
@@ -297,8 +449,11 @@ pub struct CsvLog {
 
 impl CsvLog {
     /// Open (creating if needed) `path` for appending. An existing file must carry this
-    /// harness' header; a partial last line left by a kill is cut off.
+    /// harness' header; a torn last line is moved aside first ([`repair_torn_tail`]).
     pub fn open(path: &Path) -> Result<Self> {
+        if path.is_file() {
+            repair_torn_tail(path)?;
+        }
         let mut file = OpenOptions::new()
             .read(true)
             .append(true)
@@ -314,16 +469,11 @@ impl CsvLog {
             file.write_all(&bytes).with_context(|| format!("cannot write {}", path.display()))?;
             file.sync_data().ok();
         } else {
-            if text.last() != Some(&b'\n') {
-                let keep = text.iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1);
-                eprintln!("warning: {} ended in a partial line (interrupted write); dropping it", path.display());
-                file.set_len(keep as u64).with_context(|| format!("cannot repair {}", path.display()))?;
-                file.seek(SeekFrom::End(0))?;
-            }
             // Validate every row, then demand this schema's exact header: rows appended
             // under another header would be misread.
-            read_rows(path)?;
-            let have: Vec<String> = csv::Reader::from_path(path)?.headers()?.iter().map(str::to_string).collect();
+            parse_rows(&text, path)?;
+            let have: Vec<String> =
+                csv::Reader::from_reader(text.as_slice()).headers()?.iter().map(str::to_string).collect();
             if have != Row::header() {
                 bail!(
                     "{} was written by another version of the harness (its columns differ from schema version \
@@ -381,11 +531,47 @@ mod tests {
         let rows = read_rows(&p).unwrap();
         assert_eq!(rows, vec![row.clone()]);
         assert_eq!(parse_cpus_cell(&rows[0].requested_cpus), vec![0, 1, 0, 1]);
-        // A torn last line is dropped on reopen.
+        // A torn last line is moved aside on reopen.
         std::fs::OpenOptions::new().append(true).open(&p).unwrap().write_all(b"1,abc,").unwrap();
         let mut log = CsvLog::open(&p).unwrap();
         log.append(&row).unwrap();
         assert_eq!(read_rows(&p).unwrap().len(), 2);
+        let aside: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().starts_with("runs.csv.torn-"))
+            .collect();
+        assert_eq!(aside.len(), 1);
+        assert_eq!(std::fs::read(aside[0].path()).unwrap(), b"1,abc,");
+    }
+
+    /// Both kinds of torn tail are found before parsing: no trailing newline, and a line
+    /// with fewer fields than the header; readers skip them, the repair moves them aside.
+    #[test]
+    fn torn_tails_are_found_read_around_and_moved_aside() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("runs.csv");
+        let row = Row { schema_version: SCHEMA_VERSION, model: 1, threads: 2, wall_s: Some(0.5), ..Row::default() };
+        let mut log = CsvLog::open(&p).unwrap();
+        log.append(&row).unwrap();
+        log.append(&Row { model: 2, ..row.clone() }).unwrap();
+        drop(log);
+        let good = std::fs::read(&p).unwrap();
+        assert_eq!(complete_len(&good), good.len());
+        let line = String::from_utf8(good.clone()).unwrap().lines().last().unwrap().to_string();
+        let half = &line[..line.len() / 2];
+        for tail in [half.to_string(), format!("{half}\n"), line.clone()] {
+            let torn = [good.as_slice(), tail.as_bytes()].concat();
+            assert_eq!(complete_len(&torn), good.len(), "{tail:?}");
+            std::fs::write(&p, &torn).unwrap();
+            assert_eq!(read_rows(&p).unwrap().len(), 2, "the reader reads around {tail:?}");
+            assert_eq!(std::fs::read(&p).unwrap(), torn, "reading changes nothing");
+            let aside = repair_torn_tail(&p).unwrap().unwrap();
+            assert_eq!(std::fs::read(&p).unwrap(), good);
+            assert_eq!(std::fs::read(&aside).unwrap(), tail.as_bytes());
+            std::fs::remove_file(aside).unwrap();
+        }
+        assert_eq!(repair_torn_tail(&p).unwrap(), None);
     }
 
     #[test]
@@ -398,6 +584,15 @@ mod tests {
         assert!(err.contains("observed_cpus"), "{err}");
     }
 
+    /// The committed reference campaign (schema 2) still reads, every row quiet.
+    #[test]
+    fn committed_schema_2_campaign_reads() {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results/d02fbfc20d44/quick/runs.csv");
+        let rows = read_rows(&p).unwrap();
+        assert_eq!(rows.len(), 80);
+        assert!(rows.iter().all(|r| r.schema_version == 2 && !r.host_noisy && r.host_steal_frac.is_none()));
+    }
+
     /// A schema-1 file (without the load-imbalance columns) still reads: its rows get
     /// empty values there and everything else intact. Appending to it is refused.
     #[test]
@@ -408,17 +603,17 @@ mod tests {
         let mut w = csv::Writer::from_writer(Vec::new());
         w.serialize(&row).unwrap();
         let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
-        // Drop the two schema-2 columns from header and row.
+        // Drop the columns of schemas 2 and 3 from header and row.
         let drop = |line: &str, idx: &[usize]| {
             line.split(',').enumerate().filter(|(i, _)| !idx.contains(i)).map(|(_, c)| c).collect::<Vec<_>>().join(",")
         };
         let header = Row::header();
-        let idx: Vec<usize> = ADDED_IN_V2.iter().map(|c| header.iter().position(|h| h == c).unwrap()).collect();
+        let idx: Vec<usize> = ADDED_SINCE_V1.iter().map(|c| header.iter().position(|h| h == c).unwrap()).collect();
         let old: String = text.lines().map(|l| drop(l, &idx) + "\n").collect();
         assert!(!old.lines().next().unwrap().contains("load_imbalance"));
         std::fs::write(&p, old).unwrap();
         let rows = read_rows(&p).unwrap();
         assert_eq!(rows, vec![row]);
-        assert!(CsvLog::open(&p).is_err(), "appending schema-2 rows to a schema-1 file must be refused");
+        assert!(CsvLog::open(&p).is_err(), "appending schema-3 rows to a schema-1 file must be refused");
     }
 }

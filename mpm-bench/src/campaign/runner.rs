@@ -13,10 +13,12 @@ use super::manifest::{self, BinaryInfo, Manifest, Session};
 use super::matrix::{Campaign, RunSpec};
 use super::memory::{available_memory, estimate_memory, memory_verdict, scenario_size};
 use super::preset::OptLevel;
-use super::process::{RunOutput, RunRequest, Runner};
-use super::record::{cpus_cell, read_rows, CsvLog, Row, RunKey, Status, SCHEMA_VERSION};
+use super::process::{remove_stale_temp_files, RunOutput, RunRequest, Runner};
+use super::record::{cpus_cell, read_rows, repair_torn_tail, CsvLog, Row, RunKey, Status, SCHEMA_VERSION};
 use super::solver::{workspace_root, Solver};
+use super::watch::{HostWatch, WatchSettings};
 use crate::machine::fingerprint;
+use crate::machine::load::Calibration;
 use crate::machine::placement::PinPolicy;
 use crate::machine::topology::{format_cpu_list, human_bytes, Machine};
 use crate::util::now_rfc3339;
@@ -46,6 +48,7 @@ pub fn install_interrupt_handler() -> Arc<AtomicBool> {
             let result = ctrlc::set_handler(move || {
                 f.store(true, Ordering::SeqCst);
                 if count.fetch_add(1, Ordering::SeqCst) >= 1 {
+                    super::process::kill_live_child();
                     eprintln!("\ninterrupted twice: exiting now (finished rows are in the CSV)");
                     std::process::exit(130);
                 }
@@ -78,6 +81,11 @@ pub struct ExecOptions {
     pub quiet: bool,
     /// Command line, for the manifest.
     pub command: String,
+    /// Append to a campaign folder whose rows came from another machine or other solver
+    /// binaries (otherwise a new folder is started).
+    pub resume_foreign: bool,
+    /// Watch the host's load around each run (`None`: the `host_*` columns stay empty).
+    pub watch: Option<WatchSettings>,
 }
 
 /// What a campaign session did.
@@ -119,9 +127,120 @@ fn cost(spec: &RunSpec) -> u64 {
     (p / 1000).max(1) * steps * f
 }
 
-/// The campaign folder: `<out_root>/<fingerprint>/<campaign id>`.
+/// The campaign folder: `<out_root>/<fingerprint>/<campaign id>` (before the resume rule
+/// of [`choose_folder`] picks a numbered sibling).
 pub fn campaign_dir(out_root: &Path, machine: &Machine, campaign: &Campaign) -> PathBuf {
     out_root.join(fingerprint::fingerprint(machine)).join(&campaign.id)
+}
+
+/// What a session would append under: this machine's fingerprint and the solver binaries'
+/// hashes (16 hex digits, as in the rows) by optimisation level.
+pub struct SessionIdentity {
+    /// Machine fingerprint.
+    pub fingerprint: String,
+    /// `(opt level, hash prefix)` of each solver binary.
+    pub binaries: Vec<(String, String)>,
+}
+
+impl SessionIdentity {
+    /// Of `machine` and `solvers`.
+    pub fn of(machine: &Machine, solvers: &[Solver]) -> Self {
+        Self {
+            fingerprint: fingerprint::fingerprint(machine),
+            binaries: solvers.iter().map(|s| (s.opt.to_string(), short_hash(&s.sha256))).collect(),
+        }
+    }
+
+    /// Why rows `rows` (and the campaign's manifest) are not this session's to extend:
+    /// another machine or another solver binary. `None` when they match.
+    pub fn foreign(&self, rows: &[Row], manifest: Option<&Manifest>) -> Option<String> {
+        let machines =
+            rows.iter().map(|r| r.machine_id.as_str()).chain(manifest.map(|m| m.machine.fingerprint.as_str()));
+        if let Some(other) = machines.filter(|f| !f.is_empty()).find(|f| *f != self.fingerprint) {
+            return Some(format!(
+                "holds results of another machine (fingerprint {other}, this one {})",
+                self.fingerprint
+            ));
+        }
+        for r in rows.iter().filter(|r| !r.binary_sha256.is_empty()) {
+            if let Some((opt, here)) = self.binaries.iter().find(|(o, _)| *o == r.opt_level) {
+                if *here != r.binary_sha256 {
+                    return Some(format!(
+                        "holds results of another {opt} solver binary (sha256 {}..., this one {here}...)",
+                        r.binary_sha256
+                    ));
+                }
+            }
+        }
+        None
+    }
+}
+
+/// The first 16 hex digits of a hash, as recorded in every row.
+fn short_hash(sha256: &str) -> String {
+    sha256.chars().take(16).collect()
+}
+
+/// The folder this session appends to. The resume rule: the campaign's folder
+/// `<out_root>/<fingerprint>/<id>` when it is new, or when its rows (and manifest) come from
+/// this machine and these solver binaries (any machine and binaries with `--resume-foreign`)
+/// and its CSV has this harness's columns; never a reference campaign. Otherwise the first of `<id>-2`, `<id>-3`, ... that qualifies,
+/// said in one line.
+pub fn choose_folder(
+    campaign: &Campaign,
+    machine: &Machine,
+    who: &SessionIdentity,
+    opts: &ExecOptions,
+) -> Result<PathBuf> {
+    let base = campaign_dir(&opts.out_root, machine, campaign);
+    let mut first_refusal: Option<String> = None;
+    for n in 1usize.. {
+        let dir = if n == 1 { base.clone() } else { base.with_file_name(format!("{}-{n}", campaign.id)) };
+        match refusal(&dir, who, opts)? {
+            None => {
+                if let Some(why) = first_refusal {
+                    eprintln!("note: {} {why}; starting a new campaign in {}", base.display(), dir.display());
+                }
+                return Ok(dir);
+            }
+            Some(why) => {
+                first_refusal.get_or_insert(why);
+            }
+        }
+    }
+    unreachable!("an unbounded search ends at a new folder")
+}
+
+/// Why `dir` may not take this session's rows (`None`: it may).
+fn refusal(dir: &Path, who: &SessionIdentity, opts: &ExecOptions) -> Result<Option<String>> {
+    let mpath = dir.join("manifest.json");
+    let manifest = if mpath.is_file() {
+        Some(manifest::read(&mpath).with_context(|| {
+            format!("cannot tell whether {} may be resumed: move it aside or choose another --out", dir.display())
+        })?)
+    } else {
+        None
+    };
+    if manifest.as_ref().is_some_and(|m| m.reference) {
+        return Ok(Some("is a reference campaign (read-only)".into()));
+    }
+    if opts.fresh {
+        return Ok(None);
+    }
+    let csv = dir.join("runs.csv");
+    let rows = if csv.is_file() { read_rows(&csv)? } else { Vec::new() };
+    if csv.is_file() {
+        let mut r = csv::Reader::from_path(&csv).with_context(|| format!("cannot open {}", csv.display()))?;
+        let header = r.headers().with_context(|| format!("cannot read the header of {}", csv.display()))?;
+        if !header.iter().eq(Row::header().iter().map(String::as_str)) {
+            let v = rows.first().map_or_else(|| "another".into(), |r| r.schema_version.to_string());
+            return Ok(Some(format!("was written with CSV schema {v} (this harness writes {SCHEMA_VERSION})")));
+        }
+    }
+    if opts.resume_foreign {
+        return Ok(None);
+    }
+    Ok(who.foreign(&rows, manifest.as_ref()).map(|why| format!("{why} (--resume-foreign appends anyway)")))
 }
 
 /// The runs of one invocation: the campaign folder, the rows already there and the runs
@@ -135,12 +254,16 @@ struct Plan {
 }
 
 impl Plan {
-    /// Read the campaign folder's rows (unless `--fresh`) and leave out the configurations
-    /// they already hold (all of them, or only the `ok` ones with `--retry-failed`).
-    fn of(campaign: &Campaign, machine: &Machine, opts: &ExecOptions) -> Result<Self> {
-        let dir = campaign_dir(&opts.out_root, machine, campaign);
+    /// Choose the folder ([`choose_folder`]), read its rows (unless `--fresh`) and leave out
+    /// the configurations they already hold (all of them, or only the `ok` ones with
+    /// `--retry-failed`).
+    fn of(campaign: &Campaign, machine: &Machine, solvers: &[Solver], opts: &ExecOptions) -> Result<Self> {
+        let dir = choose_folder(campaign, machine, &SessionIdentity::of(machine, solvers), opts)?;
         let csv_path = dir.join("runs.csv");
         let order = campaign.ordered(campaign.seed);
+        if csv_path.is_file() && !opts.fresh && !opts.dry_run {
+            repair_torn_tail(&csv_path)?;
+        }
         let existing = if csv_path.is_file() && !opts.fresh { read_rows(&csv_path)? } else { Vec::new() };
         let done = done_keys(&existing, opts.retry_failed);
         let planned = order.len();
@@ -197,6 +320,10 @@ impl Plan {
         let log = CsvLog::open(&self.csv_path)?;
         let json_dir = dir.join("json");
         std::fs::create_dir_all(&json_dir).with_context(|| format!("cannot create {}", json_dir.display()))?;
+        let stale = remove_stale_temp_files(dir) + remove_stale_temp_files(&json_dir);
+        if stale > 0 {
+            eprintln!("note: removed {stale} temporary file(s) left by a killed run in {}", dir.display());
+        }
         Ok((log, json_dir))
     }
 
@@ -231,8 +358,9 @@ struct ManifestLog {
 }
 
 impl ManifestLog {
-    /// Read (or start) the manifest, bring machine and software up to date, add a session
-    /// (with its planned counts) and write it; export this host's topology beside it.
+    /// Read (or start) the manifest and append this session (its machine, software,
+    /// binaries and planned counts); nothing already recorded is changed. A new campaign
+    /// also gets this host's `topology.xml`.
     fn start(
         campaign: &Campaign,
         machine: &Machine,
@@ -240,6 +368,7 @@ impl ManifestLog {
         opts: &ExecOptions,
         dir: &Path,
         counts: manifest::SessionCounts,
+        calibration: Option<Calibration>,
     ) -> Result<Self> {
         let ws = workspace_root();
         let git = manifest::git_info(ws.as_deref());
@@ -247,17 +376,19 @@ impl ManifestLog {
         let path = dir.join("manifest.json");
         let machine_info = fingerprint::machine_info(machine);
         let software = manifest::software_info(ws.as_deref(), binaries.clone());
-        let mut man = manifest::read(&path).unwrap_or_else(|_| Manifest {
-            manifest_version: manifest::MANIFEST_VERSION,
-            campaign_id: campaign.id.clone(),
-            campaign: serde_json::Value::Null,
-            machine: machine_info.clone(),
-            software: software.clone(),
-            sessions: Vec::new(),
-        });
-        man.campaign = serde_json::to_value(campaign)?;
-        man.machine = machine_info;
-        man.software = software;
+        let mut man = if path.is_file() {
+            manifest::read(&path)?
+        } else {
+            Manifest {
+                manifest_version: manifest::MANIFEST_VERSION,
+                campaign_id: campaign.id.clone(),
+                campaign: serde_json::to_value(campaign)?,
+                reference: false,
+                machine: machine_info.clone(),
+                software: software.clone(),
+                sessions: Vec::new(),
+            }
+        };
         man.sessions.push(Session {
             started: now_rfc3339(),
             command: opts.command.clone(),
@@ -265,12 +396,16 @@ impl ManifestLog {
             counts,
             binaries,
             git,
+            machine: Some(machine_info),
+            software: Some(software),
+            calibration,
             ..Session::default()
         });
         manifest::write(&path, &man)?;
-        if machine.is_this_system {
+        let topo = dir.join("topology.xml");
+        if machine.is_this_system && !topo.exists() {
             match crate::machine::topology::export_xml() {
-                Ok(xml) => mpm_cli::atomic::write_atomic(&dir.join("topology.xml"), xml.as_bytes())?,
+                Ok(xml) => mpm_cli::atomic::write_atomic(&topo, xml.as_bytes())?,
                 Err(e) => eprintln!("warning: no topology.xml: {e:#}"),
             }
         }
@@ -337,7 +472,7 @@ impl CampaignProgress {
                     _ if !row.reason.is_empty() => format!(" ({})", row.reason),
                     _ => String::new(),
                 }
-            );
+            ) + &if row.host_noisy { format!(" [host busy: {}]", row.host_noise) } else { String::new() };
             if self.bar.is_hidden() {
                 eprintln!("{line}");
             } else {
@@ -363,6 +498,7 @@ impl RunContext<'_> {
     fn run_one(
         &self,
         runner: &mut dyn Runner,
+        mut watch: Option<&mut HostWatch>,
         solver: &Solver,
         spec: &RunSpec,
         order_index: usize,
@@ -386,12 +522,17 @@ impl RunContext<'_> {
                 json_path: self.json_dir.join(format!("{run_id}.json")),
                 timeout: self.campaign.timeout,
             };
+            let probe_cpus = req.cpus.clone().unwrap_or_default();
+            let before = watch.as_deref_mut().map(|w| w.before_run(&probe_cpus));
             let out = runner.run(&req);
             if out.interrupted || self.interrupted.load(Ordering::SeqCst) {
                 let _ = std::fs::remove_file(&req.json_path);
                 return Ok(None);
             }
             fill_from_output(&mut row, &req, &out);
+            if let (Some(w), Some(b)) = (watch, before) {
+                row.set_host(&w.after_run(&probe_cpus, b), self.machine.usable_pus().len());
+            }
         }
         row.run_id = run_id;
         row.timestamp = now_rfc3339();
@@ -426,7 +567,7 @@ pub fn execute(
     for p in &campaign.pins {
         machine.check_policy(p).with_context(|| format!("pinning policy {p}"))?;
     }
-    let plan = Plan::of(campaign, machine, opts)?;
+    let plan = Plan::of(campaign, machine, solvers, opts)?;
     let mut counts = manifest::SessionCounts {
         planned: plan.planned,
         already_done: plan.planned - plan.todo.len(),
@@ -436,9 +577,15 @@ pub fn execute(
         plan.print(campaign, machine)?;
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
     }
-    let (mut log, json_dir) = plan.open_folder(opts.fresh)?;
-    let mut manifest = ManifestLog::start(campaign, machine, solvers, opts, &plan.dir, counts)?;
     plan.notes(campaign, machine);
+    if plan.todo.is_empty() {
+        // Nothing to do: the folder, its manifest and topology stay as they are.
+        return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
+    }
+    let (mut log, json_dir) = plan.open_folder(opts.fresh)?;
+    let mut watch = opts.watch.map(|w| HostWatch::start(w, machine.usable_pus().len()));
+    let calibration = watch.as_ref().map(HostWatch::calibration);
+    let mut manifest = ManifestLog::start(campaign, machine, solvers, opts, &plan.dir, counts, calibration)?;
     let progress = CampaignProgress::new(&plan.todo, !opts.quiet);
     let solver_of: HashMap<OptLevel, &Solver> = solvers.iter().map(|s| (s.opt, s)).collect();
     let mut attempts: HashMap<RunKey, usize> = HashMap::new();
@@ -457,7 +604,7 @@ pub fn execute(
         let attempt = attempts.entry(spec.key()).or_default();
         let run_id = format!("{}-a{}", spec.key().0, *attempt);
         *attempt += 1;
-        let Some(row) = ctx.run_one(runner, solver, spec, *order_index, run_id)? else {
+        let Some(row) = ctx.run_one(runner, watch.as_mut(), solver, spec, *order_index, run_id)? else {
             counts.interrupted = true;
             break;
         };
@@ -502,7 +649,7 @@ fn base_row(
         git_commit: git.commit.clone(),
         git_dirty: git.dirty,
         machine_id: fingerprint::fingerprint(machine),
-        binary_sha256: solver.sha256.chars().take(16).collect(),
+        binary_sha256: short_hash(&solver.sha256),
         seed: campaign.seed,
         scenario: campaign.scenario.clone(),
         model: spec.model,

@@ -4,10 +4,7 @@
 
 use super::manifest::BinaryInfo;
 use super::preset::OptLevel;
-use crate::util::hex;
 use anyhow::{anyhow, bail, Context, Result};
-use sha2::{Digest, Sha256};
-use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -74,17 +71,7 @@ pub fn target_dir(workspace: &Path) -> PathBuf {
 
 /// SHA-256 of a file, hex.
 pub fn sha256_file(path: &Path) -> Result<String> {
-    let mut f = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    let mut h = Sha256::new();
-    let mut buf = vec![0u8; 1 << 16];
-    loop {
-        let n = f.read(&mut buf)?;
-        if n == 0 {
-            break;
-        }
-        h.update(&buf[..n]);
-    }
-    Ok(hex(&h.finalize()))
+    mpm_cli::identity::sha256_file(path).with_context(|| format!("cannot hash {}", path.display()))
 }
 
 /// Build (when `build`) and locate the `mpm` binary of each level in `opts`.

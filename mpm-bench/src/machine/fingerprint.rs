@@ -3,11 +3,16 @@
 //!
 //! The *machine fingerprint* is a short, stable hash (12 hex digits of SHA-256) of the CPU
 //! model, packages, cores, PUs, memory (rounded to GiB) and operating system (name and
-//! version, not the kernel build): results of the same machine land in the same
-//! `results/<fingerprint>/` folder and are comparable; a different machine gets another.
+//! version, not the kernel build), and, for this host, of its [`HostIdentity`]: CPU vendor,
+//! family, model, stepping and microcode, per-level cache sizes, SMT state and a hash of
+//! `/etc/machine-id`. Results of the same machine land in the same `results/<fingerprint>/`
+//! folder and are comparable; another machine (another VM with the same CPU name string
+//! included, through its machine id) gets another. The folder name stays 12 hex digits; the
+//! manifest keeps the facts behind it.
 
 use super::topology::{CacheLevel, Machine, NumaNode};
 use crate::util::hex;
+use mpm_cli::identity::HostIdentity;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::path::Path;
@@ -43,10 +48,21 @@ pub struct MachineInfo {
     pub cpu_governor: String,
     /// Full topology as plain data.
     pub topology: Machine,
+    /// CPU identity, caches, SMT, hashed machine id (`null` in manifests written before
+    /// it existed, and for synthetic machines).
+    #[serde(default)]
+    pub identity: Option<HostIdentity>,
 }
 
-/// Stable fingerprint of a machine (12 hex digits).
+/// Stable fingerprint of a machine (12 hex digits): of `m` and, when `m` is this host, of
+/// its [`HostIdentity`].
 pub fn fingerprint(m: &Machine) -> String {
+    let identity = m.is_this_system.then(HostIdentity::read);
+    fingerprint_with(m, identity.as_ref())
+}
+
+/// Fingerprint of `m` with the host identity `identity` (none for synthetic machines).
+pub fn fingerprint_with(m: &Machine, identity: Option<&HostIdentity>) -> String {
     let mem_gib = (m.total_memory_bytes as f64 / (1u64 << 30) as f64).round() as u64;
     let key = format!(
         "cpu={}|packages={}|cores={}|pus={}|mem_gib={}|os={}|arch={}",
@@ -58,13 +74,18 @@ pub fn fingerprint(m: &Machine) -> String {
         os_name(),
         std::env::consts::ARCH
     );
+    let key = match identity {
+        Some(id) => format!("{key}|{}", id.key()),
+        None => key,
+    };
     hex(&Sha256::digest(key.as_bytes()))[..12].to_string()
 }
 
 /// Machine part of the manifest for `m` (this host).
 pub fn machine_info(m: &Machine) -> MachineInfo {
+    let identity = m.is_this_system.then(HostIdentity::read);
     MachineInfo {
-        fingerprint: fingerprint(m),
+        fingerprint: fingerprint_with(m, identity.as_ref()),
         cpu_model: m.cpu_model.clone(),
         packages: m.num_packages(),
         cores: m.num_cores(),
@@ -78,6 +99,7 @@ pub fn machine_info(m: &Machine) -> MachineInfo {
         arch: std::env::consts::ARCH.into(),
         cpu_governor: governor(),
         topology: m.clone(),
+        identity,
     }
 }
 
@@ -123,5 +145,27 @@ mod tests {
         assert_eq!(a, fingerprint(&m));
         let other = Machine::synthetic("pack:1 core:4 pu:2").unwrap();
         assert_ne!(a, fingerprint(&other));
+    }
+
+    /// Two hosts alike in CPU name, counts and memory but of another CPU stepping, microcode,
+    /// cache size or machine id get different fingerprints.
+    #[test]
+    fn identity_separates_look_alike_hosts() {
+        let m = Machine::synthetic("pack:1 core:2 pu:1").unwrap();
+        let id = mpm_cli::identity::parse_cpuinfo(
+            "vendor_id : AuthenticAMD\ncpu family : 25\nmodel : 17\nstepping : 1\nmicrocode : 0x1000065\n",
+        );
+        let base = fingerprint_with(&m, Some(&id));
+        assert_eq!(base.len(), 12);
+        assert_ne!(base, fingerprint_with(&m, None));
+        let mut other = id.clone();
+        other.cpu_stepping = "2".into();
+        assert_ne!(base, fingerprint_with(&m, Some(&other)));
+        let mut other = id.clone();
+        other.machine_id_sha256 = Some("ab".repeat(32));
+        assert_ne!(base, fingerprint_with(&m, Some(&other)));
+        let mut other = id.clone();
+        other.caches.push(mpm_cli::identity::CacheSize { level: 3, kind: "unified".into(), size_bytes: 1 << 25 });
+        assert_ne!(base, fingerprint_with(&m, Some(&other)));
     }
 }

@@ -5,11 +5,13 @@
 //! * [`placement`]: the pinning policies and the CPU of each worker of a run;
 //! * [`fingerprint`]: the machine's identity (the `results/<fingerprint>/` folder) and the
 //!   machine part of a manifest;
-//! * [`bandwidth`]: the memory-bandwidth ceiling (STREAM triad).
+//! * [`bandwidth`]: the memory-bandwidth ceiling (STREAM triad);
+//! * [`load`]: the host's load around a run, the calibration, and the `host_noisy` rule.
 //!
 //! It uses nothing of the campaign, analysis or report layers.
 
 pub mod bandwidth;
 pub mod fingerprint;
+pub mod load;
 pub mod placement;
 pub mod topology;

@@ -298,6 +298,7 @@ fn efficiency_figures(sets: &[Set], out: &Path) -> Result<Vec<(String, String)>>
                                 lo: e.lo,
                                 hi: e.hi,
                                 hollow: p.oversubscribed,
+                                grey: p.noisy,
                             })
                         })
                         .collect(),

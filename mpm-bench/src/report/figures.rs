@@ -119,7 +119,7 @@ fn plot_point(p: &Point, metric: Metric) -> Option<PlotPoint> {
         Metric::Speedup => p.speedup?,
         Metric::Efficiency => p.efficiency?,
     };
-    Some(PlotPoint { x: p.key.threads as f64, y: e.value, lo: e.lo, hi: e.hi, hollow: p.oversubscribed })
+    Some(PlotPoint { x: p.key.threads as f64, y: e.value, lo: e.lo, hi: e.hi, hollow: p.oversubscribed, grey: p.noisy })
 }
 
 /// The three panels of one of Figures 7-14.
@@ -221,6 +221,7 @@ fn memory_points(an: &Analysis, m: u32, strat: Strategy, opt: &str) -> (Vec<Plot
                 lo: e.lo / 1e9,
                 hi: e.hi / 1e9,
                 hollow: cell.oversubscribed,
+                grey: cell.noisy > 0,
             }),
             None if !cell.not_ok.is_empty() => skipped.push(n.to_string()),
             None => {}

@@ -1,4 +1,5 @@
-//! Drawing: panels of lines with interval bars and hollow (oversubscribed) markers, a legend
+//! Drawing: panels of lines with interval bars, hollow (oversubscribed) and grey (busy host)
+//! markers, a legend
 //! strip, footnotes, and a figure written as PNG and SVG with the embedded font
 //! ([`mpm_cli::picture::register_fonts`]).
 
@@ -39,7 +40,12 @@ pub struct PlotPoint {
     pub hi: f64,
     /// Drawn hollow (oversubscribed).
     pub hollow: bool,
+    /// Drawn grey (measured on a busy host, `host_noisy`).
+    pub grey: bool,
 }
+
+/// Colour of the markers of points measured on a busy host.
+pub const NOISY_GREY: RGBColor = RGBColor(150, 150, 150);
 
 /// One line of a panel.
 #[derive(Clone, Debug)]
@@ -92,8 +98,9 @@ fn draw_marker<DB: DrawingBackend>(
     // Hollow = the filled shape in the line's colour with a smaller white one on top (the
     // triangle marker of plotters is always filled, so outlines are made this way).
     let at = (p.x, p.y);
+    let colour = if p.grey { NOISY_GREY } else { line.colour };
     let layers: Vec<(i32, ShapeStyle)> =
-        if p.hollow { vec![(7, line.colour.filled()), (4, WHITE.filled())] } else { vec![(6, line.colour.filled())] };
+        if p.hollow { vec![(7, colour.filled()), (4, WHITE.filled())] } else { vec![(6, colour.filled())] };
     for (s, style) in layers {
         match line.marker % 4 {
             0 => chart.draw_series(std::iter::once(Circle::new(at, s, style))).map_err(pe)?,
@@ -241,6 +248,9 @@ fn draw_legend<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panels: &[Pane
     let hollow = panels.iter().any(|p| p.lines.iter().any(|l| l.points.iter().any(|q| q.hollow)));
     if hollow {
         items.push(("hollow, dotted: more threads than cores — time sharing, not scaling".into(), None, false));
+    }
+    if panels.iter().any(|p| p.lines.iter().any(|l| l.points.iter().any(|q| q.grey))) {
+        items.push(("grey marker: measured on a busy host (host_noisy)".into(), None, false));
     }
     let widths: Vec<i32> = items
         .iter()

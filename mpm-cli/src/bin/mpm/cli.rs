@@ -72,7 +72,7 @@ relative errors *_rel_error (measured / Rankine-Hugoniot - 1).";
 /// human summary and writes a machine-readable JSON summary (timings per stage, memory,
 /// pinning, physics checks) and optional VTU snapshots for ParaView.
 #[derive(Debug, Parser)]
-#[command(name = "mpm", version, after_help = EXAMPLES, propagate_version = true)]
+#[command(name = "mpm", version = mpm_cli::identity::version_line(), after_help = EXAMPLES, propagate_version = true)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
