@@ -97,7 +97,7 @@ enum Cmd {
     Figures(figures::FiguresArgs),
     /// Check the paper's claims C1-C6 on a campaign: holds / does not hold / cannot tell.
     Claims(claims::ClaimsArgs),
-    /// Compare a campaign with a baseline; exit 1 when efficiency or time per step regressed.
+    /// Compare a campaign with a baseline: exit 0 pass, 1 regression or missing cell, 2 error or incomparable.
     Regress(regress::RegressArgs),
     /// Hardware comparison report (Markdown + figures) over two or more campaigns.
     Report(comparison::ReportArgs),
@@ -231,11 +231,15 @@ fn main() {
         Cmd::Run(a) => cmd_run(a),
         Cmd::Figures(a) => figures::run(a),
         Cmd::Claims(a) => claims::run(a),
-        Cmd::Regress(a) => regress::run(a).map(|code| {
-            if code != 0 {
-                std::process::exit(code);
+        // regress: 0 pass, 1 regression, 2 error or incomparable (a CI gate must tell a
+        // regression from a broken comparison).
+        Cmd::Regress(a) => match regress::run(a) {
+            Ok(code) => std::process::exit(code),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::exit(2);
             }
-        }),
+        },
         Cmd::Report(a) => comparison::run(a),
         Cmd::ImpactTable(a) => impact_table::run(a),
         Cmd::Bandwidth(a) => {

@@ -40,6 +40,10 @@ struct Craft {
     /// Skip Model4 AE at 4+ threads (memory guard).
     skip_m4_ae: bool,
     pin: &'static str,
+    /// Every repetition at this thread count failed (the solver crashed).
+    fail_threads: Option<usize>,
+    /// O0's parallel loss relative to O3's (below 1: O0 scales better).
+    o0_loss: f64,
 }
 
 impl Default for Craft {
@@ -56,13 +60,15 @@ impl Default for Craft {
             slow_all: 1.0,
             skip_m4_ae: true,
             pin: "close",
+            fail_threads: None,
+            o0_loss: 0.3,
         }
     }
 }
 
 /// Stage efficiencies of the crafted machine: DD beats AE, more so for larger models; AE's
 /// grid stage is its bottleneck; O0 scales better than O3; crossing a socket costs 20 %.
-fn eff(model: u32, strategy: Strategy, opt: &str, particle: bool, n: usize, per_socket: usize) -> f64 {
+fn eff(model: u32, strategy: Strategy, opt: &str, particle: bool, n: usize, c: &Craft) -> f64 {
     if n == 1 {
         return 1.0;
     }
@@ -73,9 +79,9 @@ fn eff(model: u32, strategy: Strategy, opt: &str, particle: bool, n: usize, per_
         (_, true) => 0.95,
     };
     if opt == "o0" {
-        e = 1.0 - 0.5 * (1.0 - e);
+        e = 1.0 - c.o0_loss * (1.0 - e);
     }
-    if n > per_socket {
+    if n > c.per_socket {
         e *= 0.8;
     }
     e
@@ -99,15 +105,19 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
                         let noise = c.noise[rep as usize % c.noise.len()];
                         let par = if n > 1 { c.slow_parallel } else { 1.0 };
                         let k = slow * noise * par * c.slow_all;
-                        let g = g1 * k / (n as f64 * eff(m, strategy, opt, false, n, c.per_socket));
-                        let p = p1 * k / (n as f64 * eff(m, strategy, opt, true, n, c.per_socket));
+                        let g = g1 * k / (n as f64 * eff(m, strategy, opt, false, n, c));
+                        let p = p1 * k / (n as f64 * eff(m, strategy, opt, true, n, c));
                         let mem = 1e8 * m as f64 + if strategy == AE { 3e7 * m as f64 * (n - 1) as f64 } else { 1e6 };
                         let skip = c.skip_m4_ae && m == 4 && strategy == AE && n >= 4;
                         let steps = 10u64;
+                        if c.fail_threads == Some(n) && !skip {
+                            log.append(&failed_row(dir, &fp, m, strategy, opt, n, rep)).unwrap();
+                            continue;
+                        }
                         let row = Row {
                             schema_version: SCHEMA_VERSION,
                             campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
-                            run_id: format!("m{m}-{strategy}-{opt}-t{n}-r{rep}"),
+                            run_id: format!("m{m}-{strategy}-{opt}-t{n}-{}-r{rep}", c.pin),
                             machine_id: fp.clone(),
                             scenario: "taylor".into(),
                             model: m,
@@ -146,6 +156,27 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
         write_manifest(dir, t);
     }
     dir.to_path_buf()
+}
+
+/// A repetition whose solver crashed.
+fn failed_row(dir: &Path, fp: &str, model: u32, strategy: Strategy, opt: &str, threads: usize, rep: u32) -> Row {
+    Row {
+        schema_version: SCHEMA_VERSION,
+        campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
+        run_id: format!("m{model}-{strategy}-{opt}-t{threads}-r{rep}"),
+        machine_id: fp.into(),
+        scenario: "taylor".into(),
+        model,
+        grid_mode: "fixed".into(),
+        strategy,
+        opt_level: opt.into(),
+        threads,
+        pin_policy: "close".into(),
+        rep,
+        status: Status::Failed,
+        reason: "solver exited with status 101".into(),
+        ..Row::default()
+    }
 }
 
 /// The manifest of a crafted campaign on the hwloc synthetic topology `t` (16 GiB).
@@ -332,6 +363,7 @@ fn regress_args(base: &Path, cur: &Path) -> RegressArgs {
         stages: vec!["total".into()],
         include_oversubscribed: false,
         pin: None,
+        allow_missing: false,
     }
 }
 
@@ -401,12 +433,99 @@ fn regress_refuses_other_machines_unless_forced() {
     let json = tmp.path().join("v.json");
     let mut args = regress_args(&base, &other);
     args.json = Some(json.clone());
-    let err = regress::run(args.clone()).unwrap_err();
-    assert!(format!("{err:#}").contains("different machines"), "{err:#}");
+    assert_eq!(regress::run(args.clone()).unwrap(), 2);
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(v["verdict"], "incomparable");
+    assert!(v["reason"].as_str().unwrap().contains("different machines"), "{v}");
     args.force = true;
     assert_eq!(regress::run(args).unwrap(), 0);
+}
+
+/// `mpm-bench regress` as CI runs it: the exit code and the console.
+fn regress_cli(base: &Path, cur: &Path, extra: &[&str]) -> (i32, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_mpm-bench"))
+        .args(["regress", "--baseline", base.to_str().unwrap(), "--current", cur.to_str().unwrap()])
+        .args(extra)
+        .output()
+        .unwrap();
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(!text.contains("panicked"), "{text}");
+    (out.status.code().unwrap(), text)
+}
+
+#[test]
+fn regress_exit_codes_of_the_binary() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = write_campaign(&tmp.path().join("base"), &Craft::default());
+    // 0: the same campaign.
+    let (code, text) = regress_cli(&base, &base, &[]);
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("verdict: pass") && text.contains("Holm"), "{text}");
+    // 1: parallel runs 25 % slower; every check line carries its units.
+    let slow = write_campaign(&tmp.path().join("slow"), &Craft { slow_parallel: 1.25, ..Craft::default() });
+    let json = tmp.path().join("v.json");
+    let (code, text) = regress_cli(&base, &slow, &["--json", json.to_str().unwrap()]);
+    assert_eq!(code, 1, "{text}");
+    for line in text.lines().filter(|l| l.contains("REGRESSED")) {
+        let has_unit = line.contains(" ms ") || line.contains(" µs ") || line.contains("efficiency");
+        assert!(has_unit && line.contains(" x ") && line.contains('%'), "{line}");
+    }
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let c = &v["regressions"][0];
+    assert!(c["ratio"]["lo"].is_number() && c["ratio"]["hi"].is_number() && c["p_worse_holm"].is_number(), "{c}");
+    assert!(c["baseline"].is_number() && c["unit"].is_string(), "{c}");
+    // 2: unreadable input, another machine, nothing in common, bad flags.
+    let (code, text) = regress_cli(&base, &tmp.path().join("nowhere"), &[]);
+    assert_eq!(code, 2, "{text}");
+    let other =
+        write_campaign(&tmp.path().join("other"), &Craft { topo: Some("pack:1 core:8 pu:1"), ..Craft::default() });
+    let (code, text) = regress_cli(&base, &other, &[]);
+    assert_eq!(code, 2, "{text}");
+    assert!(text.contains("different machines"), "{text}");
+    let disjoint = write_campaign(&tmp.path().join("disjoint"), &Craft { models: vec![5], ..Craft::default() });
+    let (code, text) = regress_cli(&base, &disjoint, &[]);
+    assert_eq!(code, 2, "{text}");
+    assert!(text.contains("nothing to compare"), "{text}");
+    let (code, text) = regress_cli(&base, &base, &["--tolerance", "3"]);
+    assert_eq!(code, 2, "{text}");
+}
+
+#[test]
+fn regress_fails_on_missing_or_failed_cells_unless_allowed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = write_campaign(&tmp.path().join("base"), &Craft::default());
+    // The 8-thread cells were not run.
+    let partial = write_campaign(&tmp.path().join("partial"), &Craft { threads: vec![1, 2, 4, 6], ..Craft::default() });
+    let (code, text) = regress_cli(&base, &partial, &[]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("MISSING") && text.contains("Model1 DD O3 8t") && text.contains("FAILS the gate"), "{text}");
+    let (code, text) = regress_cli(&base, &partial, &["--allow-missing"]);
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("allowed by --allow-missing"), "{text}");
+    // The 6-thread runs crashed: failed cells are named with the reason.
+    let crashed = write_campaign(&tmp.path().join("crashed"), &Craft { fail_threads: Some(6), ..Craft::default() });
+    let r = regress::evaluate(&regress_args(&base, &crashed)).unwrap();
+    assert_eq!(r.exit_code(), 1, "{}", r.reason);
+    let m = r.missing_in_current.iter().find(|m| m.cell == "Model2 AE O0 6t").unwrap();
+    assert_eq!(m.status, "failed");
+    assert!(m.reason.contains("3 of 3") && m.reason.contains("status 101"), "{m:?}");
+    assert!(r.regressions.is_empty(), "{:?}", r.regressions);
+}
+
+#[test]
+fn regress_holm_correction_is_applied_over_the_cells() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = write_campaign(&tmp.path().join("base"), &Craft::default());
+    let r = regress::evaluate(&regress_args(&base, &base)).unwrap();
+    let gated: Vec<_> = r.checks.iter().filter(|c| c.gated).collect();
+    assert!(gated.len() > 10);
+    // Holm never lowers a p-value, and raises the smallest by the number of checks.
+    for c in &gated {
+        assert!(c.p_worse_holm.unwrap() >= c.p_worse.unwrap());
+    }
+    let smallest = gated.iter().min_by(|a, b| a.p_worse.unwrap().total_cmp(&b.p_worse.unwrap())).unwrap();
+    let expect = (smallest.p_worse.unwrap() * gated.len() as f64).min(1.0);
+    assert!((smallest.p_worse_holm.unwrap() - expect).abs() < 1e-12, "{smallest:?}");
 }
 
 #[test]
