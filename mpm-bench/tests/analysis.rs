@@ -303,10 +303,18 @@ fn verdicts(dir: &Path) -> Vec<(String, Verdict)> {
     claims::evaluate(&c, &an).into_iter().map(|r| (r.id.to_string(), r.verdict)).collect()
 }
 
+/// A campaign run under `close` (the default craft) and under `spread` as crafted by
+/// `spread` (its `per_socket` is where its socket penalty starts).
+fn close_and_spread(dir: &Path, spread: Craft) -> PathBuf {
+    write_campaign(dir, &Craft::default());
+    write_campaign(dir, &Craft { pin: "spread", ..spread })
+}
+
 #[test]
 fn claims_on_a_crafted_two_socket_machine() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = write_campaign(&tmp.path().join("c"), &Craft::default());
+    // Spread pays the socket penalty from 2 threads on: C5 holds at 2 and 4 threads.
+    let dir = close_and_spread(&tmp.path().join("c"), Craft { per_socket: 1, ..Craft::default() });
     let v = verdicts(&dir);
     for (id, verdict) in &v {
         assert_eq!(*verdict, Verdict::Holds, "{id}: {v:?}");
@@ -316,6 +324,54 @@ fn claims_on_a_crafted_two_socket_machine() {
     let md = claims::markdown(&res, "##");
     assert!(md.contains("| C5 |") && md.contains("**holds**"));
     assert!(!res[0].evidence.is_empty());
+    assert!(res.iter().all(|r| !r.indicative && r.min_reps.is_none_or(|n| n >= 3)), "{res:?}");
+    let c5 = &res[4];
+    assert!(c5.evidence.iter().any(|e| e.contains("2 threads") && e.contains("spread (2 sockets)")), "{c5:?}");
+    assert!(c5.evidence.iter().all(|e| !e.contains("6 threads") && !e.contains("8 threads")), "{c5:?}");
+}
+
+#[test]
+fn c5_compares_one_socket_with_two_at_the_same_thread_count() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Only close rows: 4 against 6 threads is not evidence any more.
+    let v = verdicts(&write_campaign(&tmp.path().join("a"), &Craft::default()));
+    assert_eq!(v[4].1, Verdict::CannotTell, "{v:?}");
+    // Spread exactly as fast as close: everything within the noise.
+    let v = verdicts(&close_and_spread(&tmp.path().join("b"), Craft::default()));
+    assert_eq!(v[4].1, Verdict::CannotTell, "{v:?}");
+    // Spread faster than close (more cache and memory bandwidth): does not hold.
+    let v = verdicts(&close_and_spread(&tmp.path().join("c"), Craft { slow_parallel: 0.8, ..Craft::default() }));
+    assert_eq!(v[4].1, Verdict::DoesNotHold, "{v:?}");
+    // Spread slower: holds.
+    let v = verdicts(&close_and_spread(&tmp.path().join("d"), Craft { slow_parallel: 1.25, ..Craft::default() }));
+    assert_eq!(v[4].1, Verdict::Holds, "{v:?}");
+}
+
+#[test]
+fn holds_needs_a_majority_and_intervals() {
+    let tmp = tempfile::tempdir().unwrap();
+    // O0 only a little better: AE's comparisons support C4, DD's are within the noise.
+    let dir = write_campaign(&tmp.path().join("a"), &Craft { o0_loss: 0.5, ..Craft::default() });
+    let c = load_campaign(&dir).unwrap();
+    let c4 = &claims::evaluate(&c, &c.analyse(None))[3];
+    assert_eq!(c4.verdict, Verdict::CannotTell, "{c4:?}");
+    assert!(c4.reason.contains("no majority"), "{}", c4.reason);
+    assert!(c4.evidence.iter().any(|e| e.ends_with("supports")), "{c4:?}");
+    // O0 clearly better: holds; clearly worse: does not hold.
+    assert_eq!(verdicts(&write_campaign(&tmp.path().join("b"), &Craft::default()))[3].1, Verdict::Holds);
+    let worse = write_campaign(&tmp.path().join("c"), &Craft { o0_loss: 2.0, ..Craft::default() });
+    assert_eq!(verdicts(&worse)[3].1, Verdict::DoesNotHold);
+    // One repetition: the verdicts are indicative and say so.
+    let once = Craft { reps: 1, noise: vec![1.0], ..Craft::default() };
+    let dir = write_campaign(&tmp.path().join("d"), &once);
+    write_campaign(&dir, &Craft { pin: "spread", per_socket: 1, ..once });
+    let c = load_campaign(&dir).unwrap();
+    let res = claims::evaluate(&c, &c.analyse(None));
+    for r in &res[..5] {
+        assert!(r.indicative && r.verdict_label().ends_with("(indicative)"), "{r:?}");
+        assert!(r.reason.contains("indicative only"), "{}", r.reason);
+    }
+    assert!(claims::table(&res).contains("(indicative)"));
 }
 
 #[test]
