@@ -44,6 +44,12 @@ struct Craft {
     fail_threads: Option<usize>,
     /// O0's parallel loss relative to O3's (below 1: O0 scales better).
     o0_loss: f64,
+    /// Parallel efficiency of DD's grid stage.
+    dd_grid_eff: f64,
+    /// Parallel efficiency of AE's particle stage.
+    ae_particle_eff: f64,
+    /// Bytes of AE's nodal copies per extra thread and model number.
+    ae_copy_bytes: f64,
 }
 
 impl Default for Craft {
@@ -62,6 +68,9 @@ impl Default for Craft {
             pin: "close",
             fail_threads: None,
             o0_loss: 0.3,
+            dd_grid_eff: 0.9,
+            ae_particle_eff: 0.93,
+            ae_copy_bytes: 3e7,
         }
     }
 }
@@ -74,8 +83,8 @@ fn eff(model: u32, strategy: Strategy, opt: &str, particle: bool, n: usize, c: &
     }
     let mut e = match (strategy, particle) {
         (AE, false) => 0.75 - 0.1 * model as f64,
-        (AE, true) => 0.93,
-        (_, false) => 0.9,
+        (AE, true) => c.ae_particle_eff,
+        (_, false) => c.dd_grid_eff,
         (_, true) => 0.95,
     };
     if opt == "o0" {
@@ -107,7 +116,8 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
                         let k = slow * noise * par * c.slow_all;
                         let g = g1 * k / (n as f64 * eff(m, strategy, opt, false, n, c));
                         let p = p1 * k / (n as f64 * eff(m, strategy, opt, true, n, c));
-                        let mem = 1e8 * m as f64 + if strategy == AE { 3e7 * m as f64 * (n - 1) as f64 } else { 1e6 };
+                        let mem = 1e8 * m as f64
+                            + if strategy == AE { c.ae_copy_bytes * m as f64 * (n - 1) as f64 } else { 1e6 };
                         let skip = c.skip_m4_ae && m == 4 && strategy == AE && n >= 4;
                         let steps = 10u64;
                         if c.fail_threads == Some(n) && !skip {
@@ -345,6 +355,37 @@ fn c5_compares_one_socket_with_two_at_the_same_thread_count() {
     // Spread slower: holds.
     let v = verdicts(&close_and_spread(&tmp.path().join("d"), Craft { slow_parallel: 1.25, ..Craft::default() }));
     assert_eq!(v[4].1, Verdict::Holds, "{v:?}");
+}
+
+/// Every claim on crafted rows where it holds, does not hold, and cannot be told.
+#[test]
+fn each_claim_holds_fails_and_cannot_tell() {
+    use Verdict::{CannotTell as Cannot, DoesNotHold as Not, Holds};
+    let tmp = tempfile::tempdir().unwrap();
+    let one_core = Craft { topo: Some("pack:1 core:1 pu:1"), cores: 1, per_socket: 1, ..Craft::default() };
+    let cases: Vec<(usize, Craft, Verdict)> = vec![
+        (0, Craft::default(), Holds),
+        (0, Craft { dd_grid_eff: 0.3, ..Craft::default() }, Not),
+        (0, one_core.clone(), Cannot),
+        (1, Craft::default(), Holds),
+        (1, Craft { ae_copy_bytes: 0.0, ..Craft::default() }, Not),
+        (1, Craft { threads: vec![1], ..Craft::default() }, Cannot),
+        (2, Craft::default(), Holds),
+        (2, Craft { ae_particle_eff: 0.3, ..Craft::default() }, Not),
+        (2, one_core.clone(), Cannot),
+        (3, Craft::default(), Holds),
+        (3, Craft { o0_loss: 2.0, ..Craft::default() }, Not),
+        (3, one_core, Cannot),
+        (5, Craft::default(), Holds),
+        (5, Craft { skip_m4_ae: false, ..Craft::default() }, Not),
+        (5, Craft { models: vec![1, 2], ..Craft::default() }, Cannot),
+    ];
+    for (k, (claim, craft, want)) in cases.into_iter().enumerate() {
+        let dir = write_campaign(&tmp.path().join(format!("c{k}")), &craft);
+        let c = load_campaign(&dir).unwrap();
+        let r = &claims::evaluate(&c, &c.analyse(None))[claim];
+        assert_eq!(r.verdict, want, "case {k}: {} {}: {:?}", r.id, r.reason, r.evidence);
+    }
 }
 
 #[test]
