@@ -10,7 +10,7 @@ use mpm_bench::campaign::process::{MockRunner, ProcessRunner};
 use mpm_bench::campaign::runner::{self, ExecOptions};
 use mpm_bench::campaign::solver::{self, Solver};
 use mpm_bench::campaign::watch::WatchSettings;
-use mpm_bench::machine::placement::{PinPolicy, PAPER_THREADS};
+use mpm_bench::machine::placement::{PinPolicy, Places, PAPER_THREADS};
 use mpm_bench::machine::topology::{self, Machine};
 use mpm_bench::machine::{bandwidth, fingerprint};
 use mpm_bench::report::{comparison, figures, impact_table};
@@ -53,14 +53,19 @@ enum Cmd {
     /// Print the machine as hwloc sees it and the CPU each worker gets under each policy.
     #[command(
         long_about = "Print the machine as hwloc sees it (packages, NUMA nodes, cores, PUs, \
-            caches) and, for 1/2/4/6/8 threads under each pinning policy (close, spread, none, \
-            and an optional explicit list), the CPU each worker gets. Physical cores come \
-            before SMT siblings; more threads than usable PUs wrap around and are marked \
-            oversubscribed ('*').",
+            caches), the OpenMP place list (--places: threads, cores, ll_caches, numa_domains, \
+            sockets) and, for 1/2/4/6/8 threads under each binding (--bind: close, spread, \
+            primary, none, or a CPU list), the CPU each worker gets, assigned to places exactly \
+            as OpenMP 5.2's proc_bind does (close: consecutive places; spread: one thread per \
+            subpartition of the place list; primary: all on the first place). Several workers \
+            on one place take its PUs in turn, physical cores before SMT siblings. Two workers \
+            on one CPU, or more threads than usable PUs, are marked oversubscribed ('*').",
         after_help = "Examples:\n  \
             mpm-bench topology\n  \
-            mpm-bench topology --pin 1,0 --threads 1,2,3\n  \
-            mpm-bench topology --synthetic \"pack:2 core:4 pu:2\"   # the paper's 2 x quad-core, with SMT\n  \
+            mpm-bench topology --bind 1,0 --threads 1,2,3\n  \
+            mpm-bench topology --synthetic \"pack:2 core:4 pu:1\" --threads 2,4,8 --places cores --bind spread\n  \
+            mpm-bench topology --synthetic \"pack:1 numa:4 core:4 pu:1\" --places numa_domains\n  \
+            mpm-bench topology --synthetic \"pack:2 core:8 pu:2\" --places threads --bind close --bind spread\n  \
             mpm-bench topology --xml results/<fp>/<campaign>/topology.xml\n  \
             mpm-bench topology --export-xml topo.xml"
     )]
@@ -96,7 +101,7 @@ enum Cmd {
     Figures(figures::FiguresArgs),
     /// Check the paper's claims C1-C6 on a campaign: holds / does not hold / cannot tell.
     Claims(claims::ClaimsArgs),
-    /// Compare a campaign with a baseline; exit 1 when efficiency or time per step regressed.
+    /// Compare a campaign with a baseline: exit 0 pass, 1 regression or missing cell, 2 error or incomparable.
     Regress(regress::RegressArgs),
     /// Hardware comparison report (Markdown + figures) over two or more campaigns.
     Report(comparison::ReportArgs),
@@ -131,9 +136,14 @@ struct TopologyArgs {
     /// Thread counts to show (comma list).
     #[arg(long, value_name = "LIST", value_delimiter = ',', default_values_t = PAPER_THREADS.to_vec())]
     threads: Vec<usize>,
-    /// Also show an explicit CPU list policy, e.g. `0,1` or `0-3`.
-    #[arg(long, value_name = "LIST")]
-    pin: Option<String>,
+    /// OpenMP place list: threads, cores, ll_caches, numa_domains, sockets.
+    #[arg(long, value_name = "PLACES", default_value = "cores")]
+    places: Places,
+    /// Binding to show (repeatable): close, spread, primary (optionally @places, e.g.
+    /// spread@sockets), none, or a CPU list such as 0,1 or 0-3. Default: close, spread,
+    /// primary and none. `--pin` is an alias.
+    #[arg(long, visible_alias = "pin", value_name = "POLICY")]
+    bind: Vec<String>,
     /// Use an hwloc synthetic topology instead of this machine, e.g. "pack:2 core:4 pu:2".
     #[arg(long, value_name = "DESCRIPTION", conflicts_with = "xml")]
     synthetic: Option<String>,
@@ -165,10 +175,16 @@ struct RunArgs {
     /// Repetitions of every configuration.
     #[arg(long, value_name = "N")]
     reps: Option<u32>,
-    /// Pinning policy: close (fill a socket first), spread (alternate sockets), none, or a
-    /// CPU list such as 0,1 or 0-3. Repeat the flag for several policies.
-    #[arg(long, value_name = "POLICY")]
-    pin: Vec<String>,
+    /// Binding (OpenMP proc_bind over --places): close (consecutive places: fills a socket
+    /// first), spread (threads spread evenly over the places), primary (all on the first
+    /// place), none (not pinned), or a CPU list such as 0,1 or 0-3. Repeat for several
+    /// policies. `--pin` is an alias; `compact` and `scatter` mean close and spread.
+    #[arg(long, visible_alias = "pin", value_name = "POLICY")]
+    bind: Vec<String>,
+    /// OpenMP place list of every binding: threads, cores (default), ll_caches,
+    /// numa_domains, sockets. See `mpm-bench topology --places ...` for where workers go.
+    #[arg(long, value_name = "PLACES")]
+    places: Option<Places>,
     /// Stop every run after N steps (replaces every budget of the preset).
     #[arg(long, value_name = "N", conflicts_with = "end_time")]
     steps: Option<u64>,
@@ -225,11 +241,15 @@ fn main() {
         Cmd::Run(a) => cmd_run(a),
         Cmd::Figures(a) => figures::run(a),
         Cmd::Claims(a) => claims::run(a),
-        Cmd::Regress(a) => regress::run(a).map(|code| {
-            if code != 0 {
-                std::process::exit(code);
+        // regress: 0 pass, 1 regression, 2 error or incomparable (a CI gate must tell a
+        // regression from a broken comparison).
+        Cmd::Regress(a) => match regress::run(a) {
+            Ok(code) => std::process::exit(code),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::exit(2);
             }
-        }),
+        },
         Cmd::Report(a) => comparison::run(a),
         Cmd::ImpactTable(a) => impact_table::run(a),
         Cmd::Bandwidth(a) => {
@@ -262,11 +282,16 @@ fn cmd_topology(a: TopologyArgs) -> Result<()> {
     use std::io::Write as _;
     let mut out = std::io::stdout().lock();
     writeln!(out, "{}", machine.describe())?;
-    let mut policies = vec![PinPolicy::Close, PinPolicy::Spread, PinPolicy::None];
-    if let Some(p) = &a.pin {
-        let p: PinPolicy = p.parse()?;
-        machine.check_policy(&p)?;
-        policies.insert(2, p);
+    let policies: Vec<PinPolicy> = if a.bind.is_empty() {
+        vec![PinPolicy::CLOSE, PinPolicy::SPREAD, PinPolicy::PRIMARY, PinPolicy::None]
+            .into_iter()
+            .map(|p| p.with_places(a.places))
+            .collect()
+    } else {
+        a.bind.iter().map(|b| PinPolicy::parse_with(b, a.places)).collect::<Result<_>>()?
+    };
+    for p in &policies {
+        machine.check_policy(p)?;
     }
     write!(out, "{}", machine.placement_table(&a.threads, &policies)?)?;
     if machine.is_this_system {
@@ -311,10 +336,11 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         .transpose()?;
     let opt =
         a.opt.as_deref().map(|s| preset::parse_list(s, "optimisation level", |x| x.parse::<OptLevel>())).transpose()?;
-    let pin = if a.pin.is_empty() {
+    let places = a.places.unwrap_or_default();
+    let pin = if a.bind.is_empty() {
         None
     } else {
-        Some(a.pin.iter().map(|p| p.parse::<PinPolicy>()).collect::<Result<Vec<_>>>()?)
+        Some(a.bind.iter().map(|p| PinPolicy::parse_with(p, places)).collect::<Result<Vec<_>>>()?)
     };
     Ok(Overrides {
         models,
@@ -323,6 +349,7 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         opt,
         reps: a.reps,
         pin,
+        places: a.places,
         steps: a.steps,
         end_time: a.end_time.as_deref().map(preset::parse_seconds).transpose()?,
         warmup: a.warmup,
@@ -339,7 +366,7 @@ fn cmd_run(a: RunArgs) -> Result<()> {
     let campaign = Campaign::resolve(preset, source, &ov)?;
     let machine = Machine::detect()?;
     for p in &campaign.pins {
-        machine.check_policy(p).with_context(|| format!("bad --pin {p}"))?;
+        machine.check_policy(p).with_context(|| format!("bad --bind {p}"))?;
     }
     let interrupted = runner::install_interrupt_handler();
     let opts = ExecOptions {

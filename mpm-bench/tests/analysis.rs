@@ -40,6 +40,16 @@ struct Craft {
     /// Skip Model4 AE at 4+ threads (memory guard).
     skip_m4_ae: bool,
     pin: &'static str,
+    /// Every repetition at this thread count failed (the solver crashed).
+    fail_threads: Option<usize>,
+    /// O0's parallel loss relative to O3's (below 1: O0 scales better).
+    o0_loss: f64,
+    /// Parallel efficiency of DD's grid stage.
+    dd_grid_eff: f64,
+    /// Parallel efficiency of AE's particle stage.
+    ae_particle_eff: f64,
+    /// Bytes of AE's nodal copies per extra thread and model number.
+    ae_copy_bytes: f64,
 }
 
 impl Default for Craft {
@@ -56,26 +66,31 @@ impl Default for Craft {
             slow_all: 1.0,
             skip_m4_ae: true,
             pin: "close",
+            fail_threads: None,
+            o0_loss: 0.3,
+            dd_grid_eff: 0.9,
+            ae_particle_eff: 0.93,
+            ae_copy_bytes: 3e7,
         }
     }
 }
 
 /// Stage efficiencies of the crafted machine: DD beats AE, more so for larger models; AE's
 /// grid stage is its bottleneck; O0 scales better than O3; crossing a socket costs 20 %.
-fn eff(model: u32, strategy: Strategy, opt: &str, particle: bool, n: usize, per_socket: usize) -> f64 {
+fn eff(model: u32, strategy: Strategy, opt: &str, particle: bool, n: usize, c: &Craft) -> f64 {
     if n == 1 {
         return 1.0;
     }
     let mut e = match (strategy, particle) {
         (AE, false) => 0.75 - 0.1 * model as f64,
-        (AE, true) => 0.93,
-        (_, false) => 0.9,
+        (AE, true) => c.ae_particle_eff,
+        (_, false) => c.dd_grid_eff,
         (_, true) => 0.95,
     };
     if opt == "o0" {
-        e = 1.0 - 0.5 * (1.0 - e);
+        e = 1.0 - c.o0_loss * (1.0 - e);
     }
-    if n > per_socket {
+    if n > c.per_socket {
         e *= 0.8;
     }
     e
@@ -99,15 +114,20 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
                         let noise = c.noise[rep as usize % c.noise.len()];
                         let par = if n > 1 { c.slow_parallel } else { 1.0 };
                         let k = slow * noise * par * c.slow_all;
-                        let g = g1 * k / (n as f64 * eff(m, strategy, opt, false, n, c.per_socket));
-                        let p = p1 * k / (n as f64 * eff(m, strategy, opt, true, n, c.per_socket));
-                        let mem = 1e8 * m as f64 + if strategy == AE { 3e7 * m as f64 * (n - 1) as f64 } else { 1e6 };
+                        let g = g1 * k / (n as f64 * eff(m, strategy, opt, false, n, c));
+                        let p = p1 * k / (n as f64 * eff(m, strategy, opt, true, n, c));
+                        let mem = 1e8 * m as f64
+                            + if strategy == AE { c.ae_copy_bytes * m as f64 * (n - 1) as f64 } else { 1e6 };
                         let skip = c.skip_m4_ae && m == 4 && strategy == AE && n >= 4;
                         let steps = 10u64;
+                        if c.fail_threads == Some(n) && !skip {
+                            log.append(&failed_row(dir, &fp, m, strategy, opt, n, rep)).unwrap();
+                            continue;
+                        }
                         let row = Row {
                             schema_version: SCHEMA_VERSION,
                             campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
-                            run_id: format!("m{m}-{strategy}-{opt}-t{n}-r{rep}"),
+                            run_id: format!("m{m}-{strategy}-{opt}-t{n}-{}-r{rep}", c.pin),
                             machine_id: fp.clone(),
                             scenario: "taylor".into(),
                             model: m,
@@ -146,6 +166,27 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
         write_manifest(dir, t);
     }
     dir.to_path_buf()
+}
+
+/// A repetition whose solver crashed.
+fn failed_row(dir: &Path, fp: &str, model: u32, strategy: Strategy, opt: &str, threads: usize, rep: u32) -> Row {
+    Row {
+        schema_version: SCHEMA_VERSION,
+        campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
+        run_id: format!("m{model}-{strategy}-{opt}-t{threads}-r{rep}"),
+        machine_id: fp.into(),
+        scenario: "taylor".into(),
+        model,
+        grid_mode: "fixed".into(),
+        strategy,
+        opt_level: opt.into(),
+        threads,
+        pin_policy: "close".into(),
+        rep,
+        status: Status::Failed,
+        reason: "solver exited with status 101".into(),
+        ..Row::default()
+    }
 }
 
 /// The manifest of a crafted campaign on the hwloc synthetic topology `t` (16 GiB).
@@ -273,10 +314,18 @@ fn verdicts(dir: &Path) -> Vec<(String, Verdict)> {
     claims::evaluate(&c, &an).into_iter().map(|r| (r.id.to_string(), r.verdict)).collect()
 }
 
+/// A campaign run under `close` (the default craft) and under `spread` as crafted by
+/// `spread` (its `per_socket` is where its socket penalty starts).
+fn close_and_spread(dir: &Path, spread: Craft) -> PathBuf {
+    write_campaign(dir, &Craft::default());
+    write_campaign(dir, &Craft { pin: "spread", ..spread })
+}
+
 #[test]
 fn claims_on_a_crafted_two_socket_machine() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = write_campaign(&tmp.path().join("c"), &Craft::default());
+    // Spread pays the socket penalty from 2 threads on: C5 holds at 2 and 4 threads.
+    let dir = close_and_spread(&tmp.path().join("c"), Craft { per_socket: 1, ..Craft::default() });
     let v = verdicts(&dir);
     for (id, verdict) in &v {
         assert_eq!(*verdict, Verdict::Holds, "{id}: {v:?}");
@@ -286,6 +335,85 @@ fn claims_on_a_crafted_two_socket_machine() {
     let md = claims::markdown(&res, "##");
     assert!(md.contains("| C5 |") && md.contains("**holds**"));
     assert!(!res[0].evidence.is_empty());
+    assert!(res.iter().all(|r| !r.indicative && r.min_reps.is_none_or(|n| n >= 3)), "{res:?}");
+    let c5 = &res[4];
+    assert!(c5.evidence.iter().any(|e| e.contains("2 threads") && e.contains("spread (2 sockets)")), "{c5:?}");
+    assert!(c5.evidence.iter().all(|e| !e.contains("6 threads") && !e.contains("8 threads")), "{c5:?}");
+}
+
+#[test]
+fn c5_compares_one_socket_with_two_at_the_same_thread_count() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Only close rows: 4 against 6 threads is not evidence any more.
+    let v = verdicts(&write_campaign(&tmp.path().join("a"), &Craft::default()));
+    assert_eq!(v[4].1, Verdict::CannotTell, "{v:?}");
+    // Spread exactly as fast as close: everything within the noise.
+    let v = verdicts(&close_and_spread(&tmp.path().join("b"), Craft::default()));
+    assert_eq!(v[4].1, Verdict::CannotTell, "{v:?}");
+    // Spread faster than close (more cache and memory bandwidth): does not hold.
+    let v = verdicts(&close_and_spread(&tmp.path().join("c"), Craft { slow_parallel: 0.8, ..Craft::default() }));
+    assert_eq!(v[4].1, Verdict::DoesNotHold, "{v:?}");
+    // Spread slower: holds.
+    let v = verdicts(&close_and_spread(&tmp.path().join("d"), Craft { slow_parallel: 1.25, ..Craft::default() }));
+    assert_eq!(v[4].1, Verdict::Holds, "{v:?}");
+}
+
+/// Every claim on crafted rows where it holds, does not hold, and cannot be told.
+#[test]
+fn each_claim_holds_fails_and_cannot_tell() {
+    use Verdict::{CannotTell as Cannot, DoesNotHold as Not, Holds};
+    let tmp = tempfile::tempdir().unwrap();
+    let one_core = Craft { topo: Some("pack:1 core:1 pu:1"), cores: 1, per_socket: 1, ..Craft::default() };
+    let cases: Vec<(usize, Craft, Verdict)> = vec![
+        (0, Craft::default(), Holds),
+        (0, Craft { dd_grid_eff: 0.3, ..Craft::default() }, Not),
+        (0, one_core.clone(), Cannot),
+        (1, Craft::default(), Holds),
+        (1, Craft { ae_copy_bytes: 0.0, ..Craft::default() }, Not),
+        (1, Craft { threads: vec![1], ..Craft::default() }, Cannot),
+        (2, Craft::default(), Holds),
+        (2, Craft { ae_particle_eff: 0.3, ..Craft::default() }, Not),
+        (2, one_core.clone(), Cannot),
+        (3, Craft::default(), Holds),
+        (3, Craft { o0_loss: 2.0, ..Craft::default() }, Not),
+        (3, one_core, Cannot),
+        (5, Craft::default(), Holds),
+        (5, Craft { skip_m4_ae: false, ..Craft::default() }, Not),
+        (5, Craft { models: vec![1, 2], ..Craft::default() }, Cannot),
+    ];
+    for (k, (claim, craft, want)) in cases.into_iter().enumerate() {
+        let dir = write_campaign(&tmp.path().join(format!("c{k}")), &craft);
+        let c = load_campaign(&dir).unwrap();
+        let r = &claims::evaluate(&c, &c.analyse(None))[claim];
+        assert_eq!(r.verdict, want, "case {k}: {} {}: {:?}", r.id, r.reason, r.evidence);
+    }
+}
+
+#[test]
+fn holds_needs_a_majority_and_intervals() {
+    let tmp = tempfile::tempdir().unwrap();
+    // O0 only a little better: AE's comparisons support C4, DD's are within the noise.
+    let dir = write_campaign(&tmp.path().join("a"), &Craft { o0_loss: 0.5, ..Craft::default() });
+    let c = load_campaign(&dir).unwrap();
+    let c4 = &claims::evaluate(&c, &c.analyse(None))[3];
+    assert_eq!(c4.verdict, Verdict::CannotTell, "{c4:?}");
+    assert!(c4.reason.contains("no majority"), "{}", c4.reason);
+    assert!(c4.evidence.iter().any(|e| e.ends_with("supports")), "{c4:?}");
+    // O0 clearly better: holds; clearly worse: does not hold.
+    assert_eq!(verdicts(&write_campaign(&tmp.path().join("b"), &Craft::default()))[3].1, Verdict::Holds);
+    let worse = write_campaign(&tmp.path().join("c"), &Craft { o0_loss: 2.0, ..Craft::default() });
+    assert_eq!(verdicts(&worse)[3].1, Verdict::DoesNotHold);
+    // One repetition: the verdicts are indicative and say so.
+    let once = Craft { reps: 1, noise: vec![1.0], ..Craft::default() };
+    let dir = write_campaign(&tmp.path().join("d"), &once);
+    write_campaign(&dir, &Craft { pin: "spread", per_socket: 1, ..once });
+    let c = load_campaign(&dir).unwrap();
+    let res = claims::evaluate(&c, &c.analyse(None));
+    for r in &res[..5] {
+        assert!(r.indicative && r.verdict_label().ends_with("(indicative)"), "{r:?}");
+        assert!(r.reason.contains("indicative only"), "{}", r.reason);
+    }
+    assert!(claims::table(&res).contains("(indicative)"));
 }
 
 #[test]
@@ -334,6 +462,7 @@ fn regress_args(base: &Path, cur: &Path) -> RegressArgs {
         include_oversubscribed: false,
         pin: None,
         include_noisy: false,
+        allow_missing: false,
     }
 }
 
@@ -449,12 +578,99 @@ fn regress_refuses_other_machines_unless_forced() {
     let json = tmp.path().join("v.json");
     let mut args = regress_args(&base, &other);
     args.json = Some(json.clone());
-    let err = regress::run(args.clone()).unwrap_err();
-    assert!(format!("{err:#}").contains("different machines"), "{err:#}");
+    assert_eq!(regress::run(args.clone()).unwrap(), 2);
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(v["verdict"], "incomparable");
+    assert!(v["reason"].as_str().unwrap().contains("different machines"), "{v}");
     args.force = true;
     assert_eq!(regress::run(args).unwrap(), 0);
+}
+
+/// `mpm-bench regress` as CI runs it: the exit code and the console.
+fn regress_cli(base: &Path, cur: &Path, extra: &[&str]) -> (i32, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_mpm-bench"))
+        .args(["regress", "--baseline", base.to_str().unwrap(), "--current", cur.to_str().unwrap()])
+        .args(extra)
+        .output()
+        .unwrap();
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(!text.contains("panicked"), "{text}");
+    (out.status.code().unwrap(), text)
+}
+
+#[test]
+fn regress_exit_codes_of_the_binary() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = write_campaign(&tmp.path().join("base"), &Craft::default());
+    // 0: the same campaign.
+    let (code, text) = regress_cli(&base, &base, &[]);
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("verdict: pass") && text.contains("Holm"), "{text}");
+    // 1: parallel runs 25 % slower; every check line carries its units.
+    let slow = write_campaign(&tmp.path().join("slow"), &Craft { slow_parallel: 1.25, ..Craft::default() });
+    let json = tmp.path().join("v.json");
+    let (code, text) = regress_cli(&base, &slow, &["--json", json.to_str().unwrap()]);
+    assert_eq!(code, 1, "{text}");
+    for line in text.lines().filter(|l| l.contains("REGRESSED")) {
+        let has_unit = line.contains(" ms ") || line.contains(" µs ") || line.contains("efficiency");
+        assert!(has_unit && line.contains(" x ") && line.contains('%'), "{line}");
+    }
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let c = &v["regressions"][0];
+    assert!(c["ratio"]["lo"].is_number() && c["ratio"]["hi"].is_number() && c["p_worse_holm"].is_number(), "{c}");
+    assert!(c["baseline"].is_number() && c["unit"].is_string(), "{c}");
+    // 2: unreadable input, another machine, nothing in common, bad flags.
+    let (code, text) = regress_cli(&base, &tmp.path().join("nowhere"), &[]);
+    assert_eq!(code, 2, "{text}");
+    let other =
+        write_campaign(&tmp.path().join("other"), &Craft { topo: Some("pack:1 core:8 pu:1"), ..Craft::default() });
+    let (code, text) = regress_cli(&base, &other, &[]);
+    assert_eq!(code, 2, "{text}");
+    assert!(text.contains("different machines"), "{text}");
+    let disjoint = write_campaign(&tmp.path().join("disjoint"), &Craft { models: vec![5], ..Craft::default() });
+    let (code, text) = regress_cli(&base, &disjoint, &[]);
+    assert_eq!(code, 2, "{text}");
+    assert!(text.contains("nothing to compare"), "{text}");
+    let (code, text) = regress_cli(&base, &base, &["--tolerance", "3"]);
+    assert_eq!(code, 2, "{text}");
+}
+
+#[test]
+fn regress_fails_on_missing_or_failed_cells_unless_allowed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = write_campaign(&tmp.path().join("base"), &Craft::default());
+    // The 8-thread cells were not run.
+    let partial = write_campaign(&tmp.path().join("partial"), &Craft { threads: vec![1, 2, 4, 6], ..Craft::default() });
+    let (code, text) = regress_cli(&base, &partial, &[]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("MISSING") && text.contains("Model1 DD O3 8t") && text.contains("FAILS the gate"), "{text}");
+    let (code, text) = regress_cli(&base, &partial, &["--allow-missing"]);
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("allowed by --allow-missing"), "{text}");
+    // The 6-thread runs crashed: failed cells are named with the reason.
+    let crashed = write_campaign(&tmp.path().join("crashed"), &Craft { fail_threads: Some(6), ..Craft::default() });
+    let r = regress::evaluate(&regress_args(&base, &crashed)).unwrap();
+    assert_eq!(r.exit_code(), 1, "{}", r.reason);
+    let m = r.missing_in_current.iter().find(|m| m.cell == "Model2 AE O0 6t").unwrap();
+    assert_eq!(m.status, "failed");
+    assert!(m.reason.contains("3 of 3") && m.reason.contains("status 101"), "{m:?}");
+    assert!(r.regressions.is_empty(), "{:?}", r.regressions);
+}
+
+#[test]
+fn regress_holm_correction_is_applied_over_the_cells() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = write_campaign(&tmp.path().join("base"), &Craft::default());
+    let r = regress::evaluate(&regress_args(&base, &base)).unwrap();
+    let gated: Vec<_> = r.checks.iter().filter(|c| c.gated).collect();
+    assert!(gated.len() > 10);
+    // Holm never lowers a p-value, and raises the smallest by the number of checks.
+    for c in &gated {
+        assert!(c.p_worse_holm.unwrap() >= c.p_worse.unwrap());
+    }
+    let smallest = gated.iter().min_by(|a, b| a.p_worse.unwrap().total_cmp(&b.p_worse.unwrap())).unwrap();
+    let expect = (smallest.p_worse.unwrap() * gated.len() as f64).min(1.0);
+    assert!((smallest.p_worse_holm.unwrap() - expect).abs() < 1e-12, "{smallest:?}");
 }
 
 #[test]

@@ -289,7 +289,8 @@ fn oversubscribed_invalid_and_failed_rows_are_flagged() {
     for row in &rows {
         assert_eq!(row.oversubscribed, row.threads > 2, "{}", row.run_id);
         if row.threads == 4 {
-            assert_eq!(row.requested_cpus, "0 1 0 1");
+            // OpenMP close with more threads than places: consecutive threads share a place.
+            assert_eq!(row.requested_cpus, "0 0 1 1");
         }
     }
     let invalid: Vec<_> = rows.iter().filter(|r| r.status == Status::Invalid).collect();
@@ -364,6 +365,39 @@ fn resume_refuses_a_csv_with_missing_columns() {
 
 fn bench() -> Command {
     Command::new(env!("CARGO_BIN_EXE_mpm-bench"))
+}
+
+/// `mpm-bench topology` on the paper's two quad-core sockets prints OpenMP's placement for
+/// every binding, and `--pin` / `--places` / `@places` are understood.
+#[test]
+fn topology_prints_openmp_placements() {
+    let table = |extra: &[&str]| {
+        let mut args = vec!["topology", "--synthetic", "pack:2 core:4 pu:1", "--threads", "2,4,8"];
+        args.extend_from_slice(extra);
+        let out = bench().args(&args).output().unwrap();
+        assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let row = |text: &str, threads: &str| -> String {
+        text.lines().find(|l| l.split_whitespace().next() == Some(threads)).unwrap_or_default().to_string()
+    };
+    let spread = table(&["--places", "cores", "--bind", "spread"]);
+    assert!(spread.contains("Places cores (8): {0},{1},{2},{3},{4},{5},{6},{7}"), "{spread}");
+    assert_eq!(row(&spread, "4").split_whitespace().nth(1), Some("0,2,4,6"), "{spread}");
+    assert_eq!(row(&spread, "2").split_whitespace().nth(1), Some("0,4"), "{spread}");
+    let close = table(&["--pin", "close"]);
+    assert_eq!(row(&close, "4").split_whitespace().nth(1), Some("0,1,2,3"), "{close}");
+    let primary = table(&["--bind", "primary"]);
+    assert_eq!(row(&primary, "2").split_whitespace().collect::<Vec<_>>(), ["2", "0,0", "*"], "{primary}");
+    let sockets = table(&["--bind", "close", "--places", "sockets"]);
+    assert!(sockets.contains("close@sockets"), "{sockets}");
+    assert_eq!(row(&sockets, "4").split_whitespace().nth(1), Some("0,1,4,5"), "{sockets}");
+    let all = table(&[]);
+    for b in ["close", "spread", "primary", "none"] {
+        assert!(all.lines().any(|l| l.starts_with("threads") && l.contains(b)), "{all}");
+    }
+    fails_cleanly(&["topology", "--places", "bogus"], "unknown places");
+    fails_cleanly(&["topology", "--bind", "sideways"], "unknown binding");
 }
 
 fn fails_cleanly(args: &[&str], needle: &str) {

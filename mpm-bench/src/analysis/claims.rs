@@ -9,20 +9,27 @@
 //! * Two estimates differ only beyond the noise ([`super::stats::compare`]): their bootstrap
 //!   intervals must not overlap; with single repetitions (no interval) they must differ by
 //!   more than 5 %. A difference within the noise supports nothing.
-//! * "holds": at least one comparison supports the claim and none contradicts it;
-//!   "does not hold": some comparison contradicts it; "cannot tell": no usable evidence
-//!   (nothing beyond the noise, missing points, or a machine that cannot show the effect,
-//!   such as one socket for C5).
+//! * "holds": a majority of the comparisons support the claim beyond the noise and none
+//!   contradicts it; "does not hold": some comparison contradicts it; "cannot tell": no
+//!   majority either way (mostly within the noise, missing points, or a machine that cannot
+//!   show the effect, such as one socket for C5).
+//! * A verdict needs intervals: with fewer than [`MIN_REPS`] repetitions in a cell it rests
+//!   on, the verdict is *indicative* and says so (`holds (indicative)`).
+//! * C5 (the socket effect) compares the same thread count pinned to one socket (`close`)
+//!   and to two (`spread`), the sockets counted from the placement on the manifest's
+//!   topology; comparing 4 against 6 threads would also show ordinary Amdahl decline.
 //! * Speedups and efficiencies are those of the total step time at optimisation O3 unless
 //!   the claim is about a stage or about optimisation.
 
 use super::results::{load_campaign, Campaign};
 use super::stats::{compare, parallel_strategies, tag, Analysis, CellKey, Compare, Estimate, Stage, StatsOptions};
 use crate::campaign::record::Status;
+use crate::machine::placement::PinPolicy;
+use crate::machine::topology::Machine;
 use anyhow::{Context, Result};
 use mpm_core::Strategy;
 use serde::Serialize;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
@@ -31,7 +38,9 @@ use std::path::PathBuf;
 /// Prints, for each claim, holds / does not hold / cannot tell with the reason and the
 /// numbers behind it. Only non-oversubscribed runs with more than one thread count as
 /// evidence of scaling; differences must exceed the bootstrap interval (or 5 % with a single
-/// repetition).
+/// repetition). "holds" needs a majority of the comparisons beyond the noise and none
+/// against; with fewer than 3 repetitions per cell a verdict is marked "(indicative)". C5
+/// (the socket effect) needs the same thread counts run with --bind close and --bind spread.
 #[derive(clap::Args, Debug, Clone)]
 pub struct ClaimsArgs {
     /// A campaign folder (holding runs.csv) or a folder containing campaigns (e.g.
@@ -85,7 +94,37 @@ pub struct ClaimResult {
     pub reason: String,
     /// The numbers behind the verdict, one line each.
     pub evidence: Vec<String>,
+    /// Fewest repetitions in a cell the verdict rests on (`None`: no measured cell).
+    pub min_reps: Option<usize>,
+    /// Fewer than [`MIN_REPS`] repetitions: no real intervals, the verdict is indicative.
+    pub indicative: bool,
 }
+
+impl ClaimResult {
+    /// The verdict as printed: `holds`, or `holds (indicative)` without enough repetitions.
+    pub fn verdict_label(&self) -> String {
+        if self.indicative {
+            format!("{} (indicative)", self.verdict.as_str())
+        } else {
+            self.verdict.as_str().to_string()
+        }
+    }
+
+    /// Mark the verdict indicative when it rests on fewer than [`MIN_REPS`] repetitions.
+    fn with_reps(mut self, min_reps: Option<usize>) -> Self {
+        self.min_reps = min_reps;
+        if let Some(n) = min_reps.filter(|&n| n < MIN_REPS) {
+            self.indicative = true;
+            self.reason.push_str(&format!(
+                "; indicative only: {n} repetition(s) in some cells, intervals need at least {MIN_REPS}"
+            ));
+        }
+        self
+    }
+}
+
+/// Repetitions per cell a verdict needs (fewer: indicative).
+pub const MIN_REPS: usize = 3;
 
 /// The paper's claims (spec paper.md section 5).
 pub const CLAIMS: [(&str, &str); 6] = [
@@ -115,11 +154,14 @@ struct Tally {
     contradicts: usize,
     within: usize,
     lines: Vec<String>,
+    min_reps: Option<usize>,
 }
 
 impl Tally {
     fn add(&mut self, label: String, a_name: &str, a: &Estimate, b_name: &str, b: &Estimate) {
         let c = compare(a, b);
+        let reps = a.reps.min(b.reps);
+        self.min_reps = Some(self.min_reps.map_or(reps, |m| m.min(reps)));
         let tag = match c {
             Compare::Greater => {
                 self.supports += 1;
@@ -149,11 +191,19 @@ impl Tally {
                     self.contradicts, self.supports, self.within
                 ),
             )
-        } else if self.supports > 0 {
+        } else if 2 * self.supports > n {
             (
                 Verdict::Holds,
                 format!(
                     "{} of {n} comparisons support it beyond the noise, none contradicts ({} within noise)",
+                    self.supports, self.within
+                ),
+            )
+        } else if self.supports > 0 {
+            (
+                Verdict::CannotTell,
+                format!(
+                    "only {} of {n} comparisons support it beyond the noise (no majority; {} within noise, none contradicts)",
                     self.supports, self.within
                 ),
             )
@@ -165,7 +215,7 @@ impl Tally {
 
 fn result(id: &'static str, verdict: Verdict, reason: String, evidence: Vec<String>) -> ClaimResult {
     let text = CLAIMS.iter().find(|c| c.0 == id).map(|c| c.1).unwrap_or("");
-    ClaimResult { id, text, verdict, reason, evidence }
+    ClaimResult { id, text, verdict, reason, evidence, min_reps: None, indicative: false }
 }
 
 /// Real parallel thread counts where both `a` and `b` have a point.
@@ -202,6 +252,7 @@ fn c1(an: &Analysis) -> ClaimResult {
         }
     }
     let (mut v, mut reason) = t.verdict("DD and AE at O3");
+    let reps = t.min_reps;
     let mut ev = t.lines;
     if !gaps.is_empty() {
         ev.push(format!(
@@ -224,13 +275,14 @@ fn c1(an: &Analysis) -> ClaimResult {
             }
         }
     }
-    result("C1", v, reason, ev)
+    result("C1", v, reason, ev).with_reps(reps)
 }
 
 fn c2(an: &Analysis, o: &StatsOptions) -> ClaimResult {
     let mut ev = Vec::new();
     // Per strategy: series that grew by more than FLAT_MEMORY, series that did not.
     let mut growth_of: BTreeMap<Strategy, (usize, usize)> = BTreeMap::new();
+    let mut reps: Option<usize> = None;
     for m in an.models() {
         for strat in parallel_strategies() {
             for opt in ["o3", "o0"] {
@@ -245,6 +297,8 @@ fn c2(an: &Analysis, o: &StatsOptions) -> ClaimResult {
                     continue;
                 }
                 let growth = last.1.value / first.1.value - 1.0;
+                let n = first.1.reps.min(last.1.reps);
+                reps = Some(reps.map_or(n, |r| r.min(n)));
                 ev.push(format!(
                     "Model{m} {} {}: peak memory {} at 1 thread -> {} at {} threads ({:+.1} %)",
                     tag(strat),
@@ -287,7 +341,7 @@ fn c2(an: &Analysis, o: &StatsOptions) -> ClaimResult {
         )
     };
     ev.push("paper: Model4 DD 4.61 GB (1 thread) -> 4.63 GB (8 threads)".into());
-    result("C2", v, reason, ev)
+    result("C2", v, reason, ev).with_reps(reps)
 }
 
 fn c3(an: &Analysis) -> ClaimResult {
@@ -306,7 +360,7 @@ fn c3(an: &Analysis) -> ClaimResult {
         }
     }
     let (v, reason) = t.verdict("AE O3 stage speedups");
-    result("C3", v, reason, t.lines)
+    result("C3", v, reason, t.lines).with_reps(t.min_reps)
 }
 
 fn c4(an: &Analysis) -> ClaimResult {
@@ -321,26 +375,48 @@ fn c4(an: &Analysis) -> ClaimResult {
         }
     }
     let (v, reason) = t.verdict("O0 and O3");
-    result("C4", v, reason, t.lines)
+    result("C4", v, reason, t.lines).with_reps(t.min_reps)
 }
 
-fn c5(c: &Campaign, an: &Analysis) -> ClaimResult {
+/// Packages used by `n` workers under the pinning label `pin` on `m` (`None`: not pinned,
+/// oversubscribed, or an unknown label).
+fn sockets_used(m: &Machine, pin: &str, n: usize) -> Option<usize> {
+    let policy: PinPolicy = pin.parse().ok()?;
+    let pl = m.place(&policy, n).ok().filter(|p| !p.oversubscribed && !p.cpus.is_empty())?;
+    let package = |cpu: &usize| m.packages.iter().position(|p| p.cores.iter().any(|c| c.pus.contains(cpu)));
+    Some(pl.cpus.iter().filter_map(package).collect::<BTreeSet<_>>().len())
+}
+
+/// For each thread count, a policy that keeps its workers on one socket and one that uses
+/// two or more (`close` and `spread` preferred), among the rows' policies.
+fn socket_pairs(c: &Campaign, m: &Machine) -> Vec<(usize, String, String)> {
+    let mut labels: Vec<&str> =
+        c.rows.iter().map(|r| r.pin_policy.as_str()).collect::<BTreeSet<_>>().into_iter().collect();
+    labels.sort_by_key(|l| (*l != "close", *l != "spread"));
+    let threads: BTreeSet<usize> = c.rows.iter().map(|r| r.threads).filter(|&n| n > 1).collect();
+    threads
+        .into_iter()
+        .filter_map(|n| {
+            let one = labels.iter().find(|l| sockets_used(m, l, n) == Some(1))?;
+            let two = labels.iter().find(|l| sockets_used(m, l, n).is_some_and(|k| k >= 2))?;
+            Some((n, one.to_string(), two.to_string()))
+        })
+        .collect()
+}
+
+fn c5(c: &Campaign) -> ClaimResult {
     let Some(man) = &c.manifest else {
         return result(
             "C5",
             Verdict::CannotTell,
-            "no manifest.json beside runs.csv: the number of sockets is unknown".into(),
+            "no manifest.json beside runs.csv: the machine's sockets are unknown".into(),
             vec![],
         );
     };
-    let sockets = man.machine.packages;
-    let mut ev = vec![format!(
-        "machine: {} socket(s), {} cores, {} NUMA node(s); pinning '{}'",
-        sockets,
-        man.machine.cores,
-        man.machine.numa_nodes.len(),
-        an.pin_policy
-    )];
+    let m = &man.machine.topology;
+    let sockets = m.num_packages();
+    let ev =
+        vec![format!("machine: {} socket(s), {} cores, {} NUMA node(s)", sockets, m.num_cores(), m.numa_nodes.len())];
     if sockets < 2 {
         return result(
             "C5",
@@ -349,37 +425,47 @@ fn c5(c: &Campaign, an: &Analysis) -> ClaimResult {
             ev,
         );
     }
-    if an.pin_policy != "close" {
+    let pairs = socket_pairs(c, m);
+    if pairs.is_empty() {
         return result(
             "C5",
             Verdict::CannotTell,
-            format!("pinning '{}' does not fill one socket before the next: rerun with --pin close", an.pin_policy),
+            "no thread count was run both on one socket and on two: rerun with --bind close --bind spread".into(),
             ev,
         );
     }
-    let per_socket = man.machine.cores / sockets;
-    ev[0].push_str(&format!("; {per_socket} cores per socket"));
+    c5_compare(c, pairs, ev)
+}
+
+/// C5's comparisons: time per step at the same thread count on two sockets against one.
+fn c5_compare(c: &Campaign, pairs: Vec<(usize, String, String)>, mut ev: Vec<String>) -> ClaimResult {
+    let o = StatsOptions::default();
+    let mut analyses: BTreeMap<String, Analysis> = BTreeMap::new();
+    for (_, one, two) in &pairs {
+        for l in [one, two] {
+            analyses.entry(l.clone()).or_insert_with(|| Analysis::from_rows(&c.rows, Some(l), &o));
+        }
+    }
     let mut t = Tally::default();
-    for m in an.models() {
-        for strat in parallel_strategies() {
-            let s: Vec<_> = an.series(m, strat, "o3", Stage::Total).into_iter().filter(|p| !p.oversubscribed).collect();
-            let inside = s.iter().rfind(|p| p.key.threads <= per_socket && p.key.threads > 1);
-            let across = s.iter().find(|p| p.key.threads > per_socket);
-            if let (Some(i), Some(a)) = (inside, across) {
-                let (Some(ei), Some(ea)) = (i.efficiency, a.efficiency) else { continue };
+    for (n, one, two) in &pairs {
+        let (a1, a2) = (&analyses[one], &analyses[two]);
+        for m in a1.models() {
+            for strat in parallel_strategies() {
+                let time = |a: &Analysis| a.point(m, strat, "o3", *n, Stage::Total).map(|p| p.time.scale(1e3));
+                let (Some(t1), Some(t2)) = (time(a1), time(a2)) else { continue };
                 t.add(
-                    format!("Model{m} {} O3 efficiency", tag(strat)),
-                    &format!("{}t (one socket)", i.key.threads),
-                    &ei,
-                    &format!("{}t (two sockets)", a.key.threads),
-                    &ea,
+                    format!("Model{m} {} O3, {n} threads, time per step (ms)", tag(strat)),
+                    &format!("{two} (2 sockets)"),
+                    &t2,
+                    &format!("{one} (1 socket)"),
+                    &t1,
                 );
             }
         }
     }
-    let (v, reason) = t.verdict("thread counts on both sides of the socket boundary");
+    let (v, reason) = t.verdict("the same thread count on one socket and on two");
     ev.extend(t.lines);
-    result("C5", v, reason, ev)
+    result("C5", v, reason, ev).with_reps(t.min_reps)
 }
 
 fn c6(c: &Campaign, o: &StatsOptions) -> ClaimResult {
@@ -455,15 +541,15 @@ fn gb(b: f64) -> String {
 /// Evaluate C1-C6 on a campaign.
 pub fn evaluate(c: &Campaign, an: &Analysis) -> Vec<ClaimResult> {
     let o = StatsOptions::default();
-    vec![c1(an), c2(an, &o), c3(an), c4(an), c5(c, an), c6(c, &o)]
+    vec![c1(an), c2(an, &o), c3(an), c4(an), c5(c), c6(c, &o)]
 }
 
 /// A plain-text table with the evidence below it.
 pub fn table(results: &[ClaimResult]) -> String {
     let mut s = String::new();
-    let _ = writeln!(s, "{:<4} {:<14} reason", "", "verdict");
+    let _ = writeln!(s, "{:<4} {:<26} reason", "", "verdict");
     for r in results {
-        let _ = writeln!(s, "{:<4} {:<14} {}", r.id, r.verdict.as_str(), r.reason);
+        let _ = writeln!(s, "{:<4} {:<26} {}", r.id, r.verdict_label(), r.reason);
     }
     for r in results {
         let _ = writeln!(s, "\n{} {}", r.id, r.text);
@@ -480,11 +566,10 @@ pub fn markdown(results: &[ClaimResult], heading: &str) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "| claim | statement | verdict | reason |\n|---|---|---|---|");
     for r in results {
-        let _ =
-            writeln!(s, "| {} | {} | **{}** | {} |", r.id, r.text, r.verdict.as_str(), r.reason.replace('|', "\\|"));
+        let _ = writeln!(s, "| {} | {} | **{}** | {} |", r.id, r.text, r.verdict_label(), r.reason.replace('|', "\\|"));
     }
     for r in results {
-        let _ = writeln!(s, "\n{heading} {}: {}\n", r.id, r.verdict.as_str());
+        let _ = writeln!(s, "\n{heading} {}: {}\n", r.id, r.verdict_label());
         if r.evidence.is_empty() {
             let _ = writeln!(s, "(no numbers)");
         }

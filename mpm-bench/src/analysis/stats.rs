@@ -219,11 +219,35 @@ fn quantile(sorted: &[f64], q: f64) -> f64 {
 /// Percentile bootstrap of `stat(medians of samples)`: every sample is resampled with
 /// replacement independently; `label` seeds the generator (with `opts.seed`).
 pub fn bootstrap(samples: &[&[f64]], stat: &dyn Fn(&[f64]) -> f64, opts: &StatsOptions, label: &str) -> Estimate {
+    bootstrap_test(samples, stat, opts, label, 1.0).0
+}
+
+/// One-sided bootstrap p-values of a statistic against a null value: the fractions of the
+/// bootstrap replicates at or below it and at or above it. `at_most` is the p-value of "the
+/// statistic exceeds the null", `at_least` of "it is below the null" (resolution
+/// `1 / resamples`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Tails {
+    /// Fraction of replicates `<= null`.
+    pub at_most: f64,
+    /// Fraction of replicates `>= null`.
+    pub at_least: f64,
+}
+
+/// [`bootstrap`], plus the [`Tails`] of the replicates around `null` (`None` when there is
+/// no resampling: single repetitions, or no finite replicate).
+pub fn bootstrap_test(
+    samples: &[&[f64]],
+    stat: &dyn Fn(&[f64]) -> f64,
+    opts: &StatsOptions,
+    label: &str,
+    null: f64,
+) -> (Estimate, Option<Tails>) {
     let reps = samples.iter().map(|s| s.len()).min().unwrap_or(0);
     let medians: Vec<f64> = samples.iter().map(|s| median(s)).collect();
     let value = stat(&medians);
     if reps == 0 || samples.iter().all(|s| s.len() < 2) || opts.resamples == 0 {
-        return Estimate::point(value, reps);
+        return (Estimate::point(value, reps), None);
     }
     let mut rng = SplitMix64(opts.seed ^ fnv(label));
     let mut out = Vec::with_capacity(opts.resamples);
@@ -241,13 +265,34 @@ pub fn bootstrap(samples: &[&[f64]], stat: &dyn Fn(&[f64]) -> f64, opts: &StatsO
         }
     }
     if out.is_empty() {
-        return Estimate::point(value, reps);
+        return (Estimate::point(value, reps), None);
     }
     out.sort_by(f64::total_cmp);
     let alpha = (1.0 - opts.confidence).clamp(0.0, 1.0) / 2.0;
     let lo = quantile(&out, alpha).min(value);
     let hi = quantile(&out, 1.0 - alpha).max(value);
-    Estimate { value, lo, hi, reps }
+    let n = out.len() as f64;
+    let tails = Tails {
+        at_most: out.iter().filter(|&&v| v <= null).count() as f64 / n,
+        at_least: out.iter().filter(|&&v| v >= null).count() as f64 / n,
+    };
+    (Estimate { value, lo, hi, reps }, Some(tails))
+}
+
+/// Holm's step-down adjustment of p-values (family-wise error control): the adjusted value
+/// of the `k`-th smallest of `m` is `max_{j <= k} min(1, (m - j + 1) p_(j))`. Input order is
+/// kept.
+pub fn holm(p: &[f64]) -> Vec<f64> {
+    let m = p.len();
+    let mut order: Vec<usize> = (0..m).collect();
+    order.sort_by(|&a, &b| p[a].total_cmp(&p[b]));
+    let mut out = vec![0.0; m];
+    let mut running: f64 = 0.0;
+    for (rank, &i) in order.iter().enumerate() {
+        running = running.max(((m - rank) as f64 * p[i]).min(1.0));
+        out[i] = running;
+    }
+    out
 }
 
 /// One configuration of a campaign.
@@ -630,5 +675,26 @@ mod tests {
         assert_eq!(compare(&b, &a), Compare::Greater);
         assert_eq!(compare(&Estimate::point(1.0, 1), &Estimate::point(1.02, 1)), Compare::Within);
         assert_eq!(compare(&Estimate::point(1.0, 1), &Estimate::point(1.2, 1)), Compare::Less);
+    }
+
+    #[test]
+    fn holm_adjusts_step_down() {
+        let adj = holm(&[0.01, 0.04, 0.03, 0.005]);
+        // Sorted 0.005, 0.01, 0.03, 0.04 -> x4, x3, x2, x1 with the running maximum.
+        let want = [0.03, 0.06, 0.06, 0.02];
+        for (a, w) in adj.iter().zip(want) {
+            assert!((a - w).abs() < 1e-12, "{adj:?}");
+        }
+        assert_eq!(holm(&[0.9, 0.8]), vec![1.0, 1.0]);
+        assert!(holm(&[]).is_empty());
+    }
+
+    #[test]
+    fn bootstrap_tails_count_replicates_around_the_null() {
+        let o = StatsOptions::default();
+        let (e, t) = bootstrap_test(&[&[2.0, 2.1, 1.9], &[1.0, 1.01, 0.99]], &|m| m[0] / m[1], &o, "t", 1.0);
+        let t = t.unwrap();
+        assert!(e.lo > 1.0 && t.at_most == 0.0 && t.at_least == 1.0, "{e:?} {t:?}");
+        assert!(bootstrap_test(&[&[1.0], &[2.0]], &|m| m[0] / m[1], &o, "t", 1.0).1.is_none());
     }
 }

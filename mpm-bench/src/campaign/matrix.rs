@@ -9,7 +9,7 @@
 //! every cell instead of biasing one.
 
 use super::preset::{parse_size, BudgetOverride, BudgetSpec, OptLevel, Preset};
-use crate::machine::placement::PinPolicy;
+use crate::machine::placement::{PinPolicy, Places};
 use crate::util::SplitMix64;
 use anyhow::{anyhow, bail, Context, Result};
 use mpm_core::Strategy;
@@ -32,8 +32,10 @@ pub struct Overrides {
     pub opt: Option<Vec<OptLevel>>,
     /// `--reps`.
     pub reps: Option<u32>,
-    /// `--pin` (repeatable).
+    /// `--bind` / `--pin` (repeatable), with `--places` applied.
     pub pin: Option<Vec<PinPolicy>>,
+    /// `--places`: applies to the preset's bindings when `--bind` is not given.
+    pub places: Option<Places>,
     /// `--steps` (replaces every budget of the preset).
     pub steps: Option<u64>,
     /// `--end-time` (replaces every budget of the preset).
@@ -91,6 +93,9 @@ impl Overrides {
         }
         if let Some(p) = &self.pin {
             parts.push(format!("pin-{}", join(p.iter().map(|x| x.label().replace(',', ".")).collect())));
+        }
+        if let (None, Some(k)) = (&self.pin, self.places) {
+            parts.push(format!("places-{k}"));
         }
         if let Some(n) = self.steps {
             parts.push(format!("n{n}"));
@@ -213,6 +218,16 @@ pub struct Campaign {
     pub budget: BudgetSpec,
 }
 
+/// The preset's pinning policies with the places asked (`--places`, else the preset's
+/// `places`) applied to every binding; lists and `none` are unchanged.
+fn preset_pins(preset: &Preset, places: Option<Places>) -> Vec<PinPolicy> {
+    let pins = preset.pin.to_vec();
+    match places.or(preset.places) {
+        Some(k) => pins.iter().map(|p| p.with_places(k)).collect(),
+        None => pins,
+    }
+}
+
 impl Campaign {
     /// Apply `overrides` to `preset` and validate the result.
     pub fn resolve(preset: Preset, source: String, overrides: &Overrides) -> Result<Self> {
@@ -229,7 +244,7 @@ impl Campaign {
             strategies: overrides.strategies.clone().unwrap_or_else(|| preset.strategies.clone()),
             opts: overrides.opt.clone().unwrap_or_else(|| preset.opt.clone()),
             reps: overrides.reps.unwrap_or(preset.reps),
-            pins: overrides.pin.clone().unwrap_or_else(|| preset.pin.to_vec()),
+            pins: overrides.pin.clone().unwrap_or_else(|| preset_pins(&preset, overrides.places)),
             grid: overrides.grid.clone().unwrap_or_else(|| preset.grid.clone()),
             seed: overrides.seed.unwrap_or(preset.seed),
             mem_limit: None,
@@ -412,5 +427,35 @@ mod tests {
         assert_eq!(c.models, vec![1, 2, 3, 4]);
         assert_eq!(c.threads, vec![1, 2, 4, 6, 8]);
         assert_eq!(c.budget_for(4, OptLevel::O0).end_time, Some(4e-5));
+    }
+
+    /// The paper preset pins as the paper did: OpenMP close over cores, so on two quad-core
+    /// sockets the second socket is used only past 4 threads.
+    #[test]
+    fn paper_preset_uses_the_papers_placement() {
+        let (p, _) = load_preset("paper", None).unwrap();
+        let c = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
+        assert_eq!(c.pins, vec![PinPolicy::CLOSE]);
+        let m = crate::machine::topology::Machine::synthetic("pack:2 core:4 pu:1").unwrap();
+        let socket = |cpu: usize| cpu / 4;
+        for n in [1, 2, 4, 6, 8] {
+            let cpus = m.place(&c.pins[0], n).unwrap().cpus;
+            let second = cpus.iter().filter(|&&cpu| socket(cpu) == 1).count();
+            assert_eq!(second, n.saturating_sub(4), "{n} threads: {cpus:?}");
+        }
+    }
+
+    #[test]
+    fn places_override_applies_to_the_preset_bindings() {
+        let (p, _) = load_preset("smoke", None).unwrap();
+        let ov = Overrides { places: Some(Places::Sockets), ..Overrides::default() };
+        let c = Campaign::resolve(p, "builtin".into(), &ov).unwrap();
+        assert!(c.pins.iter().all(|p| !matches!(p, PinPolicy::Bind(_, k) if *k != Places::Sockets)));
+        assert!(c.id.contains("places-sockets"), "{}", c.id);
+        // A preset's own `places` applies when --places is not given.
+        let (mut p, _) = load_preset("smoke", None).unwrap();
+        p.places = Some(Places::NumaDomains);
+        let c = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
+        assert_eq!(c.pins, vec![PinPolicy::Bind(crate::machine::placement::Bind::Close, Places::NumaDomains)]);
     }
 }

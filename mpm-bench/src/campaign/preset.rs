@@ -15,7 +15,8 @@
 //! strategies = ["ae", "dd"]
 //! opt = ["o3", "o0"]
 //! reps = 1
-//! pin = "close"            # or a list: ["close", "spread"]; or a CPU list "0,1"
+//! pin = "close"            # OpenMP binding (alias key: bind); a list ["close", "spread"]; a CPU list "0,1"
+//! places = "cores"         # OpenMP places: threads, cores, ll_caches, numa_domains, sockets
 //! grid = "fixed"           # or "adaptive"
 //! seed = 2009              # run-order shuffle
 //! # mem_limit = "8GiB"     # pretend the machine has this much memory (memory guard)
@@ -34,7 +35,7 @@
 //!
 //! [`crate::campaign::matrix`] resolves a preset and the command-line overrides into runs.
 
-use crate::machine::placement::PinPolicy;
+use crate::machine::placement::{PinPolicy, Places};
 use anyhow::{anyhow, bail, Context, Result};
 use mpm_core::Strategy;
 use serde::{Deserialize, Serialize};
@@ -163,9 +164,14 @@ pub struct Preset {
     /// Repetitions per configuration.
     #[serde(default = "one")]
     pub reps: u32,
-    /// Pinning policies.
-    #[serde(default = "default_pin")]
+    /// Pinning policies (`bind` is accepted for the key): OpenMP bindings `close`,
+    /// `spread`, `primary` (optionally `@places`), `none`, or CPU lists.
+    #[serde(default = "default_pin", alias = "bind")]
     pub pin: OneOrMany<PinPolicy>,
+    /// OpenMP places of every binding of `pin` (when absent: `cores`, or each binding's
+    /// own `@places`).
+    #[serde(default)]
+    pub places: Option<Places>,
     /// `fixed` or `adaptive`.
     #[serde(default = "default_grid")]
     pub grid: String,
@@ -187,7 +193,7 @@ fn one() -> u32 {
     1
 }
 fn default_pin() -> OneOrMany<PinPolicy> {
-    OneOrMany::One(PinPolicy::Close)
+    OneOrMany::One(PinPolicy::CLOSE)
 }
 fn default_grid() -> String {
     "fixed".into()

@@ -376,7 +376,7 @@ mod tests {
             strategy: Strategy::DomainDecomposition,
             opt: OptLevel::O3,
             threads: 2,
-            pin: PinPolicy::Close,
+            pin: PinPolicy::CLOSE,
             rep: 0,
             grid: "fixed".into(),
             budget: RunBudget { step_limit: Some(5), end_time: None, warmup: 1 },

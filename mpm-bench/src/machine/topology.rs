@@ -81,6 +81,10 @@ pub struct Machine {
     pub numa_nodes: Vec<NumaNode>,
     /// CPU caches, innermost first.
     pub caches: Vec<CacheLevel>,
+    /// PUs (OS indices) of each instance of the last-level cache, for the `ll_caches`
+    /// places; empty when hwloc reports no caches.
+    #[serde(default)]
+    pub ll_caches: Vec<Vec<usize>>,
     /// Total memory hwloc reports, bytes.
     pub total_memory_bytes: u64,
     /// Whether this describes the machine the harness runs on (not a synthetic/XML one).
@@ -155,6 +159,7 @@ impl Machine {
             packages: packages(topo, &usable),
             numa_nodes: numa_nodes(topo),
             caches: caches(topo),
+            ll_caches: ll_caches(topo),
             total_memory_bytes: if topo.is_this_system() {
                 // Some VMs hot-plug memory that hwloc's NUMA nodes do not list: the OS's
                 // MemTotal is what a run can use.
@@ -344,6 +349,15 @@ fn caches(topo: &Topology) -> Vec<CacheLevel> {
         }
     }
     caches.into_values().collect()
+}
+
+/// The PUs of each instance of the outermost data or unified cache level.
+fn ll_caches(topo: &Topology) -> Vec<Vec<usize>> {
+    [ObjectType::L5Cache, ObjectType::L4Cache, ObjectType::L3Cache, ObjectType::L2Cache, ObjectType::L1Cache]
+        .into_iter()
+        .map(|ty| topo.objects_with_type(ty).map(cpus_of).collect::<Vec<_>>())
+        .find(|sets| !sets.is_empty())
+        .unwrap_or_default()
 }
 
 fn os(i: Option<usize>, fallback: usize) -> String {

@@ -436,7 +436,7 @@ fn claims_sections(sets: &[Set]) -> String {
     for (i, (id, text)) in claims::CLAIMS.iter().enumerate() {
         let _ = write!(s, "| {id}: {text} |");
         for set in sets {
-            let _ = write!(s, " **{}** |", set.claims[i].verdict.as_str());
+            let _ = write!(s, " **{}** |", set.claims[i].verdict_label());
         }
         s.push('\n');
     }
