@@ -36,7 +36,7 @@ use std::time::Duration;
         mpm-bench run --preset quick             # every model, few steps (~20 min on 2 cores)\n  \
         mpm-bench run --preset paper             # the paper's full protocol (to 40 us)\n  \
         mpm-bench figures --results results/     # Figures 7-14 of the newest campaign -> paper-figures/\n  \
-        mpm-bench claims --results results/      # the paper's claims C1-C6 on this machine\n  \
+        mpm-bench claims --results results/      # the paper's claims C1-C6 (and C7) on this machine\n  \
         mpm-bench regress --baseline A --current B   # CI gate on parallel efficiency\n  \
         mpm-bench report A B --out compare.md    # compare machines\n  \
         mpm-bench impact-table --results results/impact   # table of the impact runs\n  \
@@ -91,7 +91,7 @@ enum Cmd {
     Run(RunArgs),
     /// Regenerate the paper's Figures 7-14 (and a memory figure) from a campaign.
     Figures(figures::FiguresArgs),
-    /// Check the paper's claims C1-C6 on a campaign: holds / does not hold / cannot tell.
+    /// Check the paper's claims C1-C6 and C7 (balanced cuts) on a campaign: holds / does not hold / cannot tell.
     Claims(claims::ClaimsArgs),
     /// Compare a campaign with a baseline; exit 1 when efficiency or time per step regressed.
     Regress(regress::RegressArgs),

@@ -16,10 +16,13 @@ use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 /// Version of the row layout; bump it whenever a column is added, removed or renamed.
-pub const SCHEMA_VERSION: u32 = 2;
+pub const SCHEMA_VERSION: u32 = 3;
 
 /// Columns added in schema 2; files of schema 1 lack them and still read (as empty).
 const ADDED_IN_V2: [&str; 2] = ["worker_busy_s", "load_imbalance"];
+
+/// Columns added in schema 3; older files lack them and still read (as empty).
+const ADDED_IN_V3: [&str; 1] = ["dd_work_imbalance"];
 
 /// Outcome of one run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -160,6 +163,11 @@ pub struct Row {
     /// non-oversubscribed run: a worker's CPU was slowed from outside the run). Since schema 2.
     #[serde(default)]
     pub load_imbalance: Option<f64>,
+    /// DD and balanced DD: the most particles in a patch over the mean per patch, averaged
+    /// over the run's steps (the summary's `dd_patch_particles.imbalance_mean`; a property
+    /// of the cuts, not of the machine). Since schema 3.
+    #[serde(default)]
+    pub dd_work_imbalance: Option<f64>,
     /// Peak resident memory of the solver process (VmHWM read by the solver), bytes.
     pub peak_rss_bytes: Option<u64>,
     /// The memory guard's estimate for this run, bytes.
@@ -272,8 +280,11 @@ pub fn read_rows(path: &Path) -> Result<Vec<Row>> {
         .map(str::to_string)
         .collect();
     let want = Row::header();
-    let missing: Vec<&str> =
-        want.iter().filter(|c| !have.contains(c) && !ADDED_IN_V2.contains(&c.as_str())).map(String::as_str).collect();
+    let missing: Vec<&str> = want
+        .iter()
+        .filter(|c| !have.contains(c) && !ADDED_IN_V2.contains(&c.as_str()) && !ADDED_IN_V3.contains(&c.as_str()))
+        .map(String::as_str)
+        .collect();
     if !missing.is_empty() {
         bail!(
             "{} is missing column(s) {} (this harness writes schema version {SCHEMA_VERSION}); \
@@ -413,7 +424,8 @@ mod tests {
             line.split(',').enumerate().filter(|(i, _)| !idx.contains(i)).map(|(_, c)| c).collect::<Vec<_>>().join(",")
         };
         let header = Row::header();
-        let idx: Vec<usize> = ADDED_IN_V2.iter().map(|c| header.iter().position(|h| h == c).unwrap()).collect();
+        let idx: Vec<usize> =
+            ADDED_IN_V2.iter().chain(&ADDED_IN_V3).map(|c| header.iter().position(|h| h == c).unwrap()).collect();
         let old: String = text.lines().map(|l| drop(l, &idx) + "\n").collect();
         assert!(!old.lines().next().unwrap().contains("load_imbalance"));
         std::fs::write(&p, old).unwrap();
