@@ -118,6 +118,7 @@ enum Cmd {
         after_help = "Examples:\n  \
             mpm-bench paired --model 2                        # AE and DD, 2 threads on CPUs 0,1\n  \
             mpm-bench paired --model 3 --strategies dd --blocks 21 --json dd-m3.json\n  \
+            mpm-bench paired --model 2 --strategies dd,dd-balanced --blocks 21   # cost of balanced cuts\n  \
             mpm-bench paired --model 1 --threads 4 --pin 0-3 --block-steps 10"
     )]
     Paired(paired::PairedArgs),
