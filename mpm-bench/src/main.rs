@@ -162,7 +162,8 @@ struct TopologyArgs {
 
 #[derive(Args, Debug)]
 struct RunArgs {
-    /// Preset: smoke, quick, paper (configs/<name>.toml), or a path to a TOML file.
+    /// Preset: smoke, quick, paper, impact, balanced (configs/<name>.toml), or a path to a
+    /// TOML file.
     #[arg(long, short = 'p', value_name = "NAME|FILE")]
     preset: String,
     /// Models to run, comma list of 1-4 (replaces the preset's).
@@ -171,7 +172,8 @@ struct RunArgs {
     /// Thread counts, comma list (e.g. 1,2,4,6,8).
     #[arg(long, value_name = "LIST")]
     threads: Option<String>,
-    /// Strategies, comma list of serial, ae (array expansion), dd (domain decomposition).
+    /// Strategies, comma list of serial, ae (array expansion), dd (domain decomposition),
+    /// dd-balanced (DD with cuts at the particle-count quantiles).
     #[arg(long, value_name = "LIST")]
     strategies: Option<String>,
     /// Optimisation levels, comma list of o3, o0.
