@@ -228,13 +228,14 @@ fn pinning_none_passes_no_cpus() {
 /// Snapshot of the CSV header: changing it must be deliberate (bump SCHEMA_VERSION).
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 2);
+    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 3);
     let want = "schema_version,campaign_id,run_id,timestamp,git_commit,git_dirty,machine_id,binary_sha256,seed,\
 order_index,scenario,model,particles,cells,nodes,mean_nodes,grid_mode,strategy,opt_level,threads,pin_policy,\
 requested_cpus,observed_cpus,oversubscribed,rep,warmup_steps,step_limit,end_time_s,steps,sim_time_s,end_reason,\
 dt_first_s,wall_s,process_wall_s,grid_stage_s,particle_stage_s,sub_grid_fit_s,sub_binning_s,sub_scatter_s,\
 sub_assembly_s,sub_grid_update_s,sub_gather_s,sub_remap_scatter_s,sub_remap_assembly_s,sub_stress_update_s,\
-steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,peak_rss_bytes,mem_estimate_bytes,exit_code,\
+steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,dd_work_imbalance,peak_rss_bytes,\
+mem_estimate_bytes,exit_code,\
 kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
 failed_particles,status,reason";
     assert_eq!(Row::header().join(","), want);
