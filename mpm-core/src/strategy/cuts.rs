@@ -26,17 +26,17 @@ use serde::Serialize;
 /// Plane `q` goes to the boundary `b` whose particle count below, `sum(hist[..b])`, is
 /// nearest to `q / parts` of the total (ties to the lower boundary). Then every part is made
 /// at least one cell wide when the axis has at least `parts` cells (a plane is moved up past
-/// its lower neighbour, or down to leave room for the parts above it). With no particles the
-/// cuts are uniform, as in the paper's DD.
+/// its lower neighbour, or down to leave room for the parts above it). With no particles, or
+/// when the uniform cuts of the paper's DD leave a smaller largest part (planes rounded to
+/// cell boundaries one by one can lose to them), the cuts are uniform: balanced cuts are
+/// never worse than uniform along one axis.
 pub fn quantile_cuts(hist: &[u32], cuts: &mut [u32]) {
     assert!(cuts.len() >= 2, "cuts need parts + 1 >= 2 entries");
     let parts = cuts.len() - 1;
     let n = hist.len();
     let total: u64 = hist.iter().map(|&h| u64::from(h)).sum();
     if total == 0 {
-        for (q, c) in cuts.iter_mut().enumerate() {
-            *c = (q * n / parts) as u32;
-        }
+        uniform_cuts(n, cuts);
         return;
     }
     let p = parts as u64;
@@ -63,6 +63,21 @@ pub fn quantile_cuts(hist: &[u32], cuts: &mut [u32]) {
         let prev = cuts[q - 1];
         cuts[q] = if n >= parts { cuts[q].max(prev + 1).min((n - (parts - q)) as u32) } else { cuts[q].max(prev) };
     }
+    // Each plane rounds to a cell boundary on its own, so the largest part can come out
+    // above that of the uniform cuts; keep whichever is smaller (ties: the quantiles).
+    if largest_part(hist, cuts.windows(2).map(|w| (w[0], w[1]))) > largest_part(hist, uniform_parts(n, parts)) {
+        uniform_cuts(n, cuts);
+    }
+}
+
+/// Particles in the fullest of the parts `[lo, hi)`.
+fn largest_part(hist: &[u32], parts: impl Iterator<Item = (u32, u32)>) -> u64 {
+    parts.map(|(lo, hi)| hist[lo as usize..hi as usize].iter().map(|&h| u64::from(h)).sum()).max().unwrap_or(0)
+}
+
+/// The parts `[lo, hi)` of uniform cuts of `n` cells.
+fn uniform_parts(n: usize, parts: usize) -> impl Iterator<Item = (u32, u32)> {
+    (0..parts).map(move |q| ((q * n / parts) as u32, ((q + 1) * n / parts) as u32))
 }
 
 /// Uniform cuts of `n` cells into `cuts.len() - 1` parts: boundary `q` at `q n / parts`.
@@ -433,6 +448,10 @@ mod tests {
                     assert!(w[1] > w[0], "a part without a cell: {hist:?} -> {c:?}");
                 }
             }
+            assert!(
+                largest_part(&hist, c.windows(2).map(|w| (w[0], w[1]))) <= largest_part(&hist, uniform_parts(n, parts)),
+                "worse than uniform: {hist:?} -> {c:?}"
+            );
             // Balance: no part holds more than the ideal share plus the largest plane (a
             // plane cannot be split; the one-cell rule only moves cuts to one-plane parts).
             let total: u32 = hist.iter().sum();
