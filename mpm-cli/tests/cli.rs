@@ -408,7 +408,7 @@ fn bad_input_is_a_clear_error() {
     rejects(&["--model", "5", "--steps", "0"], "1..=4");
     rejects(&["--steps", "0"], "--model");
     rejects(&["--model", "1", "--threads", "0"], "at least 1");
-    rejects(&["--model", "1", "--threads", "2"], "use --strategy ae or dd");
+    rejects(&["--model", "1", "--threads", "2"], "use --strategy ae, dd or dd-balanced");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0,99"], "CPU 99 does not exist");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0"], "one CPU per worker");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0,x"], "not a CPU number");
