@@ -3,7 +3,7 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
-use mpm_bench::analysis::{claims, paired, regress};
+use mpm_bench::analysis::{claims, imbalance, paired, regress};
 use mpm_bench::campaign::matrix::{Campaign, Overrides};
 use mpm_bench::campaign::preset::{self, OptLevel};
 use mpm_bench::campaign::process::{MockRunner, ProcessRunner};
@@ -13,7 +13,7 @@ use mpm_bench::campaign::watch::WatchSettings;
 use mpm_bench::machine::placement::{PinPolicy, Places, PAPER_THREADS};
 use mpm_bench::machine::topology::{self, Machine};
 use mpm_bench::machine::{bandwidth, fingerprint};
-use mpm_bench::report::{comparison, figures, impact_table};
+use mpm_bench::report::{comparison, figures, imbalance as imbalance_figure, impact_table};
 use mpm_cli::atomic::write_atomic;
 use mpm_core::Strategy;
 use std::path::{Path, PathBuf};
@@ -37,10 +37,11 @@ use std::time::Duration;
         mpm-bench run --preset quick             # every model, few steps (~20 min on 2 cores)\n  \
         mpm-bench run --preset paper             # the paper's full protocol (to 40 us)\n  \
         mpm-bench figures --results results/     # Figures 7-14 of the newest campaign -> paper-figures/\n  \
-        mpm-bench claims --results results/      # the paper's claims C1-C6 on this machine\n  \
+        mpm-bench claims --results results/      # the paper's claims C1-C6 (and C7) on this machine\n  \
         mpm-bench regress --baseline A --current B   # CI gate on parallel efficiency\n  \
         mpm-bench report A B --out compare.md    # compare machines\n  \
-        mpm-bench impact-table --results results/impact   # table of the impact runs\n\n\
+        mpm-bench impact-table --results results/impact   # table of the impact runs\n  \
+        mpm-bench imbalance --scenario impact    # DD work imbalance, uniform vs balanced cuts\n\n\
         Run `mpm-bench <command> --help` for every flag of a command."
 )]
 struct Cli {
@@ -99,7 +100,7 @@ enum Cmd {
     Run(RunArgs),
     /// Regenerate the paper's Figures 7-14 (and a memory figure) from a campaign.
     Figures(figures::FiguresArgs),
-    /// Check the paper's claims C1-C6 on a campaign: holds / does not hold / cannot tell.
+    /// Check the paper's claims C1-C6 and C7 (balanced cuts) on a campaign: holds / does not hold / cannot tell.
     Claims(claims::ClaimsArgs),
     /// Compare a campaign with a baseline: exit 0 pass, 1 regression or missing cell, 2 error or incomparable.
     Regress(regress::RegressArgs),
@@ -126,9 +127,27 @@ enum Cmd {
         after_help = "Examples:\n  \
             mpm-bench paired --model 2                        # AE and DD, 2 threads on CPUs 0,1\n  \
             mpm-bench paired --model 3 --strategies dd --blocks 21 --json dd-m3.json\n  \
+            mpm-bench paired --model 2 --strategies dd,dd-balanced --blocks 21   # cost of balanced cuts\n  \
             mpm-bench paired --model 1 --threads 4 --pin 0-3 --block-steps 10"
     )]
     Paired(paired::PairedArgs),
+    /// Predicted DD work imbalance of uniform and balanced cuts over a run (no timing).
+    #[command(
+        long_about = "Predicted work imbalance of DD's patches, uniform cuts (dd) against balanced \
+            cuts (dd-balanced), over a run of the scenario.\n\n\
+            The scenario runs serially; before every step the particles are cut into one patch \
+            per thread with each thread count's layout (2x1x1, 2x2x1, 2x1x3, 2x2x2 for 2, 4, 6, \
+            8), uniformly and at the particle-count quantiles, with the solver's own code. The \
+            imbalance of a step is the most particles in a patch over the mean per patch. \
+            Nothing is timed, so the result means the same on a 2-core machine as on the \
+            paper's 8 cores. Prints the table (mean and worst step per thread count) and \
+            writes imbalance-<scenario>-m<model>.csv (every step) and .png/.svg under --out.",
+        after_help = "Examples:\n  \
+            mpm-bench imbalance --scenario impact --threads 2,4,6,8          # small model, to 30.6 us\n  \
+            mpm-bench imbalance --scenario taylor --model 2 --steps 200\n  \
+            mpm-bench imbalance --scenario impact --steps 50 --out /tmp/imb"
+    )]
+    Imbalance(imbalance::ImbalanceArgs),
 }
 
 #[derive(Args, Debug)]
@@ -157,7 +176,8 @@ struct TopologyArgs {
 
 #[derive(Args, Debug)]
 struct RunArgs {
-    /// Preset: smoke, quick, paper (configs/<name>.toml), or a path to a TOML file.
+    /// Preset: smoke, quick, paper, impact, balanced (configs/<name>.toml), or a path to a
+    /// TOML file.
     #[arg(long, short = 'p', value_name = "NAME|FILE")]
     preset: String,
     /// Models to run, comma list of 1-4 (replaces the preset's).
@@ -166,7 +186,8 @@ struct RunArgs {
     /// Thread counts, comma list (e.g. 1,2,4,6,8).
     #[arg(long, value_name = "LIST")]
     threads: Option<String>,
-    /// Strategies, comma list of serial, ae (array expansion), dd (domain decomposition).
+    /// Strategies, comma list of serial, ae (array expansion), dd (domain decomposition),
+    /// dd-balanced (DD with cuts at the particle-count quantiles).
     #[arg(long, value_name = "LIST")]
     strategies: Option<String>,
     /// Optimisation levels, comma list of o3, o0.
@@ -256,6 +277,7 @@ fn main() {
             measure_and_report(a.out.as_deref(), "--out", || bandwidth::measure_all(&a), bandwidth::table)
         }
         Cmd::Paired(a) => measure_and_report(a.json.as_deref(), "--json", || paired::measure(&a), paired::table),
+        Cmd::Imbalance(a) => cmd_imbalance(&a),
     };
     if let Err(e) = result {
         // `mpm-bench ... | head` closing the pipe is not an error worth a message.
@@ -416,6 +438,21 @@ fn cmd_run(a: RunArgs) -> Result<()> {
     }
     if summary.counts.interrupted {
         std::process::exit(130);
+    }
+    Ok(())
+}
+
+/// `mpm-bench imbalance`: predict, print the table, write the CSV and the figure.
+fn cmd_imbalance(a: &imbalance::ImbalanceArgs) -> Result<()> {
+    check_writable(&a.out)?;
+    let report = imbalance::measure(a)?;
+    print!("{}", imbalance::table(&report));
+    let csv = a.out.join(format!("{}.csv", imbalance::stem(&report)));
+    imbalance::write_csv(&report, &csv)?;
+    let mut files = vec![csv];
+    files.extend(imbalance_figure::write_figure(&report, &a.out)?);
+    for f in files {
+        println!("wrote {}", f.display());
     }
     Ok(())
 }

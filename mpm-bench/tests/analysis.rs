@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 
 const AE: Strategy = Strategy::ArrayExpansion;
 const DD: Strategy = Strategy::DomainDecomposition;
+const DDB: Strategy = Strategy::DdBalanced;
 
 /// How a crafted campaign is made.
 #[derive(Clone)]
@@ -84,6 +85,9 @@ fn eff(model: u32, strategy: Strategy, opt: &str, particle: bool, n: usize, c: &
     let mut e = match (strategy, particle) {
         (AE, false) => 0.75 - 0.1 * model as f64,
         (AE, true) => c.ae_particle_eff,
+        // Balanced cuts: less waiting for the fullest patch (claim C7).
+        (DDB, false) => c.dd_grid_eff + 0.05,
+        (DDB, true) => 0.97,
         (_, false) => c.dd_grid_eff,
         (_, true) => 0.95,
     };
@@ -106,7 +110,7 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
     let mut log = CsvLog::open(&dir.join("runs.csv")).unwrap();
     for &m in &c.models {
         let (g1, p1) = (0.004 * m as f64, 0.006 * m as f64);
-        for strategy in [AE, DD] {
+        for strategy in [AE, DD, DDB] {
             for opt in ["o3", "o0"] {
                 let slow = if opt == "o0" { 5.0 } else { 1.0 };
                 for &n in &c.threads {
@@ -148,6 +152,11 @@ fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
                             steady_s_per_step: (!skip).then_some(g + p),
                             peak_rss_bytes: (!skip).then_some((mem * 1.0) as u64),
                             mem_estimate_bytes: if skip { 9_500_000_000 } else { mem as u64 },
+                            dd_work_imbalance: match strategy {
+                                DD => Some(1.0 + 0.05 * (n - 1) as f64),
+                                DDB => Some(1.0 + 0.002 * (n - 1) as f64),
+                                _ => None,
+                            },
                             status: if skip { Status::Skipped } else { Status::Ok },
                             reason: if skip {
                                 "memory guard: estimated 9.5 GB exceeds the limit".into()

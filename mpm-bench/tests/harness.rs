@@ -331,7 +331,8 @@ order_index,scenario,model,particles,cells,nodes,mean_nodes,grid_mode,strategy,o
 requested_cpus,observed_cpus,oversubscribed,rep,warmup_steps,step_limit,end_time_s,steps,sim_time_s,end_reason,\
 dt_first_s,wall_s,process_wall_s,grid_stage_s,particle_stage_s,sub_grid_fit_s,sub_binning_s,sub_scatter_s,\
 sub_assembly_s,sub_grid_update_s,sub_gather_s,sub_remap_scatter_s,sub_remap_assembly_s,sub_stress_update_s,\
-steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,peak_rss_bytes,mem_estimate_bytes,exit_code,\
+steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,dd_work_imbalance,peak_rss_bytes,\
+mem_estimate_bytes,exit_code,\
 kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
 failed_particles,host_load1_before,host_load1_after,host_others_running_before,host_others_running_after,\
 host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,\

@@ -42,6 +42,10 @@
 //! * `provenance` ([`Provenance`]) names the source of the run: the host (CPU vendor,
 //!   family, model, stepping, microcode, caches, SMT, hashed machine id, kernel), the rustc,
 //!   git commit and dirty flag the binary was built with, and the binary's SHA-256.
+//! * `dd_patch_particles` (DD and balanced DD only) holds the fewest, mean and most
+//!   particles per patch over every step and the work imbalance (largest patch count over
+//!   the mean per patch) averaged over the steps and at its worst ([`PatchCounts`]):
+//!   a property of the cuts, not of the machine.
 //! * `history` holds about 200 samples `{step, time, kinetic, internal}` evenly spaced in
 //!   steps, including step 0 (the initial state) and the last step.
 
@@ -361,6 +365,35 @@ pub struct RunContext<'a> {
     pub started_unix_s: f64,
 }
 
+/// Particles per DD patch over a run, and the work imbalance they give (the most particles
+/// in a patch over the mean per patch, per step): what balanced cuts improve. Unlike
+/// `load_imbalance`, which is measured from busy times, it depends on the particles only.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PatchCounts {
+    /// Fewest particles in a patch, over every patch and step.
+    pub min: u32,
+    /// Mean particles per patch.
+    pub mean: f64,
+    /// Most particles in a patch, over every patch and step.
+    pub max: u32,
+    /// Mean over the steps of the step's largest patch count over its mean.
+    pub imbalance_mean: f64,
+    /// Largest over the steps of the same.
+    pub imbalance_max: f64,
+}
+
+impl From<&mpm_core::strategy::PatchLoad> for PatchCounts {
+    fn from(l: &mpm_core::strategy::PatchLoad) -> Self {
+        Self {
+            min: l.min,
+            mean: l.mean(),
+            max: l.max,
+            imbalance_mean: l.imbalance_mean(),
+            imbalance_max: l.imbalance_max,
+        }
+    }
+}
+
 /// The JSON summary of one run. Field names are an interface (see the module docs): `mpm`
 /// writes it, the harness reads it back with this type.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -536,6 +569,10 @@ pub struct Summary {
     /// DD patch layout `[px, py, pz]` (DD only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dd_layout: Option<[usize; 3]>,
+    /// DD (uniform or balanced cuts) only: particles per patch and the work imbalance over
+    /// every step of the run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dd_patch_particles: Option<PatchCounts>,
     /// Artificial bulk viscosity coefficients `{c1, c2}` (`0, 0`: off).
     #[serde(default)]
     pub bulk_viscosity: Option<BulkViscosity>,
@@ -655,6 +692,7 @@ impl Summary {
             model_memory_bytes: sim.memory_bytes(),
             spacing_m: ctx.impact.map(|_| sim.spacing()[0]),
             dd_layout: sim.domain_decomposition().map(|dd| dd.layout()),
+            dd_patch_particles: sim.domain_decomposition().map(|dd| PatchCounts::from(dd.load())),
             started_unix_s: ctx.started_unix_s,
             ..Self::default()
         }

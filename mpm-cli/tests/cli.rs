@@ -372,9 +372,25 @@ fn dd_on_two_pinned_workers_reports_their_cpus_and_stage_times() {
     let imbalance = f(&v, "load_imbalance");
     let max = busy.iter().copied().fold(0.0, f64::max);
     assert!((imbalance - max / (0.5 * (busy[0] + busy[1]))).abs() < 1e-12, "{imbalance}");
+    let p = &v["dd_patch_particles"];
+    assert!(u(p, "min") <= u(p, "max") && f(p, "mean") == 0.5 * u(&v, "particles") as f64, "{p}");
+    assert!(f(p, "imbalance_mean") >= 1.0 && f(p, "imbalance_max") >= f(p, "imbalance_mean"), "{p}");
     let mut want: BTreeSet<String> = REQUIRED_KEYS.iter().map(|s| s.to_string()).collect();
     want.insert("dd_layout".into());
+    want.insert("dd_patch_particles".into());
     assert_eq!(keys(&v), want);
+}
+
+/// Balanced cuts run as a strategy of their own and report their patch counts.
+#[test]
+fn dd_balanced_runs_and_reports_its_patch_counts() {
+    let (v, _) = run_json(&["--model", "1", "--steps", "5", "--strategy", "dd-balanced", "--threads", "4", "--quiet"]);
+    assert_eq!(v["strategy"], "dd-balanced");
+    assert_eq!(v["dd_layout"], serde_json::json!([2, 2, 1]));
+    let p = &v["dd_patch_particles"];
+    assert!(f(p, "imbalance_max") < 1.1, "the bar is symmetric: balanced cuts split it evenly, {p}");
+    let s: Summary = serde_json::from_value(v.clone()).unwrap();
+    assert_eq!(s.strategy, Strategy::DdBalanced);
 }
 
 #[test]
@@ -384,7 +400,7 @@ fn ae_on_two_workers_runs() {
     assert_eq!(u(&v, "steps"), 20);
     assert!(f(&v, "wall_s") > 0.0);
     assert!(v["substages"]["assembly"].as_f64().unwrap() > 0.0);
-    assert!(v.get("dd_layout").is_none());
+    assert!(v.get("dd_layout").is_none() && v.get("dd_patch_particles").is_none());
 }
 
 #[test]
@@ -424,7 +440,7 @@ fn bad_input_is_a_clear_error() {
     rejects(&["--model", "5", "--steps", "0"], "1..=4");
     rejects(&["--steps", "0"], "--model");
     rejects(&["--model", "1", "--threads", "0"], "at least 1");
-    rejects(&["--model", "1", "--threads", "2"], "use --strategy ae or dd");
+    rejects(&["--model", "1", "--threads", "2"], "use --strategy ae, dd or dd-balanced");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0,99"], "CPU 99 does not exist");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0"], "one CPU per worker");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0,x"], "not a CPU number");

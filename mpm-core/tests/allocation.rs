@@ -55,9 +55,13 @@ fn steady_state_steps_do_not_allocate() {
     assert_eq!(allocations_per_step(1, Strategy::Serial, 1, GridMode::Adaptive), 0.0);
     // Parallel: bounded by the broadcasts per step (AE 7, DD 9 + 2 patches), independent of
     // the model size.
-    for (strategy, threads) in
-        [(Strategy::ArrayExpansion, 2), (Strategy::DomainDecomposition, 2), (Strategy::DomainDecomposition, 4)]
-    {
+    for (strategy, threads) in [
+        (Strategy::ArrayExpansion, 2),
+        (Strategy::DomainDecomposition, 2),
+        (Strategy::DomainDecomposition, 4),
+        (Strategy::DdBalanced, 2),
+        (Strategy::DdBalanced, 8),
+    ] {
         let small = allocations_per_step(1, strategy, threads, GridMode::Fixed);
         let large = allocations_per_step(2, strategy, threads, GridMode::Fixed);
         println!("{strategy} x{threads}: {small} allocations/step (Model 1), {large} (Model 2)");

@@ -1,5 +1,6 @@
-//! `mpm-bench claims`: the paper's claims C1-C6 (spec paper.md section 5) tested on a
-//! campaign, each with a verdict, the reason and the numbers behind it.
+//! `mpm-bench claims`: the paper's claims C1-C6 (spec paper.md section 5), and C7 on the
+//! balanced DD cuts of issue 15, tested on a campaign, each with a verdict, the reason and
+//! the numbers behind it.
 //!
 //! Rules shared by every claim:
 //!
@@ -127,13 +128,14 @@ impl ClaimResult {
 pub const MIN_REPS: usize = 3;
 
 /// The paper's claims (spec paper.md section 5).
-pub const CLAIMS: [(&str, &str); 6] = [
+pub const CLAIMS: [(&str, &str); 7] = [
     ("C1", "DD scales better and is more efficient than AE, increasingly so for larger models."),
     ("C2", "AE memory grows with threads; DD memory is nearly constant (Model4: 4.61 -> 4.63 GB)."),
     ("C3", "In AE the particle stage scales better than the grid-node stage (the bottleneck)."),
     ("C4", "Without compiler optimisation, parallel efficiency is higher than with O3."),
     ("C5", "Past 4 threads (the second socket) efficiency drops: cross-socket traffic."),
     ("C6", "AE could not run Model4 at 4-8 threads: not enough memory on the 8 GB machine."),
+    ("C7", "Balanced cuts reduce the work imbalance and the time per step of DD (issue 15)."),
 ];
 
 /// Array expansion, the subject of claims C3 and C6.
@@ -538,10 +540,10 @@ fn gb(b: f64) -> String {
     format!("{:.2} GB", b / 1e9)
 }
 
-/// Evaluate C1-C6 on a campaign.
+/// Evaluate C1-C7 on a campaign.
 pub fn evaluate(c: &Campaign, an: &Analysis) -> Vec<ClaimResult> {
     let o = StatsOptions::default();
-    vec![c1(an), c2(an, &o), c3(an), c4(an), c5(c), c6(c, &o)]
+    vec![c1(an), c2(an, &o), c3(an), c4(an), c5(c), c6(c, &o), c7::c7(c, an)]
 }
 
 /// A plain-text table with the evidence below it.
@@ -607,4 +609,90 @@ pub fn run(args: ClaimsArgs) -> Result<()> {
         println!("wrote {}", md.display());
     }
     Ok(())
+}
+
+/// C7 (issue 15, not the paper's): balanced cuts (`dd-balanced`) against uniform cuts (`dd`).
+/// Kept apart from C1-C6: it reads the recorded work imbalance straight from the rows.
+mod c7 {
+    use super::{result, ClaimResult, Tally, Verdict, DD};
+    use crate::analysis::results::Campaign;
+    use crate::analysis::stats::{tag, Analysis, Stage};
+    use crate::campaign::record::Status;
+    use crate::util::median;
+    use mpm_core::Strategy;
+
+    const DDB: Strategy = Strategy::DdBalanced;
+
+    /// Work imbalances closer than this are equal (they are deterministic, not noisy).
+    const SAME_IMBALANCE: f64 = 0.005;
+
+    /// Median recorded work imbalance of the ok rows of `model` at `threads` with `s`
+    /// (any optimisation level and pinning: the counts depend on neither).
+    fn work_imbalance(c: &Campaign, model: u32, s: Strategy, threads: usize) -> Option<f64> {
+        let v: Vec<f64> = c
+            .rows
+            .iter()
+            .filter(|r| r.status == Status::Ok && r.model == model && r.strategy == s && r.threads == threads)
+            .filter_map(|r| r.dd_work_imbalance)
+            .collect();
+        (!v.is_empty()).then(|| median(&v))
+    }
+
+    /// The imbalance part, at every thread count both strategies ran (oversubscribed too).
+    fn imbalance_part(c: &Campaign, an: &Analysis) -> (usize, usize, Vec<String>) {
+        let (mut better, mut worse, mut lines) = (0, 0, Vec::new());
+        for m in an.models() {
+            for n in an.thread_counts().into_iter().filter(|&n| n > 1) {
+                let (Some(u), Some(b)) = (work_imbalance(c, m, DD, n), work_imbalance(c, m, DDB, n)) else {
+                    continue;
+                };
+                let verdict = if b < u - SAME_IMBALANCE {
+                    better += 1;
+                    "supports"
+                } else if b > u + SAME_IMBALANCE {
+                    worse += 1;
+                    "contradicts"
+                } else {
+                    "equal"
+                };
+                lines.push(format!(
+                    "Model{m}, {n} threads, work imbalance: {} {u:.3} vs {} {b:.3} -> {verdict}",
+                    tag(DD),
+                    tag(DDB)
+                ));
+            }
+        }
+        (better, worse, lines)
+    }
+
+    pub(super) fn c7(c: &Campaign, an: &Analysis) -> ClaimResult {
+        let (better, worse, mut ev) = imbalance_part(c, an);
+        // Time: only real parallel points (threads <= cores), total step at O3.
+        let mut time = Tally::default();
+        for m in an.models() {
+            for p in an.series(m, DD, "o3", Stage::Total).into_iter().filter(|p| p.is_real_parallel()) {
+                let n = p.key.threads;
+                let Some(q) = an.point(m, DDB, "o3", n, Stage::Total).filter(|q| q.is_real_parallel()) else {
+                    continue;
+                };
+                time.add(format!("Model{m}, {n} threads, s/step"), &tag(DD), &p.time, &tag(DDB), &q.time);
+            }
+        }
+        let (tv, treason) = time.verdict("DD and DD-BALANCED at O3");
+        ev.extend(time.lines);
+        let imb = format!("work imbalance lower in {better}, higher in {worse} configuration(s)");
+        let (v, reason) = match (better, worse, tv) {
+            (0, 0, _) => (
+                Verdict::CannotTell,
+                format!("no dd and dd-balanced rows with recorded work imbalance; time: {treason}"),
+            ),
+            (_, w, _) if w > 0 => (Verdict::DoesNotHold, format!("{imb}; time: {treason}")),
+            (_, _, Verdict::DoesNotHold) => (Verdict::DoesNotHold, format!("{imb}; but time: {treason}")),
+            (_, _, Verdict::Holds) => (Verdict::Holds, format!("{imb}; time: {treason}")),
+            (_, _, Verdict::CannotTell) => {
+                (Verdict::CannotTell, format!("{imb}, but the time per step cannot tell: {treason}"))
+            }
+        };
+        result("C7", v, reason, ev)
+    }
 }

@@ -4,11 +4,13 @@
 //! * [`stats`]: medians, bootstrap intervals, speedup and efficiency per configuration;
 //! * [`traffic`]: the bytes an MPM step moves per stage;
 //! * [`claims`]: the paper's claims C1-C6 tested; [`regress`]: the CI gate;
-//! * [`paired`]: parallel efficiency as paired ratios measured in this process.
+//! * [`paired`]: parallel efficiency as paired ratios measured in this process;
+//! * [`imbalance`]: DD work imbalance of uniform and balanced cuts predicted over a run.
 //!
 //! It reads what the campaign and machine layers record and draws nothing.
 
 pub mod claims;
+pub mod imbalance;
 pub mod paired;
 pub mod regress;
 pub mod results;

@@ -52,7 +52,9 @@ pub struct PairedArgs {
     /// Taylor bar model, 1-4 (Model 4 needs several GiB per configuration).
     #[arg(long, default_value_t = 2)]
     pub model: u8,
-    /// Strategies to measure, comma-separated: ae, dd.
+    /// Strategies to measure, comma-separated: ae, dd, dd-balanced. Each after the first is
+    /// also compared with the first at `--threads` threads, block by block (e.g.
+    /// `dd,dd-balanced`: the cost or gain of balanced cuts).
     #[arg(long, value_delimiter = ',', default_value = "ae,dd")]
     pub strategies: Vec<String>,
     /// Workers of the parallel configurations (the reference configurations use 1).
@@ -103,6 +105,9 @@ pub struct PairedStrategy {
     pub block_imbalance: Vec<f64>,
     /// Median paired `t1_b / serial_b`: the strategy's 1-thread cost against the serial solver.
     pub one_thread_vs_serial: Estimate,
+    /// Median paired `tT_b / tT_b(first strategy)`: this strategy's `T`-thread time against
+    /// the first strategy's in the same blocks (`None` for the first strategy itself).
+    pub tt_vs_first: Option<Estimate>,
     /// Largest position difference between the `T`-thread and the 1-thread solver at the
     /// end, relative to the bar length (round-off only: they must agree).
     pub max_position_difference: f64,
@@ -162,20 +167,18 @@ struct Config {
 fn parse_strategies(list: &[String]) -> Result<Vec<Strategy>> {
     let mut out = Vec::new();
     for s in list {
-        let st: Strategy = s
-            .trim()
-            .to_ascii_lowercase()
-            .parse()
-            .map_err(|_| anyhow::anyhow!("unknown strategy '{s}' in --strategies: use ae, dd or both (ae,dd)"))?;
+        let st: Strategy = s.trim().to_ascii_lowercase().parse().map_err(|_| {
+            anyhow::anyhow!("unknown strategy '{s}' in --strategies: use ae, dd, dd-balanced or a list (ae,dd)")
+        })?;
         if !st.is_parallel() {
-            bail!("--strategies takes ae and dd; the serial solver is always measured as the reference");
+            bail!("--strategies takes ae, dd and dd-balanced; the serial solver is always measured as the reference");
         }
         if !out.contains(&st) {
             out.push(st);
         }
     }
     if out.is_empty() {
-        bail!("--strategies is empty: use ae, dd or ae,dd");
+        bail!("--strategies is empty: use ae, dd, dd-balanced or a list such as ae,dd");
     }
     Ok(out)
 }
@@ -351,6 +354,7 @@ fn paired_strategy(s: Strategy, one: &Config, many: &Config, serial: &[f64], thr
         one_thread_vs_serial: stats::bootstrap(&[&vs_serial], &|m| m[0], &opts, &format!("vs-serial-{s}")),
         block_efficiency: ratios,
         block_imbalance: many.imbalance.clone(),
+        tt_vs_first: None,
         t1_s_per_step: one.seconds.clone(),
         tt_s_per_step: many.seconds.clone(),
         max_position_difference: dx / mpm_core::scenario::taylor::LENGTH,
@@ -369,7 +373,16 @@ pub fn measure(a: &PairedArgs) -> Result<PairedReport> {
     let out = strategies
         .iter()
         .enumerate()
-        .map(|(i, &s)| paired_strategy(s, &runs[1 + 2 * i], &runs[2 + 2 * i], &serial, a.threads))
+        .map(|(i, &s)| {
+            let mut p = paired_strategy(s, &runs[1 + 2 * i], &runs[2 + 2 * i], &serial, a.threads);
+            if i > 0 {
+                let ratios: Vec<f64> =
+                    runs[2 + 2 * i].seconds.iter().zip(&runs[2].seconds).map(|(x, y)| x / y).collect();
+                let label = format!("vs-first-{s}");
+                p.tt_vs_first = Some(stats::bootstrap(&[&ratios], &|m| m[0], &StatsOptions::default(), &label));
+            }
+            p
+        })
         .collect();
     let git = git_info(None);
     Ok(PairedReport {
@@ -416,7 +429,7 @@ pub fn table(r: &PairedReport) -> String {
     );
     s.push_str(&format!("serial: {:.3} ms per step (median)\n", 1e3 * median(&r.serial_s_per_step)));
     s.push_str(&format!(
-        "{:<8} {:>11} {:>11}  {:<24} {:>10} {:>8} {:>10} {:>16}\n",
+        "{:<11} {:>11} {:>11}  {:<24} {:>10} {:>8} {:>10} {:>16}\n",
         "strategy",
         "T1 ms/step",
         format!("T{} ms/step", r.threads),
@@ -428,7 +441,7 @@ pub fn table(r: &PairedReport) -> String {
     ));
     for p in &r.strategies {
         s.push_str(&format!(
-            "{:<8} {:>11.3} {:>11.3}  {:<24} {:>10.3} {:>8.3} {:>10.3} {:>16}\n",
+            "{:<11} {:>11.3} {:>11.3}  {:<24} {:>10.3} {:>8.3} {:>10.3} {:>16}\n",
             p.strategy.name(),
             1e3 * median(&p.t1_s_per_step),
             1e3 * median(&p.tt_s_per_step),
@@ -438,6 +451,18 @@ pub fn table(r: &PairedReport) -> String {
             median(&p.block_imbalance),
             p.one_thread_vs_serial.show(3)
         ));
+    }
+    if let Some(first) = r.strategies.first() {
+        for p in r.strategies.iter().filter_map(|p| p.tt_vs_first.as_ref().map(|e| (p, e))) {
+            s.push_str(&format!(
+                "{} / {} at {} threads, paired time per step: {} (below 1: {} is faster)\n",
+                p.0.strategy.name(),
+                first.strategy.name(),
+                r.threads,
+                p.1.show(4),
+                p.0.strategy.name()
+            ));
+        }
     }
     for p in &r.strategies {
         if p.max_position_difference.is_nan() || p.max_position_difference >= 1e-9 {
@@ -465,7 +490,7 @@ mod tests {
     fn args() -> PairedArgs {
         PairedArgs {
             model: 1,
-            strategies: vec!["ae".into(), "dd".into()],
+            strategies: vec!["dd".into(), "dd-balanced".into()],
             threads: 2,
             pin: "none".into(),
             blocks: 3,
@@ -513,7 +538,12 @@ mod tests {
             assert!(p.max_position_difference < 1e-12, "{}", p.max_position_difference);
         }
         let t = table(&r);
-        assert!(t.contains("efficiency, paired") && t.contains("ae") && t.contains("dd"), "{t}");
+        assert!(t.contains("efficiency, paired") && t.contains("dd-balanced / dd at 2 threads"), "{t}");
+        assert!(r.strategies[0].tt_vs_first.is_none());
+        let v = r.strategies[1].tt_vs_first.as_ref().unwrap();
+        let want: Vec<f64> =
+            (0..3).map(|b| r.strategies[1].tt_s_per_step[b] / r.strategies[0].tt_s_per_step[b]).collect();
+        assert!(v.lo <= v.value && v.value <= v.hi && want.iter().any(|w| (w - v.value).abs() < 1e-12), "{v:?}");
         assert!(!t.contains("WARNING"), "{t}");
     }
 }

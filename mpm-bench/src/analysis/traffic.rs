@@ -12,10 +12,11 @@
 //! | pass | per particle | per node |
 //! |---|---|---|
 //! | DD binning (count + write `Pindex`) | x 24 + patch 4 + 4 + Pindex 4 = 36 | - |
+//! | balanced cuts: histogram passes, binning from the stored cells | x 24 + cell 12, + 12 per y or z pass; count cell 12 + patch 4; write 4 + Pindex 4 = 60 (+12 per y/z pass) | - |
 //! | P2G scatter (Eqs. 1-5) | x 24, v 24, mass 8, rho 8, stress 48 = 112 (+4 Pindex, DD) | zero 56 + read-modify-write 112 = 168 per copy |
 //! | assembly (Eq. 16 / sub-grids) | - | AE 56 (T+1); DD read 56 + write 56 = 112 (each node stored by its first patch, added by the others: shared faces neglected); serial 0 |
 //! | grid update (Eq. 6) | - | read p2g 56 + write kin 48 = 104 |
-//! | **grid-node stage** | 112 (+40 DD) | 168 copies + assembly + 104 |
+//! | **grid-node stage** | 112 (+40 DD, +64..88 balanced DD) | 168 copies + assembly + 104 |
 //! | gather (Eqs. 8, 10) | x 24 + v r/w 48 = 72 | kin 48 |
 //! | re-map scatter (Eq. 11) | x 24, v 24, mass 8 = 56 (+4 DD) | zero 24 + r/w 48 = 72 per copy |
 //! | re-map assembly | - | AE 24 (T+1); DD 48; serial 0 |
@@ -53,12 +54,16 @@ impl StageBytes {
     /// grid nodes.
     pub fn estimate(strategy: Strategy, threads: usize, particles: f64, nodes: f64) -> Self {
         let t = threads.max(1) as f64;
-        let (copies, asm7, asm3, dd_p) = match strategy {
-            Strategy::ArrayExpansion => (t, 56.0 * (t + 1.0), 24.0 * (t + 1.0), 0.0),
-            Strategy::DomainDecomposition => (1.0, 112.0, 48.0, 1.0),
-            Strategy::Serial => (1.0, 0.0, 0.0, 0.0),
+        // Balanced cuts: one more pass per cut axis besides x (cells written, then read).
+        let cut_axes =
+            mpm_core::strategy::patch_layout(threads.max(1), [1 << 20; 3])[1..].iter().filter(|&&p| p > 1).count();
+        let (copies, asm7, asm3, dd_p, binning) = match strategy {
+            Strategy::ArrayExpansion => (t, 56.0 * (t + 1.0), 24.0 * (t + 1.0), 0.0, 0.0),
+            Strategy::DomainDecomposition => (1.0, 112.0, 48.0, 1.0, 40.0),
+            Strategy::DdBalanced => (1.0, 112.0, 48.0, 1.0, 64.0 + 12.0 * cut_axes as f64),
+            Strategy::Serial => (1.0, 0.0, 0.0, 0.0, 0.0),
         };
-        let grid_min = particles * (112.0 + 40.0 * dd_p) + nodes * (168.0 * copies + asm7 + 104.0);
+        let grid_min = particles * (112.0 + binning) + nodes * (168.0 * copies + asm7 + 104.0);
         let particle_min = particles * (370.0 + 4.0 * dd_p) + nodes * (48.0 + 72.0 * copies + asm3 + 104.0 + 72.0);
         Self {
             grid_min,

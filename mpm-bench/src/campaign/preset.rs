@@ -45,11 +45,12 @@ use std::str::FromStr;
 
 /// Presets shipped with the harness (embedded; `configs/<name>.toml` in the workspace wins
 /// when present, so edits there apply without rebuilding).
-pub const BUILTIN_PRESETS: [(&str, &str); 4] = [
+pub const BUILTIN_PRESETS: [(&str, &str); 5] = [
     ("smoke", include_str!("../../../configs/smoke.toml")),
     ("quick", include_str!("../../../configs/quick.toml")),
     ("paper", include_str!("../../../configs/paper.toml")),
     ("impact", include_str!("../../../configs/impact.toml")),
+    ("balanced", include_str!("../../../configs/balanced.toml")),
 ];
 
 /// Optimisation level = Cargo profile of the solver binary.

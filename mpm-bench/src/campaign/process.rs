@@ -315,7 +315,7 @@ fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -
     let size = scenario_size(&s.scenario, s.model).unwrap_or(ModelSize { particles: 1000, nodes: 1000 });
     let steps = s.budget.step_limit.unwrap_or(100);
     let speed = match s.strategy {
-        Strategy::DomainDecomposition => 0.9,
+        Strategy::DomainDecomposition | Strategy::DdBalanced => 0.9,
         Strategy::Serial | Strategy::ArrayExpansion => 0.8,
     } * (s.threads.min(2) as f64);
     let per_step = size.particles as f64 * 50e-9 * if s.opt == OptLevel::O0 { 8.0 } else { 1.0 } / speed;

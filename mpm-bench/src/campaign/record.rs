@@ -22,11 +22,12 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 /// Version of the row layout; bump it whenever a column is added, removed or renamed.
-/// Schema 3 added the host's load and calibration (`host_*`, `calib_*`, `host_noisy`).
+/// Schema 3 added the host's load and calibration (`host_*`, `calib_*`, `host_noisy`) and
+/// the work imbalance of DD's cuts (`dd_work_imbalance`).
 pub const SCHEMA_VERSION: u32 = 3;
 
 /// Columns added since schema 1; older files lack them and still read (as empty / false).
-const ADDED_SINCE_V1: [&str; 13] = [
+const ADDED_SINCE_V1: [&str; 14] = [
     // schema 2
     "worker_busy_s",
     "load_imbalance",
@@ -42,6 +43,7 @@ const ADDED_SINCE_V1: [&str; 13] = [
     "calib_copy_ratio",
     "host_noisy",
     "host_noise",
+    "dd_work_imbalance",
 ];
 
 /// Outcome of one run.
@@ -183,6 +185,11 @@ pub struct Row {
     /// non-oversubscribed run: a worker's CPU was slowed from outside the run). Since schema 2.
     #[serde(default)]
     pub load_imbalance: Option<f64>,
+    /// DD and balanced DD: the most particles in a patch over the mean per patch, averaged
+    /// over the run's steps (the summary's `dd_patch_particles.imbalance_mean`; a property
+    /// of the cuts, not of the machine). Since schema 3.
+    #[serde(default)]
+    pub dd_work_imbalance: Option<f64>,
     /// Peak resident memory of the solver process (VmHWM read by the solver), bytes.
     pub peak_rss_bytes: Option<u64>,
     /// The memory guard's estimate for this run, bytes.

@@ -752,6 +752,7 @@ fn copy_measurements(row: &mut Row, s: &Summary) {
         .map(|b| b.iter().map(|b| format!("{b:.6}")).collect::<Vec<_>>().join(" "))
         .unwrap_or_default();
     row.load_imbalance = s.load_imbalance;
+    row.dd_work_imbalance = s.dd_patch_particles.map(|p| p.imbalance_mean);
     row.peak_rss_bytes = s.peak_rss_bytes;
     row.kinetic_energy_initial_j = Some(s.kinetic_energy_initial);
     row.kinetic_energy_j = Some(s.kinetic_energy);

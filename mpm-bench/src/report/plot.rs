@@ -132,7 +132,14 @@ pub fn draw_panel<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &Pan
         .map_err(pe)?;
     let x_ticks = panel.x_max.round() as usize + 1;
     // Enough decimals that the ~10 tick labels differ.
-    let decimals = if panel.y_max > 2.0 { 0 } else { (-(panel.y_max / 10.0).log10()).ceil().max(1.0) as usize };
+    // (Up to 5 the ticks are 0.5 apart: one decimal, or 1.5 would read as 2.)
+    let decimals = if panel.y_max > 5.0 {
+        0
+    } else if panel.y_max > 2.0 {
+        1
+    } else {
+        (-(panel.y_max / 10.0).log10()).ceil().max(1.0) as usize
+    };
     chart
         .configure_mesh()
         .x_labels(x_ticks.min(12))

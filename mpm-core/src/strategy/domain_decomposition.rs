@@ -25,7 +25,18 @@
 //! The MUSL re-map (Eq. 11) reuses the same binning, sub-grids and assembly. With the
 //! adaptive grid the patches are re-cut over the particles' current bounding box every step,
 //! which is the paper's load balance.
+//!
+//! **Balanced cuts** ([`Strategy::DdBalanced`](super::Strategy::DdBalanced), the paper's
+//! "better load balance algorithm"): the same layouts, but every step the cut planes are
+//! placed at the particle-count quantiles ([`super::cuts`]; nested: x over all particles, y
+//! within each x slab, z within each column). Before the binning, one parallel pass stores
+//! every particle's cell and counts particles per x cell plane (per-worker histograms), the
+//! x cuts follow from their sum; for layouts cut along y (z) a further pass over the stored
+//! cells counts per slab (column) and cell plane. The binning then looks patches up from the
+//! stored cells; sub-grids, `Pindex` and assembly are those of uniform cuts (the sub-grid
+//! node count, `(nx + px)(ny + py)(nz + pz)`, does not depend on where the planes lie).
 
+use super::cuts::{Cuts, PatchLoad};
 use super::{Kernel, NodeBox, ScatterStrategy};
 use crate::grid::GridGeom;
 use crate::math::Vec3;
@@ -134,6 +145,27 @@ impl Patch {
 /// coherence miss: binning at 2 threads ran 1.5x slower than at 1 without the padding).
 const ROW_STRIDE: usize = 16;
 
+/// One parallel pass of loop splitting over the particles (`labels.len()` of them): worker
+/// `w` stores `label(p).0` of each of its particles `p` in `labels[p]` and counts the bins
+/// `label(p).1` in row `w` of `hist` (rows `stride` apart, the first `bins` entries zeroed
+/// first). The DD counting pass and the first histogram pass of balanced cuts.
+fn label_and_count<S, F>(exec: &Exec<'_>, labels: &mut [S], hist: &mut [u32], stride: usize, bins: usize, label: &F)
+where
+    S: Send,
+    F: Fn(usize) -> (S, usize) + Sync,
+{
+    let (n, t) = (labels.len(), exec.workers());
+    exec.for_each_chunk_mut((Split::Even.of(labels), Split::Blocks(stride).of(hist)), |w, (mine, row)| {
+        let row = &mut row[..bins];
+        row.fill(0);
+        for (slot, p) in mine.iter_mut().zip(partition(n, t, w)) {
+            let (l, bin) = label(p);
+            *slot = l;
+            row[bin] += 1;
+        }
+    });
+}
+
 /// The paper's particle binning tables.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Binning {
@@ -174,18 +206,10 @@ impl Binning {
         self.patnp.resize(patches, 0);
 
         // Counting pass: thread w counts its particles per patch in row w of patnp_th.
-        exec.for_each_chunk_mut(
-            (Split::Even.of(&mut self.patch_of), Split::Blocks(stride).of(&mut self.patnp_th)),
-            |w, (mine, row)| {
-                let row = &mut row[..patches];
-                row.fill(0);
-                for (slot, p) in mine.iter_mut().zip(partition(n, t, w)) {
-                    let j = patch(p);
-                    *slot = j as u32;
-                    row[j] += 1;
-                }
-            },
-        );
+        label_and_count(exec, &mut self.patch_of, &mut self.patnp_th, stride, patches, &|p| {
+            let j = patch(p);
+            (j as u32, j)
+        });
 
         // patnp = column sums; write cursors = exclusive prefix sums down each column.
         for j in 0..patches {
@@ -262,28 +286,54 @@ impl Binning {
 #[derive(Clone, Debug)]
 pub struct DomainDecomposition {
     threads: usize,
+    /// Cut planes at particle quantiles every step (else uniform).
+    balanced: bool,
     layout: [usize; 3],
     cut_for: Option<GridGeom>,
     patches: Vec<Patch>,
     /// Start of each patch's sub-grid in the scatter buffer (`patches + 1` entries).
     offsets: Vec<usize>,
-    /// Patch part along each axis for each cell of the grid.
-    part_of_cell: [Vec<u32>; 3],
+    /// The cut planes and the cell-to-patch tables.
+    cuts: Cuts,
     binning: Binning,
+    /// Balanced cuts: each particle's cell, stored by the histogram pass.
+    cell_of: Vec<[u32; 3]>,
+    /// Balanced cuts: per-worker histograms (rows of `hist_stride`).
+    hist: Vec<u32>,
+    /// Balanced cuts: the histogram summed over the workers.
+    hist_sum: Vec<u32>,
+    /// Particles per patch over the steps binned.
+    load: PatchLoad,
 }
 
 impl DomainDecomposition {
-    /// State for `threads` patches (one per thread).
+    /// State for `threads` uniform patches (one per thread): the paper's DD.
     pub fn new(threads: usize) -> Self {
         Self {
             threads,
+            balanced: false,
             layout: [1, 1, 1],
             cut_for: None,
             patches: Vec::with_capacity(threads),
             offsets: Vec::with_capacity(threads + 1),
-            part_of_cell: Default::default(),
+            cuts: Cuts::default(),
             binning: Binning::default(),
+            cell_of: Vec::new(),
+            hist: Vec::new(),
+            hist_sum: Vec::new(),
+            load: PatchLoad::default(),
         }
+    }
+
+    /// State for `threads` patches whose cut planes sit at the particle-count quantiles,
+    /// recomputed every step.
+    pub fn balanced(threads: usize) -> Self {
+        Self { balanced: true, ..Self::new(threads) }
+    }
+
+    /// Whether the cuts are balanced (else uniform).
+    pub fn is_balanced(&self) -> bool {
+        self.balanced
     }
 
     /// The patch layout in use.
@@ -296,27 +346,35 @@ impl DomainDecomposition {
         &self.patches
     }
 
+    /// The cut planes of the current step.
+    pub fn cuts(&self) -> &Cuts {
+        &self.cuts
+    }
+
     /// The binning of the current step.
     pub fn binning(&self) -> &Binning {
         &self.binning
     }
 
-    /// Cut `geom` into uniform patches (no allocation once capacities are reached).
+    /// Particles per patch and work imbalance over the steps binned so far.
+    pub fn load(&self) -> &PatchLoad {
+        &self.load
+    }
+
+    /// Cut `geom` into uniform patches if the grid changed (no allocation once capacities
+    /// are reached). Balanced cuts start from these and move the planes every step.
     pub fn cut(&mut self, geom: &GridGeom) {
         if self.cut_for == Some(*geom) {
             return;
         }
         self.layout = patch_layout(self.threads, geom.cells);
-        let starts = |d: usize, q: usize| q * geom.cells[d] / self.layout[d];
-        for d in 0..3 {
-            let parts = self.layout[d];
-            let v = &mut self.part_of_cell[d];
-            v.clear();
-            for q in 0..parts {
-                let n = starts(d, q + 1) - starts(d, q);
-                v.extend(std::iter::repeat_n(q as u32, n));
-            }
-        }
+        self.cuts.uniform(self.layout, geom.cells);
+        self.rebuild_patches();
+        self.cut_for = Some(*geom);
+    }
+
+    /// Patches and sub-grid offsets from the cuts.
+    fn rebuild_patches(&mut self) {
         self.patches.clear();
         self.offsets.clear();
         let mut off = 0;
@@ -324,32 +382,63 @@ impl DomainDecomposition {
         // Patches are numbered z fastest (q_z + p_z (q_y + p_y q_x)), so that with the
         // Taylor bar's octant particle numbering (x halves first) patch j and particle
         // chunk j lie in the same region for the paper's 2, 4 and 8-thread layouts.
-        for qx in 0..self.layout[0] {
-            for qy in 0..self.layout[1] {
-                for qz in 0..self.layout[2] {
-                    let q = [qx, qy, qz];
-                    let lo: [usize; 3] = std::array::from_fn(|d| starts(d, q[d]));
-                    let cells: [usize; 3] = std::array::from_fn(|d| starts(d, q[d] + 1) - lo[d]);
-                    let p = Patch { index: q, cell_lo: lo, cells };
-                    off += p.num_nodes();
-                    self.patches.push(p);
-                    self.offsets.push(off);
+        for j in 0..self.cuts.patches() {
+            let p = self.cuts.patch(j);
+            off += p.num_nodes();
+            self.patches.push(p);
+            self.offsets.push(off);
+        }
+    }
+
+    /// Balanced cuts for the particles at `x` on `geom` (the patches must have been cut for
+    /// `geom`): the histogram passes described in the module page, then the patches.
+    fn cut_balanced(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
+        let (n, t) = (x.len(), exec.workers());
+        let longest = (0..3).map(|a| self.cuts.histogram_len(a)).max().unwrap_or(0);
+        let stride = longest.div_ceil(ROW_STRIDE).max(1) * ROW_STRIDE;
+        self.cell_of.resize(n, [0; 3]);
+        self.hist.resize(t * stride, 0);
+        let nx = self.cuts.histogram_len(0);
+        // Every particle's cell and per-worker counts per x cell plane, in one pass.
+        label_and_count(exec, &mut self.cell_of, &mut self.hist, stride, nx, &|p| {
+            let c = geom.shape_cell(x[p]);
+            (c.map(|v| v as u32), c[0])
+        });
+        self.sum_and_cut(0, t, stride);
+        // Per slab (column) and y (z) cell plane, for the axes that are cut.
+        let layout = self.layout;
+        for axis in (1..3).filter(|&a| layout[a] > 1) {
+            let len = self.cuts.histogram_len(axis);
+            let (cuts, cell_of) = (&self.cuts, &self.cell_of);
+            exec.for_each_chunk_mut(Split::Blocks(stride).of(&mut self.hist), |w, row| {
+                let row = &mut row[..len];
+                row.fill(0);
+                for p in partition(n, t, w) {
+                    row[cuts.bin(axis, cell_of[p])] += 1;
                 }
+            });
+            self.sum_and_cut(axis, t, stride);
+        }
+        self.rebuild_patches();
+    }
+
+    /// Sum the workers' histograms of `axis` (worker rows `stride` apart) and cut it.
+    fn sum_and_cut(&mut self, axis: usize, workers: usize, stride: usize) {
+        let len = self.cuts.histogram_len(axis);
+        self.hist_sum.clear();
+        self.hist_sum.extend_from_slice(&self.hist[..len]);
+        for w in 1..workers {
+            for (s, h) in self.hist_sum.iter_mut().zip(&self.hist[w * stride..w * stride + len]) {
+                *s += h;
             }
         }
-        self.cut_for = Some(*geom);
+        self.cuts.cut_axis(axis, &self.hist_sum);
     }
 
     /// Patch of the cell `c`.
     #[inline(always)]
     pub fn patch_of_cell(&self, c: [usize; 3]) -> usize {
-        let [_, py, pz] = self.layout;
-        let q = [
-            self.part_of_cell[0][c[0]] as usize,
-            self.part_of_cell[1][c[1]] as usize,
-            self.part_of_cell[2][c[2]] as usize,
-        ];
-        q[2] + pz * (q[1] + py * q[0])
+        self.cuts.patch_of_cell(c)
     }
 
     /// Nodes in all sub-grids together.
@@ -370,13 +459,22 @@ impl ScatterStrategy for DomainDecomposition {
     /// Cut the patches for `geom` (if it changed) and bin the particles at `x`.
     fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
         self.cut(geom);
+        if self.balanced {
+            self.cut_balanced(exec, geom, x);
+        }
         let g = *geom;
         let mut binning = std::mem::take(&mut self.binning);
         {
-            let this = &*self;
-            let patch = |p: usize| this.patch_of_cell(g.shape_cell(x[p]));
-            binning.build(exec, x.len(), self.patches.len(), &patch);
+            let (cuts, cell_of) = (&self.cuts, &self.cell_of);
+            if self.balanced {
+                let patch = |p: usize| cuts.patch_of_cell(cell_of[p].map(|v| v as usize));
+                binning.build(exec, x.len(), self.patches.len(), &patch);
+            } else {
+                let patch = |p: usize| cuts.patch_of_cell(g.shape_cell(x[p]));
+                binning.build(exec, x.len(), self.patches.len(), &patch);
+            }
         }
+        self.load.record(&binning.patnp);
         self.binning = binning;
     }
 
@@ -449,7 +547,11 @@ impl ScatterStrategy for DomainDecomposition {
     }
 
     fn bytes(&self) -> usize {
-        self.binning.bytes() + self.part_of_cell.iter().map(crate::capacity_bytes).sum::<usize>()
+        self.binning.bytes()
+            + self.cuts.bytes()
+            + crate::capacity_bytes(&self.cell_of)
+            + crate::capacity_bytes(&self.hist)
+            + crate::capacity_bytes(&self.hist_sum)
     }
 }
 
@@ -558,21 +660,75 @@ mod tests {
             for threads in [1, 2, 3, 4, 6, 8] {
                 let mut dd = DomainDecomposition::new(threads);
                 dd.cut(&geom);
-                // Distinct small integers and halves: their sums are exact, so equality is exact.
-                let buf: Vec<[f64; 2]> = (0..dd.subgrid_nodes()).map(|i| [1.0 + i as f64, -0.5 * i as f64]).collect();
-                let mut want = vec![[0.0; 2]; geom.num_nodes()];
-                for (j, p) in dd.patches().iter().enumerate() {
-                    for s in 0..p.num_nodes() {
-                        let g = p.globalnode(s, &geom);
-                        for k in 0..2 {
-                            want[g][k] += buf[dd.offsets[j] + s][k];
-                        }
-                    }
-                }
-                let mut global = vec![[f64::NAN; 2]; geom.num_nodes()];
-                in_region(threads, |exec| dd.assemble(exec, &geom, &mut global, &buf));
-                assert_eq!(global, want, "cells {cells:?}, {threads} threads");
+                check_assembly(&dd, &geom, threads);
             }
+        }
+    }
+
+    /// Assemble a sub-grid buffer of distinct values into a NaN-filled global array and
+    /// compare with the sum over every patch's nodes.
+    fn check_assembly(dd: &DomainDecomposition, geom: &GridGeom, threads: usize) {
+        // Distinct small integers and halves: their sums are exact, so equality is exact.
+        let buf: Vec<[f64; 2]> = (0..dd.subgrid_nodes()).map(|i| [1.0 + i as f64, -0.5 * i as f64]).collect();
+        let mut want = vec![[0.0; 2]; geom.num_nodes()];
+        for (j, p) in dd.patches().iter().enumerate() {
+            for s in 0..p.num_nodes() {
+                let g = p.globalnode(s, geom);
+                for k in 0..2 {
+                    want[g][k] += buf[dd.offsets[j] + s][k];
+                }
+            }
+        }
+        let mut global = vec![[f64::NAN; 2]; geom.num_nodes()];
+        in_region(threads, |exec| dd.assemble(exec, geom, &mut global, &buf));
+        assert_eq!(global, want, "cells {:?}, {threads} threads, balanced {}", geom.cells, dd.is_balanced());
+    }
+
+    /// Particles in a dense block plus a sparse spread over a 9 x 7 x 11 grid.
+    fn clustered(n: usize) -> Vec<Vec3> {
+        let mut s = 12345u64;
+        let mut unit = move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        (0..n)
+            .map(|i| {
+                if i % 5 == 0 {
+                    [9.0 * unit(), 7.0 * unit(), 11.0 * unit()]
+                } else {
+                    [1.0 + 6.0 * unit(), 1.0 + 4.0 * unit(), 3.0 + 6.0 * unit()]
+                }
+            })
+            .collect()
+    }
+
+    /// The parallel histogram passes give the serial reference's cuts for every thread
+    /// count; the binning lists every particle once, in the patch holding its cell; the
+    /// assembly stays exact on nested (non-aligned) cuts; and the cuts balance the block.
+    #[test]
+    fn balanced_cuts_match_the_serial_reference_and_assemble_exactly() {
+        let geom = GridGeom::fixed(&GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [9, 7, 11] });
+        let x = clustered(4000);
+        let cell_of: Vec<[u32; 3]> = x.iter().map(|&p| geom.shape_cell(p).map(|v| v as u32)).collect();
+        for threads in [1, 2, 3, 4, 6, 8] {
+            let mut dd = DomainDecomposition::balanced(threads);
+            dd.reserve(&geom);
+            in_region(threads, |exec| dd.prepare(exec, &geom, &x));
+            assert_eq!(dd.cuts(), &Cuts::balanced(&cell_of, geom.cells, dd.layout()), "{threads} threads");
+            let mut listed = 0;
+            for (j, p) in dd.patches().iter().enumerate() {
+                for &id in dd.binning().column(j) {
+                    let c = geom.shape_cell(x[id as usize - 1]);
+                    assert!((0..3).all(|d| c[d] >= p.cell_lo[d] && c[d] < p.cell_lo[d] + p.cells[d]));
+                    listed += 1;
+                }
+            }
+            assert_eq!(listed, x.len());
+            check_assembly(&dd, &geom, threads);
+            let counts: Vec<u32> = (0..threads).map(|j| dd.binning().patnp(j)).collect();
+            let imbalance = super::super::cuts::imbalance(&counts).unwrap();
+            assert!(imbalance < 1.2, "{threads} threads: {counts:?}");
+            assert_eq!(dd.load().steps, 1);
         }
     }
 }

@@ -7,6 +7,7 @@
 //! | [`Strategy::Serial`] | the global arrays | none | none |
 //! | [`Strategy::ArrayExpansion`] | copy `j` of every nodal array (thread `j`'s particle chunk) | `A = sum_j A_j`, parallel over nodes (Eq. 16) | `(T - 1) x` the nodal arrays |
 //! | [`Strategy::DomainDecomposition`] | sub-grid of the particle's patch (thread `j` = patch `j`) | patch by patch, parallel over the patch's local nodes | shared faces only |
+//! | [`Strategy::DdBalanced`] | as DD, patches cut at particle-count quantiles ([`cuts`]) | as DD | as DD |
 //!
 //! Both parallel strategies split the particle stage by loop splitting (thread `j` owns
 //! particle chunk `j`) and reduce energies per thread in a fixed order. Every parallel phase
@@ -19,6 +20,7 @@
 //! strategy.
 
 pub mod array_expansion;
+pub mod cuts;
 pub mod domain_decomposition;
 pub mod serial;
 
@@ -29,13 +31,14 @@ use crate::shape;
 use serde::{Deserialize, Serialize};
 
 pub use array_expansion::ArrayExpansion;
+pub use cuts::{imbalance, quantile_cuts, Cuts, PatchLoad};
 pub use domain_decomposition::{patch_layout, Binning, DomainDecomposition, Patch};
 pub use serial::Serial;
 
 /// Which scatter strategy the solver uses: the one type for the solver, the `mpm` program,
 /// the JSON summary, the campaign matrix, the CSV rows and the analysis.
 ///
-/// Its serialised form is the short name (`serial`, `ae`, `dd`); parsing also accepts the
+/// Its serialised form is the short name (`serial`, `ae`, `dd`, `dd-balanced`); parsing also accepts the
 /// long names (`array-expansion`, `domain-decomposition`). Adding a strategy means one arm
 /// here and its own file under `strategy/`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, Default)]
@@ -50,6 +53,10 @@ pub enum Strategy {
     /// Domain decomposition: one patch (sub-grid) per thread.
     #[serde(rename = "dd", alias = "domain-decomposition")]
     DomainDecomposition,
+    /// Domain decomposition with balanced cuts: the same layouts, cut planes at the
+    /// particle-count quantiles every step ([`cuts`]).
+    #[serde(rename = "dd-balanced")]
+    DdBalanced,
 }
 
 /// How a strategy's memory grows with the thread count `T` (paper claim C2).
@@ -65,14 +72,16 @@ pub enum MemoryModel {
 
 impl Strategy {
     /// Every strategy, in a fixed order (serial first).
-    pub const ALL: [Strategy; 3] = [Strategy::Serial, Strategy::ArrayExpansion, Strategy::DomainDecomposition];
+    pub const ALL: [Strategy; 4] =
+        [Strategy::Serial, Strategy::ArrayExpansion, Strategy::DomainDecomposition, Strategy::DdBalanced];
 
-    /// Short name: `serial`, `ae`, `dd` (CLI value, JSON and CSV field).
+    /// Short name: `serial`, `ae`, `dd`, `dd-balanced` (CLI value, JSON and CSV field).
     pub fn name(self) -> &'static str {
         match self {
             Strategy::Serial => "serial",
             Strategy::ArrayExpansion => "ae",
             Strategy::DomainDecomposition => "dd",
+            Strategy::DdBalanced => "dd-balanced",
         }
     }
 
@@ -82,6 +91,7 @@ impl Strategy {
             Strategy::Serial => "serial",
             Strategy::ArrayExpansion => "array expansion",
             Strategy::DomainDecomposition => "domain decomposition",
+            Strategy::DdBalanced => "domain decomposition, balanced cuts",
         }
     }
 
@@ -89,7 +99,7 @@ impl Strategy {
     pub fn is_parallel(self) -> bool {
         match self {
             Strategy::Serial => false,
-            Strategy::ArrayExpansion | Strategy::DomainDecomposition => true,
+            Strategy::ArrayExpansion | Strategy::DomainDecomposition | Strategy::DdBalanced => true,
         }
     }
 
@@ -98,7 +108,7 @@ impl Strategy {
         match self {
             Strategy::Serial => MemoryModel::None,
             Strategy::ArrayExpansion => MemoryModel::PerThreadCopies,
-            Strategy::DomainDecomposition => MemoryModel::SharedFaces,
+            Strategy::DomainDecomposition | Strategy::DdBalanced => MemoryModel::SharedFaces,
         }
     }
 
@@ -108,7 +118,7 @@ impl Strategy {
         match (self.is_parallel(), threads) {
             (_, 0) => Err("the thread count must be at least 1".into()),
             (false, t) if t > 1 => Err(format!(
-                "the serial strategy runs on exactly 1 thread, not {t}: use --strategy ae or dd for more threads"
+                "the serial strategy runs on exactly 1 thread, not {t}: use --strategy ae, dd or dd-balanced for more threads"
             )),
             _ => Ok(()),
         }
@@ -128,6 +138,7 @@ impl std::str::FromStr for Strategy {
             "serial" => Ok(Strategy::Serial),
             "ae" | "array-expansion" => Ok(Strategy::ArrayExpansion),
             "dd" | "domain-decomposition" => Ok(Strategy::DomainDecomposition),
+            "dd-balanced" => Ok(Strategy::DdBalanced),
             _ => {
                 let names: Vec<&str> = Strategy::ALL.iter().map(|s| s.name()).collect();
                 Err(format!("unknown strategy '{s}': use one of {}", names.join(", ")))
@@ -259,6 +270,7 @@ impl Engine {
             Strategy::Serial => Engine::Serial(Serial),
             Strategy::ArrayExpansion => Engine::Ae(ArrayExpansion::new(threads)),
             Strategy::DomainDecomposition => Engine::Dd(Box::new(DomainDecomposition::new(threads))),
+            Strategy::DdBalanced => Engine::Dd(Box::new(DomainDecomposition::balanced(threads))),
         }
     }
 
@@ -305,7 +317,7 @@ impl Engine {
         dispatch!(self, s => s.bytes())
     }
 
-    /// The domain-decomposition state, if this is DD.
+    /// The domain-decomposition state, if this is DD (uniform or balanced cuts).
     pub fn domain_decomposition(&self) -> Option<&DomainDecomposition> {
         match self {
             Engine::Dd(dd) => Some(dd),

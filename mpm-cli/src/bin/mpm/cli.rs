@@ -246,13 +246,14 @@ pub struct RunOptions {
     #[arg(long, value_name = "F", default_value_t = DEFAULT_ENERGY_RISE_LIMIT, value_parser = parse_energy_rise_limit)]
     pub energy_rise_limit: f64,
 
-    /// How the nodal scatter is made race-free: serial (1 thread), ae (array expansion) or
-    /// dd (domain decomposition).
+    /// How the nodal scatter is made race-free: serial (1 thread), ae (array expansion), dd
+    /// (domain decomposition, uniform patches) or dd-balanced (the same layouts, cut planes
+    /// moved every step to the particle-count quantiles).
     #[arg(long, default_value_t = Strategy::Serial, value_parser = strategy_parser())]
     pub strategy: Strategy,
 
     /// Worker threads of the rayon pool (exactly this many). Default 1; more than 1 needs
-    /// --strategy ae or dd. More threads than cores is allowed and flagged as oversubscribed.
+    /// --strategy ae, dd or dd-balanced. More threads than cores is allowed and flagged as oversubscribed.
     #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_threads)]
     pub threads: Option<usize>,
 

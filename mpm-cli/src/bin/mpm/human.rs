@@ -95,12 +95,19 @@ fn timing(s: &Summary) -> Vec<String> {
     });
     if let (Some(busy), Some(imb)) = (&s.worker_busy_s, s.load_imbalance) {
         let list = busy.iter().map(|b| format!("{b:.3}")).collect::<Vec<_>>().join(" / ");
-        let note = if imb > 1.1 && !s.oversubscribed {
+        let uneven_patches = s.dd_patch_particles.is_some_and(|p| p.imbalance_mean > 1.1);
+        let note = if imb > 1.1 && !s.oversubscribed && !uneven_patches {
             " (unequal: a worker's CPU was slowed from outside this run; repeat it)"
         } else {
             ""
         };
         lines.push(format!("workers: busy {list} s in their shares, load imbalance {imb:.3}{note}"));
+    }
+    if let Some(p) = s.dd_patch_particles {
+        lines.push(format!(
+            "DD patches: {} / {:.0} / {} particles (min / mean / max), work imbalance {:.3} mean, {:.3} worst step",
+            p.min, p.mean, p.max, p.imbalance_mean, p.imbalance_max
+        ));
     }
     lines
 }
