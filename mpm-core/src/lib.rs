@@ -38,6 +38,7 @@
 
 pub mod energy;
 pub mod error;
+pub mod exchange;
 pub mod grid;
 pub mod material;
 pub mod math;
@@ -51,6 +52,7 @@ pub mod timers;
 pub mod transfer;
 
 pub use error::SimError;
+pub use exchange::{Exchange, RankBoxes, SingleProcess};
 pub use grid::{GridGeom, GridMode, GridSpec, Wall, WallKind};
 pub use material::{BulkViscosity, Material, MgForm};
 pub use particles::Particles;
