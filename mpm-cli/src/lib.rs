@@ -17,6 +17,7 @@
 //! `mpm-core` has no OS code.
 
 pub mod atomic;
+pub mod distributed;
 pub mod picture;
 pub mod pinning;
 pub mod summary;
