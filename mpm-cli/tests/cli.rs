@@ -387,6 +387,14 @@ fn rejects(args: &[&str], says: &str) {
 }
 
 #[test]
+fn several_ranks_without_a_launcher_or_without_mpi_is_a_clear_error() {
+    let says = if cfg!(feature = "mpi") { "needs a launcher" } else { "MPI is not compiled into this mpm" };
+    rejects(&["--model", "1", "--ranks", "2", "--steps", "0"], says);
+    rejects(&["--model", "1", "--rank-layout", "2x1x1", "--steps", "0"], "needs several ranks");
+    rejects(&["--model", "1", "--rank-layout", "2x1", "--steps", "0"], "not a rank layout");
+}
+
+#[test]
 fn bad_input_is_a_clear_error() {
     rejects(&["--model", "5", "--steps", "0"], "--model");
     rejects(&["--model", "5", "--steps", "0"], "1..=4");

@@ -54,6 +54,7 @@ pub fn place(rank: usize, threads: usize, others: &[(u64, Vec<usize>)]) -> (Vec<
     ((0..threads).map(|j| mask[(local * threads + j) % mask.len()]).collect(), true)
 }
 
+#[cfg(feature = "mpi")]
 /// One process's share of the final state in flat form: per particle the global id, then
 /// the packed state.
 pub fn pack_final(sim: &Simulation) -> Vec<f64> {
@@ -67,6 +68,7 @@ pub fn pack_final(sim: &Simulation) -> Vec<f64> {
     out
 }
 
+#[cfg(feature = "mpi")]
 /// Particles from the flat records of every rank, in global id order.
 pub fn unpack_sorted(records: &[f64]) -> Particles {
     let w = mpm_core::particles::PACKED_WIDTH + 1;
