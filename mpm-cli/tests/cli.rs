@@ -100,6 +100,9 @@ fn help_teaches_the_commands_and_every_flag() {
         "--every",
         "--vtk-format",
         "--quiet",
+        "--ranks",
+        "--rank-layout",
+        "--dump-state",
         "--help",
         "--version",
     ];
@@ -122,6 +125,8 @@ fn help_teaches_the_commands_and_every_flag() {
         "40e-6",
         "Examples:",
         "1,155,192",
+        "mpirun -n R mpm run",
+        "Default: the domain-decomposition layout",
     ] {
         assert!(h.contains(must), "help lacks {must:?}:\n{h}");
     }

@@ -23,6 +23,10 @@ Examples:
   # VTU snapshots every 20 steps for ParaView (open out/taylor.pvd)
   mpm run taylor --model 1 --vtk out --every 20
 
+  # Two MPI ranks, each owning half of the grid with one DD worker; rank 0 writes the
+  # summary, whose ranks section lists each rank's CPUs, particles and communication
+  mpirun -n 2 mpm run taylor --model 3 --strategy dd --threads 1 --steps 20 --json x.json
+
 The JSON summary (SI units) holds the configuration, counts, wall time split into the
 grid-node and particle stages with sub-stages, steady-state ns per particle-step, peak
 memory (VmHWM), requested and observed CPUs, energies and the scenario's figures. It is
