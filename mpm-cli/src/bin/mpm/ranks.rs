@@ -156,7 +156,7 @@ impl Ranks {
     }
 
     /// After the loop: every rank's particles, in global id order, on rank 0 (`None` on the
-    /// other ranks); one process's own particles.
+    /// other ranks); a copy of one process's particles (the caller avoids that copy).
     pub fn gather_final(&self, sim: &Simulation) -> Option<Particles> {
         #[cfg(feature = "mpi")]
         if let Some(m) = &self.mpi {

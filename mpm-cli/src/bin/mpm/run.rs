@@ -11,7 +11,7 @@ use crate::ranks::{self, Ranks};
 use crate::scenario::{Prepared, ScenarioRun};
 use anyhow::{bail, Context, Result};
 use mpm_cli::pinning::{self, PinnedPool};
-use mpm_cli::summary::{EndReason, HistoryPoint, HistoryRecorder, RunContext, Summary, Timing};
+use mpm_cli::summary::{EndReason, HistoryPoint, HistoryRecorder, RankReport, RunContext, Summary, Timing};
 use mpm_core::scenario::impact::{History, ImpactGeometry, DEFAULT_HISTORY_INTERVAL};
 use mpm_core::scenario::plate::{PlateGeometry, ShockTracker};
 use mpm_core::{GridMode, SimConfig, Simulation, Strategy};
@@ -169,6 +169,31 @@ fn place_rank(plan: &mut Plan, ranks: &Ranks) -> Result<bool> {
     }
     plan.cpus = Some(cpus);
     Ok(shared)
+}
+
+/// After the loop: every rank's report and every particle on rank 0 (which then holds them
+/// all, so that the scenario's figures are the whole problem's), `--dump-state` written.
+/// `None` on the other ranks, which write nothing; `Some(None)` for one process.
+fn gather_ranks(
+    sim: &mut Simulation,
+    pool: &PinnedPool,
+    ranks: &Ranks,
+    oversubscribed: bool,
+    dump: Option<&std::path::Path>,
+) -> Result<Option<Option<Vec<RankReport>>>> {
+    if ranks.size() == 1 {
+        if let Some(path) = dump {
+            ranks::dump_state(path, sim.particles())?;
+        }
+        return Ok(Some(None));
+    }
+    let reports = ranks.gather_reports(rank_report(sim, pool, ranks, oversubscribed))?;
+    let Some(all) = ranks.gather_final(sim) else { return Ok(None) };
+    if let Some(path) = dump {
+        ranks::dump_state(path, &all)?;
+    }
+    *sim.particles_mut() = all;
+    Ok(Some(reports))
 }
 
 /// This rank's line of the summary's `ranks` section.
@@ -362,16 +387,9 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
         one_rank: ranks.size() == 1,
     };
     let (end_reason, mut timing) = step_loop(&ctx, &mut sim, &mut outputs, &mut history, &mut tracking)?;
-    let reports = ranks.gather_reports(rank_report(&sim, &pool, &ranks, rank_oversubscribed))?;
-    let Some(all) = ranks.gather_final(&sim) else { return Ok(()) };
-    if let Some(path) = &o.dump_state {
-        ranks::dump_state(path, &all)?;
-    }
-    if ranks.size() > 1 {
-        // Rank 0 holds every particle from here on: the scenario's figures are the whole
-        // problem's.
-        *sim.particles_mut() = all;
-    }
+    let Some(reports) = gather_ranks(&mut sim, &pool, &ranks, rank_oversubscribed, o.dump_state.as_deref())? else {
+        return Ok(());
+    };
     tracking.finish(&sim);
     outputs.finish(&sim, impact.as_ref(), o.quiet)?;
     let cloud_history = tracking.cloud.map(|(h, _)| h);
@@ -407,7 +425,7 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
         started_unix_s,
     };
     let mut summary = Summary::build(&sim, context);
-    summary.ranks = (ranks.size() > 1).then_some(reports).flatten();
+    summary.ranks = reports;
     outputs.commit_json(&summary)?;
     if !o.quiet {
         print_human(&summary, o.json.as_deref(), outputs.snapshots());
