@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Install what the workspace needs on a Debian/Ubuntu machine, only what is missing:
-#   - system packages: libhwloc-dev (topology and pinning), pkg-config, a C compiler
+#   - system packages: libhwloc-dev (topology and pinning), pkg-config, a C compiler,
+#     Open MPI (libopenmpi-dev, openmpi-bin: `mpm`'s `mpi` feature and `mpirun`) and
+#     libclang (the MPI bindings are generated with bindgen at build time)
 #   - a Rust toolchain >= 1.85 (through rustup when cargo is missing or too old)
 # Safe to run again: it does nothing when everything is present.
 set -euo pipefail
@@ -25,6 +27,11 @@ command -v pkg-config >/dev/null 2>&1 || missing+=(pkg-config)
 command -v cc >/dev/null 2>&1 || missing+=(gcc libc6-dev)
 command -v curl >/dev/null 2>&1 || missing+=(curl ca-certificates)
 command -v git >/dev/null 2>&1 || missing+=(git)
+pkg-config --exists ompi 2>/dev/null || command -v mpicc >/dev/null 2>&1 || missing+=(libopenmpi-dev)
+command -v mpirun >/dev/null 2>&1 || missing+=(openmpi-bin)
+ls /usr/lib/llvm-*/lib/libclang*.so* >/dev/null 2>&1 || ls /usr/lib/*/libclang*.so* >/dev/null 2>&1 \
+    || missing+=(libclang-dev)
+command -v clang >/dev/null 2>&1 || missing+=(clang)
 if [ "${#missing[@]}" -gt 0 ]; then
     if ! command -v apt-get >/dev/null 2>&1; then
         echo "bootstrap: please install ${missing[*]} with your package manager (no apt-get here)" >&2

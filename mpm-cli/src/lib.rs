@@ -19,6 +19,7 @@
 //! `mpm-core` has no OS code.
 
 pub mod atomic;
+pub mod distributed;
 pub mod identity;
 pub mod picture;
 pub mod pinning;

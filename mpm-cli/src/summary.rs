@@ -398,6 +398,9 @@ impl From<&mpm_core::strategy::PatchLoad> for PatchCounts {
 /// writes it, the harness reads it back with this type.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
+    /// With several MPI ranks: one entry per rank, in rank order (rank 0 writes the summary).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ranks: Option<Vec<RankReport>>,
     /// Scenario name (`taylor`).
     pub scenario: String,
     /// Model number (Taylor bar 1-4; 0 for the impact).
@@ -660,6 +663,7 @@ impl Summary {
     fn configuration(sim: &Simulation, ctx: &RunContext<'_>) -> Self {
         let cfg = sim.config();
         Self {
+            ranks: None,
             scenario: ctx.scenario.to_string(),
             model: ctx.model,
             strategy: cfg.strategy,
@@ -679,7 +683,7 @@ impl Summary {
             cells: ctx.cells,
             nodes: ctx.nodes,
             mean_nodes: sim.mean_nodes(),
-            final_nodes: sim.geom().num_nodes(),
+            final_nodes: sim.global_geom().num_nodes(),
             dx_m: sim.geom().dx,
             steps: sim.steps(),
             dt_first: sim.dt_first(),
@@ -855,4 +859,25 @@ mod tests {
         assert_eq!(back, s);
         assert_eq!(back.get("a"), Some(2.0));
     }
+}
+
+/// One MPI rank of a run split over ranks (`mpirun -n R mpm run ...`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RankReport {
+    /// The rank.
+    pub rank: usize,
+    /// CPUs its workers were seen on at the end of the run.
+    pub cpus: Vec<usize>,
+    /// Whether its CPUs are shared with other ranks or threads (more than the launcher gave).
+    pub oversubscribed: bool,
+    /// Its particles at the end of the run.
+    pub particles: usize,
+    /// Particles that left it for another rank over the run.
+    pub migrated: u64,
+    /// Seconds its workers spent in their shares of the parallel phases (0 for serial).
+    pub busy_s: f64,
+    /// Steps taken.
+    pub steps: u64,
+    /// Its exchange traffic and time over the run.
+    pub exchange: mpm_core::exchange::ExchangeStats,
 }

@@ -100,6 +100,9 @@ fn help_teaches_the_commands_and_every_flag() {
         "--every",
         "--vtk-format",
         "--quiet",
+        "--ranks",
+        "--rank-layout",
+        "--dump-state",
         "--help",
         "--version",
     ];
@@ -122,6 +125,8 @@ fn help_teaches_the_commands_and_every_flag() {
         "40e-6",
         "Examples:",
         "1,155,192",
+        "mpirun -n R mpm run",
+        "Default: the domain-decomposition layout",
     ] {
         assert!(h.contains(must), "help lacks {must:?}:\n{h}");
     }
@@ -432,6 +437,14 @@ fn rejects(args: &[&str], says: &str) {
     assert!(!err.contains("panicked"), "{all:?} panicked:\n{err}");
     assert!(!json.exists(), "{all:?} wrote a summary");
     assert_no_temp_files(dir.path());
+}
+
+#[test]
+fn several_ranks_without_a_launcher_or_without_mpi_is_a_clear_error() {
+    let says = if cfg!(feature = "mpi") { "needs a launcher" } else { "MPI is not compiled into this mpm" };
+    rejects(&["--model", "1", "--ranks", "2", "--steps", "0"], says);
+    rejects(&["--model", "1", "--rank-layout", "2x1x1", "--steps", "0"], "needs several ranks");
+    rejects(&["--model", "1", "--rank-layout", "2x1", "--steps", "0"], "not a rank layout");
 }
 
 #[test]

@@ -8,6 +8,10 @@ pub enum SimError {
     /// A configuration value is out of range.
     #[error("invalid configuration: {0}")]
     Config(String),
+    /// The exchange between ranks failed (a particle moved past a neighbouring rank, a
+    /// message had the wrong size).
+    #[error("exchange between ranks failed: {0}")]
+    Exchange(String),
     /// A material constant is out of range.
     #[error("invalid material '{name}': {problem}; correct the material's constants")]
     Material {

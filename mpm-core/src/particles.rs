@@ -127,3 +127,105 @@ impl Particles {
             + capacity_bytes(&self.failed)
     }
 }
+
+/// Values per particle in [`Particles::pack`]'s flat form: position (3), velocity (3), mass,
+/// density, stress (6), plastic strain, internal energy, sound speed, failure flag.
+pub const PACKED_WIDTH: usize = 18;
+
+impl Particles {
+    /// Append particle `p`'s state to `out` as [`PACKED_WIDTH`] values (for moving it to
+    /// another process).
+    pub fn pack(&self, p: usize, out: &mut Vec<f64>) {
+        out.extend_from_slice(&self.x[p]);
+        out.extend_from_slice(&self.v[p]);
+        out.push(self.mass[p]);
+        out.push(self.rho[p]);
+        out.extend_from_slice(&self.stress[p]);
+        out.push(self.eps_p[p]);
+        out.push(self.e_int[p]);
+        out.push(self.sound[p]);
+        out.push(if self.failed[p] { 1.0 } else { 0.0 });
+    }
+
+    /// Append a particle from [`PACKED_WIDTH`] values written by [`Particles::pack`].
+    ///
+    /// # Panics
+    /// If `v` is not [`PACKED_WIDTH`] long (a caller's framing error).
+    pub fn push_packed(&mut self, v: &[f64]) {
+        assert_eq!(v.len(), PACKED_WIDTH, "a packed particle has {PACKED_WIDTH} values");
+        self.x.push([v[0], v[1], v[2]]);
+        self.v.push([v[3], v[4], v[5]]);
+        self.mass.push(v[6]);
+        self.rho.push(v[7]);
+        self.stress.push([v[8], v[9], v[10], v[11], v[12], v[13]]);
+        self.eps_p.push(v[14]);
+        self.e_int.push(v[15]);
+        self.sound.push(v[16]);
+        self.failed.push(v[17] != 0.0);
+    }
+
+    /// Remove particle `p`, moving the last particle into its place (no allocation).
+    pub fn swap_remove(&mut self, p: usize) {
+        self.x.swap_remove(p);
+        self.v.swap_remove(p);
+        self.mass.swap_remove(p);
+        self.rho.swap_remove(p);
+        self.stress.swap_remove(p);
+        self.eps_p.swap_remove(p);
+        self.e_int.swap_remove(p);
+        self.sound.swap_remove(p);
+        self.failed.swap_remove(p);
+    }
+
+    /// Keep the particles for which `keep(p)` is true, in their order.
+    pub fn retain_indices(&mut self, mut keep: impl FnMut(usize) -> bool) {
+        let mask: Vec<bool> = (0..self.len()).map(&mut keep).collect();
+        fn retain<T>(v: &mut Vec<T>, mask: &[bool]) {
+            let mut i = 0;
+            v.retain(|_| {
+                i += 1;
+                mask[i - 1]
+            });
+        }
+        retain(&mut self.x, &mask);
+        retain(&mut self.v, &mask);
+        retain(&mut self.mass, &mask);
+        retain(&mut self.rho, &mask);
+        retain(&mut self.stress, &mask);
+        retain(&mut self.eps_p, &mask);
+        retain(&mut self.e_int, &mask);
+        retain(&mut self.sound, &mask);
+        retain(&mut self.failed, &mask);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pack_round_trip_and_swap_remove() {
+        let mut a = Particles::with_capacity(3);
+        for i in 0..3 {
+            let f = i as f64;
+            a.push([f, f + 0.5, f + 0.25], [1.0, 2.0, f], 1.0 + f, 7800.0, 4000.0);
+            a.stress[i] = [f, 1.0, 2.0, 3.0, 4.0, 5.0];
+            a.e_int[i] = 10.0 * f;
+        }
+        a.failed[1] = true;
+        let mut buf = Vec::new();
+        a.pack(1, &mut buf);
+        assert_eq!(buf.len(), PACKED_WIDTH);
+        let mut b = Particles::default();
+        b.push_packed(&buf);
+        assert_eq!(b.x[0], a.x[1]);
+        assert_eq!(b.stress[0], a.stress[1]);
+        assert!(b.failed[0]);
+        a.swap_remove(0);
+        assert_eq!(a.len(), 2);
+        assert_eq!(a.x[0], [2.0, 2.5, 2.25]);
+        a.retain_indices(|p| p == 1);
+        assert_eq!(a.len(), 1);
+        assert!(a.failed[0]);
+    }
+}

@@ -22,6 +22,7 @@
 
 use crate::energy::{EnergyBalance, Partial};
 use crate::error::SimError;
+use crate::exchange::{reduce_partial, Exchange, SingleProcess};
 use crate::grid::{GridGeom, GridMode, GridSpec, NodeArrays, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH};
 use crate::material::{BulkViscosity, Eos, Material, PointConsts};
 use crate::math::{norm, Vec3};
@@ -113,6 +114,12 @@ pub struct Simulation {
     spacing: Vec3,
     material: Material,
     spec: GridSpec,
+    /// The whole problem's grid; `geom` is this rank's part of it (the same with one rank).
+    global: GridGeom,
+    /// Halo sums, migration and reductions over ranks ([`SingleProcess`]: none).
+    exchange: Box<dyn Exchange>,
+    /// Particles that left this rank over the steps taken.
+    migrated: u64,
     walls: Vec<Wall>,
     wall_layers: WallLayers,
     config: SimConfig,
@@ -147,6 +154,14 @@ pub struct Simulation {
 impl Simulation {
     /// Set up a simulation of `setup` with `config`.
     pub fn new(setup: Setup, config: SimConfig) -> Result<Self, SimError> {
+        Self::with_exchange(setup, config, Box::new(SingleProcess))
+    }
+
+    /// Set up this rank's part of a simulation split over ranks by `exchange`.
+    ///
+    /// Every rank passes the whole `setup`; the initial figures (dt, energies, grid) are
+    /// computed from all particles, then the rank keeps the particles of its box.
+    pub fn with_exchange(setup: Setup, config: SimConfig, mut exchange: Box<dyn Exchange>) -> Result<Self, SimError> {
         config.strategy.check_threads(config.threads).map_err(SimError::Config)?;
         if !(config.cfl > 0.0 && config.cfl <= 1.0) {
             return Err(SimError::Config(format!("CFL number must be in (0, 1], got {}", config.cfl)));
@@ -162,19 +177,20 @@ impl Simulation {
         }
         config.bulk_viscosity.validate()?;
         setup.material.validate()?;
-        let Setup { particles, material, grid: spec, walls, spacing, .. } = setup;
+        let Setup { mut particles, material, grid: spec, walls, spacing, .. } = setup;
         let bbox = particles.bounding_box();
-        let geom = match config.grid_mode {
+        let global = match config.grid_mode {
             GridMode::Fixed => GridGeom::fixed(&spec),
             GridMode::Adaptive => GridGeom::fit(&spec, bbox.0, bbox.1),
         };
-        if let Some(p) = particles.x.iter().position(|&x| !geom.contains(x)) {
+        if let Some(p) = particles.x.iter().position(|&x| !global.contains(x)) {
             return Err(SimError::Config(format!(
                 "particle {p} at {:?} m lies outside the grid; use the adaptive grid or a larger grid",
                 particles.x[p]
             )));
         }
         let mean_mass = particles.total_mass() / particles.len() as f64;
+        let geom = exchange.local_grid(&global);
         let mut wall_layers = WallLayers::with_capacity(walls.len());
         wall_layers.resolve(&walls, &geom);
         let mut nodes = NodeArrays::default();
@@ -188,6 +204,7 @@ impl Simulation {
         };
         let max_speed = particles.sound.iter().zip(&particles.v).map(|(c, v)| c + norm(*v)).fold(0.0, f64::max);
         let dt = config.cfl * spec.dx / max_speed;
+        exchange.adopt(&mut particles)?;
         // Size the strategy's buffers for the initial grid now, so that memory figures are
         // right before the first step and the first step does not allocate either.
         let mut engine = Engine::new(config.strategy, config.threads);
@@ -201,6 +218,9 @@ impl Simulation {
             particles,
             material,
             spec,
+            global,
+            exchange,
+            migrated: 0,
             walls,
             wall_layers,
             geom,
@@ -248,9 +268,26 @@ impl Simulation {
         &self.config
     }
 
-    /// The grid of the last step (the initial grid before the first step).
+    /// The grid of the last step (the initial grid before the first step); with several
+    /// ranks, this rank's part of it.
     pub fn geom(&self) -> &GridGeom {
         &self.geom
+    }
+
+    /// The whole problem's grid of the last step (equal to [`Simulation::geom`] with one
+    /// rank).
+    pub fn global_geom(&self) -> &GridGeom {
+        &self.global
+    }
+
+    /// The exchange between ranks the simulation runs with.
+    pub fn exchange(&self) -> &dyn Exchange {
+        self.exchange.as_ref()
+    }
+
+    /// Particles that left this rank for another over the steps taken (0 with one rank).
+    pub fn migrated(&self) -> u64 {
+        self.migrated
     }
 
     /// The scenario's grid specification.
@@ -379,14 +416,16 @@ impl Simulation {
 
         // ---- grid-node stage -------------------------------------------------------
         if self.config.grid_mode == GridMode::Adaptive {
-            let geom = GridGeom::fit(&self.spec, self.bbox.0, self.bbox.1);
-            if geom.num_nodes() > self.config.max_nodes {
+            let global = GridGeom::fit(&self.spec, self.bbox.0, self.bbox.1);
+            if global.num_nodes() > self.config.max_nodes {
                 return Err(SimError::GridTooLarge {
                     step: step_no,
-                    nodes: geom.num_nodes(),
+                    nodes: global.num_nodes(),
                     limit: self.config.max_nodes,
                 });
             }
+            self.global = global;
+            let geom = self.exchange.local_grid(&global);
             if geom != self.geom {
                 self.geom = geom;
                 self.nodes.resize(geom.num_nodes());
@@ -400,12 +439,16 @@ impl Simulation {
 
         let geom = self.geom;
         let n = self.particles.len();
+        let distributed = self.exchange.ranks() > 1;
         {
             let p2g = transfer::P2g { geom: &geom, particles: &self.particles, body_force: self.config.body_force };
             self.engine.scatter(exec, &geom, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
         }
         lap.lap(&mut self.times, Substage::Scatter);
         self.engine.assemble(exec, &geom, &mut self.nodes.p2g, &self.p2g_parts);
+        if distributed {
+            self.exchange.sum_shared_nodes(&geom, self.nodes.p2g.as_flattened_mut(), P2G_WIDTH)?;
+        }
         lap.lap(&mut self.times, Substage::Assembly);
         transfer::grid_update(exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::GridUpdate);
@@ -419,6 +462,9 @@ impl Simulation {
         }
         lap.lap(&mut self.times, Substage::RemapScatter);
         self.engine.assemble(exec, &geom, &mut self.nodes.remap, &self.remap_parts);
+        if distributed {
+            self.exchange.sum_shared_nodes(&geom, self.nodes.remap.as_flattened_mut(), REMAP_WIDTH)?;
+        }
         transfer::remap_velocity(exec, &geom, &self.wall_layers, &mut self.nodes, self.mass_tol);
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
@@ -432,6 +478,9 @@ impl Simulation {
         for p in &self.partials[..exec.workers()] {
             total.merge(p);
         }
+        if distributed {
+            reduce_partial(self.exchange.as_mut(), &mut total)?;
+        }
         lap.lap(&mut self.times, Substage::StressUpdate);
 
         // ---- checks and bookkeeping ------------------------------------------------
@@ -444,7 +493,8 @@ impl Simulation {
                 step: step_no,
                 count: total.outside,
                 first,
-                position: self.particles.x[first],
+                // With several ranks the first particle outside may be another rank's.
+                position: self.particles.x.get(first).copied().unwrap_or([f64::NAN; 3]),
             });
         }
         let e0 = self.initial.kinetic + self.initial.internal;
@@ -468,6 +518,9 @@ impl Simulation {
         self.time += dt;
         self.steps = step_no;
         self.dt_next = self.config.cfl * geom.dx / total.max_speed;
+        if distributed {
+            self.migrated += self.exchange.migrate(&mut self.particles)? as u64;
+        }
         Ok(())
     }
 }

@@ -23,6 +23,10 @@ Examples:
   # VTU snapshots every 20 steps for ParaView (open out/taylor.pvd)
   mpm run taylor --model 1 --vtk out --every 20
 
+  # Two MPI ranks, each owning half of the grid with one DD worker; rank 0 writes the
+  # summary, whose ranks section lists each rank's CPUs, particles and communication
+  mpirun -n 2 mpm run taylor --model 3 --strategy dd --threads 1 --steps 20 --json x.json
+
 The JSON summary (SI units) holds the configuration, counts, wall time split into the
 grid-node and particle stages with sub-stages, steady-state ns per particle-step, peak
 memory (VmHWM), requested and observed CPUs, energies and the scenario's figures. It is
@@ -289,6 +293,37 @@ pub struct RunOptions {
     /// No progress bar and no human summary (warnings and errors still go to stderr).
     #[arg(long, short)]
     pub quiet: bool,
+
+    /// Ranks the run is split over: start it with `mpirun -n R mpm run ...` (each rank owns a
+    /// box of the grid and runs --threads workers). Default: the launcher's rank count. A
+    /// value that differs from what mpirun started is an error.
+    #[arg(long, value_name = "R", value_parser = clap::value_parser!(u64).range(1..))]
+    pub ranks: Option<u64>,
+
+    /// With several ranks: boxes per axis as `RXxRYxRZ` (e.g. `2x1x1`), their product the
+    /// rank count. Default: the domain-decomposition layout for that count (2: 2x1x1,
+    /// 4: 2x2x1, 8: 2x2x2), cut uniformly over the particles' initial bounding box.
+    #[arg(long, value_name = "RXxRYxRZ", value_parser = parse_layout)]
+    pub rank_layout: Option<[usize; 3]>,
+
+    /// Write the final particle state to FILE (binary, little-endian, sorted by particle id:
+    /// per particle the id as u64, then position, velocity and stress as 12 f64). Used to
+    /// compare runs over different rank and thread counts.
+    #[arg(long, value_name = "FILE")]
+    pub dump_state: Option<PathBuf>,
+}
+
+/// `2x1x1` as `[2, 1, 1]`.
+fn parse_layout(s: &str) -> Result<[usize; 3], String> {
+    let parts: Vec<usize> = s
+        .split('x')
+        .map(|p| p.trim().parse::<usize>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}' is not a rank layout: give three positive counts joined by 'x', e.g. 2x1x1"))?;
+    match parts[..] {
+        [a, b, c] if a > 0 && b > 0 && c > 0 => Ok([a, b, c]),
+        _ => Err(format!("'{s}' is not a rank layout: give three positive counts joined by 'x', e.g. 2x1x1")),
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]

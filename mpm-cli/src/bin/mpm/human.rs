@@ -12,6 +12,7 @@ pub fn print_human(s: &Summary, json: Option<&Path>, snaps: Option<&SnapshotWrit
     let mut lines = configuration(s);
     lines.extend(timing(s));
     lines.extend(physics(s));
+    lines.extend(ranks(s));
     if let Some(w) = snaps {
         lines.push(format!("snapshots: {} VTU file(s), open {}", w.steps().len(), w.pvd_path().display()));
     }
@@ -110,6 +111,32 @@ fn timing(s: &Summary) -> Vec<String> {
         ));
     }
     lines
+}
+
+/// With several MPI ranks, one line per rank: CPUs, particles, time in the exchange and
+/// traffic per step.
+fn ranks(s: &Summary) -> Vec<String> {
+    let Some(ranks) = &s.ranks else { return Vec::new() };
+    ranks
+        .iter()
+        .map(|r| {
+            let e = &r.exchange;
+            let per_step = |x: u64| x as f64 / r.steps.max(1) as f64;
+            format!(
+                "rank {}: CPUs {:?}{}, {} particles ({} sent away), busy {:.3} s, exchange {:.3} s; per step {:.3} MB halo in {:.0} messages, {:.0} migration messages",
+                r.rank,
+                r.cpus,
+                if r.oversubscribed { " (shared: oversubscribed)" } else { "" },
+                group_digits(r.particles as u64),
+                group_digits(r.migrated),
+                r.busy_s,
+                e.seconds,
+                per_step(e.halo_bytes) / 1e6,
+                per_step(e.halo_messages),
+                per_step(e.migration_messages),
+            )
+        })
+        .collect()
 }
 
 /// The scenario's figures, energies and memory.

@@ -10,6 +10,7 @@ mod cli;
 mod human;
 mod output;
 mod progress;
+mod ranks;
 mod run;
 mod scenario;
 

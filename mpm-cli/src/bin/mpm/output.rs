@@ -40,6 +40,11 @@ impl Outputs {
         Ok(Self { json, snapshots, every: o.every, radiographs, spent: Duration::ZERO })
     }
 
+    /// No outputs (the ranks other than 0 of a run over several ranks).
+    pub fn none() -> Self {
+        Self { json: None, snapshots: None, every: 1, radiographs: None, spent: Duration::ZERO }
+    }
+
     /// The snapshot of the initial state (before the timed loop).
     pub fn initial(&mut self, sim: &Simulation) -> Result<()> {
         match self.snapshots.as_mut() {

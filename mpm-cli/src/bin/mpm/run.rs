@@ -7,10 +7,11 @@ use crate::cli::GridArg;
 use crate::human::print_human;
 use crate::output::Outputs;
 use crate::progress::Progress;
+use crate::ranks::{self, Ranks};
 use crate::scenario::{Prepared, ScenarioRun};
 use anyhow::{bail, Context, Result};
 use mpm_cli::pinning::{self, PinnedPool};
-use mpm_cli::summary::{EndReason, HistoryPoint, HistoryRecorder, RunContext, Summary, Timing};
+use mpm_cli::summary::{EndReason, HistoryPoint, HistoryRecorder, RankReport, RunContext, Summary, Timing};
 use mpm_core::scenario::impact::{History, ImpactGeometry, DEFAULT_HISTORY_INTERVAL};
 use mpm_core::scenario::plate::{PlateGeometry, ShockTracker};
 use mpm_core::{GridMode, SimConfig, Simulation, Strategy};
@@ -130,7 +131,7 @@ fn start_pool(plan: &Plan) -> Result<PinnedPool> {
 }
 
 /// The simulation of a built scenario with the planned strategy, threads, grid and CFL.
-fn simulation(scenario: &ScenarioRun, plan: &Plan, setup: mpm_core::Setup) -> Result<Simulation> {
+fn simulation(scenario: &ScenarioRun, plan: &Plan, setup: mpm_core::Setup, ranks: &Ranks) -> Result<Simulation> {
     let o = scenario.options();
     let config = SimConfig {
         strategy: plan.strategy,
@@ -145,7 +146,73 @@ fn simulation(scenario: &ScenarioRun, plan: &Plan, setup: mpm_core::Setup) -> Re
         energy_rise_limit: o.energy_rise_limit,
         ..SimConfig::default()
     };
-    Simulation::new(setup, config).context("cannot set up the simulation")
+    match ranks.exchange(&setup, o.rank_layout)? {
+        Some(exchange) => Simulation::with_exchange(setup, config, exchange),
+        None => Simulation::new(setup, config),
+    }
+    .context("cannot set up the simulation")
+}
+
+/// With several ranks and no --cpus: pin this rank's workers inside the CPUs the launcher
+/// gave it ([`Ranks::rank_cpus`]); returns whether ranks share CPUs (flagged).
+fn place_rank(plan: &mut Plan, ranks: &Ranks) -> Result<bool> {
+    if ranks.size() == 1 || plan.cpus.is_some() {
+        return Ok(false);
+    }
+    let (cpus, shared) = ranks.rank_cpus(plan.threads)?;
+    if shared {
+        eprintln!(
+            "warning: oversubscribed: rank {} shares CPUs {cpus:?} with other ranks; timings of this run do not show parallel scaling",
+            ranks.rank()
+        );
+        plan.oversubscribed = true;
+    }
+    plan.cpus = Some(cpus);
+    Ok(shared)
+}
+
+/// After the loop: every rank's report and every particle on rank 0 (which then holds them
+/// all, so that the scenario's figures are the whole problem's), `--dump-state` written.
+/// `None` on the other ranks, which write nothing; `Some(None)` for one process.
+fn gather_ranks(
+    sim: &mut Simulation,
+    pool: &PinnedPool,
+    ranks: &Ranks,
+    oversubscribed: bool,
+    dump: Option<&std::path::Path>,
+) -> Result<Option<Option<Vec<RankReport>>>> {
+    if ranks.size() == 1 {
+        if let Some(path) = dump {
+            ranks::dump_state(path, sim.particles())?;
+        }
+        return Ok(Some(None));
+    }
+    let reports = ranks.gather_reports(rank_report(sim, pool, ranks, oversubscribed))?;
+    let Some(all) = ranks.gather_final(sim) else { return Ok(None) };
+    if let Some(path) = dump {
+        ranks::dump_state(path, &all)?;
+    }
+    *sim.particles_mut() = all;
+    Ok(Some(reports))
+}
+
+/// This rank's line of the summary's `ranks` section.
+fn rank_report(
+    sim: &Simulation,
+    pool: &PinnedPool,
+    ranks: &Ranks,
+    oversubscribed: bool,
+) -> mpm_cli::summary::RankReport {
+    mpm_cli::summary::RankReport {
+        rank: ranks.rank(),
+        cpus: pool.observed_cpus(),
+        oversubscribed,
+        particles: sim.particles().len(),
+        migrated: sim.migrated(),
+        busy_s: sim.worker_busy().map_or(0.0, |b| b.iter().sum()),
+        steps: sim.steps(),
+        exchange: sim.exchange().stats(),
+    }
 }
 
 /// Ctrl-C stops the run between steps and writes nothing; a second Ctrl-C ends the process
@@ -219,6 +286,8 @@ struct LoopContext<'a> {
     geometry: Option<&'a ImpactGeometry>,
     /// The scenario, for the error message of a failed step.
     describe: String,
+    /// Whether the run is one process (not split over ranks).
+    one_rank: bool,
 }
 
 /// Step until the end time or the step limit (or Ctrl-C, or a solver error). The whole
@@ -257,7 +326,11 @@ fn step_loop(
             }
             record(history, sim);
             let t0 = Instant::now();
-            tracking.observe(sim);
+            if ctx.one_rank {
+                // With several ranks the particles are spread over them: the cloud history
+                // and the plate's shock front are sampled at the end only.
+                tracking.observe(sim);
+            }
             outputs.spent += t0.elapsed();
             if !warm_done && sim.steps() >= ctx.warmup {
                 warm_done = true;
@@ -281,13 +354,19 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
     let started_unix_s =
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64());
     let o = scenario.options();
-    let plan = Plan::check(scenario)?;
-    let mut outputs = Outputs::open(scenario)?;
+    let ranks = Ranks::start(o)?;
+    let lead = ranks.rank() == 0;
+    let mut plan = Plan::check(scenario)?;
+    let rank_oversubscribed = place_rank(&mut plan, &ranks)?;
+    if ranks.size() > 1 && (o.vtk.is_some() || scenario.radiograph().is_some()) {
+        bail!("--vtk and --radiograph are not available over several ranks yet: run them in one process");
+    }
+    let mut outputs = if lead { Outputs::open(scenario)? } else { Outputs::none() };
     let pool = start_pool(&plan)?;
     let Prepared { setup, model, velocity, wall, taylor, impact, plate } = scenario.build()?;
     let model_name = setup.model.clone();
-    let mut sim = simulation(scenario, &plan, setup)?;
-    let (cells, nodes) = (sim.geom().num_cells(), sim.geom().num_nodes());
+    let mut sim = simulation(scenario, &plan, setup, &ranks)?;
+    let (cells, nodes) = (sim.global_geom().num_cells(), sim.global_geom().num_nodes());
     let warmup = o.warmup.unwrap_or_else(|| plan.default_warmup(&sim));
     let interrupted = install_interrupt_handler();
 
@@ -296,7 +375,7 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
     let mut tracking = Tracking::new(impact, plate)?;
     tracking.observe(&sim);
     outputs.initial(&sim)?;
-    let progress = Progress::new(o.quiet, plan.end_time, plan.step_limit);
+    let progress = Progress::new(o.quiet || !lead, plan.end_time, plan.step_limit);
     let ctx = LoopContext {
         plan: &plan,
         pool: &pool,
@@ -305,8 +384,12 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
         progress: progress.as_ref(),
         geometry: impact.as_ref(),
         describe: scenario.describe(),
+        one_rank: ranks.size() == 1,
     };
     let (end_reason, mut timing) = step_loop(&ctx, &mut sim, &mut outputs, &mut history, &mut tracking)?;
+    let Some(reports) = gather_ranks(&mut sim, &pool, &ranks, rank_oversubscribed, o.dump_state.as_deref())? else {
+        return Ok(());
+    };
     tracking.finish(&sim);
     outputs.finish(&sim, impact.as_ref(), o.quiet)?;
     let cloud_history = tracking.cloud.map(|(h, _)| h);
@@ -341,7 +424,8 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
         command_line,
         started_unix_s,
     };
-    let summary = Summary::build(&sim, context);
+    let mut summary = Summary::build(&sim, context);
+    summary.ranks = reports;
     outputs.commit_json(&summary)?;
     if !o.quiet {
         print_human(&summary, o.json.as_deref(), outputs.snapshots());

@@ -1,0 +1,308 @@
+//! What a step needs from other processes when the problem is split over ranks: the
+//! [`Exchange`] trait (halo sums, particle migration, reductions), its single-process no-op
+//! [`SingleProcess`], and the rank boxes ([`RankBoxes`]) every implementation cuts the
+//! lattice into.
+//!
+//! The library has no MPI code: a program implements [`Exchange`] with its message-passing
+//! library (the `mpm` program does it with MPI behind its `mpi` feature) and hands it to
+//! [`crate::Simulation::with_exchange`].
+//!
+//! ```text
+//! rank box   lattice cells [lo, hi) per axis, cut along cell boundaries (first and last
+//!            boxes open to -inf / +inf); a particle belongs to the box of its lattice cell
+//! local grid the box's cells plus one cell on every side, clipped to the global grid;
+//!            the rank's particles (all inside its box at the start of a step) scatter
+//!            only there, so a node is touched by another rank only where two local grids
+//!            overlap, and summing the overlaps gives every rank the global nodal values
+//! ```
+//!
+//! Within one step particles move less than a cell (CFL <= 1), so they cross at most one
+//! cut plane per axis and migrate only to ranks adjacent in the layout (diagonals included).
+
+use crate::energy::Partial;
+use crate::error::SimError;
+use crate::grid::GridGeom;
+use crate::math::Vec3;
+use crate::particles::Particles;
+use crate::strategy::domain_decomposition::patch_layout;
+
+/// The operations a distributed step calls, once per step each (never per particle).
+///
+/// Sums over ranks must be done in rank order on every rank, so that every rank gets the
+/// same value and reruns are bitwise equal.
+pub trait Exchange: Send {
+    /// Number of ranks.
+    fn ranks(&self) -> usize;
+
+    /// This process's rank.
+    fn rank(&self) -> usize;
+
+    /// Keep only the particles this rank owns, out of the whole initial set (called once).
+    fn adopt(&mut self, particles: &mut Particles) -> Result<(), SimError>;
+
+    /// This rank's part of the `global` grid (see the module docs); the global grid itself
+    /// for one rank.
+    fn local_grid(&mut self, global: &GridGeom) -> GridGeom;
+
+    /// Replace the nodal values on nodes shared with other ranks by their sums over ranks.
+    /// `values` holds `width` values per node of `local` (the grid from
+    /// [`Exchange::local_grid`]).
+    fn sum_shared_nodes(&mut self, local: &GridGeom, values: &mut [f64], width: usize) -> Result<(), SimError>;
+
+    /// Element-wise sums over ranks, in rank order.
+    fn sum(&mut self, values: &mut [f64]) -> Result<(), SimError>;
+
+    /// Element-wise sums of counts over ranks.
+    fn sum_counts(&mut self, values: &mut [u64]) -> Result<(), SimError>;
+
+    /// Element-wise maxima over ranks.
+    fn max(&mut self, values: &mut [f64]) -> Result<(), SimError>;
+
+    /// Move the particles that left this rank's box to their new owners and take in the
+    /// ones that arrived; returns how many left.
+    fn migrate(&mut self, particles: &mut Particles) -> Result<usize, SimError>;
+
+    /// Global ids (indices in the initial set) of this rank's particles, in the current
+    /// order; `None` when they are the identity (one rank).
+    fn global_ids(&self) -> Option<&[u64]>;
+
+    /// Traffic and time of the exchange so far (zero for one process).
+    fn stats(&self) -> ExchangeStats {
+        ExchangeStats::default()
+    }
+}
+
+/// What an [`Exchange`] sent and how long it took, summed over the steps taken.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ExchangeStats {
+    /// Bytes sent for halo sums (shared nodes, both scatters).
+    pub halo_bytes: u64,
+    /// Messages sent for halo sums.
+    pub halo_messages: u64,
+    /// Bytes sent moving particles (counts and states).
+    pub migration_bytes: u64,
+    /// Messages sent moving particles.
+    pub migration_messages: u64,
+    /// Bytes each rank contributed to reductions.
+    pub reduction_bytes: u64,
+    /// Reductions (collective calls).
+    pub reductions: u64,
+    /// Seconds spent in the exchange (packing, messages, waiting for other ranks).
+    pub seconds: f64,
+}
+
+/// One process: every operation is the identity.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SingleProcess;
+
+impl Exchange for SingleProcess {
+    fn ranks(&self) -> usize {
+        1
+    }
+    fn rank(&self) -> usize {
+        0
+    }
+    fn adopt(&mut self, _: &mut Particles) -> Result<(), SimError> {
+        Ok(())
+    }
+    fn local_grid(&mut self, global: &GridGeom) -> GridGeom {
+        *global
+    }
+    fn sum_shared_nodes(&mut self, _: &GridGeom, _: &mut [f64], _: usize) -> Result<(), SimError> {
+        Ok(())
+    }
+    fn sum(&mut self, _: &mut [f64]) -> Result<(), SimError> {
+        Ok(())
+    }
+    fn sum_counts(&mut self, _: &mut [u64]) -> Result<(), SimError> {
+        Ok(())
+    }
+    fn max(&mut self, _: &mut [f64]) -> Result<(), SimError> {
+        Ok(())
+    }
+    fn migrate(&mut self, _: &mut Particles) -> Result<usize, SimError> {
+        Ok(0)
+    }
+    fn global_ids(&self) -> Option<&[u64]> {
+        None
+    }
+}
+
+/// Combine the step totals of every rank: sums of energies, momentum and counts, the
+/// largest speed and the bounding box (exact, so the next dt and the adaptive grid equal
+/// one process's).
+pub(crate) fn reduce_partial(ex: &mut dyn Exchange, t: &mut Partial) -> Result<(), SimError> {
+    let mut sums = [t.kinetic, t.internal, t.momentum[0], t.momentum[1], t.momentum[2]];
+    ex.sum(&mut sums)?;
+    [t.kinetic, t.internal] = [sums[0], sums[1]];
+    t.momentum = [sums[2], sums[3], sums[4]];
+    let mut counts = [t.non_finite, t.negative_internal, t.outside];
+    ex.sum_counts(&mut counts)?;
+    [t.non_finite, t.negative_internal, t.outside] = counts;
+    let mut maxima = [t.max_speed, -t.lo[0], -t.lo[1], -t.lo[2], t.hi[0], t.hi[1], t.hi[2]];
+    ex.max(&mut maxima)?;
+    t.max_speed = maxima[0];
+    t.lo = [-maxima[1], -maxima[2], -maxima[3]];
+    t.hi = [maxima[4], maxima[5], maxima[6]];
+    Ok(())
+}
+
+/// The layout `[rx, ry, rz]` of `ranks` boxes over a grid of `cells`: the same choice as
+/// the domain decomposition's patch layout ([`patch_layout`]).
+pub fn rank_layout(ranks: usize, cells: [usize; 3]) -> [usize; 3] {
+    patch_layout(ranks, cells)
+}
+
+/// Cut planes of a layout over `geom`: for each axis, the `parts - 1` internal planes as
+/// lattice cell indices (relative to the grid's anchor), uniform in cells.
+///
+/// The planes are the first cells of boxes 1.. along the axis; a balanced cut can replace
+/// this function without changing [`RankBoxes`].
+pub fn uniform_cuts(layout: [usize; 3], geom: &GridGeom) -> Result<[Vec<i64>; 3], SimError> {
+    let mut cuts: [Vec<i64>; 3] = Default::default();
+    for d in 0..3 {
+        let (parts, cells) = (layout[d], geom.cells[d]);
+        if parts == 0 || parts > cells {
+            return Err(SimError::Config(format!(
+                "a rank layout of {parts} boxes along axis {d} needs at least {parts} cells there, the grid has {cells}; choose another --rank-layout"
+            )));
+        }
+        cuts[d] = (1..parts).map(|q| geom.start[d] + (q * cells / parts) as i64).collect();
+    }
+    Ok(cuts)
+}
+
+/// The boxes of the ranks: internal cut planes per axis; rank `r` has layout coordinates
+/// with z fastest (`r = qz + rz (qy + ry qx)`), like the DD patches.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RankBoxes {
+    /// Internal cut planes per axis (lattice cell indices, increasing).
+    pub cuts: [Vec<i64>; 3],
+    /// Lattice anchor of the grid (m).
+    pub anchor: Vec3,
+    /// `1 / dx`.
+    pub inv_dx: f64,
+}
+
+impl RankBoxes {
+    /// Boxes from cut planes (each axis strictly increasing).
+    pub fn new(cuts: [Vec<i64>; 3], anchor: Vec3, inv_dx: f64) -> Result<Self, SimError> {
+        if cuts.iter().any(|c| c.windows(2).any(|w| w[0] >= w[1])) {
+            return Err(SimError::Config("rank cut planes must increase along every axis".into()));
+        }
+        Ok(Self { cuts, anchor, inv_dx })
+    }
+
+    /// Boxes per axis.
+    pub fn layout(&self) -> [usize; 3] {
+        std::array::from_fn(|d| self.cuts[d].len() + 1)
+    }
+
+    /// Number of boxes.
+    pub fn ranks(&self) -> usize {
+        self.layout().iter().product()
+    }
+
+    /// Layout coordinates of rank `r`.
+    pub fn coords(&self, r: usize) -> [usize; 3] {
+        let l = self.layout();
+        [r / (l[1] * l[2]), (r / l[2]) % l[1], r % l[2]]
+    }
+
+    /// Rank at layout coordinates `q`.
+    pub fn rank_at(&self, q: [usize; 3]) -> usize {
+        let l = self.layout();
+        q[2] + l[2] * (q[1] + l[1] * q[0])
+    }
+
+    /// The rank owning position `x` (the box of its lattice cell).
+    #[inline]
+    pub fn owner(&self, x: Vec3) -> usize {
+        let q = std::array::from_fn(|d| {
+            let cell = ((x[d] - self.anchor[d]) * self.inv_dx).floor() as i64;
+            self.cuts[d].partition_point(|&c| c <= cell)
+        });
+        self.rank_at(q)
+    }
+
+    /// Ranks adjacent to `r` in the layout (diagonals included, `r` excluded), increasing.
+    pub fn neighbours(&self, r: usize) -> Vec<usize> {
+        let (l, q) = (self.layout(), self.coords(r));
+        let mut out = Vec::new();
+        for a in q[0].saturating_sub(1)..=(q[0] + 1).min(l[0] - 1) {
+            for b in q[1].saturating_sub(1)..=(q[1] + 1).min(l[1] - 1) {
+                for c in q[2].saturating_sub(1)..=(q[2] + 1).min(l[2] - 1) {
+                    out.push(self.rank_at([a, b, c]));
+                }
+            }
+        }
+        out.retain(|&s| s != r);
+        out.sort_unstable();
+        out
+    }
+
+    /// Rank `r`'s local grid inside `global` as node ranges `[lo, hi]` (inclusive, global
+    /// node indices): its box's cells plus one cell on each side, clipped to the grid (and
+    /// at least one cell wide).
+    pub fn node_range(&self, r: usize, global: &GridGeom) -> [(usize, usize); 3] {
+        let q = self.coords(r);
+        std::array::from_fn(|d| {
+            let n = global.cells[d] as i64;
+            let lo = if q[d] == 0 { i64::MIN / 2 } else { self.cuts[d][q[d] - 1] - global.start[d] };
+            let hi = if q[d] == self.cuts[d].len() { i64::MAX / 2 } else { self.cuts[d][q[d]] - global.start[d] };
+            let c0 = (lo - 1).clamp(0, n - 1);
+            let c1 = (hi + 1).clamp(c0 + 1, n);
+            (c0 as usize, c1 as usize)
+        })
+    }
+
+    /// Rank `r`'s local grid inside `global`.
+    pub fn local_grid(&self, r: usize, global: &GridGeom) -> GridGeom {
+        let range = self.node_range(r, global);
+        let mut g = *global;
+        for d in 0..3 {
+            let (c0, c1) = range[d];
+            g.start[d] = global.start[d] + c0 as i64;
+            g.cells[d] = c1 - c0;
+            g.origin[d] = global.origin[d] + c0 as f64 * global.dx;
+        }
+        g
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::GridSpec;
+
+    fn grid() -> GridGeom {
+        GridGeom::fixed(&GridSpec { dx: 0.5, anchor: [1.0, 0.0, 0.0], cells: [8, 4, 2] })
+    }
+
+    #[test]
+    fn owners_partition_the_lattice_and_local_grids_cover_the_boxes() {
+        let g = grid();
+        let boxes = RankBoxes::new(uniform_cuts([2, 2, 1], &g).unwrap(), g.origin, g.inv_dx).unwrap();
+        assert_eq!(boxes.cuts, [vec![4], vec![2], vec![]]);
+        assert_eq!(boxes.ranks(), 4);
+        assert_eq!(boxes.owner([1.1, 0.1, 0.1]), 0);
+        assert_eq!(boxes.owner([3.0, 0.1, 0.1]), 2); // x lattice cell 4 is the second box
+        assert_eq!(boxes.owner([2.99, 1.2, 0.1]), 1);
+        assert_eq!(boxes.owner([-50.0, 9.0, 0.1]), 1); // outside the grid: nearest box
+        for r in 0..4 {
+            assert_eq!(boxes.rank_at(boxes.coords(r)), r);
+            assert_eq!(boxes.neighbours(r).len(), 3);
+        }
+        assert_eq!(boxes.node_range(0, &g), [(0, 5), (0, 3), (0, 2)]);
+        assert_eq!(boxes.node_range(3, &g), [(3, 8), (1, 4), (0, 2)]);
+        let l = boxes.local_grid(3, &g);
+        assert_eq!((l.cells, l.start), ([5, 3, 2], [3, 1, 0]));
+        assert_eq!(l.node_position(0, 0, 0), g.node_position(3, 1, 0));
+    }
+
+    #[test]
+    fn too_many_boxes_for_the_grid_is_an_error() {
+        assert!(uniform_cuts([1, 5, 1], &grid()).is_err());
+        assert!(RankBoxes::new([vec![3, 3], vec![], vec![]], [0.0; 3], 1.0).is_err());
+    }
+}
