@@ -880,4 +880,8 @@ pub struct RankReport {
     pub steps: u64,
     /// Its exchange traffic and time over the run.
     pub exchange: mpm_core::exchange::ExchangeStats,
+    /// Its peak resident memory (`VmHWM`, bytes) at the end of the time steps, before rank 0
+    /// gathers the particles for the summary; `null` if unreadable.
+    #[serde(default)]
+    pub peak_rss_bytes: Option<u64>,
 }

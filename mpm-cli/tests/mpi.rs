@@ -116,6 +116,7 @@ fn check_equivalence(scenario: &[&str]) {
                 for r in reports {
                     assert_eq!(r.cpus.len(), threads, "{name}: rank {} CPUs {:?}", r.rank, r.cpus);
                     assert!(r.exchange.halo_bytes > 0 && r.exchange.seconds > 0.0, "{name}: rank {}", r.rank);
+                    assert!(r.peak_rss_bytes.is_some_and(|b| b > 1_000_000), "{name}: rank {} memory", r.rank);
                 }
             } else {
                 assert!(summary.ranks.is_none());

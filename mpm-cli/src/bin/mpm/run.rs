@@ -212,6 +212,7 @@ fn rank_report(
         busy_s: sim.worker_busy().map_or(0.0, |b| b.iter().sum()),
         steps: sim.steps(),
         exchange: sim.exchange().stats(),
+        peak_rss_bytes: mpm_cli::summary::peak_rss_bytes(),
     }
 }
 
