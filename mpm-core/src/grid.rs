@@ -280,6 +280,8 @@ pub struct NodeArrays {
     /// `[m, p_x, p_y, p_z, f_x, f_y, f_z]` per node: the scatter of Eqs. 1-5.
     pub p2g: Vec<[f64; P2G_WIDTH]>,
     /// `[v_x, v_y, v_z, a_x, a_y, a_z]` per node after Eq. 6: `v = p(k+1)/m`, `a = f/m`.
+    /// After the re-map ([`crate::transfer::remap_velocity`]) the last three hold the
+    /// mid-step velocity `(v_i(k) + v_i(k+1)) / 2` instead of `a`.
     pub kin: Vec<[f64; KIN_WIDTH]>,
     /// Re-mapped momentum of Eq. 11, turned into the re-mapped velocity in place.
     pub remap: Vec<[f64; REMAP_WIDTH]>,

@@ -465,7 +465,7 @@ impl Simulation {
         if distributed {
             self.exchange.sum_shared_nodes(&geom, self.nodes.remap.as_flattened_mut(), REMAP_WIDTH)?;
         }
-        transfer::remap_velocity(exec, &geom, &self.wall_layers, &mut self.nodes, self.mass_tol);
+        transfer::remap_velocity(exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
         let fixed = self.config.grid_mode == GridMode::Fixed;

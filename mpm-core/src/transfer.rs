@@ -90,19 +90,24 @@ where
     T: Send,
     F: Fn(usize, Vec3, &mut T) + Sync,
 {
-    let d = geom.node_dims();
-    let rows = d[1] * d[2];
     let t = exec.workers();
-    let has_x = walls.x_layers().next().is_some();
-    exec.for_each_chunk_mut(Split::EvenRows(d[0]).of(out), |w, mine| {
-        let r = partition(rows, t, w);
-        for (ri, row) in r.enumerate() {
-            let mask_row = walls.row_mask(row % d[1], row / d[1]);
-            for i in 0..d[0] {
-                f(row * d[0] + i, walls.node_mask(mask_row, i, has_x), &mut mine[ri * d[0] + i]);
-            }
-        }
+    exec.for_each_chunk_mut(Split::EvenRows(geom.node_dims()[0]).of(out), |w, mine| {
+        visit_rows(geom, walls, w, t, |n, mask, local| f(n, mask, &mut mine[local]));
     });
+}
+
+/// Worker `w`'s node rows out of `t` (the split of `Split::EvenRows`): `f(node, mask, local)`
+/// for each node, `local` its index within the worker's part.
+#[inline(always)]
+fn visit_rows(geom: &GridGeom, walls: &WallLayers, w: usize, t: usize, mut f: impl FnMut(usize, Vec3, usize)) {
+    let d = geom.node_dims();
+    let has_x = walls.x_layers().next().is_some();
+    for (ri, row) in partition(d[1] * d[2], t, w).enumerate() {
+        let mask_row = walls.row_mask(row % d[1], row / d[1]);
+        for i in 0..d[0] {
+            f(row * d[0] + i, walls.node_mask(mask_row, i, has_x), ri * d[0] + i);
+        }
+    }
 }
 
 /// Eq. 6 and the walls: `p += f dt`; wall nodes lose the constrained components of `p`
@@ -127,20 +132,32 @@ pub fn grid_update(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: 
     });
 }
 
-/// Eq. 11, second half: `v_i = p_i / m_i` with the walls applied again, in place.
-pub fn remap_velocity(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: &mut NodeArrays, tol: f64) {
-    let NodeArrays { p2g, remap, .. } = nodes;
+/// Eq. 11, second half: `v_i = p_i / m_i` with the walls applied again, in place. Also
+/// replaces the acceleration in `kin` (used by the gather, which has run) by the mid-step
+/// velocity `(v_i(k) + v_i(k+1)) / 2 = (v - dt a + v_remap) / 2`, whose gradient the
+/// particle update needs for the work of the stress: once per node here instead of once per
+/// particle and node there.
+pub fn remap_velocity(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: &mut NodeArrays, dt: f64, tol: f64) {
+    let NodeArrays { p2g, kin, remap } = nodes;
     let p2g = &p2g[..];
-    for_each_node(exec, geom, walls, remap, |n, mask, o| {
-        let m = p2g[n][0];
-        if m > tol {
-            let inv = 1.0 / m;
-            for k in 0..3 {
-                o[k] *= inv * mask[k];
+    let t = exec.workers();
+    let rows = Split::EvenRows(geom.node_dims()[0]);
+    exec.for_each_chunk_mut((rows.of(remap), rows.of(kin)), |w, (remap, kin)| {
+        visit_rows(geom, walls, w, t, |n, mask, local| {
+            let (o, kn) = (&mut remap[local], &mut kin[local]);
+            let m = p2g[n][0];
+            if m > tol {
+                let inv = 1.0 / m;
+                for k in 0..3 {
+                    o[k] *= inv * mask[k];
+                }
+            } else {
+                *o = [0.0; REMAP_WIDTH];
             }
-        } else {
-            *o = [0.0; REMAP_WIDTH];
-        }
+            for k in 0..3 {
+                kn[3 + k] = 0.5 * (kn[k] - dt * kn[3 + k] + o[k]);
+            }
+        });
     });
 }
 
@@ -239,19 +256,17 @@ pub fn update<E: PressureModel + Sync>(
                     }
                 }
             }
-            // Gradient of the mid-step velocity (v_i(k) + v_i(k+1)) / 2, for the work of the
-            // stress in the step (v_i(k) = v_i(k+1) - dt a_i, both with the walls applied).
-            // A loop of its own: in the loop above its 9 sums would not fit the registers
-            // beside the other 12 (measured: the stress update took 1.10x as long).
+            // Gradient of the mid-step velocity (v_i(k) + v_i(k+1)) / 2 (in `kin`'s last three
+            // slots since `remap_velocity`), for the work of the stress in the step. A loop of
+            // its own: in the loop above its 9 sums would not fit the registers beside the
+            // other 12 (measured: the stress update took 1.10x as long).
             let mut lm = [[0.0; 3]; 3];
             for q in 0..8 {
-                let vn = &kin[idx[q]];
-                let vr = &remap[idx[q]];
+                let vm = &kin[idx[q]];
                 let g = s.g[q];
                 for a in 0..3 {
-                    let vm = 0.5 * (vn[a] - dt * vn[3 + a] + vr[a]);
                     for b in 0..3 {
-                        lm[a][b] += vm * g[b];
+                        lm[a][b] += vm[3 + a] * g[b];
                     }
                 }
             }
