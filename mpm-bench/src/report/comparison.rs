@@ -14,7 +14,7 @@ use super::report_figures;
 use crate::analysis::claims::{self, ClaimResult};
 use crate::analysis::ratio::{self, Comparison};
 use crate::analysis::results::{load_campaign, Campaign};
-use crate::analysis::stats::{parallel_strategies, tag, Analysis, Estimate, Stage, StatsOptions};
+use crate::analysis::stats::{self, parallel_strategies, tag, Analysis, Compare, Estimate, Stage, StatsOptions};
 use crate::campaign::record::Status;
 use anyhow::{bail, Context, Result};
 use mpm_core::Strategy;
@@ -119,19 +119,25 @@ fn sources(args: &ReportArgs, sets: &[Set]) -> Section {
     section("sources", "Sources", blocks)
 }
 
-/// `0.71x [0.69, 0.73]`.
+/// `0.71x [0.69, 0.73]`, or `0.71x (n=1)` without an interval.
 fn ratio_text(e: &Estimate) -> String {
-    format!("{}x", e.show(2))
+    if e.degenerate() {
+        format!("{:.2}x (n={})", e.value, e.reps)
+    } else {
+        format!("{:.2}x [{:.2}, {:.2}]", e.value, e.lo, e.hi)
+    }
 }
 
-/// The headline in words: faster, slower, or no difference beyond the interval.
+/// The headline in words: faster or slower beyond the interval (or, with single
+/// repetitions, beyond the margin of [`stats::compare`]), else no difference.
 fn in_words(thr: &Estimate) -> String {
-    if thr.lo > 1.0 || (thr.degenerate() && thr.value > 1.0) {
-        format!("B is {:.2}x as fast as A", thr.value)
-    } else if thr.hi < 1.0 || (thr.degenerate() && thr.value < 1.0) {
-        format!("B is {:.2}x slower than A", 1.0 / thr.value)
-    } else {
-        "no difference beyond the 95 % interval".into()
+    match stats::compare(thr, &Estimate::point(1.0, 1)) {
+        Compare::Greater => format!("B is {:.2}x as fast as A", thr.value),
+        Compare::Less => format!("B is {:.2}x slower than A", 1.0 / thr.value),
+        Compare::Within if thr.degenerate() => {
+            format!("within {:.0} % (single repetitions: no interval)", 100.0 * stats::SINGLE_REP_MARGIN)
+        }
+        Compare::Within => "no difference beyond the 95 % interval".into(),
     }
 }
 
