@@ -53,4 +53,8 @@ target/o3/mpm-bench figures --results "$campaign" --out paper-figures
 step "the paper's claims C1-C6 on this machine"
 target/o3/mpm-bench claims --results "$campaign" --markdown "$campaign/claims.md"
 
-step "done: results in $campaign, figures in paper-figures/"
+step "the campaign's report: one page to open first"
+target/o3/mpm-bench report --results "$campaign" --out "$campaign/report" >/dev/null
+
+step "done: results in $campaign, figures in paper-figures/; open the report:"
+echo "$campaign/report/index.html"

@@ -39,7 +39,7 @@ use std::time::Duration;
         mpm-bench figures --results results/     # Figures 7-14 of the newest campaign -> paper-figures/\n  \
         mpm-bench claims --results results/      # the paper's claims C1-C6 (and C7) on this machine\n  \
         mpm-bench regress --baseline A --current B   # CI gate on parallel efficiency\n  \
-        mpm-bench report A B --out compare.md    # compare machines\n  \
+        mpm-bench report --results A --results B --out cmp   # cmp/index.html: B vs A\n  \
         mpm-bench impact-table --results results/impact   # table of the impact runs\n  \
         mpm-bench imbalance --scenario impact    # DD work imbalance, uniform vs balanced cuts\n\n\
         Run `mpm-bench <command> --help` for every flag of a command."
@@ -104,7 +104,7 @@ enum Cmd {
     Claims(claims::ClaimsArgs),
     /// Compare a campaign with a baseline: exit 0 pass, 1 regression or missing cell, 2 error or incomparable.
     Regress(regress::RegressArgs),
-    /// Hardware comparison report (Markdown + figures) over two or more campaigns.
+    /// Hardware report (one HTML page, Markdown, JSON) of a campaign, or several compared with the first.
     Report(comparison::ReportArgs),
     /// Markdown table of the impact runs under a folder, from their JSON summaries.
     ImpactTable(impact_table::ImpactTableArgs),

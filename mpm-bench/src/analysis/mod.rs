@@ -3,6 +3,7 @@
 //! * [`results`]: campaign folders read from disk;
 //! * [`stats`]: medians, bootstrap intervals, speedup and efficiency per configuration;
 //! * [`traffic`]: the bytes an MPM step moves per stage;
+//! * [`ratio`]: campaign B over campaign A on their matching cells, headline per model;
 //! * [`claims`]: the paper's claims C1-C6 tested; [`regress`]: the CI gate;
 //! * [`paired`]: parallel efficiency as paired ratios measured in this process;
 //! * [`imbalance`]: DD work imbalance of uniform and balanced cuts predicted over a run.
@@ -12,6 +13,7 @@
 pub mod claims;
 pub mod imbalance;
 pub mod paired;
+pub mod ratio;
 pub mod regress;
 pub mod results;
 pub mod stats;

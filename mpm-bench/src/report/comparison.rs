@@ -1,39 +1,39 @@
-//! `mpm-bench report`: a hardware comparison over two or more results sets (usually
-//! different machines), as Markdown with the figures it embeds written next to it.
+//! `mpm-bench report`: the hardware report over one or more campaigns, written as one
+//! self-contained HTML page (`index.html`, inline SVG figures and CSS, no scripts), the same
+//! content as `report.md` (with the figures as SVG files beside it) and as `report.json`.
 //!
-//! Sections: the machines side by side (from each campaign's `manifest.json`); the base time
-//! `T_1` per model, strategy and optimisation level; speedup and efficiency per thread count
-//! with their intervals (oversubscribed points marked); overlaid efficiency curves (one
-//! figure per strategy and optimisation level, one panel per model, one line per machine);
-//! the fraction of the STREAM-triad ceiling each stage reaches where the campaign holds a
-//! `bandwidth.json` ([`crate::machine::bandwidth`], [`crate::analysis::traffic`]); and the
-//! paper's claims per machine ([`crate::analysis::claims`]).
+//! With one campaign it describes that machine; with several, each is compared with the
+//! first on their matching cells ([`crate::analysis::ratio`]): a headline per model, the
+//! per-cell ratios and the cells left out. Then: time per step, throughput and ns per
+//! particle-step; speedup and efficiency with the machines overlaid (oversubscribed points
+//! hollow, busy-host points grey); peak memory; the paper's claims per machine
+//! ([`crate::analysis::claims`]); the machines side by side from each `manifest.json`.
 
-use super::plot::{series_colour, write_png_svg, Line, Panel, PlotPoint};
+use super::doc::{Block, Doc, Section};
+use super::report_figures;
 use crate::analysis::claims::{self, ClaimResult};
+use crate::analysis::ratio::{self, Comparison};
 use crate::analysis::results::{load_campaign, Campaign};
-use crate::analysis::stats::{parallel_strategies, tag, Analysis, Stage};
-use crate::analysis::traffic::StageBytes;
+use crate::analysis::stats::{self, parallel_strategies, tag, Analysis, Compare, Estimate, Stage, StatsOptions};
 use crate::campaign::record::Status;
-use crate::machine::topology::human_bytes;
 use anyhow::{bail, Context, Result};
 use mpm_core::Strategy;
-use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use serde::Serialize;
+use std::path::PathBuf;
 
-/// Compare machines: a Markdown report over two or more results sets.
+/// The hardware report: one campaign, or several compared with the first.
 ///
-/// Each DIR is a campaign folder (holding runs.csv) or a folder containing campaigns (then
-/// the newest is used). The report puts the machine fingerprints side by side, tabulates T1,
-/// speedup and efficiency per model and strategy, overlays the efficiency curves (PNG and
-/// SVG written next to the Markdown), gives the fraction of the memory-bandwidth ceiling
-/// when a bandwidth.json is present, and evaluates the paper's claims per machine.
+/// Each --results is a campaign folder (holding runs.csv) or a folder containing campaigns
+/// (then the newest is used). Writes OUT/index.html (open it in a browser: one page, no
+/// network needed), OUT/report.md with its SVG figures, and OUT/report.json.
+///
+/// Example: mpm-bench report --results results/aaa/quick --results results/bbb/quick --out cmp
 #[derive(clap::Args, Debug, Clone)]
 pub struct ReportArgs {
-    /// Results sets to compare (one or more; two or more for a comparison).
-    #[arg(required = true, num_args = 1..)]
+    /// A results set; repeat for a comparison (the first is the baseline A).
+    #[arg(long = "results", required = true)]
     pub dirs: Vec<PathBuf>,
-    /// The Markdown file to write; its figures go beside it (`<stem>-eff-ae-o3.png`, ...).
+    /// The folder to write index.html, report.md, report.json and the SVG figures into.
     #[arg(long)]
     pub out: PathBuf,
     /// Pinning policy to analyse when a campaign has several (default: close, else the first).
@@ -41,310 +41,48 @@ pub struct ReportArgs {
     pub pin: Option<String>,
 }
 
-struct Set {
-    label: String,
-    campaign: Campaign,
-    analysis: Analysis,
+/// One campaign with its analysis and claims.
+pub(super) struct Set {
+    pub(super) label: String,
+    pub(super) campaign: Campaign,
+    pub(super) analysis: Analysis,
     claims: Vec<ClaimResult>,
 }
 
-fn md_escape(s: &str) -> String {
-    s.replace('|', "\\|")
+/// One comparison of the JSON: B against A.
+#[derive(Serialize)]
+pub struct Versus {
+    /// Label of the baseline.
+    pub a: String,
+    /// Label of the compared set.
+    pub b: String,
+    /// The ratios, headlines and cells left out.
+    #[serde(flatten)]
+    pub comparison: Comparison,
 }
 
-/// The head of a Markdown table: the `first` columns, then one column per set named by
-/// `column`, and the separator line.
-fn table_head(first: &[&str], sets: &[Set], column: impl Fn(&Set) -> String) -> String {
-    let mut s = String::from("|");
-    for c in first {
-        // An empty head cell is written `| |`.
-        s.push_str(&if c.is_empty() { " |".to_string() } else { format!(" {c} |") });
-    }
-    for set in sets {
-        let _ = write!(s, " {} |", column(set));
-    }
-    s.push_str("\n|");
-    s.push_str(&"---|".repeat(first.len() + sets.len()));
-    s.push('\n');
-    s
+/// The report: the page and the comparisons it states.
+#[derive(Serialize)]
+pub struct Report {
+    /// Every comparison (empty with one campaign).
+    pub comparisons: Vec<Versus>,
+    /// The page (figures by file name).
+    pub page: Doc,
 }
 
-fn machines_table(sets: &[Set]) -> String {
-    let mut s = table_head(&[""], sets, |set| set.label.clone());
-    type Getter = fn(&Set) -> String;
-    let rows: Vec<(&str, Getter)> = vec![
-        ("fingerprint", |x| format!("`{}`", x.campaign.fingerprint())),
-        ("campaign", |x| format!("`{}`", x.campaign.id())),
-        ("CPU", |x| x.campaign.manifest.as_ref().map_or("?".into(), |m| m.machine.cpu_model.clone())),
-        ("sockets", |x| x.campaign.manifest.as_ref().map_or("?".into(), |m| m.machine.packages.to_string())),
-        ("cores / PUs", |x| {
-            x.campaign.manifest.as_ref().map_or("?".into(), |m| format!("{} / {}", m.machine.cores, m.machine.pus))
-        }),
-        ("NUMA nodes", |x| x.campaign.manifest.as_ref().map_or("?".into(), |m| m.machine.numa_nodes.len().to_string())),
-        ("caches", |x| {
-            x.campaign.manifest.as_ref().map_or("?".into(), |m| {
-                m.machine
-                    .caches
-                    .iter()
-                    .filter(|c| c.name != "L1i")
-                    .map(|c| format!("{} {}x{}", c.name, c.count, human_bytes(c.size_bytes)))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            })
-        }),
-        ("memory", |x| x.campaign.manifest.as_ref().map_or("?".into(), |m| human_bytes(m.machine.memory_bytes))),
-        ("OS / kernel", |x| {
-            x.campaign.manifest.as_ref().map_or("?".into(), |m| format!("{} / {}", m.machine.os, m.machine.kernel))
-        }),
-        ("governor", |x| x.campaign.manifest.as_ref().map_or("?".into(), |m| m.machine.cpu_governor.clone())),
-        ("rustc", |x| x.campaign.manifest.as_ref().map_or("?".into(), |m| m.software.rustc.clone())),
-        ("git commit", |x| {
-            x.campaign.rows.first().map_or("?".into(), |r| {
-                format!("{}{}", &r.git_commit[..r.git_commit.len().min(10)], if r.git_dirty { " (dirty)" } else { "" })
-            })
-        }),
-        ("rows ok / not ok", |x| {
-            let ok = x.campaign.rows.iter().filter(|r| r.status == Status::Ok).count();
-            format!("{ok} / {}", x.campaign.rows.len() - ok)
-        }),
-        ("pinning", |x| x.analysis.pin_policy.clone()),
-        ("STREAM triad best (1 thread / max)", |x| {
-            x.campaign.bandwidth.as_ref().map_or("not measured".into(), |b| {
-                let first = b.results.first().map_or(0.0, |p| p.best_gb_s);
-                let max = b.results.iter().map(|p| p.best_gb_s).fold(0.0, f64::max);
-                format!("{first:.1} / {max:.1} GB/s")
-            })
-        }),
-    ];
-    for (name, get) in rows {
-        let _ = write!(s, "| {name} |");
-        for set in sets {
-            let _ = write!(s, " {} |", md_escape(&get(set)));
-        }
-        s.push('\n');
-    }
-    s
+fn table(caption: &str, head: &[&str], rows: Vec<Vec<String>>) -> Block {
+    Block::Table { caption: caption.into(), head: head.iter().map(|h| h.to_string()).collect(), rows }
 }
 
-/// (model, parallel strategy, optimisation level) of every cell of any set: O3 before O0,
-/// then by strategy name and model.
-fn combos(sets: &[Set]) -> Vec<(u32, Strategy, String)> {
-    let mut v: Vec<(u32, Strategy, String)> = sets
-        .iter()
-        .flat_map(|s| s.analysis.cells.keys().map(|k| (k.model, k.strategy, k.opt_level.clone())))
-        .filter(|(_, st, _)| st.is_parallel())
-        .collect();
-    v.sort_by_key(|a| (a.2 == "o0", a.1.name(), a.0));
-    v.dedup();
-    v
-}
-
-/// (strategy, optimisation level) of the scaling tables and figures: AE and DD at O3, then
-/// at O0.
-fn strategy_opt_pairs() -> Vec<(Strategy, &'static str)> {
-    ["o3", "o0"].into_iter().flat_map(|opt| parallel_strategies().map(move |s| (s, opt))).collect()
-}
-
-fn t1_table(sets: &[Set]) -> String {
-    let mut s = table_head(&["model", "strategy", "opt"], sets, |set| format!("T1 {} (ms/step)", set.label));
-    for (m, st, opt) in combos(sets) {
-        let _ = write!(s, "| Model{m} | {} | {} |", tag(st), opt.to_uppercase());
-        for set in sets {
-            let cell =
-                set.analysis.point(m, st, &opt, 1, Stage::Total).map_or("-".to_string(), |p| p.time.scale(1e3).show(2));
-            let _ = write!(s, " {cell} |");
-        }
-        s.push('\n');
-    }
-    s
-}
-
-fn scaling_table(sets: &[Set], strategy: Strategy, opt: &str) -> Option<String> {
-    let threads: Vec<usize> = {
-        let mut t: Vec<usize> = sets.iter().flat_map(|s| s.analysis.thread_counts()).filter(|&n| n > 1).collect();
-        t.sort_unstable();
-        t.dedup();
-        t
-    };
-    let models: Vec<u32> = combos(sets).into_iter().filter(|c| c.1 == strategy && c.2 == opt).map(|c| c.0).collect();
-    if models.is_empty() || threads.is_empty() {
-        return None;
-    }
-    let mut s = String::from("| model | machine |");
-    for n in &threads {
-        let _ = write!(s, " {n} threads: speedup / efficiency |");
-    }
-    s.push_str("\n|---|---|");
-    for _ in &threads {
-        s.push_str("---|");
-    }
-    s.push('\n');
-    for m in models {
-        for set in sets {
-            let _ = write!(s, "| Model{m} | {} |", set.label);
-            for &n in &threads {
-                let cell = match set.analysis.point(m, strategy, opt, n, Stage::Total) {
-                    Some(p) => match (p.speedup, p.efficiency) {
-                        (Some(sp), Some(e)) => {
-                            format!("{} / {}{}", sp.show(2), e.show(2), if p.oversubscribed { " *" } else { "" })
-                        }
-                        _ => "no T1".into(),
-                    },
-                    None => "-".into(),
-                };
-                let _ = write!(s, " {cell} |");
-            }
-            s.push('\n');
-        }
-    }
-    Some(s)
-}
-
-fn bandwidth_section(set: &Set) -> Option<String> {
-    let bw = set.campaign.bandwidth.as_ref()?;
-    let an = &set.analysis;
-    let mut s = format!(
-        "**{}**: STREAM triad ceiling (best of {} passes, 3 x {} arrays): {}.\n\n",
-        set.label,
-        bw.reps,
-        human_bytes(bw.array_bytes),
-        bw.results
-            .iter()
-            .map(|p| format!(
-                "{}t {} {:.1} GB/s{}",
-                p.threads,
-                p.pin,
-                p.best_gb_s,
-                if p.oversubscribed { "*" } else { "" }
-            ))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
-    s.push_str(
-        "| model | strategy | opt | threads | grid-node stage: GB/s, % of ceiling (no-reuse bound) | particle stage: GB/s, % of ceiling (no-reuse bound) |\n|---|---|---|---|---|---|\n",
-    );
-    let mut any = false;
-    for (key, cell) in &an.cells {
-        let (Some(p), Some(nodes)) = (cell.particles, cell.mean_nodes) else { continue };
-        let Some(ceiling) = bw.ceiling(key.threads, &an.pin_policy) else { continue };
-        let bytes = StageBytes::estimate(key.strategy, key.threads, p as f64, nodes);
-        let mut cols = Vec::new();
-        for stage in [Stage::Grid, Stage::Particle] {
-            let Some(pt) = an.point(key.model, key.strategy, &key.opt_level, key.threads, stage) else {
-                cols.push("-".to_string());
-                continue;
-            };
-            let (lo, hi) = bytes.of(stage);
-            let (g_lo, g_hi) = (lo / pt.time.value / 1e9, hi / pt.time.value / 1e9);
-            cols.push(format!(
-                "{g_lo:.2} GB/s, {:.0} % ({:.0} %)",
-                100.0 * g_lo / ceiling.best_gb_s,
-                100.0 * g_hi / ceiling.best_gb_s
-            ));
-        }
-        any = true;
-        let _ = writeln!(
-            s,
-            "| Model{} | {} | {} | {}{} | {} | {} |",
-            key.model,
-            tag(key.strategy),
-            key.opt_level.to_uppercase(),
-            key.threads,
-            if cell.oversubscribed { " *" } else { "" },
-            cols[0],
-            cols[1]
-        );
-    }
-    if !any {
-        s.push_str("| - | - | - | - | no cell with particle and node counts at a measured thread count | - |\n");
-    }
-    Some(s)
-}
-
-fn efficiency_figures(sets: &[Set], out: &Path) -> Result<Vec<(String, String)>> {
-    let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
-    let stem = out.file_stem().map_or("report".into(), |s| s.to_string_lossy().into_owned());
-    let mut made = Vec::new();
-    for (strategy, opt) in strategy_opt_pairs() {
-        let models: Vec<u32> = {
-            let mut m: Vec<u32> =
-                combos(sets).into_iter().filter(|c| c.1 == strategy && c.2 == opt).map(|c| c.0).collect();
-            m.dedup();
-            m
-        };
-        if models.is_empty() {
-            continue;
-        }
-        let max_threads = sets.iter().flat_map(|s| s.analysis.thread_counts()).max().unwrap_or(8) as f64;
-        let mut panels = Vec::new();
-        for &m in &models {
-            let lines: Vec<Line> = sets
-                .iter()
-                .enumerate()
-                .map(|(i, set)| Line {
-                    label: set.label.clone(),
-                    colour: series_colour(i),
-                    marker: i,
-                    dashed: false,
-                    points: set
-                        .analysis
-                        .series(m, strategy, opt, Stage::Total)
-                        .into_iter()
-                        .filter_map(|p| {
-                            let e = p.efficiency?;
-                            Some(PlotPoint {
-                                x: p.key.threads as f64,
-                                y: e.value,
-                                lo: e.lo,
-                                hi: e.hi,
-                                hollow: p.oversubscribed,
-                                grey: p.noisy,
-                            })
-                        })
-                        .collect(),
-                })
-                .collect();
-            let top = lines.iter().flat_map(|l| l.points.iter().map(|p| p.hi)).fold(0.0f64, f64::max);
-            panels.push(Panel {
-                title: format!("Model{m}"),
-                y_desc: "Efficiency (total)".into(),
-                x_desc: "Number of threads".into(),
-                x_max: (max_threads + 1.0).max(9.0),
-                y_max: (top * 1.1).max(1.2),
-                ideal: Some(1.0),
-                ideal_flat: true,
-                lines,
-                notes: vec![],
-            });
-        }
-        let cols = panels.len().min(4);
-        let rows = panels.len().div_ceil(cols);
-        let name = format!("{stem}-eff-{strategy}-{opt}");
-        let title = format!(
-            "Parallel efficiency of {} ({}), total step: machines overlaid",
-            strategy.label(),
-            opt.to_uppercase()
-        );
-        write_png_svg(
-            &dir,
-            &name,
-            (460 * cols as u32 + 40, 140 + 440 * rows as u32),
-            &title,
-            &panels,
-            (rows, cols),
-            &["Hollow markers: more threads than cores (time sharing, not scaling). Bars: 95 % bootstrap intervals."
-                .into()],
-        )?;
-        made.push((title, format!("{name}.png")));
-    }
-    Ok(made)
+fn section(id: &str, title: &str, blocks: Vec<Block>) -> Section {
+    Section { id: id.into(), title: title.into(), blocks }
 }
 
 /// Read every results set, analyse it and evaluate the claims; label each by its machine
 /// fingerprint, plus the campaign id when a fingerprint repeats.
 fn load_sets(args: &ReportArgs) -> Result<Vec<Set>> {
     if args.dirs.is_empty() {
-        bail!("give at least one results folder: mpm-bench report DIR DIR... --out report.md");
+        bail!("give at least one results folder: mpm-bench report --results DIR [--results DIR ...] --out OUT");
     }
     let mut sets = Vec::new();
     for d in &args.dirs {
@@ -361,118 +99,327 @@ fn load_sets(args: &ReportArgs) -> Result<Vec<Set>> {
     Ok(sets)
 }
 
-/// Title, command and the sets compared (with their analysis notes).
-fn header(args: &ReportArgs, sets: &[Set]) -> String {
-    let mut s = String::new();
-    let _ = writeln!(s, "# Hardware comparison: explicit MPM, array expansion vs domain decomposition\n");
-    let _ = writeln!(
-        s,
-        "Made with `mpm-bench report {} --out {}` from:\n",
-        args.dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(" "),
+/// The command and the sets (with their analysis notes).
+fn sources(args: &ReportArgs, sets: &[Set]) -> Section {
+    let cmd = format!(
+        "Made with: mpm-bench report {} --out {}",
+        args.dirs.iter().map(|d| format!("--results {}", d.display())).collect::<Vec<_>>().join(" "),
         args.out.display()
     );
-    for set in sets {
-        let _ = writeln!(s, "- `{}`: `{}`", set.label, set.campaign.dir.display());
-        for n in &set.analysis.notes {
-            let _ = writeln!(s, "  - note: {n}");
-        }
+    let mut items = Vec::new();
+    for (i, set) in sets.iter().enumerate() {
+        let role = if i == 0 && sets.len() > 1 { "A (baseline)".to_string() } else { format!("set {}", i + 1) };
+        items.push(format!("{role}: {} from {}", set.label, set.campaign.dir.display()));
+        items.extend(set.analysis.notes.iter().map(|n| format!("{}: note: {n}", set.label)));
     }
+    let mut blocks = vec![Block::Para(cmd), Block::List(items)];
     if sets.len() < 2 {
-        let _ = writeln!(s, "\n(One results set only: nothing is compared, the tables describe one machine.)");
+        blocks.push(Block::Para("One results set: nothing is compared, the page describes one machine.".into()));
     }
-    s
+    section("sources", "Sources", blocks)
 }
 
-/// T1, then speedup and efficiency per strategy and optimisation level.
-fn timing_sections(sets: &[Set]) -> String {
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "## Base time T1 (one thread, steady-state time per step)\n\nMedians over repetitions with 95 % bootstrap intervals; `(n=1)` marks a single repetition (no interval).\n\n{}",
-        t1_table(sets)
-    );
-    let _ = writeln!(
-        s,
-        "## Speedup and efficiency (total step)\n\nSpeedup T1/Tn and efficiency speedup/n (paper Eqs. 19-20), ratios of medians with 95 % bootstrap intervals. `*`: oversubscribed (more threads than cores: time sharing, not scaling).\n"
-    );
-    for (st, opt) in strategy_opt_pairs() {
-        if let Some(t) = scaling_table(sets, st, opt) {
-            let _ = writeln!(s, "### {} {}\n\n{t}", tag(st), opt.to_uppercase());
-        }
-    }
-    s
-}
-
-/// The fraction of the bandwidth ceiling per set that has a `bandwidth.json`.
-fn bandwidth_sections(sets: &[Set]) -> String {
-    let mut s = String::new();
-    let _ = writeln!(s, "## Fraction of the memory-bandwidth ceiling\n");
-    let mut any_bw = false;
-    for set in sets {
-        if let Some(t) = bandwidth_section(set) {
-            any_bw = true;
-            let _ = writeln!(s, "{t}");
-        }
-    }
-    if any_bw {
-        let _ = writeln!(
-            s,
-            "Bytes per step are estimated from the kernels (see `mpm-bench/src/analysis/traffic.rs`): the first figure counts each array streamed once per pass (compulsory traffic), the one in brackets counts every particle's 8 nodes as moved from memory (no cache reuse). Stage times are per step, from the campaign's medians.\n"
-        );
+/// `0.71x [0.69, 0.73]`, or `0.71x (n=1)` without an interval.
+fn ratio_text(e: &Estimate) -> String {
+    if e.degenerate() {
+        format!("{:.2}x (n={})", e.value, e.reps)
     } else {
-        let _ = writeln!(
-            s,
-            "No `bandwidth.json` in these campaigns: run `mpm-bench bandwidth --out results/<fingerprint>/<campaign>/bandwidth.json` to add the ceiling.\n"
-        );
+        format!("{:.2}x [{:.2}, {:.2}]", e.value, e.lo, e.hi)
     }
-    s
 }
 
-/// The verdicts side by side, then each set's evidence.
-fn claims_sections(sets: &[Set]) -> String {
-    let mut s = String::new();
-    let _ = writeln!(s, "## The paper's claims per machine\n");
-    s.push_str(&table_head(&["claim"], sets, |set| set.label.clone()));
-    for (i, (id, text)) in claims::CLAIMS.iter().enumerate() {
-        let _ = write!(s, "| {id}: {text} |");
+/// The headline in words: faster or slower beyond the interval (or, with single
+/// repetitions, beyond the margin of [`stats::compare`]), else no difference.
+fn in_words(thr: &Estimate) -> String {
+    match stats::compare(thr, &Estimate::point(1.0, 1)) {
+        Compare::Greater => format!("B is {:.2}x as fast as A", thr.value),
+        Compare::Less => format!("B is {:.2}x slower than A", 1.0 / thr.value),
+        Compare::Within if thr.degenerate() => {
+            format!("within {:.0} % (single repetitions: no interval)", 100.0 * stats::SINGLE_REP_MARGIN)
+        }
+        Compare::Within => "no difference beyond the 95 % interval".into(),
+    }
+}
+
+/// The headline, the per-cell ratios and the cells left out, per comparison.
+fn comparison_sections(sets: &[Set], cmps: &[Versus]) -> Vec<Section> {
+    let mut head = vec![Block::Para(
+        "Ratios B / A of the time per step (below 1: B is faster) and of the particle-steps per second (above 1: B is faster), total step. Per model: the median over the matching cells (model x strategy x threads x opt level x pinning measured on both, not oversubscribed on either) with a 95 % bootstrap interval that resamples every cell's repetitions.".into(),
+    )];
+    let (mut ratios, mut left) = (Vec::new(), Vec::new());
+    for v in cmps {
+        let rows = v.comparison.headlines.iter().map(|h| {
+            vec![
+                format!("Model{}", h.model),
+                h.cells.to_string(),
+                ratio_text(&h.time_ratio),
+                ratio_text(&h.throughput_ratio),
+                in_words(&h.throughput_ratio),
+            ]
+        });
+        let caption = format!("B = {} over A = {}", v.b, v.a);
+        let heads = ["model", "matching cells", "time per step B/A", "particle-steps/s B/A", "in words"];
+        head.push(table(&caption, &heads, rows.collect()));
+        if v.comparison.headlines.is_empty() {
+            head.push(Block::Para(format!("{}: no matching cell, nothing to compare (see the cells left out).", v.b)));
+        }
+        ratios.extend(ratio_tables(v));
+        left.push(left_out_table(v));
+    }
+    let _ = sets;
+    vec![
+        section("headline", "Headline", head),
+        section("ratios", "Ratios per cell", ratios),
+        section("left-out", "Cells left out of the comparison", left),
+    ]
+}
+
+fn ratio_tables(v: &Versus) -> Vec<Block> {
+    let mut models: Vec<u32> = v.comparison.cells.iter().map(|c| c.key.model).collect();
+    models.dedup();
+    models
+        .into_iter()
+        .map(|m| {
+            let rows = v.comparison.cells.iter().filter(|c| c.key.model == m).map(|c| {
+                vec![
+                    tag(c.key.strategy),
+                    c.key.opt_level.to_uppercase(),
+                    c.key.threads.to_string(),
+                    c.time_a.scale(1e3).show(3),
+                    c.time_b.scale(1e3).show(3),
+                    ratio_text(&c.time_ratio),
+                    ratio_text(&c.throughput_ratio),
+                    if c.noisy { "busy host".into() } else { String::new() },
+                ]
+            });
+            let heads = ["strategy", "opt", "threads", "A ms/step", "B ms/step", "time B/A", "throughput B/A", "note"];
+            table(&format!("Model{m}: B = {} over A = {}", v.b, v.a), &heads, rows.collect())
+        })
+        .collect()
+}
+
+fn left_out_table(v: &Versus) -> Block {
+    let rows = v.comparison.left_out.iter().map(|l| vec![l.cell.clone(), l.reason.clone()]).collect();
+    table(
+        &format!("B = {} against A = {}: {} cells left out", v.b, v.a, v.comparison.left_out.len()),
+        &["cell", "reason"],
+        rows,
+    )
+}
+
+/// (model, strategy, opt) of every measured cell of any set, O3 first.
+pub(super) fn combos(sets: &[Set], parallel_only: bool) -> Vec<(u32, Strategy, String)> {
+    let mut v: Vec<(u32, Strategy, String)> = sets
+        .iter()
+        .flat_map(|s| s.analysis.cells.keys().map(|k| (k.model, k.strategy, k.opt_level.clone())))
+        .filter(|(_, st, _)| !parallel_only || st.is_parallel())
+        .collect();
+    v.sort_by_key(|a| (a.2 == "o0", a.1.name(), a.0));
+    v.dedup();
+    v
+}
+
+/// (strategy, opt) of the scaling tables and figures: the parallel strategies at O3, then O0.
+pub(super) fn strategy_opt_pairs() -> Vec<(Strategy, &'static str)> {
+    ["o3", "o0"].into_iter().flat_map(|opt| parallel_strategies().map(move |s| (s, opt))).collect()
+}
+
+/// T1 and throughput at one thread and at the most threads each set ran without
+/// oversubscription.
+fn throughput_table(sets: &[Set]) -> Block {
+    let mut rows = Vec::new();
+    for (m, st, opt) in combos(sets, false) {
         for set in sets {
-            let _ = write!(s, " **{}** |", set.claims[i].verdict_label());
+            let an = &set.analysis;
+            let real: Vec<usize> = an
+                .series(m, st, &opt, Stage::Total)
+                .iter()
+                .filter(|p| !p.oversubscribed)
+                .map(|p| p.key.threads)
+                .collect();
+            for n in [real.first().copied(), real.last().copied().filter(|&n| n > 1)].into_iter().flatten() {
+                let Some(p) = an.point(m, st, &opt, n, Stage::Total) else { continue };
+                let parts = an.cells.get(&p.key).and_then(|c| c.particles);
+                let per = |f: &dyn Fn(f64, f64) -> f64| {
+                    parts.map_or("-".into(), |np| {
+                        let e = Estimate {
+                            value: f(p.time.value, np as f64),
+                            lo: f(p.time.lo, np as f64).min(f(p.time.hi, np as f64)),
+                            hi: f(p.time.lo, np as f64).max(f(p.time.hi, np as f64)),
+                            reps: p.time.reps,
+                        };
+                        e.show(2)
+                    })
+                };
+                rows.push(vec![
+                    format!("Model{m}"),
+                    tag(st),
+                    opt.to_uppercase(),
+                    set.label.clone(),
+                    n.to_string(),
+                    p.time.scale(1e3).show(3),
+                    per(&|t, np| np / t / 1e6),
+                    per(&|t, np| t / np * 1e9),
+                ]);
+            }
         }
-        s.push('\n');
     }
-    for set in sets {
-        let _ = writeln!(s, "\n### Claims on `{}`\n\n{}", set.label, claims::markdown(&set.claims, "####"));
-    }
-    s
+    let heads =
+        ["model", "strategy", "opt", "machine", "threads", "ms/step", "M particle-steps/s", "ns per particle-step"];
+    table("One thread and the most threads run without oversubscription", &heads, rows)
 }
 
-/// Build the Markdown report (and write its figures beside `out`).
-pub fn build(args: &ReportArgs) -> Result<String> {
-    let sets = load_sets(args)?;
-    let mut s = header(args, &sets);
-    let _ = writeln!(s, "\n## Machines\n\n{}", machines_table(&sets));
-    s.push_str(&timing_sections(&sets));
-    let figs = efficiency_figures(&sets, &args.out)?;
-    if !figs.is_empty() {
-        let _ = writeln!(s, "## Efficiency curves, machines overlaid\n");
-        for (title, file) in figs {
-            let _ = writeln!(s, "![{title}]({file})\n");
+/// Speedup and efficiency per thread count, one table per strategy and opt level.
+fn scaling_tables(sets: &[Set]) -> Vec<Block> {
+    let mut threads: Vec<usize> = sets.iter().flat_map(|s| s.analysis.thread_counts()).filter(|&n| n > 1).collect();
+    threads.sort_unstable();
+    threads.dedup();
+    let mut out = Vec::new();
+    for (st, opt) in strategy_opt_pairs() {
+        let models: Vec<u32> =
+            combos(sets, true).into_iter().filter(|c| c.1 == st && c.2 == opt).map(|c| c.0).collect();
+        if models.is_empty() || threads.is_empty() {
+            continue;
         }
+        let mut head = vec!["model".to_string(), "machine".to_string()];
+        head.extend(threads.iter().map(|n| format!("{n} threads: speedup / efficiency")));
+        let mut rows = Vec::new();
+        for m in models {
+            for set in sets {
+                let mut r = vec![format!("Model{m}"), set.label.clone()];
+                r.extend(threads.iter().map(|&n| match set.analysis.point(m, st, opt, n, Stage::Total) {
+                    Some(p) => match (p.speedup, p.efficiency) {
+                        (Some(sp), Some(e)) => {
+                            format!("{} / {}{}", sp.show(2), e.show(2), if p.oversubscribed { " *" } else { "" })
+                        }
+                        _ => "no T1".into(),
+                    },
+                    None => "-".into(),
+                }));
+                rows.push(r);
+            }
+        }
+        out.push(Block::Table { caption: format!("{} {}", tag(st), opt.to_uppercase()), head, rows });
     }
-    s.push_str(&bandwidth_sections(&sets));
-    s.push_str(&claims_sections(&sets));
-    Ok(s)
+    out
+}
+
+/// Median peak resident memory per cell and machine.
+fn memory_section(sets: &[Set]) -> Section {
+    let opts = StatsOptions::default();
+    let mut keys: Vec<_> = sets.iter().flat_map(|s| s.analysis.cells.keys().cloned()).collect();
+    keys.sort();
+    keys.dedup();
+    let rows = keys
+        .iter()
+        .map(|k| {
+            let mut r = vec![k.to_string()];
+            r.extend(sets.iter().map(|s| {
+                s.analysis
+                    .memory(k, &opts)
+                    .map_or("-".into(), |e| format!("{} MiB", e.scale(1.0 / (1u64 << 20) as f64).show(0)))
+            }));
+            r
+        })
+        .collect();
+    let mut head = vec!["cell".to_string()];
+    head.extend(sets.iter().map(|s| format!("peak RSS {}", s.label)));
+    section(
+        "memory",
+        "Memory",
+        vec![
+            Block::Para(
+                "Peak resident memory of the solver process: median over repetitions with its 95 % bootstrap interval."
+                    .into(),
+            ),
+            Block::Table { caption: String::new(), head, rows },
+        ],
+    )
+}
+
+/// The verdicts side by side, then each set's reasons and evidence.
+fn claims_section(sets: &[Set]) -> Section {
+    let mut head = vec!["claim".to_string()];
+    head.extend(sets.iter().map(|s| s.label.clone()));
+    let rows = claims::CLAIMS
+        .iter()
+        .enumerate()
+        .map(|(i, (id, text))| {
+            let mut r = vec![format!("{id}: {text}")];
+            r.extend(sets.iter().map(|s| s.claims[i].verdict_label()));
+            r
+        })
+        .collect();
+    let mut blocks = vec![Block::Table { caption: String::new(), head, rows }];
+    for set in sets {
+        let rows = set
+            .claims
+            .iter()
+            .map(|c| vec![c.id.to_string(), c.verdict_label(), c.reason.clone(), c.evidence.join("; ")])
+            .collect();
+        blocks.push(table(&format!("Claims on {}", set.label), &["claim", "verdict", "reason", "evidence"], rows));
+    }
+    section("claims", "The paper's claims per machine", blocks)
+}
+
+/// Build the report: the page and the comparisons.
+pub fn build(args: &ReportArgs) -> Result<Report> {
+    let sets = load_sets(args)?;
+    let opts = StatsOptions::default();
+    let comparisons: Vec<Versus> = sets[1..]
+        .iter()
+        .map(|b| Versus {
+            a: sets[0].label.clone(),
+            b: b.label.clone(),
+            comparison: ratio::compare(&sets[0].analysis, &b.analysis, &opts),
+        })
+        .collect();
+    let title = if sets.len() > 1 {
+        format!("Hardware comparison: {}", sets.iter().map(|s| s.label.as_str()).collect::<Vec<_>>().join(" vs "))
+    } else {
+        format!("Hardware report: {}", sets[0].label)
+    };
+    let mut page = Doc { title, sections: vec![sources(args, &sets)] };
+    if sets.len() > 1 {
+        page.sections.extend(comparison_sections(&sets, &comparisons));
+    }
+    let mut thr = vec![
+        Block::Para("Throughput is particles x steps per second of wall time (steady state, total step); its inverse per particle is the time per particle-step. Medians with 95 % bootstrap intervals; (n=1) marks a single repetition.".into()),
+        throughput_table(&sets),
+    ];
+    thr.extend(report_figures::throughput_figures(&sets)?);
+    page.sections.push(section("throughput", "Time per step and throughput", thr));
+    let mut sc = vec![Block::Para("Speedup T1/Tn and efficiency speedup/n (paper Eqs. 19-20), ratios of medians with 95 % bootstrap intervals. *: oversubscribed (more threads than cores: time sharing, not scaling); in the figures such points are hollow, and points measured on a busy host are grey.".into())];
+    sc.extend(scaling_tables(&sets));
+    sc.extend(report_figures::scaling_figures(&sets)?);
+    page.sections.push(section("scaling", "Speedup and efficiency, machines overlaid", sc));
+    page.sections.push(memory_section(&sets));
+    page.sections.push(claims_section(&sets));
+    page.sections.push(super::machines::machines_section(&sets));
+    Ok(Report { comparisons, page })
+}
+
+/// Count of ok and not-ok rows of a campaign.
+pub(super) fn row_counts(c: &Campaign) -> String {
+    let ok = c.rows.iter().filter(|r| r.status == Status::Ok).count();
+    format!("{ok} / {}", c.rows.len() - ok)
 }
 
 /// `mpm-bench report`.
 pub fn run(args: ReportArgs) -> Result<()> {
-    if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)
-            .with_context(|| format!("cannot create {} for --out: choose a writable path", parent.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {} for --out: choose a writable folder", args.out.display()))?;
+    let report = build(&args)?;
+    let write = |name: &str, text: &str| {
+        let p = args.out.join(name);
+        std::fs::write(&p, text).with_context(|| format!("cannot write {}: choose a writable --out", p.display()))
+    };
+    for (file, svg) in report.page.figures() {
+        write(file, svg)?;
     }
-    let text = build(&args)?;
-    std::fs::write(&args.out, text)
-        .with_context(|| format!("cannot write {}: choose a writable --out", args.out.display()))?;
-    println!("wrote {} (figures beside it)", args.out.display());
+    write("report.md", &report.page.to_markdown())?;
+    write("report.json", &serde_json::to_string_pretty(&report)?)?;
+    write("index.html", &report.page.to_html())?;
+    println!("{}", args.out.join("index.html").display());
     Ok(())
 }

@@ -2,12 +2,16 @@
 //!
 //! * [`plot`]: panels, legends and PNG/SVG output;
 //! * [`figures`]: the paper's Figures 7-14 and the memory figure;
-//! * [`comparison`]: the hardware comparison report (Markdown with its figures);
+//! * [`comparison`]: the hardware report over one or more campaigns (one page as HTML,
+//!   Markdown and JSON), built on [`doc`], the page model and its renderings;
 //! * [`impact_table`]: the table of the committed impact runs;
 //! * [`imbalance`]: the figure of predicted DD work imbalance, uniform vs balanced cuts.
 
 pub mod comparison;
+pub mod doc;
 pub mod figures;
 pub mod imbalance;
 pub mod impact_table;
+mod machines;
 pub mod plot;
+mod report_figures;

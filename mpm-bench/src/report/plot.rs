@@ -364,3 +364,22 @@ pub fn write_png_svg(
     }
     Ok(vec![png, svg])
 }
+
+/// Draw a figure (title, panels in a grid, footnotes) as an SVG document in memory, for
+/// pages that inline their figures.
+pub fn svg_string(
+    size: (u32, u32),
+    title: &str,
+    panels: &[Panel],
+    grid: (usize, usize),
+    footnotes: &[String],
+) -> Result<String> {
+    register_fonts();
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, size).into_drawing_area();
+        draw_figure(&root, title, panels, grid, footnotes)?;
+        root.present().map_err(pe)?;
+    }
+    Ok(svg)
+}

@@ -1,0 +1,222 @@
+//! Helpers shared by the integration tests: crafted campaigns (rows, manifest) with known
+//! speedups, efficiencies and memory, written to a folder as the harness would.
+#![allow(dead_code)]
+
+use mpm_bench::campaign::manifest::{self, GitInfo, Manifest, SoftwareInfo, MANIFEST_VERSION};
+use mpm_bench::campaign::record::{CsvLog, Row, Status, SCHEMA_VERSION};
+use mpm_bench::machine::fingerprint;
+use mpm_bench::machine::topology::Machine;
+use mpm_core::Strategy;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+pub const AE: Strategy = Strategy::ArrayExpansion;
+pub const DD: Strategy = Strategy::DomainDecomposition;
+pub const DDB: Strategy = Strategy::DdBalanced;
+
+/// How a crafted campaign is made.
+#[derive(Clone)]
+pub struct Craft {
+    /// hwloc synthetic topology of the manifest (None: no manifest).
+    pub topo: Option<&'static str>,
+    pub models: Vec<u32>,
+    pub threads: Vec<usize>,
+    /// Threads above this are oversubscribed.
+    pub cores: usize,
+    /// Cores per socket (efficiency drops past it).
+    pub per_socket: usize,
+    pub reps: u32,
+    /// Multiplicative noise per repetition.
+    pub noise: Vec<f64>,
+    /// Factor on every time with more than one thread.
+    pub slow_parallel: f64,
+    /// Factor on every time.
+    pub slow_all: f64,
+    /// Skip Model4 AE at 4+ threads (memory guard).
+    pub skip_m4_ae: bool,
+    pub pin: &'static str,
+    /// Every repetition at this thread count failed (the solver crashed).
+    pub fail_threads: Option<usize>,
+    /// O0's parallel loss relative to O3's (below 1: O0 scales better).
+    pub o0_loss: f64,
+    /// Parallel efficiency of DD's grid stage.
+    pub dd_grid_eff: f64,
+    /// Parallel efficiency of AE's particle stage.
+    pub ae_particle_eff: f64,
+    /// Bytes of AE's nodal copies per extra thread and model number.
+    pub ae_copy_bytes: f64,
+}
+
+impl Default for Craft {
+    fn default() -> Self {
+        Self {
+            topo: Some("pack:2 core:4 pu:1"),
+            models: vec![1, 2, 3, 4],
+            threads: vec![1, 2, 4, 6, 8],
+            cores: 8,
+            per_socket: 4,
+            reps: 3,
+            noise: vec![1.0, 1.01, 0.99],
+            slow_parallel: 1.0,
+            slow_all: 1.0,
+            skip_m4_ae: true,
+            pin: "close",
+            fail_threads: None,
+            o0_loss: 0.3,
+            dd_grid_eff: 0.9,
+            ae_particle_eff: 0.93,
+            ae_copy_bytes: 3e7,
+        }
+    }
+}
+
+/// Stage efficiencies of the crafted machine: DD beats AE, more so for larger models; AE's
+/// grid stage is its bottleneck; O0 scales better than O3; crossing a socket costs 20 %.
+pub fn eff(model: u32, strategy: Strategy, opt: &str, particle: bool, n: usize, c: &Craft) -> f64 {
+    if n == 1 {
+        return 1.0;
+    }
+    let mut e = match (strategy, particle) {
+        (AE, false) => 0.75 - 0.1 * model as f64,
+        (AE, true) => c.ae_particle_eff,
+        // Balanced cuts: less waiting for the fullest patch (claim C7).
+        (DDB, false) => c.dd_grid_eff + 0.05,
+        (DDB, true) => 0.97,
+        (_, false) => c.dd_grid_eff,
+        (_, true) => 0.95,
+    };
+    if opt == "o0" {
+        e = 1.0 - c.o0_loss * (1.0 - e);
+    }
+    if n > c.per_socket {
+        e *= 0.8;
+    }
+    e
+}
+
+pub fn fingerprint(topo: Option<&str>) -> String {
+    topo.map(|t| fingerprint::fingerprint(&Machine::synthetic(t).unwrap())).unwrap_or_else(|| "nomanifest".into())
+}
+
+pub fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
+    std::fs::create_dir_all(dir).unwrap();
+    let fp = fingerprint(c.topo);
+    let mut log = CsvLog::open(&dir.join("runs.csv")).unwrap();
+    for &m in &c.models {
+        let (g1, p1) = (0.004 * m as f64, 0.006 * m as f64);
+        for strategy in [AE, DD, DDB] {
+            for opt in ["o3", "o0"] {
+                let slow = if opt == "o0" { 5.0 } else { 1.0 };
+                for &n in &c.threads {
+                    for rep in 0..c.reps {
+                        let noise = c.noise[rep as usize % c.noise.len()];
+                        let par = if n > 1 { c.slow_parallel } else { 1.0 };
+                        let k = slow * noise * par * c.slow_all;
+                        let g = g1 * k / (n as f64 * eff(m, strategy, opt, false, n, c));
+                        let p = p1 * k / (n as f64 * eff(m, strategy, opt, true, n, c));
+                        let mem = 1e8 * m as f64
+                            + if strategy == AE { c.ae_copy_bytes * m as f64 * (n - 1) as f64 } else { 1e6 };
+                        let skip = c.skip_m4_ae && m == 4 && strategy == AE && n >= 4;
+                        let steps = 10u64;
+                        if c.fail_threads == Some(n) && !skip {
+                            log.append(&failed_row(dir, &fp, m, strategy, opt, n, rep)).unwrap();
+                            continue;
+                        }
+                        let row = Row {
+                            schema_version: SCHEMA_VERSION,
+                            campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
+                            run_id: format!("m{m}-{strategy}-{opt}-t{n}-{}-r{rep}", c.pin),
+                            machine_id: fp.clone(),
+                            scenario: "taylor".into(),
+                            model: m,
+                            particles: Some(10_000 * m as u64),
+                            nodes: Some(5_000 * m as u64),
+                            mean_nodes: Some(5_000.0 * m as f64),
+                            grid_mode: "fixed".into(),
+                            strategy,
+                            opt_level: opt.into(),
+                            threads: n,
+                            pin_policy: c.pin.into(),
+                            oversubscribed: n > c.cores,
+                            rep,
+                            steps: if skip { None } else { Some(steps) },
+                            wall_s: (!skip).then_some((g + p) * steps as f64),
+                            grid_stage_s: (!skip).then_some(g * steps as f64),
+                            particle_stage_s: (!skip).then_some(p * steps as f64),
+                            steady_s_per_step: (!skip).then_some(g + p),
+                            peak_rss_bytes: (!skip).then_some((mem * 1.0) as u64),
+                            mem_estimate_bytes: if skip { 9_500_000_000 } else { mem as u64 },
+                            dd_work_imbalance: match strategy {
+                                DD => Some(1.0 + 0.05 * (n - 1) as f64),
+                                DDB => Some(1.0 + 0.002 * (n - 1) as f64),
+                                _ => None,
+                            },
+                            status: if skip { Status::Skipped } else { Status::Ok },
+                            reason: if skip {
+                                "memory guard: estimated 9.5 GB exceeds the limit".into()
+                            } else {
+                                String::new()
+                            },
+                            ..Row::default()
+                        };
+                        log.append(&row).unwrap();
+                    }
+                }
+            }
+        }
+    }
+    if let Some(t) = c.topo {
+        write_manifest(dir, t);
+    }
+    dir.to_path_buf()
+}
+
+/// A repetition whose solver crashed.
+pub fn failed_row(dir: &Path, fp: &str, model: u32, strategy: Strategy, opt: &str, threads: usize, rep: u32) -> Row {
+    Row {
+        schema_version: SCHEMA_VERSION,
+        campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
+        run_id: format!("m{model}-{strategy}-{opt}-t{threads}-r{rep}"),
+        machine_id: fp.into(),
+        scenario: "taylor".into(),
+        model,
+        grid_mode: "fixed".into(),
+        strategy,
+        opt_level: opt.into(),
+        threads,
+        pin_policy: "close".into(),
+        rep,
+        status: Status::Failed,
+        reason: "solver exited with status 101".into(),
+        ..Row::default()
+    }
+}
+
+/// The manifest of a crafted campaign on the hwloc synthetic topology `t` (16 GiB).
+pub fn write_manifest(dir: &Path, t: &str) {
+    let machine = Machine::synthetic(t).unwrap();
+    let mut info = fingerprint::machine_info(&machine);
+    info.memory_bytes = 16 << 30;
+    // Fixed host facts, so that reports of crafted campaigns are the same on every machine.
+    (info.os, info.kernel, info.arch, info.cpu_governor) =
+        ("Test OS".into(), "6.1.0-test".into(), "x86_64".into(), "performance".into());
+    let m = Manifest {
+        manifest_version: MANIFEST_VERSION,
+        campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
+        reference: false,
+        campaign: serde_json::Value::Null,
+        machine: info,
+        software: SoftwareInfo {
+            rustc: "rustc test".into(),
+            cargo_profiles: serde_json::Value::Null,
+            rustflags: String::new(),
+            binaries: vec![],
+            env: BTreeMap::new(),
+            hwloc_api: "2.9.0".into(),
+            harness_version: "test".into(),
+            git: GitInfo::default(),
+        },
+        sessions: vec![],
+    };
+    manifest::write(&dir.join("manifest.json"), &m).unwrap();
+}
