@@ -440,10 +440,8 @@ impl Simulation {
         let geom = self.geom;
         let n = self.particles.len();
         let distributed = self.exchange.ranks() > 1;
-        {
-            let p2g = transfer::P2g { geom: &geom, particles: &self.particles, body_force: self.config.body_force };
-            self.engine.scatter(exec, &geom, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
-        }
+        let p2g = transfer::P2g { geom: &geom, particles: &self.particles, body_force: self.config.body_force };
+        self.engine.scatter(exec, &geom, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
         lap.lap(&mut self.times, Substage::Scatter);
         self.engine.assemble(exec, &geom, &mut self.nodes.p2g, &self.p2g_parts);
         if distributed {
@@ -456,10 +454,8 @@ impl Simulation {
         // ---- particle stage --------------------------------------------------------
         transfer::gather(exec, &geom, &self.nodes.kin, &self.particles.x, &mut self.particles.v, dt);
         lap.lap(&mut self.times, Substage::Gather);
-        {
-            let remap = transfer::Remap { geom: &geom, particles: &self.particles };
-            self.engine.scatter(exec, &geom, n, &mut self.nodes.remap, &mut self.remap_parts, &remap);
-        }
+        let remap = transfer::Remap { geom: &geom, particles: &self.particles };
+        self.engine.scatter(exec, &geom, n, &mut self.nodes.remap, &mut self.remap_parts, &remap);
         lap.lap(&mut self.times, Substage::RemapScatter);
         self.engine.assemble(exec, &geom, &mut self.nodes.remap, &self.remap_parts);
         if distributed {

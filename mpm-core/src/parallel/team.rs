@@ -375,6 +375,18 @@ mod tests {
     }
 
     /// The message of a panic payload.
+    /// The team is whole again after a panic: a region runs every share once.
+    fn assert_whole(pool: &ThreadPool, team: &Team, workers: usize) {
+        let ran = AtomicUsize::new(0);
+        team.region(pool, |exec| {
+            exec.run(|_| {
+                ran.fetch_add(1, SeqCst);
+            })
+        })
+        .unwrap();
+        assert_eq!(ran.load(SeqCst), workers);
+    }
+
     fn message(payload: &(dyn Any + Send)) -> &str {
         payload
             .downcast_ref::<&str>()
@@ -474,15 +486,7 @@ mod tests {
             .unwrap_err();
         assert_eq!(message(&*err), "share 0 fails on purpose");
         assert_eq!(finished.load(SeqCst), workers - 1);
-        // The team is whole again.
-        let ran = AtomicUsize::new(0);
-        team.region(&pool, |exec| {
-            exec.run(|_| {
-                ran.fetch_add(1, SeqCst);
-            })
-        })
-        .unwrap();
-        assert_eq!(ran.load(SeqCst), workers);
+        assert_whole(&pool, &team, workers);
     }
 
     /// A panic in another worker's share: re-raised on the driver, with its own message,
@@ -510,14 +514,7 @@ mod tests {
             assert_eq!(message(&*err), format!("share {failing} fails on purpose"));
             assert_eq!(finished.load(SeqCst), workers - 1);
         }
-        let ran = AtomicUsize::new(0);
-        team.region(&pool, |exec| {
-            exec.run(|_| {
-                ran.fetch_add(1, SeqCst);
-            })
-        })
-        .unwrap();
-        assert_eq!(ran.load(SeqCst), workers);
+        assert_whole(&pool, &team, workers);
     }
 
     /// A panic in the driver between phases ends the region too (the serving workers are
