@@ -136,8 +136,11 @@ enum Cmd {
         long_about = "Predicted work imbalance of DD's patches, uniform cuts (dd) against balanced \
             cuts (dd-balanced), over a run of the scenario.\n\n\
             The scenario runs serially; before every step the particles are cut into one patch \
-            per thread with each thread count's layout (2x1x1, 2x2x1, 2x1x3, 2x2x2 for 2, 4, 6, \
-            8), uniformly and at the particle-count quantiles, with the solver's own code. The \
+            per thread, uniformly with each thread count's layout (2x1x1, 2x2x1, 2x1x3, 2x2x2 \
+            for 2, 4, 6, 8), and at the particle-count quantiles with the layout dd-balanced \
+            chooses that step (the paper's unless another factorisation of the thread count \
+            predicts a clearly smaller imbalance, e.g. 4x2x1 for a thin plate), with the \
+            solver's own code. The \
             imbalance of a step is the most particles in a patch over the mean per patch. \
             Nothing is timed, so the result means the same on a 2-core machine as on the \
             paper's 8 cores. Prints the table (mean and worst step per thread count) and \

@@ -569,7 +569,8 @@ pub struct Summary {
     /// Impact: particle lattice spacing (m).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub spacing_m: Option<f64>,
-    /// DD patch layout `[px, py, pz]` (DD only).
+    /// DD patch layout `[px, py, pz]` of the last step (DD only; balanced cuts choose it
+    /// every step, see `mpm-bench imbalance` for the layouts over a run).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dd_layout: Option<[usize; 3]>,
     /// DD (uniform or balanced cuts) only: particles per patch and the work imbalance over

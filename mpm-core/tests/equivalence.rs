@@ -99,7 +99,9 @@ fn dd_patches_follow_the_adaptive_grid() {
 
 /// Balanced cuts on the impact (a plate holding most particles, a sphere in flight): the
 /// patches still tile the grid, every particle is binned, and the work is far more even
-/// than with uniform cuts of the same layout.
+/// than with uniform cuts. Uniform cuts keep the paper's 2x2x2; balanced cuts leave the
+/// plate's z planes uncut (a z plane on a cell boundary cannot split a plate two cells
+/// thick evenly: 2x2x2 with balanced planes measured 1.43 before the layout was chosen).
 #[test]
 fn balanced_cuts_even_out_the_impact() {
     let setup = mini_impact();
@@ -107,20 +109,28 @@ fn balanced_cuts_even_out_the_impact() {
     for strategy in [Strategy::DomainDecomposition, Strategy::DdBalanced] {
         let sim = run(&setup, strategy, 8, GridMode::Adaptive, 10);
         let dd = sim.domain_decomposition().unwrap();
-        assert_eq!(dd.layout(), [2, 2, 2]);
         assert_eq!(dd.is_balanced(), strategy == Strategy::DdBalanced);
+        if strategy == Strategy::DdBalanced {
+            assert_eq!(dd.layout()[2], 1, "balanced layout {:?}", dd.layout());
+            assert_eq!(dd.layout().iter().product::<usize>(), 8);
+        } else {
+            assert_eq!(dd.layout(), [2, 2, 2]);
+        }
         let cells: usize = dd.patches().iter().map(|p| p.cells.iter().product::<usize>()).sum();
         assert_eq!(cells, sim.geom().num_cells());
         let binned: u32 = (0..8).map(|j| dd.binning().patnp(j)).sum();
         assert_eq!(binned as usize, sim.particles().len());
         assert_eq!(dd.load().steps, 10);
-        println!("{strategy}: imbalance mean {:.3} max {:.3}", dd.load().imbalance_mean(), dd.load().imbalance_max);
+        println!(
+            "{strategy} {:?}: imbalance mean {:.3} max {:.3}",
+            dd.layout(),
+            dd.load().imbalance_mean(),
+            dd.load().imbalance_max
+        );
         imbalance.push(dd.load().imbalance_max);
     }
-    // Measured 1.81 uniform, 1.43 balanced: the plate is two cells thick, and a cut plane
-    // lies on a cell boundary, so the z cuts cannot split it evenly.
-    assert!(imbalance[1] < 0.85 * imbalance[0], "balanced {} uniform {}", imbalance[1], imbalance[0]);
-    assert!(imbalance[1] < 1.5, "balanced imbalance {}", imbalance[1]);
+    assert!(imbalance[1] < 0.7 * imbalance[0], "balanced {} uniform {}", imbalance[1], imbalance[0]);
+    assert!(imbalance[1] < 1.15, "balanced imbalance {}", imbalance[1]);
 }
 
 #[test]

@@ -14,7 +14,7 @@ use anyhow::{bail, Context, Result};
 use mpm_core::grid::GridGeom;
 use mpm_core::scenario::impact::Impact;
 use mpm_core::scenario::taylor::{self, TaylorBar};
-use mpm_core::strategy::{imbalance, patch_layout, Cuts};
+use mpm_core::strategy::{imbalance, patch_layout, Cuts, LayoutChooser};
 use mpm_core::{GridMode, Setup, SimConfig, Simulation};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -46,8 +46,11 @@ pub struct ImbalanceArgs {
 pub struct ImbalanceRow {
     /// Threads (= patches).
     pub threads: usize,
-    /// Patch layout `px x py x pz` on the first step's grid.
+    /// Patch layout `px x py x pz` of uniform cuts (the paper's) on the first step's grid.
     pub layout: String,
+    /// Layouts balanced cuts chose, most used first, with their step counts when more than
+    /// one (e.g. `2x4x1` or `2x3x1 (148 steps), 1x6x1 (86 steps)`).
+    pub balanced_layout: String,
     /// Uniform cuts: mean over the steps of max / mean particles per patch.
     pub uniform_mean: f64,
     /// Uniform cuts: the worst step.
@@ -67,8 +70,10 @@ pub struct StepImbalance {
     pub time_s: f64,
     /// Threads (= patches).
     pub threads: usize,
-    /// Layout `px x py x pz`, as text.
+    /// Layout `px x py x pz` of uniform cuts, as text.
     pub layout: String,
+    /// Layout balanced cuts chose for the step.
+    pub balanced_layout: String,
     /// Uniform cuts: max / mean particles per patch.
     pub uniform: f64,
     /// Balanced cuts: the same.
@@ -113,25 +118,48 @@ fn scenario(a: &ImbalanceArgs) -> Result<(Setup, GridMode, f64)> {
     }
 }
 
-/// Per-step work: the cells of the particles and, per thread count, the cuts and counts.
+/// Per-step work: the cells of the particles, their histograms per cell plane along each
+/// axis, and per thread count the cuts, counts and layout choice.
 struct Evaluator {
     cell_of: Vec<[u32; 3]>,
+    marginals: [Vec<u32>; 3],
     uniform: Cuts,
     counts: Vec<u32>,
+    /// One per thread count, carried from step to step as in the solver.
+    choosers: Vec<LayoutChooser>,
+}
+
+/// `px x py x pz`.
+fn layout_text(l: [usize; 3]) -> String {
+    format!("{}x{}x{}", l[0], l[1], l[2])
 }
 
 impl Evaluator {
-    /// Uniform and balanced imbalance of `threads` patches for particles at `x` on `geom`.
-    fn evaluate(&mut self, geom: &GridGeom, threads: usize) -> ([usize; 3], f64, f64) {
+    /// Store the particles' cells on `geom` and their histograms per cell plane.
+    fn load(&mut self, geom: &GridGeom, x: &[mpm_core::math::Vec3]) {
+        self.cell_of.clear();
+        self.cell_of.extend(x.iter().map(|&p| geom.shape_cell(p).map(|c| c as u32)));
+        for (a, m) in self.marginals.iter_mut().enumerate() {
+            m.clear();
+            m.resize(geom.cells[a], 0);
+            self.cell_of.iter().for_each(|c| m[c[a] as usize] += 1);
+        }
+    }
+
+    /// Uniform cuts of the paper's layout and balanced cuts of the layout `dd-balanced`
+    /// chooses (thread count number `k`): the two layouts and imbalances.
+    fn evaluate(&mut self, geom: &GridGeom, k: usize, threads: usize) -> ([usize; 3], [usize; 3], f64, f64) {
         let layout = patch_layout(threads, geom.cells);
         self.uniform.uniform(layout, geom.cells);
         self.counts.resize(threads, 0);
         self.uniform.count(&self.cell_of, &mut self.counts);
         let u = imbalance(&self.counts).unwrap_or(1.0);
-        let balanced = Cuts::balanced(&self.cell_of, geom.cells, layout);
+        let [mx, my, mz] = &self.marginals;
+        let chosen = self.choosers[k].choose(threads, layout, [mx, my, mz]);
+        let balanced = Cuts::balanced(&self.cell_of, geom.cells, chosen);
         balanced.count(&self.cell_of, &mut self.counts);
         let b = imbalance(&self.counts).unwrap_or(1.0);
-        (layout, u, b)
+        (layout, chosen, u, b)
     }
 }
 
@@ -145,7 +173,13 @@ pub fn measure(a: &ImbalanceArgs) -> Result<ImbalanceReport> {
     let spec = setup.grid.clone();
     let mut sim = Simulation::new(setup, SimConfig { grid_mode, ..SimConfig::default() })?;
     let pool = mpm_cli::pinning::build_pool(1, None)?.pool;
-    let mut ev = Evaluator { cell_of: Vec::new(), uniform: Cuts::default(), counts: Vec::new() };
+    let mut ev = Evaluator {
+        cell_of: Vec::new(),
+        marginals: Default::default(),
+        uniform: Cuts::default(),
+        counts: Vec::new(),
+        choosers: vec![LayoutChooser::default(); a.threads.len()],
+    };
     let mut samples = Vec::new();
     let mut step = 0u64;
     while a.steps.map_or(sim.time() < end_time * (1.0 - 1e-12), |n| step < n) {
@@ -157,12 +191,18 @@ pub fn measure(a: &ImbalanceArgs) -> Result<ImbalanceReport> {
             }
             GridMode::Fixed => *sim.geom(),
         };
-        ev.cell_of.clear();
-        ev.cell_of.extend(x.iter().map(|&p| geom.shape_cell(p).map(|c| c as u32)));
-        for &t in &a.threads {
-            let (layout, uniform, balanced) = ev.evaluate(&geom, t);
-            let layout = format!("{}x{}x{}", layout[0], layout[1], layout[2]);
-            samples.push(StepImbalance { step: step + 1, time_s: sim.time(), threads: t, layout, uniform, balanced });
+        ev.load(&geom, x);
+        for (k, &t) in a.threads.iter().enumerate() {
+            let (layout, chosen, uniform, balanced) = ev.evaluate(&geom, k, t);
+            samples.push(StepImbalance {
+                step: step + 1,
+                time_s: sim.time(),
+                threads: t,
+                layout: layout_text(layout),
+                balanced_layout: layout_text(chosen),
+                uniform,
+                balanced,
+            });
         }
         let dt_max = if a.steps.is_some() { f64::INFINITY } else { end_time - sim.time() };
         pool.install(|| sim.step(&pool, dt_max)).with_context(|| format!("step {} failed", step + 1))?;
@@ -186,9 +226,23 @@ fn row_of(threads: usize, samples: &[StepImbalance]) -> ImbalanceRow {
     let n = mine.len().max(1) as f64;
     let mean = |f: fn(&StepImbalance) -> f64| mine.iter().map(|s| f(s)).sum::<f64>() / n;
     let max = |f: fn(&StepImbalance) -> f64| mine.iter().map(|s| f(s)).fold(0.0, f64::max);
+    // Layouts balanced cuts used, most steps first (ties: first used first).
+    let mut used: Vec<(&str, usize)> = Vec::new();
+    for s in &mine {
+        match used.iter_mut().find(|(l, _)| *l == s.balanced_layout) {
+            Some((_, c)) => *c += 1,
+            None => used.push((&s.balanced_layout, 1)),
+        }
+    }
+    used.sort_by_key(|u| std::cmp::Reverse(u.1));
+    let balanced_layout = match used.as_slice() {
+        [(l, _)] => l.to_string(),
+        _ => used.iter().map(|(l, c)| format!("{l} ({c} steps)")).collect::<Vec<_>>().join(", "),
+    };
     ImbalanceRow {
         threads,
         layout: mine.first().map_or_else(String::new, |s| s.layout.clone()),
+        balanced_layout,
         uniform_mean: mean(|s| s.uniform),
         uniform_max: max(|s| s.uniform),
         balanced_mean: mean(|s| s.balanced),
@@ -203,15 +257,24 @@ pub fn table(r: &ImbalanceReport) -> String {
         r.scenario, r.model_name, r.particles, r.steps
     );
     s.push_str(&format!(
-        "{:>7}  {:<7}  {:>12} {:>11}  {:>13} {:>12}\n",
-        "threads", "layout", "uniform mean", "uniform max", "balanced mean", "balanced max"
+        "{:>7}  {:<7}  {:>12} {:>11}  {:>13} {:>12}  {}\n",
+        "threads", "layout", "uniform mean", "uniform max", "balanced mean", "balanced max", "balanced layout"
     ));
     for row in &r.rows {
         s.push_str(&format!(
-            "{:>7}  {:<7}  {:>12.3} {:>11.3}  {:>13.3} {:>12.3}\n",
-            row.threads, row.layout, row.uniform_mean, row.uniform_max, row.balanced_mean, row.balanced_max
+            "{:>7}  {:<7}  {:>12.3} {:>11.3}  {:>13.3} {:>12.3}  {}\n",
+            row.threads,
+            row.layout,
+            row.uniform_mean,
+            row.uniform_max,
+            row.balanced_mean,
+            row.balanced_max,
+            row.balanced_layout
         ));
     }
+    s.push_str(
+        "layout: the paper's, used by uniform cuts; balanced layout: the one dd-balanced chose (steps per layout if it changed)\n",
+    );
     s
 }
 
@@ -255,6 +318,8 @@ mod tests {
         assert_eq!(r.rows[0].uniform_max, 1.0);
         assert_eq!(r.rows[0].balanced_max, 1.0);
         assert_eq!(r.rows[3].layout, "2x2x2");
+        // The symmetric bar keeps the paper's layout with balanced cuts too.
+        assert_eq!(r.rows[3].balanced_layout, "2x2x2");
         for row in &r.rows {
             assert!(row.balanced_max <= row.uniform_max + 1e-12, "{row:?}");
             assert!(row.balanced_mean >= 1.0 && row.uniform_mean >= row.balanced_mean - 1e-12, "{row:?}");
@@ -266,7 +331,7 @@ mod tests {
         let csv = dir.join("x.csv");
         write_csv(&r, &csv).unwrap();
         let text = std::fs::read_to_string(&csv).unwrap();
-        assert!(text.starts_with("step,time_s,threads,layout,uniform,balanced\n"), "{text}");
+        assert!(text.starts_with("step,time_s,threads,layout,balanced_layout,uniform,balanced\n"), "{text}");
         assert_eq!(text.lines().count(), 1 + 12);
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -50,7 +50,11 @@ pub fn write_figure(r: &ImbalanceReport, dir: &Path) -> Result<Vec<PathBuf>> {
         ideal: Some(1.0),
         ideal_flat: true,
         lines,
-        notes: r.rows.iter().map(|w| format!("{} threads: {}", w.threads, w.layout)).collect(),
+        notes: r
+            .rows
+            .iter()
+            .map(|w| format!("{} threads: uniform {}, balanced {}", w.threads, w.layout, w.balanced_layout))
+            .collect(),
     };
     let notes = vec![
         format!(

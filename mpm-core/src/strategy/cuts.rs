@@ -2,6 +2,10 @@
 //! and balanced cuts (each plane at the particle-count quantile along its axis), and the
 //! per-patch particle counts and work imbalance they give.
 //!
+//! Balanced cuts also choose their layout among the factorisations of the patch count
+//! ([`LayoutChooser`]): the paper's layout unless another predicts a clearly smaller
+//! imbalance.
+//!
 //! Cuts are nested: the `px - 1` x planes cut the whole grid into slabs, each slab has its
 //! own `py - 1` y planes cutting it into columns, each column its own `pz - 1` z planes.
 //! Every plane lies on a cell boundary. Patch `(qx, qy, qz)` is numbered
@@ -11,7 +15,8 @@
 //!
 //! The cut computation is pure and serial ([`quantile_cuts`] for one axis, [`Cuts::cut_x`],
 //! [`Cuts::cut_y`], [`Cuts::cut_z`] for the nested levels from per-slab histograms, and
-//! [`Cuts::balanced`] from the particles' cells in one call) so that anything that needs
+//! [`Cuts::balanced`] from the particles' cells in one call, [`LayoutChooser`] for the
+//! layout of balanced cuts) so that anything that needs
 //! boxes of equal particle counts (the DD strategy every step, `mpm-bench imbalance`, rank
 //! boxes of a distributed run) computes the same boxes. Its cost is O(cells along an axis x
 //! patches); once the tables have reached their largest size it allocates nothing.
@@ -306,6 +311,92 @@ impl Cuts {
     }
 }
 
+/// Every layout `[px, py, pz]` of `threads` patches (`px py pz = threads`), px outermost,
+/// then py.
+pub fn layouts(threads: usize) -> impl Iterator<Item = [usize; 3]> {
+    (1..=threads).filter(move |px| threads % px == 0).flat_map(move |px| {
+        let rest = threads / px;
+        (1..=rest).filter(move |py| rest % py == 0).map(move |py| [px, py, rest / py])
+    })
+}
+
+/// How far a layout's predicted imbalance may lie above the best layout's (relative) and
+/// still be kept: the paper's layout first, then the layout in use. Without the slack the
+/// layout would flip between near-equal candidates from step to step.
+pub const LAYOUT_SLACK: f64 = 0.02;
+
+/// Chooses the layout of balanced cuts every step: predicts each layout's work imbalance
+/// from the particles per cell plane along each axis (one histogram per axis, from the
+/// pass that stores the particles' cells) and takes the paper's layout unless another does
+/// better by more than [`LAYOUT_SLACK`].
+///
+/// Why the layout must be free: a fixed layout can only be as balanced as its thinnest cut
+/// axis allows. The impact's plate is three cells thick at 2.12 mm cells, so the 2x2x2
+/// layout of 8 threads must cut three cell planes into two parts along z, which leaves at
+/// best 2/3 of the plate in one part (imbalance about 1.3 whatever the planes); 4x2x1 cuts
+/// only across the plate and balances it.
+///
+/// The prediction of a layout is the product over the axes of the one-axis imbalance of
+/// quantile cuts of that axis's histogram (largest part times parts over the total): exact
+/// when the particle density is a product of one-axis densities, and an upper estimate for
+/// nested cuts otherwise, since each slab and column gets its own planes. Its cost is
+/// O(layouts x cells along an axis), serial; it allocates nothing once its scratch has grown.
+#[derive(Clone, Debug, Default)]
+pub struct LayoutChooser {
+    current: Option<[usize; 3]>,
+    scratch: Vec<u32>,
+}
+
+impl LayoutChooser {
+    /// The layout in use (`None` before the first choice).
+    pub fn current(&self) -> Option<[usize; 3]> {
+        self.current
+    }
+
+    /// Predicted work imbalance of `layout` for the histograms `marginals` (particles per
+    /// cell plane along x, y and z); 1 without particles.
+    pub fn predict(&mut self, marginals: [&[u32]; 3], layout: [usize; 3]) -> f64 {
+        let mut product = 1.0;
+        for (hist, &parts) in marginals.iter().zip(&layout) {
+            let total: u64 = hist.iter().map(|&h| u64::from(h)).sum();
+            if parts == 1 || total == 0 {
+                continue;
+            }
+            self.scratch.resize(parts + 1, 0);
+            quantile_cuts(hist, &mut self.scratch);
+            let largest = largest_part(hist, self.scratch.windows(2).map(|w| (w[0], w[1])));
+            product *= largest as f64 * parts as f64 / total as f64;
+        }
+        product
+    }
+
+    /// The layout for this step among [`layouts`]`(threads)`: `preferred` (the paper's) if
+    /// its prediction is within [`LAYOUT_SLACK`] of the best, else the layout in use if it
+    /// is, else the best (ties: the earlier in [`layouts`] order).
+    pub fn choose(&mut self, threads: usize, preferred: [usize; 3], marginals: [&[u32]; 3]) -> [usize; 3] {
+        let mut best = (preferred, self.predict(marginals, preferred));
+        for layout in layouts(threads) {
+            let p = self.predict(marginals, layout);
+            if p < best.1 {
+                best = (layout, p);
+            }
+        }
+        let bound = best.1 * (1.0 + LAYOUT_SLACK);
+        let keep = |me: &mut Self, l: [usize; 3]| me.predict(marginals, l) <= bound;
+        let current = self.current;
+        let chosen = if keep(self, preferred) {
+            preferred
+        } else {
+            match current {
+                Some(c) if c.iter().product::<usize>() == threads && keep(self, c) => c,
+                _ => best.0,
+            }
+        };
+        self.current = Some(chosen);
+        chosen
+    }
+}
+
 /// Work imbalance of one step: the largest patch's particle count over the mean (1 when the
 /// patches are equal; `None` without particles).
 pub fn imbalance(counts: &[u32]) -> Option<f64> {
@@ -504,6 +595,84 @@ mod tests {
             let u = imbalance(&counts).unwrap();
             assert!(b <= u + 1e-12, "{layout:?}: balanced {b} uniform {u}");
             assert!(b < 1.25, "{layout:?}: balanced imbalance {b}");
+        }
+    }
+
+    #[test]
+    fn layouts_are_every_factorisation_once() {
+        for t in 1..=12 {
+            let all: Vec<[usize; 3]> = layouts(t).collect();
+            assert!(all.iter().all(|l| l.iter().product::<usize>() == t), "{t}: {all:?}");
+            let mut unique = all.clone();
+            unique.sort();
+            unique.dedup();
+            assert_eq!(unique.len(), all.len(), "{t}: {all:?}");
+            let brute = (1..=t).flat_map(|a| (1..=t).flat_map(move |b| (1..=t).map(move |c| [a, b, c])));
+            assert_eq!(brute.filter(|l| l.iter().product::<usize>() == t).count(), all.len(), "{t}");
+        }
+        assert_eq!(layouts(8).count(), 10);
+        assert!(layouts(6).any(|l| l == [2, 1, 3]));
+    }
+
+    /// A plate three cells thick along z, spread evenly over 40 x 40 cells in x and y: the
+    /// paper's 2x2x2 layout must cut three z planes into two parts (about 4/3), so the
+    /// chooser leaves z uncut; an even cube keeps the paper's layout; the layout in use is
+    /// kept while within the slack.
+    #[test]
+    fn the_chooser_avoids_cutting_a_thin_plate() {
+        let (hx, hy, hz) = (vec![300u32; 40], vec![300u32; 40], vec![0, 0, 4000, 4000, 4000, 0]);
+        let mut ch = LayoutChooser::default();
+        let paper = [2, 2, 2];
+        let p = ch.predict([&hx, &hy, &hz], paper);
+        assert!((p - 4.0 / 3.0).abs() < 1e-12, "{p}");
+        let chosen = ch.choose(8, paper, [&hx, &hy, &hz]);
+        assert_eq!(chosen[2], 1, "{chosen:?}");
+        assert!(ch.predict([&hx, &hy, &hz], chosen) <= 1.0 + 1e-12);
+        assert_eq!(ch.current(), Some(chosen));
+        // Evenly spread: every layout predicts 1, the paper's is kept.
+        let even = vec![100u32; 16];
+        let mut ch = LayoutChooser::default();
+        assert_eq!(ch.choose(8, paper, [&even, &even, &even]), paper);
+        assert_eq!(ch.choose(6, [2, 1, 3], [&even, &even, &even[..15]]), [2, 1, 3]);
+        // Hysteresis: with the paper's layout out of reach, the layout in use stays while
+        // its prediction is within the slack of the best, and goes when it is not.
+        let mut ch = LayoutChooser::default();
+        assert_eq!(ch.choose(8, paper, [&hx, &hy, &hz]), [1, 8, 1], "first of the ties");
+        let heavy = |extra: u32| (0..40).map(|i| if i == 0 { 300 + extra } else { 300 }).collect::<Vec<u32>>();
+        let hy1 = heavy(20); // 1x8x1 predicts 1520 / 1502.5 = 1.012, 8x1x1 predicts 1
+        assert!((ch.predict([&hx, &hy1, &hz], [1, 8, 1]) - 1520.0 / 1502.5).abs() < 1e-12);
+        assert_eq!(LayoutChooser::default().choose(8, paper, [&hx, &hy1, &hz]), [8, 1, 1]);
+        assert_eq!(ch.choose(8, paper, [&hx, &hy1, &hz]), [1, 8, 1], "kept within the slack");
+        let hy2 = heavy(200); // 1x8x1 predicts 1.117: beyond the slack
+        assert_eq!(ch.choose(8, paper, [&hx, &hy2, &hz]), [8, 1, 1]);
+        // No particles: the paper's layout.
+        let mut ch = LayoutChooser::default();
+        assert_eq!(ch.choose(8, paper, [&[0; 4], &[0; 4], &[0; 4]]), paper);
+    }
+
+    /// The prediction bounds the nested balanced cuts it stands for on product-shaped
+    /// clusters (exact up to cell rounding there).
+    #[test]
+    fn predictions_match_nested_cuts_of_separable_clusters() {
+        let cells = [16, 12, 6];
+        let mut rng = SplitMix(5);
+        let cell_of: Vec<[u32; 3]> =
+            (0..20_000).map(|_| [rng.below(16) as u32, rng.below(12) as u32, 2 + rng.below(3) as u32]).collect();
+        let marg: Vec<Vec<u32>> = (0..3)
+            .map(|a| {
+                let mut h = vec![0u32; cells[a]];
+                cell_of.iter().for_each(|c| h[c[a] as usize] += 1);
+                h
+            })
+            .collect();
+        let mut ch = LayoutChooser::default();
+        for layout in layouts(8) {
+            let predicted = ch.predict([&marg[0], &marg[1], &marg[2]], layout);
+            let cuts = Cuts::balanced(&cell_of, cells, layout);
+            let mut counts = vec![0; 8];
+            cuts.count(&cell_of, &mut counts);
+            let actual = imbalance(&counts).unwrap();
+            assert!(actual <= predicted * 1.05, "{layout:?}: actual {actual} predicted {predicted}");
         }
     }
 

@@ -27,16 +27,21 @@
 //! which is the paper's load balance.
 //!
 //! **Balanced cuts** ([`Strategy::DdBalanced`](super::Strategy::DdBalanced), the paper's
-//! "better load balance algorithm"): the same layouts, but every step the cut planes are
-//! placed at the particle-count quantiles ([`super::cuts`]; nested: x over all particles, y
-//! within each x slab, z within each column). Before the binning, one parallel pass stores
-//! every particle's cell and counts particles per x cell plane (per-worker histograms), the
-//! x cuts follow from their sum; for layouts cut along y (z) a further pass over the stored
-//! cells counts per slab (column) and cell plane. The binning then looks patches up from the
-//! stored cells; sub-grids, `Pindex` and assembly are those of uniform cuts (the sub-grid
-//! node count, `(nx + px)(ny + py)(nz + pz)`, does not depend on where the planes lie).
+//! "better load balance algorithm"): every step the cut planes are placed at the
+//! particle-count quantiles ([`super::cuts`]; nested: x over all particles, y within each x
+//! slab, z within each column), and the layout is chosen among the factorisations of the
+//! thread count ([`LayoutChooser`]: the paper's layout unless another predicts a work
+//! imbalance more than 2 % lower; a thin plate cannot be balanced by a layout that must cut
+//! across its few cell planes). Before the binning, one parallel pass stores every
+//! particle's cell and counts particles per cell plane along x, y and z (per-worker
+//! histograms); the layout and the x cuts follow from their sums; for layouts cut along y
+//! (z) a further pass over the stored cells counts per slab (column) and cell plane. The
+//! binning then looks patches up from the stored cells; sub-grids, `Pindex` and assembly are
+//! those of uniform cuts (the sub-grid node count, `(nx + px)(ny + py)(nz + pz)`, does not
+//! depend on where the planes lie; the buffers are sized for the paper's layout and grow,
+//! once, if another layout needs more nodes).
 
-use super::cuts::{Cuts, PatchLoad};
+use super::cuts::{Cuts, LayoutChooser, PatchLoad};
 use super::{Kernel, NodeBox, ScatterStrategy};
 use crate::grid::GridGeom;
 use crate::math::Vec3;
@@ -148,7 +153,7 @@ const ROW_STRIDE: usize = 16;
 /// One parallel pass of loop splitting over the particles (`labels.len()` of them): worker
 /// `w` stores `label(p).0` of each of its particles `p` in `labels[p]` and counts the bins
 /// `label(p).1` in row `w` of `hist` (rows `stride` apart, the first `bins` entries zeroed
-/// first). The DD counting pass and the first histogram pass of balanced cuts.
+/// first). The DD counting pass.
 fn label_and_count<S, F>(exec: &Exec<'_>, labels: &mut [S], hist: &mut [u32], stride: usize, bins: usize, label: &F)
 where
     S: Send,
@@ -302,6 +307,8 @@ pub struct DomainDecomposition {
     hist: Vec<u32>,
     /// Balanced cuts: the histogram summed over the workers.
     hist_sum: Vec<u32>,
+    /// Balanced cuts: the layout of each step.
+    chooser: LayoutChooser,
     /// Particles per patch over the steps binned.
     load: PatchLoad,
 }
@@ -321,6 +328,7 @@ impl DomainDecomposition {
             cell_of: Vec::new(),
             hist: Vec::new(),
             hist_sum: Vec::new(),
+            chooser: LayoutChooser::default(),
             load: PatchLoad::default(),
         }
     }
@@ -391,40 +399,63 @@ impl DomainDecomposition {
     }
 
     /// Balanced cuts for the particles at `x` on `geom` (the patches must have been cut for
-    /// `geom`): the histogram passes described in the module page, then the patches.
+    /// `geom`): the histogram passes described in the module page, the layout, then the
+    /// patches.
     fn cut_balanced(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
         let (n, t) = (x.len(), exec.workers());
-        let longest = (0..3).map(|a| self.cuts.histogram_len(a)).max().unwrap_or(0);
-        let stride = longest.div_ceil(ROW_STRIDE).max(1) * ROW_STRIDE;
+        let [nx, ny, nz] = geom.cells;
+        let row_len = |len: usize| len.div_ceil(ROW_STRIDE).max(1) * ROW_STRIDE;
+        // Every particle's cell and per-worker counts per cell plane along x, y and z (one
+        // row of nx + ny + nz per worker), in one pass.
+        let stride = row_len(nx + ny + nz);
         self.cell_of.resize(n, [0; 3]);
         self.hist.resize(t * stride, 0);
-        let nx = self.cuts.histogram_len(0);
-        // Every particle's cell and per-worker counts per x cell plane, in one pass.
-        label_and_count(exec, &mut self.cell_of, &mut self.hist, stride, nx, &|p| {
-            let c = geom.shape_cell(x[p]);
-            (c.map(|v| v as u32), c[0])
+        let cells = &mut self.cell_of;
+        exec.for_each_chunk_mut((Split::Even.of(cells), Split::Blocks(stride).of(&mut self.hist)), |w, (mine, row)| {
+            let row = &mut row[..nx + ny + nz];
+            row.fill(0);
+            for (slot, p) in mine.iter_mut().zip(partition(n, t, w)) {
+                let c = geom.shape_cell(x[p]);
+                *slot = c.map(|v| v as u32);
+                row[c[0]] += 1;
+                row[nx + c[1]] += 1;
+                row[nx + ny + c[2]] += 1;
+            }
         });
-        self.sum_and_cut(0, t, stride);
+        self.sum_rows(nx + ny + nz, t, stride);
+        let marginals = {
+            let (hx, rest) = self.hist_sum.split_at(nx);
+            let (hy, hz) = rest.split_at(ny);
+            [hx, hy, hz]
+        };
+        let layout = self.chooser.choose(self.threads, patch_layout(self.threads, geom.cells), marginals);
+        if layout != self.cuts.layout() {
+            self.cuts.uniform(layout, geom.cells);
+        }
+        self.layout = layout;
+        self.cuts.cut_axis(0, &self.hist_sum[..nx]);
         // Per slab (column) and y (z) cell plane, for the axes that are cut.
-        let layout = self.layout;
         for axis in (1..3).filter(|&a| layout[a] > 1) {
             let len = self.cuts.histogram_len(axis);
+            let stride = row_len(len);
+            self.hist.resize(t * stride, 0);
             let (cuts, cell_of) = (&self.cuts, &self.cell_of);
-            exec.for_each_chunk_mut(Split::Blocks(stride).of(&mut self.hist), |w, row| {
+            exec.for_each_chunk_mut(Split::Blocks(stride).of(&mut self.hist[..t * stride]), |w, row| {
                 let row = &mut row[..len];
                 row.fill(0);
                 for p in partition(n, t, w) {
                     row[cuts.bin(axis, cell_of[p])] += 1;
                 }
             });
-            self.sum_and_cut(axis, t, stride);
+            self.sum_rows(len, t, stride);
+            self.cuts.cut_axis(axis, &self.hist_sum);
         }
         self.rebuild_patches();
     }
 
-    /// Sum the workers' histograms of `axis` (worker rows `stride` apart) and cut it.
-    fn sum_and_cut(&mut self, axis: usize, workers: usize, stride: usize) {
-        let len = self.cuts.histogram_len(axis);
+    /// Sum the first `len` entries of the workers' histogram rows (`stride` apart) into
+    /// `hist_sum`.
+    fn sum_rows(&mut self, len: usize, workers: usize, stride: usize) {
         self.hist_sum.clear();
         self.hist_sum.extend_from_slice(&self.hist[..len]);
         for w in 1..workers {
@@ -432,7 +463,6 @@ impl DomainDecomposition {
                 *s += h;
             }
         }
-        self.cuts.cut_axis(axis, &self.hist_sum);
     }
 
     /// Patch of the cell `c`.

@@ -31,7 +31,7 @@ use crate::shape;
 use serde::{Deserialize, Serialize};
 
 pub use array_expansion::ArrayExpansion;
-pub use cuts::{imbalance, quantile_cuts, Cuts, PatchLoad};
+pub use cuts::{imbalance, layouts, quantile_cuts, Cuts, LayoutChooser, PatchLoad, LAYOUT_SLACK};
 pub use domain_decomposition::{patch_layout, Binning, DomainDecomposition, Patch};
 pub use serial::Serial;
 

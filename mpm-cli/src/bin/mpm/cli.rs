@@ -251,8 +251,9 @@ pub struct RunOptions {
     pub energy_rise_limit: f64,
 
     /// How the nodal scatter is made race-free: serial (1 thread), ae (array expansion), dd
-    /// (domain decomposition, uniform patches) or dd-balanced (the same layouts, cut planes
-    /// moved every step to the particle-count quantiles).
+    /// (domain decomposition, uniform patches) or dd-balanced (cut planes moved every step to
+    /// the particle-count quantiles, and the layout the paper's unless another factorisation
+    /// of the thread count predicts a clearly smaller imbalance, e.g. 2x4x1 for a thin plate).
     #[arg(long, default_value_t = Strategy::Serial, value_parser = strategy_parser())]
     pub strategy: Strategy,
 
