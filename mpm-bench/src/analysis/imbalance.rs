@@ -237,7 +237,11 @@ fn row_of(threads: usize, samples: &[StepImbalance]) -> ImbalanceRow {
     used.sort_by_key(|u| std::cmp::Reverse(u.1));
     let balanced_layout = match used.as_slice() {
         [(l, _)] => l.to_string(),
-        _ => used.iter().map(|(l, c)| format!("{l} ({c} steps)")).collect::<Vec<_>>().join(", "),
+        _ => used
+            .iter()
+            .map(|(l, c)| format!("{l} ({c} step{})", if *c == 1 { "" } else { "s" }))
+            .collect::<Vec<_>>()
+            .join(", "),
     };
     ImbalanceRow {
         threads,
