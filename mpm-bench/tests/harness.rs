@@ -418,6 +418,15 @@ fn cli_errors_are_clear() {
     fails_cleanly(&["run", "--preset", "nope", "--mock", "--out", out], "unknown preset 'nope'");
     fails_cleanly(&["run", "--preset", "smoke", "--models", "5", "--mock", "--out", out], "unknown model 5");
     fails_cleanly(&["run", "--preset", "smoke", "--threads", "0,2", "--mock", "--out", out], "at least 1");
+    fails_cleanly(
+        &["run", "--preset", "smoke", "--ranks", "0,2", "--mock", "--out", out],
+        "rank counts must be at least 1",
+    );
+    fails_cleanly(&["run", "--preset", "smoke", "--ranks", "1,x", "--mock", "--out", out], "'x' is not a rank count");
+    fails_cleanly(
+        &["run", "--preset", "hybrid", "--launcher", "mpirun -n 2", "--mock", "--out", out],
+        "no {ranks} placeholder",
+    );
     fails_cleanly(&["run", "--preset", "smoke", "--pin", "0,x", "--mock", "--out", out], "bad CPU list");
     fails_cleanly(&["run", "--preset", "smoke", "--pin", "9999", "--mock", "--out", out], "cannot use");
     fails_cleanly(&["run", "--preset", "smoke", "--mock", "--out", "/proc/no-such-dir"], "output folder");
@@ -432,6 +441,8 @@ fn cli_errors_are_clear() {
         "--preset",
         "--models",
         "--threads",
+        "--ranks",
+        "--launcher",
         "--strategies",
         "--opt",
         "--reps",
@@ -857,6 +868,9 @@ fn end_to_end_hybrid_campaign_with_mpirun() {
     // The same physics either way: the final bar length agrees to 1e-9 across the layouts.
     let lengths: Vec<f64> = rows.iter().filter_map(|r| r.final_length_m).collect();
     assert!(lengths.iter().all(|l| (l - lengths[0]).abs() <= 1e-9 * lengths[0]), "{lengths:?}");
+    let man = mpm_bench::campaign::manifest::read(&Path::new(folder).join("manifest.json")).unwrap();
+    let version = man.software.mpi_launcher.unwrap_or_default();
+    assert!(version.contains("mpirun") || version.contains("MPI"), "launcher version in the manifest: {version}");
     let figs = dir.path().join("figs");
     let f = bench().args(["figures", "--results", folder, "--out", figs.to_str().unwrap()]).output().unwrap();
     assert!(f.status.success(), "{}", String::from_utf8_lossy(&f.stderr));

@@ -107,6 +107,21 @@ impl Launcher {
             .collect()
     }
 
+    /// The launcher program's `--version` (its first line that is not empty), or why it
+    /// could not be read, for the manifest.
+    pub fn version(&self) -> String {
+        let program = self.template.split(' ').next().unwrap_or_default();
+        match std::process::Command::new(program).arg("--version").stdin(std::process::Stdio::null()).output() {
+            Ok(o) if o.status.success() => String::from_utf8_lossy(&o.stdout)
+                .lines()
+                .map(str::trim)
+                .find(|l| !l.is_empty())
+                .map_or_else(|| format!("{program}: empty --version"), str::to_string),
+            Ok(o) => format!("{program} --version exited with {}", o.status),
+            Err(e) => format!("{program}: cannot start it ({e})"),
+        }
+    }
+
     /// The template chosen by the precedence rule: `cli`, else the environment
     /// ([`LAUNCHER_ENV`], when set and not empty), else `preset`, else the default.
     pub fn choose(cli: Option<&str>, preset: Option<&Launcher>) -> Result<Self, LauncherError> {
@@ -195,5 +210,7 @@ mod tests {
         assert!(failure_hint("mpirun has detected an attempt to run as root ... --allow-run-as-root").is_some());
         assert!(failure_hint("There are not enough slots available").unwrap().contains("--oversubscribe"));
         assert_eq!(failure_hint("segmentation fault"), None);
+        let missing = Launcher::parse("/nonexistent/mpirun -n {ranks}").unwrap().version();
+        assert!(missing.contains("cannot start"), "{missing}");
     }
 }

@@ -293,7 +293,7 @@ impl Plan {
             let verdict = memory_verdict(est, available_memory(), campaign.mem_limit);
             writeln!(
                 out,
-                "{:>4}  {:<40} {:<12} cpus {:<16} mem {:>9}{}{}",
+                "{:>4}  {:<48} {:<12} cpus {:<16} mem {:>9}{}{}",
                 i,
                 r.describe(),
                 budget_label(r),
@@ -379,7 +379,10 @@ impl ManifestLog {
         let binaries: Vec<BinaryInfo> = solvers.iter().map(Solver::info).collect();
         let path = dir.join("manifest.json");
         let machine_info = fingerprint::machine_info(machine);
-        let software = manifest::software_info(ws.as_deref(), binaries.clone());
+        let mut software = manifest::software_info(ws.as_deref(), binaries.clone());
+        if campaign.ranks.iter().any(|&r| r > 1) {
+            software.mpi_launcher = Some(campaign.launcher.version());
+        }
         let mut man = if path.is_file() {
             manifest::read(&path)?
         } else {
