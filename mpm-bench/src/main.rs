@@ -160,6 +160,10 @@ struct TopologyArgs {
     /// OpenMP place list: threads, cores, ll_caches, numa_domains, sockets.
     #[arg(long, value_name = "PLACES", default_value = "cores")]
     places: Places,
+    /// MPI rank counts to show as well (comma list, e.g. 2,4): each rank's CPUs for every
+    /// thread count per rank, as a hybrid campaign places them.
+    #[arg(long, value_name = "LIST", value_delimiter = ',')]
+    ranks: Vec<usize>,
     /// Binding to show (repeatable): close, spread, primary (optionally @places, e.g.
     /// spread@sockets), none, or a CPU list such as 0,1 or 0-3. Default: close, spread,
     /// primary and none. `--pin` is an alias.
@@ -305,8 +309,8 @@ fn main() {
 }
 
 fn cmd_topology(a: TopologyArgs) -> Result<()> {
-    if a.threads.contains(&0) {
-        anyhow::bail!("thread counts must be at least 1 (got 0)");
+    if a.threads.contains(&0) || a.ranks.contains(&0) {
+        anyhow::bail!("thread and rank counts must be at least 1 (got 0)");
     }
     let machine = match (&a.synthetic, &a.xml) {
         (Some(s), _) => Machine::synthetic(s)?,
@@ -328,6 +332,18 @@ fn cmd_topology(a: TopologyArgs) -> Result<()> {
         machine.check_policy(p)?;
     }
     write!(out, "{}", machine.placement_table(&a.threads, &policies)?)?;
+    for &r in a.ranks.iter().filter(|&&r| r > 1) {
+        writeln!(out, "{r} MPI ranks: the CPUs of rank 0 | rank 1 | ... ('*' = oversubscribed)")?;
+        for p in policies.iter().filter(|p| !matches!(p, PinPolicy::None)) {
+            for &t in &a.threads {
+                let slices = machine.rank_slices(p, r, t)?;
+                let over = if machine.place_ranks(p, r, t)?.oversubscribed { " *" } else { "" };
+                let text: Vec<String> =
+                    slices.iter().map(|s| s.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(",")).collect();
+                writeln!(out, "  {:<16} {r} x {t:<3} {}{over}", p.label(), text.join(" | "))?;
+            }
+        }
+    }
     if machine.is_this_system {
         writeln!(out, "Machine fingerprint: {}", fingerprint::fingerprint(&machine))?;
     }

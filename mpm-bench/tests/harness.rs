@@ -399,6 +399,14 @@ fn topology_prints_openmp_placements() {
     for b in ["close", "spread", "primary", "none"] {
         assert!(all.lines().any(|l| l.starts_with("threads") && l.contains(b)), "{all}");
     }
+    // Ranks: each rank's slice of the placement of all its workers.
+    let ranks = table(&["--bind", "spread", "--ranks", "2"]);
+    assert!(ranks.lines().any(|l| l.trim() == "spread           2 x 2   0,2 | 4,6"), "{ranks}");
+    assert!(
+        ranks.lines().any(|l| l.trim() == "spread           2 x 8   0,1,2,3,4,5,6,7 | 0,1,2,3,4,5,6,7 *"),
+        "{ranks}"
+    );
+    fails_cleanly(&["topology", "--ranks", "0"], "at least 1");
     fails_cleanly(&["topology", "--places", "bogus"], "unknown places");
     fails_cleanly(&["topology", "--bind", "sideways"], "unknown binding");
 }

@@ -658,17 +658,8 @@ pub struct RunPlan {
 impl RunPlan {
     /// The plan of `spec` on `machine`.
     pub fn of(machine: &Machine, spec: &RunSpec) -> Result<Self> {
-        let placement = machine.place(&spec.pin, spec.total_threads())?;
-        let cpus = (!matches!(spec.pin, PinPolicy::None)).then(|| {
-            if spec.ranks > 1 {
-                let mut mask = placement.cpus.clone();
-                mask.sort_unstable();
-                mask.dedup();
-                mask
-            } else {
-                placement.cpus.clone()
-            }
-        });
+        let placement = machine.place_ranks(&spec.pin, spec.ranks, spec.threads)?;
+        let cpus = (!matches!(spec.pin, PinPolicy::None)).then_some(placement.cpus);
         Ok(Self { requested: cpus.clone().unwrap_or_default(), cpus, oversubscribed: placement.oversubscribed })
     }
 }
