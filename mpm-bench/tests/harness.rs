@@ -787,6 +787,23 @@ fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses()
     let files = mpm_bench::report::figures::write_all(&camp, &an, &out, "test").unwrap();
     assert!(files.iter().any(|f| f.ends_with("fig_hybrid.png")));
     assert!(std::fs::read_to_string(out.join("README.md")).unwrap().contains("over several MPI ranks"));
+    // regress: a current campaign without the rows over two ranks misses no baseline cell
+    // (those rows are not cells of the one-process comparison), and says what it left out.
+    let cur = dir.path().join("current");
+    copy_campaign(&s.dir, &cur);
+    std::fs::remove_file(cur.join("runs.csv")).unwrap();
+    let mut log = mpm_bench::campaign::record::CsvLog::open(&cur.join("runs.csv")).unwrap();
+    for r in rows.iter().filter(|r| r.ranks == 1) {
+        log.append(r).unwrap();
+    }
+    drop(log);
+    let o = bench()
+        .args(["regress", "--baseline", s.dir.to_str().unwrap(), "--current", cur.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{err}\n{}", String::from_utf8_lossy(&o.stdout));
+    assert!(err.contains("row(s) over several MPI ranks"), "{err}");
 }
 
 /// A launcher that cannot start: the row fails with the reason, and the campaign goes on
