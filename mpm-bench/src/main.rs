@@ -73,7 +73,7 @@ enum Cmd {
     Topology(TopologyArgs),
     /// Run (or resume) a benchmark campaign.
     #[command(
-        long_about = "Run (or resume) a benchmark campaign: a preset matrix of models x threads x \
+        long_about = "Run (or resume) a benchmark campaign: a preset matrix of models x MPI ranks x threads x \
             strategies x optimisation levels x repetitions x pinning policies, each run a \
             fresh `mpm` child process. The `mpm` binaries are built in the Cargo profiles o3 \
             and o0 first (or located with --no-build). Runs are shuffled with a recorded \
@@ -95,9 +95,11 @@ enum Cmd {
             mpm-bench run --preset paper --models 1,2 --reps 5\n  \
             mpm-bench run --preset quick --threads 1,2 --pin spread --steps 10\n  \
             mpm-bench run --preset paper --models 4 --mem-limit 8GiB --dry-run   # the paper's 8 GB machine\n  \
-            mpm-bench run --preset configs/my.toml --seed 7"
+            mpm-bench run --preset configs/my.toml --seed 7\n  \
+            mpm-bench run --preset hybrid                   # 1-2 MPI ranks x 1-2 threads\n  \
+            mpm-bench run --preset hybrid --launcher \"mpirun --bind-to none --oversubscribe --allow-run-as-root -n {ranks}\""
     )]
-    Run(RunArgs),
+    Run(Box<RunArgs>),
     /// Regenerate the paper's Figures 7-14 (and a memory figure) from a campaign.
     Figures(figures::FiguresArgs),
     /// Check the paper's claims C1-C6 and C7 (balanced cuts) on a campaign: holds / does not hold / cannot tell.
@@ -161,6 +163,10 @@ struct TopologyArgs {
     /// OpenMP place list: threads, cores, ll_caches, numa_domains, sockets.
     #[arg(long, value_name = "PLACES", default_value = "cores")]
     places: Places,
+    /// MPI rank counts to show as well (comma list, e.g. 2,4): each rank's CPUs for every
+    /// thread count per rank, as a hybrid campaign places them.
+    #[arg(long, value_name = "LIST", value_delimiter = ',')]
+    ranks: Vec<usize>,
     /// Binding to show (repeatable): close, spread, primary (optionally @places, e.g.
     /// spread@sockets), none, or a CPU list such as 0,1 or 0-3. Default: close, spread,
     /// primary and none. `--pin` is an alias.
@@ -186,9 +192,19 @@ struct RunArgs {
     /// Models to run, comma list of 1-4 (replaces the preset's).
     #[arg(long, value_name = "LIST")]
     models: Option<String>,
-    /// Thread counts, comma list (e.g. 1,2,4,6,8).
+    /// Thread counts, comma list (e.g. 1,2,4,6,8); per rank when --ranks is above 1.
     #[arg(long, value_name = "LIST")]
     threads: Option<String>,
+    /// MPI rank counts, comma list (e.g. 1,2). 1 runs `mpm` directly; more start it through
+    /// the launcher. A run occupies ranks x threads workers (what oversubscription counts).
+    #[arg(long, value_name = "LIST")]
+    ranks: Option<String>,
+    /// Launcher of runs with several ranks: a command with {ranks} (and optionally {threads},
+    /// threads per rank), split on spaces, no shell. Default: MPM_BENCH_LAUNCHER, else the
+    /// preset's launcher, else "mpirun --bind-to none -n {ranks}". As root or with more
+    /// ranks than cores, Open MPI needs "--allow-run-as-root" / "--oversubscribe" in it.
+    #[arg(long, value_name = "TEMPLATE")]
+    launcher: Option<String>,
     /// Strategies, comma list of serial, ae (array expansion), dd (domain decomposition),
     /// dd-balanced (DD with cuts at the particle-count quantiles).
     #[arg(long, value_name = "LIST")]
@@ -262,7 +278,7 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Cmd::Topology(a) => cmd_topology(a),
-        Cmd::Run(a) => cmd_run(a),
+        Cmd::Run(a) => cmd_run(*a),
         Cmd::Figures(a) => figures::run(a),
         Cmd::Claims(a) => claims::run(a),
         // regress: 0 pass, 1 regression, 2 error or incomparable (a CI gate must tell a
@@ -296,8 +312,8 @@ fn main() {
 }
 
 fn cmd_topology(a: TopologyArgs) -> Result<()> {
-    if a.threads.contains(&0) {
-        anyhow::bail!("thread counts must be at least 1 (got 0)");
+    if a.threads.contains(&0) || a.ranks.contains(&0) {
+        anyhow::bail!("thread and rank counts must be at least 1 (got 0)");
     }
     let machine = match (&a.synthetic, &a.xml) {
         (Some(s), _) => Machine::synthetic(s)?,
@@ -319,6 +335,18 @@ fn cmd_topology(a: TopologyArgs) -> Result<()> {
         machine.check_policy(p)?;
     }
     write!(out, "{}", machine.placement_table(&a.threads, &policies)?)?;
+    for &r in a.ranks.iter().filter(|&&r| r > 1) {
+        writeln!(out, "{r} MPI ranks: the CPUs of rank 0 | rank 1 | ... ('*' = oversubscribed)")?;
+        for p in policies.iter().filter(|p| !matches!(p, PinPolicy::None)) {
+            for &t in &a.threads {
+                let slices = machine.rank_slices(p, r, t)?;
+                let over = if machine.place_ranks(p, r, t)?.oversubscribed { " *" } else { "" };
+                let text: Vec<String> =
+                    slices.iter().map(|s| s.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(",")).collect();
+                writeln!(out, "  {:<16} {r} x {t:<3} {}{over}", p.label(), text.join(" | "))?;
+            }
+        }
+    }
     if machine.is_this_system {
         writeln!(out, "Machine fingerprint: {}", fingerprint::fingerprint(&machine))?;
     }
@@ -341,15 +369,16 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
             })
         })
         .transpose()?;
-    let threads = a
-        .threads
-        .as_deref()
-        .map(|s| {
-            preset::parse_list(s, "thread", |t| {
-                t.parse::<usize>().map_err(|_| anyhow::anyhow!("'{t}' is not a thread count"))
+    let counts = |list: Option<&str>, what: &str| {
+        list.map(|s| {
+            preset::parse_list(s, what, |t| {
+                t.parse::<usize>().map_err(|_| anyhow::anyhow!("'{t}' is not a {what} count"))
             })
         })
-        .transpose()?;
+        .transpose()
+    };
+    let threads = counts(a.threads.as_deref(), "thread")?;
+    let ranks = counts(a.ranks.as_deref(), "rank")?;
     let strategies = a
         .strategies
         .as_deref()
@@ -370,6 +399,8 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
     Ok(Overrides {
         models,
         threads,
+        ranks,
+        launcher: a.launcher.clone(),
         strategies,
         opt,
         reps: a.reps,

@@ -325,14 +325,16 @@ fn pinning_none_passes_no_cpus() {
 /// Snapshot of the CSV header: changing it must be deliberate (bump SCHEMA_VERSION).
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 3);
+    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 4);
     let want = "schema_version,campaign_id,run_id,timestamp,git_commit,git_dirty,machine_id,binary_sha256,seed,\
-order_index,scenario,model,particles,cells,nodes,mean_nodes,grid_mode,strategy,opt_level,threads,pin_policy,\
-requested_cpus,observed_cpus,oversubscribed,rep,warmup_steps,step_limit,end_time_s,steps,sim_time_s,end_reason,\
+order_index,scenario,model,particles,cells,nodes,mean_nodes,grid_mode,strategy,opt_level,threads,ranks,\
+threads_per_rank,launcher,pin_policy,requested_cpus,observed_cpus,rank_cpus,oversubscribed,rep,warmup_steps,\
+step_limit,end_time_s,steps,sim_time_s,end_reason,\
 dt_first_s,wall_s,process_wall_s,grid_stage_s,particle_stage_s,sub_grid_fit_s,sub_binning_s,sub_scatter_s,\
 sub_assembly_s,sub_grid_update_s,sub_gather_s,sub_remap_scatter_s,sub_remap_assembly_s,sub_stress_update_s,\
 steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,dd_work_imbalance,peak_rss_bytes,\
-mem_estimate_bytes,exit_code,\
+peak_rss_sum_bytes,rank_particles,rank_busy_imbalance,migrated_particles,comm_s_per_step,comm_frac,\
+comm_bytes_per_step,comm_messages_per_step,mem_estimate_bytes,exit_code,\
 kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
 failed_particles,host_load1_before,host_load1_after,host_others_running_before,host_others_running_after,\
 host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,\
@@ -397,6 +399,14 @@ fn topology_prints_openmp_placements() {
     for b in ["close", "spread", "primary", "none"] {
         assert!(all.lines().any(|l| l.starts_with("threads") && l.contains(b)), "{all}");
     }
+    // Ranks: each rank's slice of the placement of all its workers.
+    let ranks = table(&["--bind", "spread", "--ranks", "2"]);
+    assert!(ranks.lines().any(|l| l.trim() == "spread           2 x 2   0,2 | 4,6"), "{ranks}");
+    assert!(
+        ranks.lines().any(|l| l.trim() == "spread           2 x 8   0,1,2,3,4,5,6,7 | 0,1,2,3,4,5,6,7 *"),
+        "{ranks}"
+    );
+    fails_cleanly(&["topology", "--ranks", "0"], "at least 1");
     fails_cleanly(&["topology", "--places", "bogus"], "unknown places");
     fails_cleanly(&["topology", "--bind", "sideways"], "unknown binding");
 }
@@ -416,6 +426,15 @@ fn cli_errors_are_clear() {
     fails_cleanly(&["run", "--preset", "nope", "--mock", "--out", out], "unknown preset 'nope'");
     fails_cleanly(&["run", "--preset", "smoke", "--models", "5", "--mock", "--out", out], "unknown model 5");
     fails_cleanly(&["run", "--preset", "smoke", "--threads", "0,2", "--mock", "--out", out], "at least 1");
+    fails_cleanly(
+        &["run", "--preset", "smoke", "--ranks", "0,2", "--mock", "--out", out],
+        "rank counts must be at least 1",
+    );
+    fails_cleanly(&["run", "--preset", "smoke", "--ranks", "1,x", "--mock", "--out", out], "'x' is not a rank count");
+    fails_cleanly(
+        &["run", "--preset", "hybrid", "--launcher", "mpirun -n 2", "--mock", "--out", out],
+        "no {ranks} placeholder",
+    );
     fails_cleanly(&["run", "--preset", "smoke", "--pin", "0,x", "--mock", "--out", out], "bad CPU list");
     fails_cleanly(&["run", "--preset", "smoke", "--pin", "9999", "--mock", "--out", out], "cannot use");
     fails_cleanly(&["run", "--preset", "smoke", "--mock", "--out", "/proc/no-such-dir"], "output folder");
@@ -430,6 +449,8 @@ fn cli_errors_are_clear() {
         "--preset",
         "--models",
         "--threads",
+        "--ranks",
+        "--launcher",
         "--strategies",
         "--opt",
         "--reps",
@@ -696,4 +717,194 @@ fn sigterm_and_sigint_leave_no_temporary_files() {
         assert!(gone(solver), "{signal}: solver still runs");
         assert_eq!(temp_files(dir.path()), Vec::<std::path::PathBuf>::new(), "{signal}");
     }
+}
+
+/// The hybrid preset with the mock solver on a two-core machine: ranks x threads rows, the
+/// launcher in front of `mpm` for two ranks only (no `--cpus`, the CPU set as its mask),
+/// 2 x 2 flagged oversubscribed, the exchange columns filled, resume by rank count; the
+/// one-process analyses never see the rows over two ranks, the hybrid one does.
+#[test]
+fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses() {
+    use mpm_bench::analysis::hybrid::HybridAnalysis;
+    use mpm_bench::analysis::results::load_campaign;
+    use mpm_bench::analysis::stats::{Analysis, StatsOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let ov = Overrides { launcher: Some("mpirun --bind-to none -n {ranks}".into()), ..Overrides::default() };
+    let c = campaign("hybrid", &ov);
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &laptop(), dir.path(), &mut r);
+    assert_eq!(r.calls.len(), c.expand().len());
+    for call in &r.calls {
+        let (program, args) = call.command_line();
+        if call.spec.ranks == 1 {
+            assert_eq!((program.as_str(), &call.launcher, &call.mask), ("mock", &None, &None));
+            assert!(args.contains(&"--cpus".to_string()));
+        } else {
+            assert_eq!(program, "mpirun");
+            assert_eq!(args[..4], ["--bind-to", "none", "-n", "2"]);
+            assert!(!args.contains(&"--cpus".to_string()), "every rank would take the same list");
+            assert_eq!(call.mask, Some(vec![0, 1]));
+        }
+    }
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), c.expand().len());
+    for row in &rows {
+        assert_eq!(row.status, Status::Ok, "{}: {}", row.run_id, row.reason);
+        assert_eq!(row.threads, row.ranks * row.threads_per_rank, "threads counts every worker");
+        assert_eq!(row.oversubscribed, row.threads > 2, "{}", row.run_id);
+        if row.ranks == 2 {
+            assert_eq!(row.launcher, "mpirun --bind-to none -n 2");
+            assert_eq!(row.requested_cpus, "0 1");
+            assert_eq!(row.rank_cpus.split('|').count(), 2);
+            assert!(row.comm_bytes_per_step.is_some_and(|b| b > 0.0));
+            assert!(row.comm_frac.is_some_and(|f| f > 0.0 && f < 1.0));
+            assert!(row.peak_rss_sum_bytes.unwrap() > row.peak_rss_bytes.unwrap());
+        } else {
+            assert_eq!((row.launcher.as_str(), row.comm_bytes_per_step), ("", Some(0.0)));
+        }
+    }
+    assert_eq!(s.counts.oversubscribed, rows.iter().filter(|r| r.ranks == 2 && r.threads_per_rank == 2).count());
+    // Resume: nothing new; another rank count is a new configuration.
+    assert_eq!(run_mock(&c, &laptop(), dir.path(), &mut MockRunner::default()).counts.written, 0);
+
+    let camp = load_campaign(&s.dir).unwrap();
+    assert!(camp.rows.iter().all(|r| r.ranks == 1) && !camp.rows.is_empty());
+    assert_eq!(camp.hybrid.len(), rows.iter().filter(|r| r.ranks == 2).count());
+    let an = Analysis::from_rows(&camp.rows, None, &StatsOptions::default());
+    assert!(an.cells.keys().all(|k| k.threads <= 2), "no 2 x 2 cell among the one-process cells");
+    let h = HybridAnalysis::from_rows(&camp.rows, &camp.hybrid, None, &StatsOptions::default());
+    assert_eq!(h.rank_counts(), vec![1, 2]);
+    for m in [1, 3] {
+        let two = h.line(m, Strategy::DomainDecomposition, "o3", 2);
+        assert_eq!(two.iter().map(|p| p.cores()).collect::<Vec<_>>(), vec![2, 4]);
+        assert!(two.iter().all(|p| p.speedup.is_some() && p.comm_frac.is_some_and(|f| f > 0.0)));
+        assert!(two[1].oversubscribed && !two[0].oversubscribed);
+        let one = h.line(m, Strategy::DomainDecomposition, "o3", 1);
+        assert_eq!(one[0].speedup.unwrap().value, 1.0);
+    }
+    // Figures: the paper's from one-process rows, fig_hybrid from all.
+    let out = dir.path().join("figs");
+    let files = mpm_bench::report::figures::write_all(&camp, &an, &out, "test").unwrap();
+    assert!(files.iter().any(|f| f.ends_with("fig_hybrid.png")));
+    assert!(std::fs::read_to_string(out.join("README.md")).unwrap().contains("over several MPI ranks"));
+    // regress: a current campaign without the rows over two ranks misses no baseline cell
+    // (those rows are not cells of the one-process comparison), and says what it left out.
+    let cur = dir.path().join("current");
+    copy_campaign(&s.dir, &cur);
+    std::fs::remove_file(cur.join("runs.csv")).unwrap();
+    let mut log = mpm_bench::campaign::record::CsvLog::open(&cur.join("runs.csv")).unwrap();
+    for r in rows.iter().filter(|r| r.ranks == 1) {
+        log.append(r).unwrap();
+    }
+    drop(log);
+    let o = bench()
+        .args(["regress", "--baseline", s.dir.to_str().unwrap(), "--current", cur.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{err}\n{}", String::from_utf8_lossy(&o.stdout));
+    assert!(err.contains("row(s) over several MPI ranks"), "{err}");
+}
+
+/// A launcher that cannot start: the row fails with the reason, and the campaign goes on
+/// (the hints for Open MPI's refusals are tested in `campaign::launcher`).
+#[test]
+fn hybrid_launcher_failures_are_recorded() {
+    let dir = tempfile::tempdir().unwrap();
+    let ov = Overrides {
+        models: Some(vec![1]),
+        ranks: Some(vec![2]),
+        threads: Some(vec![1]),
+        reps: Some(1),
+        launcher: Some("/nonexistent/mpirun -n {ranks}".into()),
+        ..Overrides::default()
+    };
+    let c = campaign("hybrid", &ov);
+    let flag = AtomicBool::new(false);
+    let mut r = mpm_bench::campaign::process::ProcessRunner::new(Arc::new(AtomicBool::new(false)));
+    let solvers = vec![Solver { opt: OptLevel::O3, path: "mpm".into(), sha256: "0123456789abcdef".into() }];
+    let s = runner::execute(&c, &laptop(), &solvers, &mut r, &opts(dir.path()), &flag).unwrap();
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 1);
+    assert_eq!(rows[0].status, Status::Failed);
+    assert!(rows[0].reason.contains("cannot start the launcher /nonexistent/mpirun"), "{}", rows[0].reason);
+    assert_eq!(rows[0].ranks, 2);
+}
+
+/// The real thing: a tiny hybrid campaign (Model 1, ranks 1,2 x threads 1,2, a few steps)
+/// through the `mpm-bench` binary, `mpm` started by `mpirun --oversubscribe
+/// --allow-run-as-root` for two ranks; rows over two ranks with exchange bytes, then the
+/// figures (fig_hybrid) and the report's hybrid section.
+#[test]
+fn end_to_end_hybrid_campaign_with_mpirun() {
+    if !mpm_cli::distributed::MPI_COMPILED {
+        eprintln!("skipped: mpm-cli is built without the `mpi` feature, so mpm cannot run over ranks");
+        return;
+    }
+    let has_mpirun = Command::new("mpirun").arg("--version").output().is_ok_and(|o| o.status.success());
+    assert!(has_mpirun, "mpirun not found: install openmpi-bin (scripts/bootstrap.sh does)");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    let launcher = "mpirun --bind-to none --oversubscribe --allow-run-as-root -n {ranks}";
+    let args = [
+        "run",
+        "--preset",
+        "hybrid",
+        "--models",
+        "1",
+        "--reps",
+        "1",
+        "--steps",
+        "6",
+        "--warmup",
+        "1",
+        "--out",
+        out,
+        "--quiet",
+        "--launcher",
+        launcher,
+    ];
+    let run = bench().args(args).output().unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "hybrid campaign failed: {err}");
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    let folder = stdout.lines().find_map(|l| l.strip_prefix("campaign folder: ")).expect("campaign folder line");
+    let rows = read_rows(&Path::new(folder).join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 4);
+    let pus = Machine::detect().unwrap().usable_pus().len();
+    for r in &rows {
+        assert_eq!(r.status, Status::Ok, "{}: {}", r.run_id, r.reason);
+        assert_eq!(r.particles, Some(56_056));
+        assert_eq!(r.steps, Some(6));
+        assert_eq!(r.threads, r.ranks * r.threads_per_rank);
+        assert_eq!(r.oversubscribed, r.threads > pus, "{}", r.run_id);
+        assert!(r.final_length_m.is_some_and(|l| l > 0.0 && l.is_finite()));
+        if r.ranks == 2 {
+            assert!(r.comm_bytes_per_step.is_some_and(|b| b > 0.0), "{}: {:?}", r.run_id, r.comm_bytes_per_step);
+            assert!(r.comm_messages_per_step.is_some_and(|m| m > 0.0));
+            let per_rank: Vec<u64> = r.rank_particles.split(' ').map(|p| p.parse().unwrap()).collect();
+            assert_eq!(per_rank.len(), 2);
+            assert_eq!(per_rank.iter().sum::<u64>(), 56_056);
+            assert_eq!(r.rank_cpus.split('|').count(), 2);
+            assert!(r.peak_rss_sum_bytes > r.peak_rss_bytes);
+            assert!(r.launcher.starts_with("mpirun") && r.launcher.ends_with("-n 2"));
+        }
+    }
+    // The same physics either way: the final bar length agrees to 1e-9 across the layouts.
+    let lengths: Vec<f64> = rows.iter().filter_map(|r| r.final_length_m).collect();
+    assert!(lengths.iter().all(|l| (l - lengths[0]).abs() <= 1e-9 * lengths[0]), "{lengths:?}");
+    let man = mpm_bench::campaign::manifest::read(&Path::new(folder).join("manifest.json")).unwrap();
+    let version = man.software.mpi_launcher.unwrap_or_default();
+    assert!(version.contains("mpirun") || version.contains("MPI"), "launcher version in the manifest: {version}");
+    let figs = dir.path().join("figs");
+    let f = bench().args(["figures", "--results", folder, "--out", figs.to_str().unwrap()]).output().unwrap();
+    assert!(f.status.success(), "{}", String::from_utf8_lossy(&f.stderr));
+    for name in ["fig_hybrid.png", "fig_hybrid.svg", "fig07.png"] {
+        assert!(figs.join(name).is_file(), "{name}");
+    }
+    let rep = dir.path().join("report");
+    let o = bench().args(["report", "--results", folder, "--out", rep.to_str().unwrap()]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = std::fs::read_to_string(rep.join("report.md")).unwrap();
+    assert!(md.contains("Hybrid MPI x threads") && md.contains("2 x 1"), "{md}");
 }

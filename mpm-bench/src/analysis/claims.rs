@@ -585,6 +585,7 @@ pub fn markdown(results: &[ClaimResult], heading: &str) -> String {
 /// `mpm-bench claims`.
 pub fn run(args: ClaimsArgs) -> Result<()> {
     let c = load_campaign(&args.results)?.without_noisy(args.include_noisy);
+    c.note_hybrid_left_out("claims");
     let an = c.analyse(args.pin.as_deref());
     let res = evaluate(&c, &an);
     println!("Claims of the paper on campaign {} (machine {}, {})", c.id(), c.fingerprint(), c.dir.display());

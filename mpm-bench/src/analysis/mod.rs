@@ -3,6 +3,7 @@
 //! * [`results`]: campaign folders read from disk;
 //! * [`stats`]: medians, bootstrap intervals, speedup and efficiency per configuration;
 //! * [`traffic`]: the bytes an MPM step moves per stage;
+//! * [`hybrid`]: MPI ranks x threads: speedup and efficiency against total cores;
 //! * [`ratio`]: campaign B over campaign A on their matching cells, headline per model;
 //! * [`claims`]: the paper's claims C1-C6 tested; [`regress`]: the CI gate;
 //! * [`paired`]: parallel efficiency as paired ratios measured in this process;
@@ -11,6 +12,7 @@
 //! It reads what the campaign and machine layers record and draws nothing.
 
 pub mod claims;
+pub mod hybrid;
 pub mod imbalance;
 pub mod paired;
 pub mod ratio;

@@ -376,6 +376,8 @@ pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
     let stages: Vec<Stage> = args.stages.iter().map(|s| Stage::parse(s)).collect::<Result<_>>()?;
     let base = load_campaign(&args.baseline).context("reading --baseline")?.without_noisy(args.include_noisy);
     let cur = load_campaign(&args.current).context("reading --current")?.without_noisy(args.include_noisy);
+    base.note_hybrid_left_out("regress");
+    cur.note_hybrid_left_out("regress");
     let (bs, cs) = (side(&base), side(&cur));
     let mut report = RegressReport {
         verdict: "incomparable".into(),

@@ -13,8 +13,12 @@ use std::path::{Path, PathBuf};
 pub struct Campaign {
     /// The folder (holds `runs.csv`).
     pub dir: PathBuf,
-    /// Its rows.
+    /// Its rows of one process (`ranks` = 1): everything the paper's analyses use (figures
+    /// 7-14, claims, regress, ratios).
     pub rows: Vec<Row>,
+    /// Its rows split over several MPI ranks: only the hybrid analysis
+    /// ([`super::hybrid`]) reads them, together with `rows` as the one-process base.
+    pub hybrid: Vec<Row>,
     /// `manifest.json`, when present and readable.
     pub manifest: Option<Manifest>,
     /// `bandwidth.json`, when present and readable.
@@ -27,7 +31,7 @@ impl Campaign {
         self.manifest
             .as_ref()
             .map(|m| m.campaign_id.clone())
-            .or_else(|| self.rows.first().map(|r| r.campaign_id.clone()).filter(|s| !s.is_empty()))
+            .or_else(|| self.all_rows().next().map(|r| r.campaign_id.clone()).filter(|s| !s.is_empty()))
             .unwrap_or_else(|| self.dir.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default())
     }
 
@@ -36,7 +40,7 @@ impl Campaign {
         self.manifest
             .as_ref()
             .map(|m| m.machine.fingerprint.clone())
-            .or_else(|| self.rows.iter().map(|r| r.machine_id.clone()).find(|s| !s.is_empty()))
+            .or_else(|| self.all_rows().map(|r| r.machine_id.clone()).find(|s| !s.is_empty()))
             .unwrap_or_else(|| "unknown".into())
     }
 
@@ -44,15 +48,39 @@ impl Campaign {
     /// stderr how many were left out. Claims and regress use it; figures keep the rows and
     /// draw them grey.
     pub fn without_noisy(mut self, include_noisy: bool) -> Self {
-        let noisy = self.rows.iter().filter(|r| r.host_noisy).count();
+        let noisy = self.all_rows().filter(|r| r.host_noisy).count();
         if noisy > 0 && !include_noisy {
             self.rows.retain(|r| !r.host_noisy);
+            self.hybrid.retain(|r| !r.host_noisy);
             eprintln!(
                 "note: {}: left out {noisy} row(s) measured on a busy host (host_noisy; --include-noisy keeps them)",
                 self.dir.display()
             );
         }
         self
+    }
+
+    /// Say on stderr that `what` (claims, regress) leaves out the rows over several ranks,
+    /// when there are any.
+    pub fn note_hybrid_left_out(&self, what: &str) {
+        if !self.hybrid.is_empty() {
+            eprintln!(
+                "note: {}: {what} compares one-process runs only; left out {} row(s) over several MPI ranks \
+                 (see `mpm-bench figures` / `report` for them against total cores)",
+                self.dir.display(),
+                self.hybrid.len()
+            );
+        }
+    }
+
+    /// Every row: one process, then several ranks.
+    pub fn all_rows(&self) -> impl Iterator<Item = &Row> {
+        self.rows.iter().chain(&self.hybrid)
+    }
+
+    /// Split `rows` into one-process rows and rows over several ranks.
+    pub fn split(rows: Vec<Row>) -> (Vec<Row>, Vec<Row>) {
+        rows.into_iter().partition(|r| !r.is_hybrid())
     }
 
     /// Analyse the rows with default options.
@@ -155,5 +183,6 @@ pub fn load_campaign(dir: &Path) -> Result<Campaign> {
     } else {
         None
     };
-    Ok(Campaign { dir, rows, manifest, bandwidth })
+    let (rows, hybrid) = Campaign::split(rows);
+    Ok(Campaign { dir, rows, hybrid, manifest, bandwidth })
 }

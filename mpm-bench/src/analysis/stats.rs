@@ -448,6 +448,29 @@ impl Point {
     }
 }
 
+/// The pinning policy to analyse among `rows`: `pin`, else the first of close, spread, none,
+/// else the first label; with a note when the rows use several.
+pub fn choose_pin<'r>(rows: impl Iterator<Item = &'r Row>, pin: Option<&str>) -> (String, Option<String>) {
+    let pins: BTreeSet<&str> = rows.map(|r| r.pin_policy.as_str()).collect();
+    let chosen = match pin {
+        Some(p) => p.to_string(),
+        None => ["close", "spread", "none"]
+            .iter()
+            .find(|p| pins.contains(**p))
+            .map(|p| p.to_string())
+            .or_else(|| pins.iter().next().map(|p| p.to_string()))
+            .unwrap_or_default(),
+    };
+    let note = (pins.len() > 1).then(|| {
+        format!(
+            "the rows use {} pinning policies ({}); only '{chosen}' is analysed",
+            pins.len(),
+            pins.iter().copied().collect::<Vec<_>>().join(", ")
+        )
+    });
+    (chosen, note)
+}
+
 /// Statistics of one campaign's rows.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Analysis {
@@ -478,23 +501,8 @@ impl Analysis {
 
     /// The pinning policy to analyse, with a note when the rows use several.
     fn choose_pin(&mut self, rows: &[Row], pin: Option<&str>) {
-        let pins: BTreeSet<&str> = rows.iter().map(|r| r.pin_policy.as_str()).collect();
-        let chosen = match pin {
-            Some(p) => p.to_string(),
-            None => ["close", "spread", "none"]
-                .iter()
-                .find(|p| pins.contains(**p))
-                .map(|p| p.to_string())
-                .or_else(|| pins.iter().next().map(|p| p.to_string()))
-                .unwrap_or_default(),
-        };
-        if pins.len() > 1 {
-            self.notes.push(format!(
-                "the rows use {} pinning policies ({}); only '{chosen}' is analysed",
-                pins.len(),
-                pins.iter().copied().collect::<Vec<_>>().join(", ")
-            ));
-        }
+        let (chosen, note) = choose_pin(rows.iter(), pin);
+        self.notes.extend(note);
         self.pin_policy = chosen;
     }
 

@@ -66,6 +66,10 @@ pub struct SoftwareInfo {
     pub harness_version: String,
     /// Git state.
     pub git: GitInfo,
+    /// Campaigns with several ranks: the launcher's `--version` (first line), e.g.
+    /// `mpirun (Open MPI) 4.1.4`; `null` otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mpi_launcher: Option<String>,
 }
 
 /// What one session of a campaign did (in the manifest and in the closing summary).
@@ -178,12 +182,13 @@ pub fn software_info(workspace: Option<&Path>, binaries: Vec<BinaryInfo>) -> Sof
         hwloc_api: format!("{}.{}.{}", api >> 16, (api >> 8) & 0xff, api & 0xff),
         harness_version: env!("CARGO_PKG_VERSION").into(),
         git: git_info(workspace),
+        mpi_launcher: None,
     }
 }
 
 /// Environment variables that can change a measurement.
 pub fn relevant_env() -> BTreeMap<String, String> {
-    const PREFIXES: [&str; 10] = [
+    const PREFIXES: [&str; 15] = [
         "RAYON_",
         "OMP_",
         "GOMP_",
@@ -194,6 +199,12 @@ pub fn relevant_env() -> BTreeMap<String, String> {
         "CARGO_PROFILE_",
         "CARGO_BUILD_",
         "RUST_MIN_STACK",
+        // MPI runtimes: tuning parameters and the transport change the exchange's time.
+        "OMPI_",
+        "PMIX_MCA_",
+        "MPICH_",
+        "I_MPI_",
+        "UCX_",
     ];
     const EXACT: [&str; 5] =
         ["RUSTFLAGS", "CARGO_ENCODED_RUSTFLAGS", "CARGO_TARGET_DIR", "LD_PRELOAD", "LD_LIBRARY_PATH"];

@@ -1,13 +1,14 @@
 //! Campaign matrices: a preset and the command-line overrides resolved into a validated
 //! campaign, its expansion into runs, and the seeded, interleaved run order.
 //!
-//! Expansion: every combination of the preset's models x threads x strategies x
+//! Expansion: every combination of the preset's models x ranks x threads x strategies x
 //! optimisation levels x repetitions x pinning policies becomes a [`RunSpec`] with the step
 //! budget of its (model, optimisation level) cell; the `serial` strategy only pairs with
-//! one thread. Order: repetition by repetition, each repetition's configurations shuffled by
+//! one thread (per rank). `threads` is per rank; a run occupies ranks x threads workers. Order: repetition by repetition, each repetition's configurations shuffled by
 //! a seeded Fisher-Yates (SplitMix64, stable across versions), so machine drift spreads over
 //! every cell instead of biasing one.
 
+use super::launcher::Launcher;
 use super::preset::{parse_size, BudgetOverride, BudgetSpec, OptLevel, Preset};
 use crate::machine::placement::{PinPolicy, Places};
 use crate::util::SplitMix64;
@@ -24,8 +25,12 @@ pub const KNOWN_MODELS: [u32; 4] = [1, 2, 3, 4];
 pub struct Overrides {
     /// `--models`.
     pub models: Option<Vec<u32>>,
-    /// `--threads`.
+    /// `--threads` (per rank).
     pub threads: Option<Vec<usize>>,
+    /// `--ranks`.
+    pub ranks: Option<Vec<usize>>,
+    /// `--launcher` (not part of the campaign id: it says how ranks start, not what runs).
+    pub launcher: Option<String>,
     /// `--strategies`.
     pub strategies: Option<Vec<Strategy>>,
     /// `--opt`.
@@ -81,6 +86,9 @@ impl Overrides {
         }
         if let Some(t) = &self.threads {
             parts.push(format!("t{}", join(t.iter().map(|x| x.to_string()).collect())));
+        }
+        if let Some(r) = &self.ranks {
+            parts.push(format!("ranks{}", join(r.iter().map(|x| x.to_string()).collect())));
         }
         if let Some(s) = &self.strategies {
             parts.push(join(s.iter().map(|x| x.to_string()).collect()));
@@ -139,8 +147,10 @@ pub struct RunSpec {
     pub strategy: Strategy,
     /// Optimisation level.
     pub opt: OptLevel,
-    /// Threads.
+    /// Threads per rank (the solver's `--threads`).
     pub threads: usize,
+    /// MPI ranks (1: one process, started directly).
+    pub ranks: usize,
     /// Pinning policy.
     pub pin: PinPolicy,
     /// Repetition index.
@@ -152,13 +162,20 @@ pub struct RunSpec {
 }
 
 impl RunSpec {
-    /// Short human description: `Model4 ae o0 8 threads pin close rep 0`.
+    /// Short human description: `Model4 ae o0 8 thr pin close rep 0`, with several ranks
+    /// `Model3 dd o3 2 ranks x 2 thr pin close rep 0`.
     pub fn describe(&self) -> String {
         let kind = if self.scenario == "impact" { "Impact" } else { "Model" };
+        let ranks = if self.ranks > 1 { format!("{} ranks x ", self.ranks) } else { String::new() };
         format!(
-            "{kind}{} {} {} {} thr pin {} rep {}",
+            "{kind}{} {} {} {ranks}{} thr pin {} rep {}",
             self.model, self.strategy, self.opt, self.threads, self.pin, self.rep
         )
+    }
+
+    /// Workers of the whole run: ranks x threads per rank (what oversubscription counts).
+    pub fn total_threads(&self) -> usize {
+        self.ranks * self.threads
     }
 
     /// Resume key (see [`super::record::run_key`]).
@@ -167,6 +184,7 @@ impl RunSpec {
             self.model,
             self.strategy,
             self.opt.as_str(),
+            self.ranks,
             self.threads,
             &self.pin.label(),
             self.rep,
@@ -195,8 +213,12 @@ pub struct Campaign {
     pub scenario: String,
     /// Models.
     pub models: Vec<u32>,
-    /// Threads.
+    /// Threads per rank.
     pub threads: Vec<usize>,
+    /// MPI rank counts.
+    pub ranks: Vec<usize>,
+    /// Launcher of runs with several ranks.
+    pub launcher: Launcher,
     /// Strategies.
     pub strategies: Vec<Strategy>,
     /// Optimisation levels.
@@ -241,6 +263,8 @@ impl Campaign {
             scenario: preset.scenario.clone(),
             models: overrides.models.clone().unwrap_or_else(|| preset.models.clone()),
             threads: overrides.threads.clone().unwrap_or_else(|| preset.threads.clone()),
+            ranks: overrides.ranks.clone().unwrap_or_else(|| preset.ranks.clone()),
+            launcher: Launcher::choose(overrides.launcher.as_deref(), preset.launcher.as_ref())?,
             strategies: overrides.strategies.clone().unwrap_or_else(|| preset.strategies.clone()),
             opts: overrides.opt.clone().unwrap_or_else(|| preset.opt.clone()),
             reps: overrides.reps.unwrap_or(preset.reps),
@@ -277,9 +301,13 @@ impl Campaign {
         if self.threads.contains(&0) {
             bail!("thread counts must be at least 1 (got 0)");
         }
+        if self.ranks.contains(&0) {
+            bail!("rank counts must be at least 1 (got 0; 1 runs one process without a launcher)");
+        }
         for (what, empty) in [
             ("models", self.models.is_empty()),
             ("threads", self.threads.is_empty()),
+            ("rank counts", self.ranks.is_empty()),
             ("strategies", self.strategies.is_empty()),
             ("optimisation levels", self.opts.is_empty()),
             ("pinning policies", self.pins.is_empty()),
@@ -340,22 +368,25 @@ impl Campaign {
             for &model in &self.models {
                 for &opt in &self.opts {
                     for &strategy in &self.strategies {
-                        for &threads in &self.threads {
-                            if strategy.check_threads(threads).is_err() {
-                                continue;
-                            }
-                            for pin in &self.pins {
-                                out.push(RunSpec {
-                                    scenario: self.scenario.clone(),
-                                    model,
-                                    strategy,
-                                    opt,
-                                    threads,
-                                    pin: pin.clone(),
-                                    rep,
-                                    grid: self.grid.clone(),
-                                    budget: self.budget_for(model, opt),
-                                });
+                        for &ranks in &self.ranks {
+                            for &threads in &self.threads {
+                                if strategy.check_threads(threads).is_err() {
+                                    continue;
+                                }
+                                for pin in &self.pins {
+                                    out.push(RunSpec {
+                                        scenario: self.scenario.clone(),
+                                        model,
+                                        strategy,
+                                        opt,
+                                        threads,
+                                        ranks,
+                                        pin: pin.clone(),
+                                        rep,
+                                        grid: self.grid.clone(),
+                                        budget: self.budget_for(model, opt),
+                                    });
+                                }
                             }
                         }
                     }
@@ -443,6 +474,68 @@ mod tests {
             let second = cpus.iter().filter(|&&cpu| socket(cpu) == 1).count();
             assert_eq!(second, n.saturating_sub(4), "{n} threads: {cpus:?}");
         }
+    }
+
+    /// `ranks` defaults to one process; the hybrid preset crosses ranks with threads per rank,
+    /// and every run has its own key.
+    #[test]
+    fn ranks_default_to_one_and_cross_threads() {
+        let (p, _) = load_preset("smoke", None).unwrap();
+        assert_eq!(p.ranks, vec![1]);
+        assert_eq!(p.launcher, None);
+        let c = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
+        assert!(c.expand().iter().all(|r| r.ranks == 1 && r.total_threads() == r.threads));
+        let (p, _) = load_preset("hybrid", None).unwrap();
+        let c = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
+        assert_eq!(c.ranks, vec![1, 2]);
+        let runs = c.expand();
+        for (ranks, threads) in [(1, 1), (1, 2), (2, 1), (2, 2)] {
+            assert!(runs.iter().any(|r| r.ranks == ranks && r.threads == threads), "{ranks}x{threads}");
+        }
+        let keys: std::collections::HashSet<_> = runs.iter().map(RunSpec::key).collect();
+        assert_eq!(keys.len(), runs.len());
+        assert_eq!(
+            runs.iter().find(|r| r.ranks == 2 && r.threads == 2).unwrap().describe(),
+            "Model1 dd o3 2 ranks x 2 thr pin close rep 0"
+        );
+        // --ranks replaces the preset's and names the campaign; zero ranks is refused.
+        let (p, _) = load_preset("smoke", None).unwrap();
+        let ov = Overrides { ranks: Some(vec![2]), ..Overrides::default() };
+        let c = Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap();
+        assert!(c.expand().iter().all(|r| r.ranks == 2));
+        assert!(c.id.contains("ranks2"), "{}", c.id);
+        let ov = Overrides { ranks: Some(vec![0, 1]), ..Overrides::default() };
+        let err = Campaign::resolve(p, "builtin".into(), &ov).unwrap_err().to_string();
+        assert!(err.contains("rank counts must be at least 1"), "{err}");
+    }
+
+    /// The preset's `ranks` and `launcher` keys; `--launcher` wins over the preset and is
+    /// checked; a bad template in a preset is an error naming it.
+    #[test]
+    fn preset_ranks_and_launcher_parse() {
+        let text = include_str!("../../../configs/smoke.toml").to_string() + "\n";
+        let with = text.replace(
+            "threads = [1, 2]",
+            "threads = [1, 2]\nranks = [1, 2, 4]\nlauncher = \"srun -n {ranks} -c {threads}\"",
+        );
+        let p = crate::campaign::preset::parse_preset(&with).unwrap();
+        assert_eq!(p.ranks, vec![1, 2, 4]);
+        let c = Campaign::resolve(p.clone(), "file".into(), &Overrides::default()).unwrap();
+        if std::env::var(crate::campaign::launcher::LAUNCHER_ENV).is_err() {
+            assert_eq!(c.launcher.expand(4, 2), ["srun", "-n", "4", "-c", "2"]);
+        }
+        let ov = Overrides { launcher: Some("mpiexec -np {ranks}".into()), ..Overrides::default() };
+        let c = Campaign::resolve(p.clone(), "file".into(), &ov).unwrap();
+        assert_eq!(c.launcher.expand(2, 1), ["mpiexec", "-np", "2"]);
+        assert!(!c.id.contains("mpiexec"), "the launcher is not part of the campaign id: {}", c.id);
+        let ov = Overrides { launcher: Some("mpiexec -np 2".into()), ..Overrides::default() };
+        let err = Campaign::resolve(p, "file".into(), &ov).unwrap_err().to_string();
+        assert!(err.contains("{ranks}"), "{err}");
+        let bad = with.replace("srun -n {ranks} -c {threads}", "srun -n {nodes}");
+        let err = format!("{:#}", crate::campaign::preset::parse_preset(&bad).unwrap_err());
+        assert!(err.contains("unknown placeholder '{nodes}'"), "{err}");
+        let bad = text.replace("threads = [1, 2]", "threads = [1, 2]\nranks = 2");
+        assert!(crate::campaign::preset::parse_preset(&bad).is_err(), "ranks is a list");
     }
 
     #[test]

@@ -5,12 +5,14 @@
 //! * [`memory`]: the memory guard (sizes and estimates from `mpm-core`);
 //! * [`solver`]: building, locating and hashing the `mpm` binaries;
 //! * [`process`]: one run as a child process (and the mock runner for tests);
+//! * [`launcher`]: the MPI launcher template of runs with several ranks;
 //! * [`runner`]: the loop over the runs, with resume and Ctrl-C;
 //! * [`watch`]: the host's load and calibration around each run (`host_noisy`);
 //! * [`record`]: the CSV row; [`manifest`]: the machine and software of a campaign.
 //!
 //! It uses the machine layer ([`crate::machine`]) and nothing of analysis or report.
 
+pub mod launcher;
 pub mod manifest;
 pub mod matrix;
 pub mod memory;

@@ -11,7 +11,9 @@
 //! description = "every model, few steps"
 //! scenario = "taylor"
 //! models = [1, 2, 3, 4]
-//! threads = [1, 2, 4, 6, 8]
+//! threads = [1, 2, 4, 6, 8]     # per rank
+//! # ranks = [1, 2]             # MPI ranks (default [1]: one process, no launcher)
+//! # launcher = "mpirun --bind-to none -n {ranks}"   # for ranks > 1, see campaign::launcher
 //! strategies = ["ae", "dd"]
 //! opt = ["o3", "o0"]
 //! reps = 1
@@ -35,6 +37,7 @@
 //!
 //! [`crate::campaign::matrix`] resolves a preset and the command-line overrides into runs.
 
+use super::launcher::Launcher;
 use crate::machine::placement::{PinPolicy, Places};
 use anyhow::{anyhow, bail, Context, Result};
 use mpm_core::Strategy;
@@ -45,12 +48,13 @@ use std::str::FromStr;
 
 /// Presets shipped with the harness (embedded; `configs/<name>.toml` in the workspace wins
 /// when present, so edits there apply without rebuilding).
-pub const BUILTIN_PRESETS: [(&str, &str); 5] = [
+pub const BUILTIN_PRESETS: [(&str, &str); 6] = [
     ("smoke", include_str!("../../../configs/smoke.toml")),
     ("quick", include_str!("../../../configs/quick.toml")),
     ("paper", include_str!("../../../configs/paper.toml")),
     ("impact", include_str!("../../../configs/impact.toml")),
     ("balanced", include_str!("../../../configs/balanced.toml")),
+    ("hybrid", include_str!("../../../configs/hybrid.toml")),
 ];
 
 /// Optimisation level = Cargo profile of the solver binary.
@@ -156,8 +160,17 @@ pub struct Preset {
     pub scenario: String,
     /// Models.
     pub models: Vec<u32>,
-    /// Thread counts.
+    /// Thread counts (per rank).
     pub threads: Vec<usize>,
+    /// MPI rank counts (default `[1]`: one process, run directly). Runs with more than one
+    /// rank start `mpm` through [`Preset::launcher`].
+    #[serde(default = "one_rank")]
+    pub ranks: Vec<usize>,
+    /// Launcher template of runs with several ranks (`{ranks}`, `{threads}` placeholders;
+    /// default [`super::launcher::DEFAULT_LAUNCHER`]; `--launcher` and `MPM_BENCH_LAUNCHER`
+    /// win over it).
+    #[serde(default)]
+    pub launcher: Option<Launcher>,
     /// Strategies.
     pub strategies: Vec<Strategy>,
     /// Optimisation levels.
@@ -192,6 +205,9 @@ fn default_scenario() -> String {
 }
 fn one() -> u32 {
     1
+}
+fn one_rank() -> Vec<usize> {
+    vec![1]
 }
 fn default_pin() -> OneOrMany<PinPolicy> {
     OneOrMany::One(PinPolicy::CLOSE)

@@ -1,7 +1,9 @@
 //! One run as a child process: the request (the `mpm run` arguments), what came back, and
 //! the runners: [`ProcessRunner`] spawns `mpm run ... --json FILE --quiet` as a fresh
-//! process (clean memory figure, no state carried over); [`MockRunner`] fakes it in
-//! microseconds for tests.
+//! process (clean memory figure, no state carried over), or with several ranks
+//! `<launcher> mpm run ...` (see [`super::launcher`]) with the CPU set of the run as the
+//! launcher's affinity mask, in a process group of its own so that a timeout or Ctrl-C stops
+//! every rank; [`MockRunner`] fakes it in microseconds for tests.
 //!
 //! A child dies with the harness (Linux parent-death signal, set between fork and exec), and
 //! the temporary summary file of a child killed mid-run (timeout, Ctrl-C, SIGTERM) is removed
@@ -30,8 +32,14 @@ pub struct RunRequest {
     pub scenario: String,
     /// Solver binary.
     pub binary: PathBuf,
-    /// CPU of each worker; `None` = not pinned.
+    /// CPU of each worker (`--cpus`); `None` = not pinned, and always `None` with several
+    /// ranks (every rank would take the same list): see `mask`.
     pub cpus: Option<Vec<usize>>,
+    /// Several ranks: the launcher's words (program first), `mpm run ...` follows.
+    pub launcher: Option<Vec<String>>,
+    /// Several ranks, pinned: the launcher's affinity mask (the CPU set of all ranks'
+    /// workers, ascending), inherited by the ranks, which slice it by rank.
+    pub mask: Option<Vec<usize>>,
     /// Where the solver writes its JSON summary.
     pub json_path: PathBuf,
     /// Per-run time limit.
@@ -65,6 +73,21 @@ impl RunRequest {
         a.extend(["--grid".into(), s.grid.clone(), "--warmup".into(), s.budget.warmup.to_string()]);
         a.extend(["--json".into(), self.json_path.display().to_string(), "--quiet".into()]);
         a
+    }
+
+    /// The program and its arguments: `mpm run ...`, or the launcher's words, then the
+    /// solver binary and `run ...`.
+    pub fn command_line(&self) -> (String, Vec<String>) {
+        let binary = self.binary.display().to_string();
+        match self.launcher.as_deref() {
+            Some([program, rest @ ..]) => {
+                let mut a: Vec<String> = rest.to_vec();
+                a.push(binary);
+                a.extend(self.args());
+                (program.clone(), a)
+            }
+            _ => (binary, self.args()),
+        }
     }
 }
 
@@ -101,19 +124,30 @@ impl ProcessRunner {
     }
 }
 
-/// The child in progress and its summary's temporary file, for [`kill_live_child`].
-static LIVE_CHILD: Mutex<Option<(u32, PathBuf)>> = Mutex::new(None);
+/// The child in progress, its summary's temporary file and whether it leads a process group
+/// of its own (a launcher and its ranks), for [`kill_live_child`].
+static LIVE_CHILD: Mutex<Option<(u32, PathBuf, bool)>> = Mutex::new(None);
+
+/// SIGKILL to `pid`, or to its whole process group when `group` (a launcher, whose ranks
+/// must not outlive it).
+fn kill_pid(pid: u32, group: bool) {
+    if let Ok(pid) = libc::pid_t::try_from(pid) {
+        let target = if group { -pid } else { pid };
+        // SAFETY: kill(2) has no memory-safety preconditions. `pid` is our own child: for a
+        // single process not yet reaped (LIVE_CHILD is cleared before the child is waited
+        // for); with `group` the id of the process group it was started in
+        // (`process_group(0)`), which the kernel does not hand out again while any member
+        // lives (once none does, the call fails with ESRCH).
+        unsafe { libc::kill(target, libc::SIGKILL) };
+    }
+}
 
 /// Kill the solver child in progress (if any) and remove its temporary summary file: the
 /// harness is about to exit without cleaning up (a second Ctrl-C).
 pub fn kill_live_child() {
     let live = LIVE_CHILD.lock().unwrap_or_else(|e| e.into_inner()).take();
-    if let Some((pid, tmp)) = live {
-        if let Ok(pid) = libc::pid_t::try_from(pid) {
-            // SAFETY: kill(2) has no memory-safety preconditions; `pid` is our own child,
-            // not yet reaped (the runner clears LIVE_CHILD before it waits for the child).
-            unsafe { libc::kill(pid, libc::SIGKILL) };
-        }
+    if let Some((pid, tmp, group)) = live {
+        kill_pid(pid, group);
         let _ = std::fs::remove_file(tmp);
     }
 }
@@ -143,13 +177,17 @@ fn process_runs(pid: u32) -> bool {
 }
 
 /// `mpm` dies with the harness: the parent-death signal is SIGKILL, so a harness killed by
-/// any signal (SIGKILL included) leaves no solver running on the pinned CPUs.
-fn die_with_parent(cmd: &mut Command) {
+/// any signal (SIGKILL included) leaves no solver running on the pinned CPUs. With `mask`,
+/// the child (a launcher) starts with that CPU set as its affinity mask, which its ranks
+/// inherit.
+fn die_with_parent(cmd: &mut Command, mask: Option<&[usize]>) {
     use std::os::unix::process::CommandExt;
     let parent = libc::pid_t::try_from(std::process::id()).unwrap_or(libc::pid_t::MAX);
+    let set = mask.map(cpu_set);
     // SAFETY: the closure runs in the forked child before exec, where only async-signal-safe
-    // calls are allowed: it calls prctl(2) and getppid(2) and builds io::Errors from raw OS
-    // codes (no allocation, no locks), and touches only `parent`, an integer copied in.
+    // calls are allowed: it calls prctl(2), getppid(2) and sched_setaffinity(2) and builds
+    // io::Errors from raw OS codes (no allocation, no locks), and touches only `parent`, an
+    // integer, and `set`, a plain cpu_set_t built before the fork, both moved in.
     // Linux sends the signal when the thread that forked the child exits; the campaign loop
     // spawns every child from the one thread that runs it, for the campaign's whole life.
     unsafe {
@@ -161,31 +199,56 @@ fn die_with_parent(cmd: &mut Command) {
             if libc::getppid() != parent {
                 return Err(std::io::Error::from_raw_os_error(libc::ESRCH));
             }
+            if let Some(set) = &set {
+                if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), set) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+            }
             Ok(())
         });
     }
+}
+
+/// A CPU set of the CPUs in `cpus` (those beyond `CPU_SETSIZE` left out).
+fn cpu_set(cpus: &[usize]) -> libc::cpu_set_t {
+    // SAFETY: cpu_set_t is a plain bit array; all zeroes is the empty set.
+    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    let max = usize::try_from(libc::CPU_SETSIZE).unwrap_or(1024);
+    for &c in cpus.iter().filter(|&&c| c < max) {
+        // SAFETY: `c` is below CPU_SETSIZE, so the bit lies inside `set`.
+        unsafe { libc::CPU_SET(c, &mut set) };
+    }
+    set
 }
 
 impl Runner for ProcessRunner {
     fn run(&mut self, req: &RunRequest) -> RunOutput {
         let start = Instant::now();
         let _ = std::fs::remove_file(&req.json_path);
-        let mut cmd = Command::new(&req.binary);
-        cmd.args(req.args()).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::piped());
+        let (program, args) = req.command_line();
+        let mut cmd = Command::new(&program);
+        cmd.args(args).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::piped());
         // Rayon and OpenMP variables must not change the thread count behind our back.
         cmd.env_remove("RAYON_NUM_THREADS");
-        die_with_parent(&mut cmd);
+        let group = req.launcher.is_some();
+        if group {
+            use std::os::unix::process::CommandExt;
+            // The launcher and its ranks in a group of their own: stopped together.
+            cmd.process_group(0);
+        }
+        die_with_parent(&mut cmd, req.mask.as_deref());
         let mut child = match cmd.spawn() {
             Ok(c) => c,
             Err(e) => {
+                let what = if group { "the launcher" } else { "the solver" };
                 return RunOutput {
-                    error: Some(format!("cannot start {}: {e}", req.binary.display())),
+                    error: Some(format!("cannot start {what} {program}: {e}")),
                     ..RunOutput::default()
-                }
+                };
             }
         };
         let tmp = mpm_cli::atomic::temp_path_for_pid(&req.json_path, child.id());
-        *LIVE_CHILD.lock().unwrap_or_else(|e| e.into_inner()) = Some((child.id(), tmp.clone()));
+        *LIVE_CHILD.lock().unwrap_or_else(|e| e.into_inner()) = Some((child.id(), tmp.clone(), group));
         let mut stderr = child.stderr.take();
         let reader = std::thread::spawn(move || {
             let mut s = String::new();
@@ -197,6 +260,12 @@ impl Runner for ProcessRunner {
         let mut out = self.wait(&mut child, req, start);
         // A child killed mid-run leaves its reserved summary file behind.
         let _ = std::fs::remove_file(&tmp);
+        if group {
+            // Ranks of a launcher that ended or was killed: none may stay on the CPUs. Their
+            // temporary files are named after rank 0's pid, which is not the launcher's.
+            kill_pid(child.id(), true);
+            remove_temp_files_for(&req.json_path);
+        }
         out.process_wall_s = start.elapsed().as_secs_f64();
         let text = reader.join().unwrap_or_default();
         out.stderr_tail = tail(&text, 3);
@@ -208,8 +277,12 @@ impl ProcessRunner {
     /// Wait for `child`: its exit, or a kill on interrupt or timeout.
     fn wait(&self, child: &mut Child, req: &RunRequest, start: Instant) -> RunOutput {
         let mut out = RunOutput::default();
+        let group = req.launcher.is_some();
         let stop = |child: &mut Child| {
             LIVE_CHILD.lock().unwrap_or_else(|e| e.into_inner()).take();
+            if group {
+                kill_pid(child.id(), true);
+            }
             let _ = child.kill();
             let _ = child.wait();
         };
@@ -246,6 +319,19 @@ impl ProcessRunner {
                 return out;
             }
             std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+/// Remove the temporary files of `json_path` (`.<name>.tmp.<pid>`) whatever their pid: with
+/// a launcher the writer is rank 0, a grandchild whose pid the harness does not know.
+fn remove_temp_files_for(json_path: &Path) {
+    let (Some(dir), Some(name)) = (json_path.parent(), json_path.file_name()) else { return };
+    let prefix = format!(".{}.tmp.", name.to_string_lossy());
+    let Ok(rd) = std::fs::read_dir(dir) else { return };
+    for e in rd.flatten() {
+        if e.file_name().to_string_lossy().starts_with(&prefix) {
+            let _ = std::fs::remove_file(e.path());
         }
     }
 }
@@ -290,12 +376,12 @@ impl Runner for MockRunner {
             };
         }
         let requested = req.cpus.clone().unwrap_or_default();
-        let observed: Vec<usize> = if self.wrong_cpus_when.as_ref().is_some_and(|f| desc.contains(f.as_str())) {
-            requested.iter().map(|c| c + 1).collect()
-        } else {
-            requested.clone()
-        };
-        let summary = mock_summary(req, requested, observed);
+        let wrong = self.wrong_cpus_when.as_ref().is_some_and(|f| desc.contains(f.as_str()));
+        let observed: Vec<usize> = if wrong { requested.iter().map(|c| c + 1).collect() } else { requested.clone() };
+        let mut summary = mock_summary(req, requested, observed);
+        if req.spec.ranks > 1 {
+            summary.ranks = Some(mock_ranks(req, &summary, wrong));
+        }
         let wall = summary.wall_s;
         let text = match serde_json::to_string(&summary) {
             Ok(t) => t,
@@ -308,6 +394,44 @@ impl Runner for MockRunner {
     }
 }
 
+/// Plausible rank reports of a run over several ranks: each rank's workers on its slice of
+/// the mask as `mpm` places them (shared and flagged when the mask is too small), the
+/// particles split evenly, a halo of 1 % of the particles' 80 bytes each way per step.
+fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool) -> Vec<mpm_cli::summary::RankReport> {
+    let (ranks, threads) = (req.spec.ranks, req.spec.threads);
+    let mask = req.mask.clone().unwrap_or_default();
+    let fits = mask.len() >= ranks * threads;
+    (0..ranks)
+        .map(|r| {
+            let cpus: Vec<usize> = if mask.is_empty() {
+                Vec::new()
+            } else {
+                (0..threads).map(|j| mask[(r * threads + j) % mask.len()] + usize::from(wrong)).collect()
+            };
+            let halo = (s.particles as u64 / 100) * 80 * s.steps;
+            mpm_cli::summary::RankReport {
+                rank: r,
+                cpus,
+                oversubscribed: !fits,
+                particles: s.particles / ranks,
+                migrated: 3,
+                busy_s: s.wall_s * 0.9 * threads as f64,
+                steps: s.steps,
+                exchange: mpm_core::exchange::ExchangeStats {
+                    halo_bytes: halo,
+                    halo_messages: 2 * s.steps,
+                    migration_bytes: 1000,
+                    migration_messages: 2 * s.steps,
+                    reduction_bytes: 48 * s.steps,
+                    reductions: 3 * s.steps,
+                    seconds: s.wall_s * 0.02 * (r + 1) as f64,
+                },
+                peak_rss_bytes: s.peak_rss_bytes.map(|b| b / ranks as u64 + (20 << 20)),
+            }
+        })
+        .collect()
+}
+
 /// A plausible summary of `req`: times from the model size, strategy, threads and
 /// optimisation level; the CPUs as given.
 fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -> Summary {
@@ -317,7 +441,7 @@ fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -
     let speed = match s.strategy {
         Strategy::DomainDecomposition | Strategy::DdBalanced => 0.9,
         Strategy::Serial | Strategy::ArrayExpansion => 0.8,
-    } * (s.threads.min(2) as f64);
+    } * (s.total_threads().min(2) as f64);
     let per_step = size.particles as f64 * 50e-9 * if s.opt == OptLevel::O0 { 8.0 } else { 1.0 } / speed;
     let wall = per_step * steps as f64;
     let substages =
@@ -376,6 +500,7 @@ mod tests {
             strategy: Strategy::DomainDecomposition,
             opt: OptLevel::O3,
             threads: 2,
+            ranks: 1,
             pin: PinPolicy::CLOSE,
             rep: 0,
             grid: "fixed".into(),
@@ -386,13 +511,31 @@ mod tests {
             scenario: "taylor".into(),
             binary: "mpm".into(),
             cpus: Some(vec![0, 1]),
+            launcher: None,
+            mask: None,
             json_path: "x.json".into(),
             timeout: None,
         };
         let a = req.args().join(" ");
+        let want = "run taylor --model 2 --strategy dd --threads 2 --cpus 0,1 --steps 5 --grid fixed --warmup 1 --json x.json --quiet";
+        assert_eq!(a, want);
+        assert_eq!(req.command_line(), ("mpm".to_string(), req.args()));
+        // Several ranks: the launcher's words, then the binary, then the same arguments
+        // without --cpus (each rank pins inside the launcher's mask).
+        let launcher = crate::campaign::launcher::Launcher::parse("mpirun --bind-to none -n {ranks}").unwrap();
+        let hybrid = RunRequest {
+            spec: RunSpec { ranks: 2, ..req.spec.clone() },
+            cpus: None,
+            launcher: Some(launcher.expand(2, 2)),
+            mask: Some(vec![0, 1, 2, 3]),
+            ..req
+        };
+        let (program, args) = hybrid.command_line();
+        assert_eq!(program, "mpirun");
         assert_eq!(
-            a,
-            "run taylor --model 2 --strategy dd --threads 2 --cpus 0,1 --steps 5 --grid fixed --warmup 1 --json x.json --quiet"
+            args.join(" "),
+            "--bind-to none -n 2 mpm run taylor --model 2 --strategy dd --threads 2 --steps 5 --grid fixed \
+             --warmup 1 --json x.json --quiet"
         );
     }
 }

@@ -23,11 +23,15 @@ use std::path::{Path, PathBuf};
 
 /// Version of the row layout; bump it whenever a column is added, removed or renamed.
 /// Schema 3 added the host's load and calibration (`host_*`, `calib_*`, `host_noisy`) and
-/// the work imbalance of DD's cuts (`dd_work_imbalance`).
-pub const SCHEMA_VERSION: u32 = 3;
+/// the work imbalance of DD's cuts (`dd_work_imbalance`). Schema 4 added MPI ranks
+/// (`ranks`, `threads_per_rank`, `launcher`, `rank_*`, `comm_*`, `migrated_particles`,
+/// `peak_rss_sum_bytes`); `threads` became the run's total worker count (ranks x threads
+/// per rank, equal to the old meaning at one rank).
+pub const SCHEMA_VERSION: u32 = 4;
 
-/// Columns added since schema 1; older files lack them and still read (as empty / false).
-const ADDED_SINCE_V1: [&str; 14] = [
+/// Columns added since schema 1; older files lack them and still read (as empty / false;
+/// `ranks` as 1 and `threads_per_rank` as `threads`).
+const ADDED_SINCE_V1: [&str; 26] = [
     // schema 2
     "worker_busy_s",
     "load_imbalance",
@@ -44,6 +48,19 @@ const ADDED_SINCE_V1: [&str; 14] = [
     "host_noisy",
     "host_noise",
     "dd_work_imbalance",
+    // schema 4
+    "ranks",
+    "threads_per_rank",
+    "launcher",
+    "rank_cpus",
+    "rank_particles",
+    "rank_busy_imbalance",
+    "migrated_particles",
+    "comm_s_per_step",
+    "comm_frac",
+    "comm_bytes_per_step",
+    "comm_messages_per_step",
+    "peak_rss_sum_bytes",
 ];
 
 /// Outcome of one run.
@@ -117,14 +134,32 @@ pub struct Row {
     pub strategy: Strategy,
     /// `o3` or `o0` (the Cargo profile of the solver binary).
     pub opt_level: String,
-    /// Worker threads.
+    /// Worker threads of the whole run: ranks x threads per rank (at one rank, the process's
+    /// threads). Oversubscription and the host-noise rule count these against the cores.
     pub threads: usize,
+    /// MPI ranks (1: one process started directly). Since schema 4.
+    #[serde(default = "one")]
+    pub ranks: usize,
+    /// Worker threads of each rank (the solver's `--threads`). Since schema 4 (read as
+    /// `threads` from older files).
+    #[serde(default)]
+    pub threads_per_rank: usize,
+    /// The launcher command of a run with several ranks (empty at one rank). Since schema 4.
+    #[serde(default)]
+    pub launcher: String,
     /// Pinning policy label (`close`, `spread`, `none`, or a CPU list).
     pub pin_policy: String,
-    /// CPU requested for each worker (space-separated; empty when not pinned).
+    /// CPU requested for each worker (space-separated; empty when not pinned). With several
+    /// ranks: the CPU set handed to the launcher as its affinity mask, ascending; rank r's
+    /// workers are asked to take its r-th slice of `threads_per_rank` CPUs.
     pub requested_cpus: String,
-    /// CPU each worker observed itself on (space-separated).
+    /// CPU each worker observed itself on (space-separated); with several ranks every
+    /// rank's workers, rank by rank.
     pub observed_cpus: String,
+    /// With several ranks: each rank's observed CPUs, ranks separated by `|` (`"0|1"`).
+    /// Since schema 4.
+    #[serde(default)]
+    pub rank_cpus: String,
     /// More threads than usable cores (time sharing: not a scaling point).
     pub oversubscribed: bool,
     /// Repetition index (0-based).
@@ -190,8 +225,41 @@ pub struct Row {
     /// of the cuts, not of the machine). Since schema 3.
     #[serde(default)]
     pub dd_work_imbalance: Option<f64>,
-    /// Peak resident memory of the solver process (VmHWM read by the solver), bytes.
+    /// Peak resident memory of the solver process (VmHWM read by the solver), bytes; with
+    /// several ranks rank 0's, which includes gathering every particle for the summary.
     pub peak_rss_bytes: Option<u64>,
+    /// Peak resident memory summed over the ranks (each rank's VmHWM at the end of its time
+    /// steps, before the final gather); equal to `peak_rss_bytes` at one rank. Since schema 4.
+    #[serde(default)]
+    pub peak_rss_sum_bytes: Option<u64>,
+    /// With several ranks: each rank's particles at the end (space-separated, rank order).
+    /// Since schema 4.
+    #[serde(default)]
+    pub rank_particles: String,
+    /// With several ranks: the largest rank busy time over the mean (1 = balanced). Since
+    /// schema 4.
+    #[serde(default)]
+    pub rank_busy_imbalance: Option<f64>,
+    /// With several ranks: particles that moved to another rank over the run, all ranks.
+    /// Since schema 4.
+    #[serde(default)]
+    pub migrated_particles: Option<u64>,
+    /// With several ranks: seconds in the exchange (packing, messages, waiting) per step, of
+    /// the rank that spent the most, over all steps taken (warm-up included). 0 at one rank.
+    /// Since schema 4.
+    #[serde(default)]
+    pub comm_s_per_step: Option<f64>,
+    /// That rank's exchange seconds over the run's wall time. Since schema 4.
+    #[serde(default)]
+    pub comm_frac: Option<f64>,
+    /// Bytes sent per step, summed over the ranks: halo sums, migration and reductions.
+    /// Since schema 4.
+    #[serde(default)]
+    pub comm_bytes_per_step: Option<f64>,
+    /// Messages (point-to-point and collective calls) per step, summed over the ranks.
+    /// Since schema 4.
+    #[serde(default)]
+    pub comm_messages_per_step: Option<f64>,
     /// The memory guard's estimate for this run, bytes.
     pub mem_estimate_bytes: u64,
     /// Exit code of the solver process (empty when it did not run or died by a signal).
@@ -261,7 +329,27 @@ pub struct Row {
     pub reason: String,
 }
 
+fn one() -> usize {
+    1
+}
+
 impl Row {
+    /// Whether the run was split over several MPI ranks (kept out of the one-process
+    /// analyses: figures 7-14, claims, regress).
+    pub fn is_hybrid(&self) -> bool {
+        self.ranks > 1
+    }
+
+    /// Threads of each rank: `threads_per_rank`, or `threads` for rows written before
+    /// schema 4 (one process).
+    pub fn per_rank_threads(&self) -> usize {
+        if self.threads_per_rank == 0 {
+            self.threads / self.ranks.max(1)
+        } else {
+            self.threads_per_rank
+        }
+    }
+
     /// The host reading this row records.
     pub fn host_reading(&self) -> HostReading {
         let probe = |load1, others_running, cpus_busy| Probe { load1, others_running, cpus_busy };
@@ -312,7 +400,8 @@ impl Row {
             self.model,
             self.strategy,
             &self.opt_level,
-            self.threads,
+            self.ranks.max(1),
+            self.per_rank_threads(),
             &self.pin_policy,
             self.rep,
             &self.grid_mode,
@@ -323,12 +412,14 @@ impl Row {
     }
 }
 
-/// Build a resume key from the configuration fields.
+/// Build a resume key from the configuration fields (`threads` per rank). One rank keeps the
+/// key of schema 3 (`...-t2-...`); several add the rank count (`...-t2-ranks2-...`).
 #[allow(clippy::too_many_arguments)]
 pub fn run_key(
     model: u32,
     strategy: Strategy,
     opt: &str,
+    ranks: usize,
     threads: usize,
     pin: &str,
     rep: u32,
@@ -343,7 +434,8 @@ pub fn run_key(
         (None, Some(t)) => format!("t{t:e}"),
         (None, None) => "unbounded".into(),
     };
-    RunKey(format!("m{model}-{strategy}-{opt}-t{threads}-{pin}-{grid}-w{warmup}-{budget}-r{rep}"))
+    let ranks = if ranks > 1 { format!("-ranks{ranks}") } else { String::new() };
+    RunKey(format!("m{model}-{strategy}-{opt}-t{threads}{ranks}-{pin}-{grid}-w{warmup}-{budget}-r{rep}"))
 }
 
 /// Space-separated CPU list for a CSV cell.
@@ -591,13 +683,49 @@ mod tests {
         assert!(err.contains("observed_cpus"), "{err}");
     }
 
-    /// The committed reference campaign (schema 2) still reads, every row quiet.
+    /// The committed reference campaign (schema 2) still reads, every row quiet and one
+    /// process (its threads per rank are its threads, its keys those of schema 3).
     #[test]
     fn committed_schema_2_campaign_reads() {
         let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results/d02fbfc20d44/quick/runs.csv");
         let rows = read_rows(&p).unwrap();
         assert_eq!(rows.len(), 80);
         assert!(rows.iter().all(|r| r.schema_version == 2 && !r.host_noisy && r.host_steal_frac.is_none()));
+        assert!(rows.iter().all(|r| r.ranks == 1 && !r.is_hybrid() && r.per_rank_threads() == r.threads));
+        assert!(rows.iter().all(|r| r.run_id.starts_with(&r.key().0)), "resume keys of one rank are unchanged");
+    }
+
+    /// The host-noise rule counts every worker of the run (ranks x threads per rank) against
+    /// the PUs: two ranks of one thread leave no CPU free on two PUs.
+    #[test]
+    fn host_noise_counts_ranks_times_threads() {
+        let reading = HostReading {
+            before: Probe { load1: None, others_running: Some(1), cpus_busy: Some(0.0) },
+            after: Probe { load1: None, others_running: Some(0), cpus_busy: Some(0.0) },
+            ..HostReading::default()
+        };
+        let mut one = Row { threads: 1, ranks: 1, threads_per_rank: 1, ..Row::default() };
+        one.set_host(&reading, 2);
+        assert!(!one.host_noisy, "{}", one.host_noise);
+        let mut two = Row { threads: 2, ranks: 2, threads_per_rank: 1, ..Row::default() };
+        two.set_host(&reading, 2);
+        assert!(two.host_noisy && two.host_noise.contains("0 free CPU"), "{}", two.host_noise);
+    }
+
+    /// Resume keys tell ranks apart; one rank keeps the key of schema 3.
+    #[test]
+    fn keys_include_ranks() {
+        let one = Row { model: 1, threads: 2, ranks: 1, threads_per_rank: 2, ..Row::default() };
+        let two = Row { threads: 4, ranks: 2, ..one.clone() };
+        let two_by_one = Row { threads: 2, ranks: 2, threads_per_rank: 1, ..one.clone() };
+        assert_ne!(one.key(), two.key());
+        assert_ne!(two.key(), two_by_one.key());
+        assert_ne!(one.key(), two_by_one.key(), "same total workers, different configuration");
+        assert!(one.key().0.contains("-t2-") && !one.key().0.contains("ranks"), "{}", one.key().0);
+        assert!(two.key().0.contains("-t2-ranks2-"), "{}", two.key().0);
+        // A schema-3 row (no threads_per_rank column: 0) keys as its threads.
+        let old = Row { threads_per_rank: 0, ranks: 1, ..one.clone() };
+        assert_eq!(old.key(), one.key());
     }
 
     /// A schema-1 file (without the load-imbalance columns) still reads: its rows get
@@ -606,7 +734,15 @@ mod tests {
     fn schema_1_files_still_read() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("runs.csv");
-        let row = Row { schema_version: 1, campaign_id: "old".into(), model: 2, wall_s: Some(1.5), ..Row::default() };
+        // Read back from a file without the column, `ranks` is 1 (one process).
+        let row = Row {
+            schema_version: 1,
+            campaign_id: "old".into(),
+            model: 2,
+            ranks: 1,
+            wall_s: Some(1.5),
+            ..Row::default()
+        };
         let mut w = csv::Writer::from_writer(Vec::new());
         w.serialize(&row).unwrap();
         let text = String::from_utf8(w.into_inner().unwrap()).unwrap();

@@ -3,15 +3,18 @@
 //!
 //! * Binaries come from [`super::solver`], each run's process from [`super::process`], the
 //!   memory estimate and verdict from [`super::memory`].
-//! * Oversubscription: rows with more threads than usable PUs are flagged and the terminal
-//!   says so once per campaign. A run whose observed CPUs differ from the requested ones is
-//!   recorded `invalid`.
+//! * Oversubscription: rows with more workers (ranks x threads per rank) than usable PUs are
+//!   flagged and the terminal says so once per campaign. A run whose observed CPUs differ
+//!   from the requested ones is recorded `invalid`.
+//! * Several ranks ([`RunPlan`]): the policy places ranks x threads workers; that CPU set is
+//!   the launcher's affinity mask and each rank must be seen on its slice of it.
 //! * Ctrl-C / SIGTERM ([`install_interrupt_handler`]): the run in progress is stopped and not
 //!   recorded; every finished run is already in the CSV, so the campaign resumes later.
 
+use super::launcher;
 use super::manifest::{self, BinaryInfo, Manifest, Session};
 use super::matrix::{Campaign, RunSpec};
-use super::memory::{available_memory, estimate_memory, memory_verdict, scenario_size};
+use super::memory::{available_memory, estimate_ranks_memory, memory_verdict, scenario_size};
 use super::preset::OptLevel;
 use super::process::{remove_stale_temp_files, RunOutput, RunRequest, Runner};
 use super::record::{cpus_cell, read_rows, repair_torn_tail, CsvLog, Row, RunKey, Status, SCHEMA_VERSION};
@@ -24,7 +27,7 @@ use crate::machine::topology::{format_cpu_list, human_bytes, Machine};
 use crate::util::now_rfc3339;
 use anyhow::{anyhow, Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use mpm_cli::summary::Summary;
+use mpm_cli::summary::{RankReport, Summary};
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -285,16 +288,16 @@ impl Plan {
             self.csv_path.display()
         )?;
         for (i, r) in &self.todo {
-            let pl = machine.place(&r.pin, r.threads)?;
-            let est = estimate_memory(&r.scenario, r.model, r.strategy, r.threads);
+            let pl = RunPlan::of(machine, r)?;
+            let est = estimate_ranks_memory(&r.scenario, r.model, r.strategy, r.threads, r.ranks);
             let verdict = memory_verdict(est, available_memory(), campaign.mem_limit);
             writeln!(
                 out,
-                "{:>4}  {:<40} {:<12} cpus {:<16} mem {:>9}{}{}",
+                "{:>4}  {:<48} {:<12} cpus {:<16} mem {:>9}{}{}",
                 i,
                 r.describe(),
                 budget_label(r),
-                if pl.cpus.is_empty() { "-".to_string() } else { format_cpu_list(&pl.cpus) },
+                if pl.requested.is_empty() { "-".to_string() } else { format_cpu_list(&pl.requested) },
                 human_bytes(est),
                 if pl.oversubscribed { "  oversubscribed" } else { "" },
                 verdict.map(|v| format!("  SKIP ({v})")).unwrap_or_default()
@@ -329,20 +332,21 @@ impl Plan {
 
     /// Say once which thread counts are oversubscribed here, and when there is nothing to do.
     fn notes(&self, campaign: &Campaign, machine: &Machine) {
-        let mut over: Vec<usize> = self
+        let mut over: Vec<(usize, usize)> = self
             .todo
             .iter()
-            .filter(|(_, r)| machine.place(&r.pin, r.threads).is_ok_and(|p| p.oversubscribed))
-            .map(|(_, r)| r.threads)
+            .filter(|(_, r)| RunPlan::of(machine, r).is_ok_and(|p| p.oversubscribed))
+            .map(|(_, r)| (r.ranks, r.threads))
             .collect();
         over.sort_unstable();
         over.dedup();
         if !over.is_empty() {
+            let label = |&(ranks, t): &(usize, usize)| if ranks > 1 { format!("{ranks}x{t}") } else { t.to_string() };
             eprintln!(
                 "note: {} usable PU(s) here; runs with {} threads are oversubscribed (time sharing, \
                  not scaling): their rows are flagged `oversubscribed`",
                 machine.usable_pus().len(),
-                over.iter().map(|t| t.to_string()).collect::<Vec<_>>().join("/")
+                over.iter().map(label).collect::<Vec<_>>().join("/")
             );
         }
         if self.todo.is_empty() {
@@ -375,7 +379,10 @@ impl ManifestLog {
         let binaries: Vec<BinaryInfo> = solvers.iter().map(Solver::info).collect();
         let path = dir.join("manifest.json");
         let machine_info = fingerprint::machine_info(machine);
-        let software = manifest::software_info(ws.as_deref(), binaries.clone());
+        let mut software = manifest::software_info(ws.as_deref(), binaries.clone());
+        if campaign.ranks.iter().any(|&r| r > 1) {
+            software.mpi_launcher = Some(campaign.launcher.version());
+        }
         let mut man = if path.is_file() {
             manifest::read(&path)?
         } else {
@@ -504,25 +511,27 @@ impl RunContext<'_> {
         order_index: usize,
         run_id: String,
     ) -> Result<Option<Row>> {
-        let placement = self.machine.place(&spec.pin, spec.threads)?;
-        let estimate = estimate_memory(&spec.scenario, spec.model, spec.strategy, spec.threads);
-        let mut row =
-            base_row(self.campaign, self.machine, &self.git, solver, spec, &placement.cpus, placement.oversubscribed);
+        let plan = RunPlan::of(self.machine, spec)?;
+        let estimate = estimate_ranks_memory(&spec.scenario, spec.model, spec.strategy, spec.threads, spec.ranks);
+        let mut row = base_row(self.campaign, self.machine, &self.git, solver, spec, &plan);
         row.order_index = order_index;
         row.mem_estimate_bytes = estimate;
         if let Some(reason) = memory_verdict(estimate, available_memory(), self.campaign.mem_limit) {
             row.status = Status::Skipped;
             row.reason = reason;
         } else {
+            let launched = spec.ranks > 1;
             let req = RunRequest {
                 spec: spec.clone(),
                 scenario: self.campaign.scenario.clone(),
                 binary: solver.path.clone(),
-                cpus: (!matches!(spec.pin, PinPolicy::None)).then(|| placement.cpus.clone()),
+                cpus: if launched { None } else { plan.cpus.clone() },
+                launcher: launched.then(|| self.campaign.launcher.expand(spec.ranks, spec.threads)),
+                mask: if launched { plan.cpus.clone() } else { None },
                 json_path: self.json_dir.join(format!("{run_id}.json")),
                 timeout: self.campaign.timeout,
             };
-            let probe_cpus = req.cpus.clone().unwrap_or_default();
+            let probe_cpus = plan.cpus.clone().unwrap_or_default();
             let before = watch.as_deref_mut().map(|w| w.before_run(&probe_cpus));
             let out = runner.run(&req);
             if out.interrupted || self.interrupted.load(Ordering::SeqCst) {
@@ -633,14 +642,35 @@ fn done_keys(rows: &[Row], retry_failed: bool) -> HashSet<RunKey> {
     rows.iter().filter(|r| !retry_failed || r.status == Status::Ok).map(Row::key).collect()
 }
 
+/// Where a run's workers go: the policy's placement of ranks x threads workers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunPlan {
+    /// The CPUs the run is pinned to (`None` with the policy `none`): one process's `--cpus`
+    /// in worker order, or with several ranks the launcher's affinity mask, ascending and
+    /// without repeats (each rank pins to its slice of it in this order).
+    pub cpus: Option<Vec<usize>>,
+    /// What the row records as requested: `cpus`, or nothing.
+    pub requested: Vec<usize>,
+    /// More workers than usable PUs, or two workers on one CPU.
+    pub oversubscribed: bool,
+}
+
+impl RunPlan {
+    /// The plan of `spec` on `machine`.
+    pub fn of(machine: &Machine, spec: &RunSpec) -> Result<Self> {
+        let placement = machine.place_ranks(&spec.pin, spec.ranks, spec.threads)?;
+        let cpus = (!matches!(spec.pin, PinPolicy::None)).then_some(placement.cpus);
+        Ok(Self { requested: cpus.clone().unwrap_or_default(), cpus, oversubscribed: placement.oversubscribed })
+    }
+}
+
 fn base_row(
     campaign: &Campaign,
     machine: &Machine,
     git: &manifest::GitInfo,
     solver: &Solver,
     spec: &RunSpec,
-    cpus: &[usize],
-    oversubscribed: bool,
+    plan: &RunPlan,
 ) -> Row {
     let size = scenario_size(&spec.scenario, spec.model);
     Row {
@@ -658,10 +688,17 @@ fn base_row(
         grid_mode: spec.grid.clone(),
         strategy: spec.strategy,
         opt_level: spec.opt.to_string(),
-        threads: spec.threads,
+        threads: spec.total_threads(),
+        ranks: spec.ranks,
+        threads_per_rank: spec.threads,
+        launcher: if spec.ranks > 1 {
+            campaign.launcher.expand(spec.ranks, spec.threads).join(" ")
+        } else {
+            String::new()
+        },
         pin_policy: spec.pin.label(),
-        requested_cpus: cpus_cell(cpus),
-        oversubscribed,
+        requested_cpus: cpus_cell(&plan.requested),
+        oversubscribed: plan.oversubscribed,
         rep: spec.rep,
         warmup_steps: spec.budget.warmup,
         step_limit: spec.budget.step_limit,
@@ -679,6 +716,9 @@ fn fill_from_output(row: &mut Row, req: &RunRequest, out: &RunOutput) {
     if out.exit_code != Some(0) || out.error.is_some() {
         row.status = Status::Failed;
         row.reason = process_failure(out);
+        if let Some(hint) = req.launcher.as_ref().and(launcher::failure_hint(&out.stderr_tail)) {
+            row.reason = format!("{hint}: {}", row.reason);
+        }
         return;
     }
     let summary = match read_summary(&req.json_path) {
@@ -690,7 +730,12 @@ fn fill_from_output(row: &mut Row, req: &RunRequest, out: &RunOutput) {
         }
     };
     copy_measurements(row, &summary);
-    match check_summary(&summary, &req.cpus.clone().unwrap_or_default()) {
+    let checked = if req.spec.ranks > 1 {
+        check_ranks(&summary, req.spec.ranks, req.spec.threads, req.mask.as_deref().unwrap_or_default())
+    } else {
+        check_summary(&summary, &req.cpus.clone().unwrap_or_default())
+    };
+    match checked {
         Ok(()) => row.status = Status::Ok,
         Err(reason) => {
             row.status = Status::Invalid;
@@ -765,6 +810,73 @@ fn copy_measurements(row: &mut Row, s: &Summary) {
     row.failed_particles = Some(s.failed_particles as u64);
     row.oversubscribed |= s.oversubscribed;
     row.observed_cpus = cpus_cell(&s.observed_cpus);
+    row.peak_rss_sum_bytes = s.peak_rss_bytes;
+    row.comm_s_per_step = Some(0.0);
+    row.comm_frac = Some(0.0);
+    row.comm_bytes_per_step = Some(0.0);
+    row.comm_messages_per_step = Some(0.0);
+    if let Some(ranks) = s.ranks.as_deref().filter(|r| !r.is_empty()) {
+        copy_ranks(row, s, ranks);
+    }
+}
+
+/// The `ranks` section of a summary (rank 0's report of every rank) into the row: every
+/// rank's CPUs, particles and memory, and the exchange per step.
+fn copy_ranks(row: &mut Row, s: &Summary, ranks: &[RankReport]) {
+    row.oversubscribed |= ranks.iter().any(|r| r.oversubscribed);
+    row.observed_cpus = cpus_cell(&ranks.iter().flat_map(|r| r.cpus.iter().copied()).collect::<Vec<_>>());
+    row.rank_cpus = ranks.iter().map(|r| cpus_cell(&r.cpus)).collect::<Vec<_>>().join("|");
+    row.rank_particles = ranks.iter().map(|r| r.particles.to_string()).collect::<Vec<_>>().join(" ");
+    row.rank_busy_imbalance = mpm_cli::summary::load_imbalance(&ranks.iter().map(|r| r.busy_s).collect::<Vec<_>>());
+    row.migrated_particles = Some(ranks.iter().map(|r| r.migrated).sum());
+    row.peak_rss_sum_bytes = ranks.iter().map(|r| r.peak_rss_bytes).sum();
+    let steps = s.steps.max(1) as f64;
+    let comm_max = ranks.iter().map(|r| r.exchange.seconds).fold(0.0, f64::max);
+    row.comm_s_per_step = Some(comm_max / steps);
+    row.comm_frac = (s.wall_s > 0.0).then(|| comm_max / s.wall_s);
+    let bytes: u64 =
+        ranks.iter().map(|r| r.exchange.halo_bytes + r.exchange.migration_bytes + r.exchange.reduction_bytes).sum();
+    let messages: u64 =
+        ranks.iter().map(|r| r.exchange.halo_messages + r.exchange.migration_messages + r.exchange.reductions).sum();
+    row.comm_bytes_per_step = Some(bytes as f64 / steps);
+    row.comm_messages_per_step = Some(messages as f64 / steps);
+}
+
+/// Whether the summary of a run over `ranks` ranks of `threads` threads is a valid
+/// measurement: it reports that many ranks, each with its workers; pinned (`mask` not
+/// empty), every worker is inside the mask, and when the mask has room for all workers the
+/// ranks took consecutive slices of it in rank order (disjoint CPUs, as placed).
+fn check_ranks(s: &Summary, ranks: usize, threads: usize, mask: &[usize]) -> Result<(), String> {
+    let reports = s.ranks.as_deref().unwrap_or_default();
+    if reports.len() != ranks {
+        return Err(format!(
+            "asked for {ranks} ranks, the summary reports {} (does the launcher start `{{ranks}}` processes, and \
+             was mpm built with the mpi feature?)",
+            reports.len()
+        ));
+    }
+    if let Some(r) = reports.iter().find(|r| r.cpus.len() != threads) {
+        return Err(format!("rank {} reports {} worker CPUs, asked for {threads} threads", r.rank, r.cpus.len()));
+    }
+    if mask.is_empty() {
+        return check_summary(s, &[]);
+    }
+    let observed: Vec<usize> = reports.iter().flat_map(|r| r.cpus.iter().copied()).collect();
+    if let Some(c) = observed.iter().find(|c| !mask.contains(c)) {
+        return Err(format!(
+            "pinning not honoured: a rank ran on CPU {c}, outside the CPUs [{}] given to the launcher \
+             (a launcher that binds ranks itself overrides them: use --bind-to none, or --bind none)",
+            cpus_cell(mask)
+        ));
+    }
+    if mask.len() >= ranks * threads && observed != mask[..ranks * threads] {
+        return Err(format!(
+            "pinning not honoured: ranks should take consecutive slices of [{}], observed [{}]",
+            cpus_cell(mask),
+            cpus_cell(&observed)
+        ));
+    }
+    check_summary(s, &[])
 }
 
 /// Whether a summary is a valid measurement of what was asked: the CPUs the harness
@@ -789,4 +901,109 @@ fn check_summary(s: &Summary, requested: &[usize]) -> Result<(), String> {
         return Err("summary has non-finite values (wall_s or energies)".into());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::campaign::matrix::RunBudget;
+    use mpm_core::Strategy;
+
+    fn spec(ranks: usize, threads: usize, pin: PinPolicy) -> RunSpec {
+        RunSpec {
+            scenario: "taylor".into(),
+            model: 1,
+            strategy: Strategy::DomainDecomposition,
+            opt: OptLevel::O3,
+            threads,
+            ranks,
+            pin,
+            rep: 0,
+            grid: "fixed".into(),
+            budget: RunBudget { step_limit: Some(5), end_time: None, warmup: 1 },
+        }
+    }
+
+    /// Oversubscription counts ranks x threads per rank against the usable PUs, and the
+    /// launcher's mask is the placement of all workers, ascending.
+    #[test]
+    fn ranks_times_threads_are_placed_and_counted() {
+        let laptop = Machine::synthetic("pack:1 core:2 pu:1").unwrap();
+        let p = RunPlan::of(&laptop, &spec(2, 1, PinPolicy::CLOSE)).unwrap();
+        assert_eq!((p.cpus, p.oversubscribed), (Some(vec![0, 1]), false));
+        let p = RunPlan::of(&laptop, &spec(1, 2, PinPolicy::CLOSE)).unwrap();
+        assert_eq!((p.cpus, p.oversubscribed), (Some(vec![0, 1]), false));
+        // 2 ranks x 2 threads = 4 workers on 2 cores: flagged, though each rank alone fits.
+        let p = RunPlan::of(&laptop, &spec(2, 2, PinPolicy::CLOSE)).unwrap();
+        assert_eq!((p.cpus, p.oversubscribed), (Some(vec![0, 1]), true));
+        let p = RunPlan::of(&laptop, &spec(2, 2, PinPolicy::None)).unwrap();
+        assert_eq!((p.cpus, p.requested, p.oversubscribed), (None, vec![], true));
+        // Two sockets of four cores: spread puts the ranks' workers on both sockets, close on one.
+        let two = Machine::synthetic("pack:2 core:4 pu:1").unwrap();
+        assert_eq!(RunPlan::of(&two, &spec(2, 2, PinPolicy::SPREAD)).unwrap().cpus, Some(vec![0, 2, 4, 6]));
+        assert_eq!(RunPlan::of(&two, &spec(2, 2, PinPolicy::CLOSE)).unwrap().cpus, Some(vec![0, 1, 2, 3]));
+        assert!(!RunPlan::of(&two, &spec(2, 4, PinPolicy::CLOSE)).unwrap().oversubscribed);
+        assert!(RunPlan::of(&two, &spec(3, 3, PinPolicy::CLOSE)).unwrap().oversubscribed);
+    }
+
+    fn summary(cpus: &[&[usize]]) -> Summary {
+        let ranks = cpus
+            .iter()
+            .enumerate()
+            .map(|(rank, c)| RankReport { rank, cpus: c.to_vec(), ..RankReport::default() })
+            .collect();
+        Summary { ranks: Some(ranks), wall_s: 1.0, ..Summary::default() }
+    }
+
+    #[test]
+    fn ranks_must_be_seen_on_their_slices_of_the_mask() {
+        let mask = [0, 1, 2, 3];
+        assert_eq!(check_ranks(&summary(&[&[0, 1], &[2, 3]]), 2, 2, &mask), Ok(()));
+        // Not pinned: only the rank count and the workers per rank are checked.
+        assert_eq!(check_ranks(&summary(&[&[3, 3], &[0, 0]]), 2, 2, &[]), Ok(()));
+        let err = |s: &Summary, ranks, threads, mask: &[usize]| check_ranks(s, ranks, threads, mask).unwrap_err();
+        assert!(err(&summary(&[&[0, 1], &[2, 3]]), 3, 2, &mask).contains("asked for 3 ranks"));
+        assert!(err(&summary(&[&[0], &[2]]), 2, 2, &mask).contains("2 threads"));
+        // A launcher that bound the ranks itself, elsewhere.
+        assert!(err(&summary(&[&[0, 1], &[4, 5]]), 2, 2, &mask).contains("outside the CPUs"));
+        // Both ranks on the same slice although the mask had room for both.
+        assert!(err(&summary(&[&[0, 1], &[0, 1]]), 2, 2, &mask).contains("consecutive slices"));
+        // Too small a mask (oversubscribed): sharing inside it is accepted.
+        assert_eq!(check_ranks(&summary(&[&[0, 1], &[0, 1]]), 2, 2, &[0, 1]), Ok(()));
+    }
+
+    /// The `ranks` section fills the hybrid columns: CPUs rank by rank, memory summed, the
+    /// slowest rank's exchange per step, bytes and messages of all ranks per step.
+    #[test]
+    fn rank_reports_fill_the_hybrid_columns() {
+        let mut s = summary(&[&[0], &[1]]);
+        s.steps = 10;
+        s.wall_s = 2.0;
+        s.oversubscribed = false;
+        let reports = s.ranks.as_mut().unwrap();
+        for (i, r) in reports.iter_mut().enumerate() {
+            r.particles = 100 + i;
+            r.migrated = 2;
+            r.busy_s = 1.0 + i as f64;
+            r.peak_rss_bytes = Some(1000);
+            r.exchange.halo_bytes = 800;
+            r.exchange.reduction_bytes = 200;
+            r.exchange.halo_messages = 20;
+            r.exchange.seconds = 0.1 * (i + 1) as f64;
+        }
+        s.ranks.as_mut().unwrap()[1].oversubscribed = true;
+        let mut row = Row::default();
+        copy_measurements(&mut row, &s);
+        assert_eq!(row.observed_cpus, "0 1");
+        assert_eq!(row.rank_cpus, "0|1");
+        assert_eq!(row.rank_particles, "100 101");
+        assert_eq!(row.migrated_particles, Some(4));
+        assert_eq!(row.peak_rss_sum_bytes, Some(2000));
+        assert_eq!(row.comm_bytes_per_step, Some(200.0));
+        assert_eq!(row.comm_messages_per_step, Some(4.0));
+        assert!((row.comm_s_per_step.unwrap() - 0.02).abs() < 1e-15);
+        assert!((row.comm_frac.unwrap() - 0.1).abs() < 1e-15);
+        assert!((row.rank_busy_imbalance.unwrap() - 2.0 / 1.5).abs() < 1e-12);
+        assert!(row.oversubscribed, "a rank that shares its CPUs flags the row");
+    }
 }

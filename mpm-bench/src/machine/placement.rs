@@ -350,6 +350,30 @@ impl Machine {
         Ok(Placement { oversubscribed: threads > usable || used.len() < threads, cpus })
     }
 
+    /// The placement of `ranks` MPI ranks of `threads` workers each under `policy`: the
+    /// policy places all ranks x threads workers; with several ranks the result is that CPU
+    /// set ascending without repeats (the launcher's affinity mask, which `mpm`'s ranks slice
+    /// in rank order: rank r on the CPUs r x threads .. r x threads + threads - 1 when it has
+    /// room for every worker). Oversubscribed as for one process of ranks x threads workers.
+    pub fn place_ranks(&self, policy: &PinPolicy, ranks: usize, threads: usize) -> Result<Placement> {
+        let mut p = self.place(policy, ranks * threads)?;
+        if ranks > 1 {
+            p.cpus.sort_unstable();
+            p.cpus.dedup();
+        }
+        Ok(p)
+    }
+
+    /// Each rank's CPUs under [`Machine::place_ranks`] as `mpm` takes them from the mask:
+    /// consecutive slices when the mask has room for every worker, else shared in turn.
+    pub fn rank_slices(&self, policy: &PinPolicy, ranks: usize, threads: usize) -> Result<Vec<Vec<usize>>> {
+        let mask = self.place_ranks(policy, ranks, threads)?.cpus;
+        if mask.is_empty() {
+            return Ok(vec![Vec::new(); ranks]);
+        }
+        Ok((0..ranks).map(|r| (0..threads).map(|j| mask[(r * threads + j) % mask.len()]).collect()).collect())
+    }
+
     /// Table of the CPU each worker gets for each thread count under each policy, after the
     /// place lists the policies use.
     pub fn placement_table(&self, threads: &[usize], policies: &[PinPolicy]) -> Result<String> {
@@ -540,6 +564,23 @@ mod tests {
         assert_eq!(cpus(&m, &threads(Bind::Primary), &[2]), vec![vec![0, 0]]);
         assert_eq!(cpus(&m, &PinPolicy::PRIMARY, &[2]), vec![vec![0, 1]]);
         assert!(m.place(&PinPolicy::CLOSE, 33).unwrap().oversubscribed);
+    }
+
+    /// Ranks take consecutive slices of the ascending mask of all their workers; too few
+    /// CPUs: shared in turn and flagged.
+    #[test]
+    fn ranks_slice_the_placement_of_all_workers() {
+        let m = Machine::synthetic("pack:2 core:4 pu:1").unwrap();
+        assert_eq!(m.rank_slices(&PinPolicy::CLOSE, 2, 2).unwrap(), vec![vec![0, 1], vec![2, 3]]);
+        // spread puts the two ranks on the two sockets.
+        assert_eq!(m.rank_slices(&PinPolicy::SPREAD, 2, 2).unwrap(), vec![vec![0, 2], vec![4, 6]]);
+        assert_eq!(m.rank_slices(&PinPolicy::SPREAD, 2, 1).unwrap(), vec![vec![0], vec![4]]);
+        assert!(!m.place_ranks(&PinPolicy::CLOSE, 4, 2).unwrap().oversubscribed);
+        let laptop = Machine::synthetic("pack:1 core:2 pu:1").unwrap();
+        let p = laptop.place_ranks(&PinPolicy::CLOSE, 2, 2).unwrap();
+        assert_eq!((p.cpus.clone(), p.oversubscribed), (vec![0, 1], true));
+        assert_eq!(laptop.rank_slices(&PinPolicy::CLOSE, 2, 2).unwrap(), vec![vec![0, 1], vec![0, 1]]);
+        assert_eq!(laptop.rank_slices(&PinPolicy::None, 2, 1).unwrap(), vec![Vec::<usize>::new(), vec![]]);
     }
 
     #[test]

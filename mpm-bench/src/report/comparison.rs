@@ -6,12 +6,15 @@
 //! first on their matching cells ([`crate::analysis::ratio`]): a headline per model, the
 //! per-cell ratios and the cells left out. Then: time per step, throughput and ns per
 //! particle-step; speedup and efficiency with the machines overlaid (oversubscribed points
-//! hollow, busy-host points grey); peak memory; the paper's claims per machine
-//! ([`crate::analysis::claims`]); the machines side by side from each `manifest.json`.
+//! hollow, busy-host points grey); peak memory; runs over several MPI ranks against total
+//! cores ([`super::hybrid`], only when a campaign has such runs); the paper's claims per
+//! machine ([`crate::analysis::claims`]); the machines side by side from each `manifest.json`.
 
 use super::doc::{Block, Doc, Section};
+use super::plot::svg_string;
 use super::report_figures;
 use crate::analysis::claims::{self, ClaimResult};
+use crate::analysis::hybrid::HybridAnalysis;
 use crate::analysis::ratio::{self, Comparison};
 use crate::analysis::results::{load_campaign, Campaign};
 use crate::analysis::stats::{self, parallel_strategies, tag, Analysis, Compare, Estimate, Stage, StatsOptions};
@@ -46,6 +49,7 @@ pub(super) struct Set {
     pub(super) label: String,
     pub(super) campaign: Campaign,
     pub(super) analysis: Analysis,
+    hybrid: HybridAnalysis,
     claims: Vec<ClaimResult>,
 }
 
@@ -88,8 +92,9 @@ fn load_sets(args: &ReportArgs) -> Result<Vec<Set>> {
     for d in &args.dirs {
         let c = load_campaign(d).with_context(|| format!("reading results {}", d.display()))?;
         let an = c.analyse(args.pin.as_deref());
+        let hybrid = HybridAnalysis::from_rows(&c.rows, &c.hybrid, Some(&an.pin_policy), &StatsOptions::default());
         let cl = claims::evaluate(&c, &an);
-        sets.push(Set { label: String::new(), campaign: c, analysis: an, claims: cl });
+        sets.push(Set { label: String::new(), campaign: c, analysis: an, hybrid, claims: cl });
     }
     let fps: Vec<String> = sets.iter().map(|s| s.campaign.fingerprint()).collect();
     for (i, set) in sets.iter_mut().enumerate() {
@@ -337,6 +342,29 @@ fn memory_section(sets: &[Set]) -> Section {
     )
 }
 
+/// Runs over several MPI ranks, per set that has them: the table and the figure against
+/// total cores. `None` when no set has such runs.
+fn hybrid_section(sets: &[Set]) -> Result<Option<Section>> {
+    let mut blocks = vec![Block::Para(format!(
+        "Runs split over MPI ranks, each rank with its own pinned threads: time per step, speedup against one rank of \
+         one thread and efficiency over the total cores (ranks x threads per rank), the share of the wall time the \
+         slowest rank spent in the exchange, the bytes all ranks sent per step and the peak memory summed over the \
+         ranks. Medians with 95 % bootstrap intervals. *: oversubscribed. These runs are not part of the tables, \
+         figures, ratios and claims above, which compare one-process runs only. {}",
+        super::hybrid::FOOTNOTE
+    ))];
+    for (i, set) in sets.iter().enumerate().filter(|(_, s)| !s.hybrid.points.is_empty()) {
+        let (head, rows) = super::hybrid::table(&set.hybrid);
+        blocks.push(Block::Table { caption: format!("Hybrid runs on {}", set.label), head, rows });
+        blocks.extend(set.hybrid.notes.iter().map(|n| Block::Para(format!("{}: note: {n}", set.label))));
+        let (panels, grid) = super::hybrid::panels(&set.hybrid);
+        let title = format!("{} on {}", super::hybrid::TITLE, set.label);
+        let svg = svg_string(super::hybrid::size(grid.0), &title, &panels, grid, &[super::hybrid::FOOTNOTE.into()])?;
+        blocks.push(Block::Figure { title, file: format!("hybrid-{}.svg", i + 1), svg });
+    }
+    Ok((blocks.len() > 1).then(|| section("hybrid", "Hybrid MPI x threads: speedup against total cores", blocks)))
+}
+
 /// The verdicts side by side, then each set's reasons and evidence.
 fn claims_section(sets: &[Set]) -> Section {
     let mut head = vec!["claim".to_string()];
@@ -394,6 +422,7 @@ pub fn build(args: &ReportArgs) -> Result<Report> {
     sc.extend(report_figures::scaling_figures(&sets)?);
     page.sections.push(section("scaling", "Speedup and efficiency, machines overlaid", sc));
     page.sections.push(memory_section(&sets));
+    page.sections.extend(hybrid_section(&sets)?);
     page.sections.push(claims_section(&sets));
     page.sections.push(super::machines::machines_section(&sets));
     Ok(Report { comparisons, page })
@@ -401,8 +430,8 @@ pub fn build(args: &ReportArgs) -> Result<Report> {
 
 /// Count of ok and not-ok rows of a campaign.
 pub(super) fn row_counts(c: &Campaign) -> String {
-    let ok = c.rows.iter().filter(|r| r.status == Status::Ok).count();
-    format!("{ok} / {}", c.rows.len() - ok)
+    let ok = c.all_rows().filter(|r| r.status == Status::Ok).count();
+    format!("{ok} / {}", c.rows.len() + c.hybrid.len() - ok)
 }
 
 /// `mpm-bench report`.

@@ -12,9 +12,12 @@
 //! program ([`super::plot`]).
 //!
 //! Files: `fig07.{png,svg}` .. `fig14.{png,svg}`, `fig_memory.{png,svg}` and a `README.md`
-//! saying which campaign and command made them.
+//! saying which campaign and command made them. These use the one-process rows only; a
+//! campaign with runs over several MPI ranks also gets `fig_hybrid.{png,svg}` (speedup
+//! against total cores, [`super::hybrid`]).
 
 use super::plot::{write_png_svg, Line, Panel, PlotPoint};
+use crate::analysis::hybrid::HybridAnalysis;
 use crate::analysis::results::{load_campaign, Campaign};
 use crate::analysis::stats::{parallel_strategies, tag, Analysis, CellKey, Point, Stage, StatsOptions};
 use anyhow::{Context, Result};
@@ -325,14 +328,36 @@ pub fn write_all(c: &Campaign, an: &Analysis, out: &Path, command: &str) -> Resu
         (rows, cols),
         &mem_notes,
     )?);
+    let hybrid = HybridAnalysis::from_rows(&c.rows, &c.hybrid, Some(&an.pin_policy), &StatsOptions::default());
+    if !hybrid.points.is_empty() {
+        let (panels, grid) = super::hybrid::panels(&hybrid);
+        let mut notes = vec![super::hybrid::FOOTNOTE.to_string()];
+        notes.push(format!(
+            "Campaign {} on machine {} ({} rows over several ranks, pinning '{}').",
+            c.id(),
+            c.fingerprint(),
+            c.hybrid.len(),
+            hybrid.pin_policy
+        ));
+        notes.extend(hybrid.notes.iter().map(|n| format!("Note: {n}")));
+        files.extend(write_png_svg(
+            out,
+            "fig_hybrid",
+            super::hybrid::size(grid.0),
+            super::hybrid::TITLE,
+            &panels,
+            grid,
+            &notes,
+        )?);
+    }
     let readme = out.join("README.md");
-    std::fs::write(&readme, readme_text(c, an, command))
+    std::fs::write(&readme, readme_text(c, an, &hybrid, command))
         .with_context(|| format!("cannot write {}", readme.display()))?;
     files.push(readme);
     Ok(files)
 }
 
-fn readme_text(c: &Campaign, an: &Analysis, command: &str) -> String {
+fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &str) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# Figures 7-14 of the paper, regenerated\n");
     let _ = writeln!(s, "Made from campaign `{}` on machine `{}`:", c.id(), c.fingerprint());
@@ -356,7 +381,23 @@ fn readme_text(c: &Campaign, an: &Analysis, command: &str) -> String {
     for spec in &PAPER_FIGURES {
         let _ = writeln!(s, "| {}.png / .svg | {} |", spec.stem(), spec.title());
     }
-    let _ = writeln!(s, "| fig_memory.png / .svg | Peak memory vs threads, AE vs DD, per model (claims C2, C6) |\n");
+    let _ = writeln!(s, "| fig_memory.png / .svg | Peak memory vs threads, AE vs DD, per model (claims C2, C6) |");
+    if !hybrid.points.is_empty() {
+        let _ = writeln!(
+            s,
+            "| fig_hybrid.png / .svg | Hybrid MPI x threads: speedup, efficiency and exchange share vs total cores, one line per rank count |"
+        );
+    }
+    let _ = writeln!(s);
+    if !c.hybrid.is_empty() {
+        let _ = writeln!(
+            s,
+            "Figures 7-14 and the memory figure use the {} one-process rows only; the {} rows over several MPI \
+             ranks are in fig_hybrid, against total cores (ranks x threads per rank).\n",
+            c.rows.len(),
+            c.hybrid.len()
+        );
+    }
     let _ = writeln!(
         s,
         "Each of Figures 7-14 has three panels: (a) total computation (steady-state time per step), \

@@ -2,6 +2,7 @@
 //!
 //! * [`plot`]: panels, legends and PNG/SVG output;
 //! * [`figures`]: the paper's Figures 7-14 and the memory figure;
+//! * [`hybrid`]: the hybrid MPI x threads figure and table (speedup vs total cores);
 //! * [`comparison`]: the hardware report over one or more campaigns (one page as HTML,
 //!   Markdown and JSON), built on [`doc`], the page model and its renderings;
 //! * [`impact_table`]: the table of the committed impact runs;
@@ -10,6 +11,7 @@
 pub mod comparison;
 pub mod doc;
 pub mod figures;
+pub mod hybrid;
 pub mod imbalance;
 pub mod impact_table;
 mod machines;

@@ -215,6 +215,7 @@ pub fn write_manifest(dir: &Path, t: &str) {
             hwloc_api: "2.9.0".into(),
             harness_version: "test".into(),
             git: GitInfo::default(),
+            mpi_launcher: None,
         },
         sessions: vec![],
     };

@@ -1,0 +1,219 @@
+//! Hybrid MPI x threads: speedup and efficiency against the total cores of a run (ranks x
+//! threads per rank), for every (model, strategy, optimisation level) a campaign ran over
+//! several ranks.
+//!
+//! A configuration is (model, strategy, opt level, ranks, threads per rank); its time is the
+//! median steady-state time per step (rank 0's, which every step's reductions keep in step
+//! with the others) over the `ok` repetitions. The base `T_1` is the same model, strategy and
+//! opt level at one rank and one thread, so `S = T_1 / T_{R x T}` and `E = S / (R x T)`, with
+//! 95 % bootstrap intervals as in [`super::stats`]. The exchange's share of the step, the
+//! bytes sent per step and the memory summed over the ranks are medians over the same rows.
+//!
+//! One-process rows enter only as the `ranks = 1` configurations of a (model, strategy, opt)
+//! that also has rows over several ranks; the paper's analyses never see the rows over
+//! several ranks (they are split off when a campaign is read).
+
+use super::stats::{bootstrap, choose_pin, Estimate, StatsOptions};
+use crate::campaign::record::{Row, Status};
+use crate::util::median;
+use mpm_core::Strategy;
+use serde::Serialize;
+use std::collections::{BTreeMap, BTreeSet};
+
+/// One hybrid configuration.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
+pub struct HybridKey {
+    /// Model.
+    pub model: u32,
+    /// Strategy inside each rank.
+    pub strategy: Strategy,
+    /// Optimisation level.
+    pub opt_level: String,
+    /// MPI ranks.
+    pub ranks: usize,
+    /// Threads per rank.
+    pub threads: usize,
+}
+
+impl HybridKey {
+    /// Total cores the configuration occupies: ranks x threads per rank.
+    pub fn cores(&self) -> usize {
+        self.ranks * self.threads
+    }
+
+    /// `Model3 DD O3 2x1`.
+    pub fn label(&self) -> String {
+        format!(
+            "Model{} {} {} {}x{}",
+            self.model,
+            super::stats::tag(self.strategy),
+            self.opt_level.to_uppercase(),
+            self.ranks,
+            self.threads
+        )
+    }
+}
+
+/// One measured configuration with its speedup against one rank of one thread.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct HybridPoint {
+    /// The configuration.
+    pub key: HybridKey,
+    /// Steady-state time per step (s).
+    pub time: Estimate,
+    /// `T_1`: one rank, one thread (s); `None` without such a run.
+    pub t1: Option<Estimate>,
+    /// `T_1 / T`.
+    pub speedup: Option<Estimate>,
+    /// Speedup over the total cores.
+    pub efficiency: Option<Estimate>,
+    /// Median exchange seconds over the run's wall time (0 at one rank).
+    pub comm_frac: Option<f64>,
+    /// Median bytes sent per step, all ranks.
+    pub comm_bytes_per_step: Option<f64>,
+    /// Median peak memory summed over the ranks (bytes).
+    pub memory_sum_bytes: Option<f64>,
+    /// Any repetition had more workers than usable cores (or ranks sharing CPUs).
+    pub oversubscribed: bool,
+    /// Any repetition (or of its base) was measured on a busy host.
+    pub noisy: bool,
+    /// `ok` repetitions.
+    pub reps: usize,
+}
+
+impl HybridPoint {
+    /// Total cores.
+    pub fn cores(&self) -> usize {
+        self.key.cores()
+    }
+}
+
+/// The hybrid analysis of a campaign.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct HybridAnalysis {
+    /// Every measured configuration, sorted by key.
+    pub points: Vec<HybridPoint>,
+    /// The pinning policy analysed.
+    pub pin_policy: String,
+    /// Things the reader should know (several pinning policies, no base run, ...).
+    pub notes: Vec<String>,
+}
+
+/// The `ok` rows of one configuration.
+#[derive(Default)]
+struct Samples {
+    time: Vec<f64>,
+    comm_frac: Vec<f64>,
+    bytes: Vec<f64>,
+    memory: Vec<f64>,
+    oversubscribed: bool,
+    noisy: bool,
+}
+
+impl HybridAnalysis {
+    /// Analyse `hybrid` (rows over several ranks) with `one` (one-process rows) as the
+    /// `ranks = 1` configurations and the base. Empty when `hybrid` is.
+    pub fn from_rows(one: &[Row], hybrid: &[Row], pin: Option<&str>, opts: &StatsOptions) -> Self {
+        let mut an = HybridAnalysis::default();
+        if hybrid.is_empty() {
+            return an;
+        }
+        let (chosen, note) = choose_pin(one.iter().chain(hybrid), pin);
+        an.notes.extend(note);
+        let cells: BTreeSet<(u32, Strategy, &str)> = hybrid
+            .iter()
+            .filter(|r| r.pin_policy == chosen)
+            .map(|r| (r.model, r.strategy, r.opt_level.as_str()))
+            .collect();
+        let mut samples: BTreeMap<HybridKey, Samples> = BTreeMap::new();
+        for r in one.iter().chain(hybrid) {
+            if r.pin_policy != chosen || !cells.contains(&(r.model, r.strategy, r.opt_level.as_str())) {
+                continue;
+            }
+            let key = HybridKey {
+                model: r.model,
+                strategy: r.strategy,
+                opt_level: r.opt_level.clone(),
+                ranks: r.ranks.max(1),
+                threads: r.per_rank_threads(),
+            };
+            let s = samples.entry(key).or_default();
+            s.oversubscribed |= r.oversubscribed;
+            let Some(t) = r.steady_s_per_step.filter(|_| r.status == Status::Ok) else { continue };
+            s.time.push(t);
+            s.noisy |= r.host_noisy;
+            s.comm_frac.extend(r.comm_frac);
+            s.bytes.extend(r.comm_bytes_per_step);
+            s.memory.extend(r.peak_rss_sum_bytes.or(r.peak_rss_bytes).map(|b| b as f64));
+        }
+        let mut missing = BTreeSet::new();
+        for (key, s) in &samples {
+            if s.time.is_empty() {
+                continue;
+            }
+            let base_key = HybridKey { ranks: 1, threads: 1, ..key.clone() };
+            let base = samples.get(&base_key).filter(|b| !b.time.is_empty());
+            let label = key.label();
+            let time = bootstrap(&[&s.time], &|m| m[0], opts, &label);
+            let (t1, speedup) = match base {
+                Some(_) if base_key == *key => (Some(time), Some(Estimate::point(1.0, s.time.len()))),
+                Some(b) => (
+                    Some(bootstrap(&[&b.time], &|m| m[0], opts, &base_key.label())),
+                    Some(bootstrap(&[&b.time, &s.time], &|m| m[0] / m[1], opts, &format!("{label}/speedup"))),
+                ),
+                None => {
+                    missing.insert(format!("Model{} {} {}", key.model, key.strategy, key.opt_level));
+                    (None, None)
+                }
+            };
+            let med = |v: &[f64]| (!v.is_empty()).then(|| median(v));
+            an.points.push(HybridPoint {
+                key: key.clone(),
+                time,
+                t1,
+                speedup,
+                efficiency: speedup.map(|e| e.scale(1.0 / key.cores() as f64)),
+                comm_frac: med(&s.comm_frac),
+                comm_bytes_per_step: med(&s.bytes),
+                memory_sum_bytes: med(&s.memory),
+                oversubscribed: s.oversubscribed,
+                noisy: s.noisy || base.is_some_and(|b| b.noisy),
+                reps: s.time.len(),
+            });
+        }
+        if !missing.is_empty() {
+            an.notes.push(format!(
+                "no run of 1 rank x 1 thread (ok) for {}: no hybrid speedup there",
+                missing.into_iter().collect::<Vec<_>>().join(", ")
+            ));
+        }
+        an.pin_policy = chosen;
+        an
+    }
+
+    /// The (model, strategy, opt level) combinations, sorted.
+    pub fn combos(&self) -> Vec<(u32, Strategy, String)> {
+        let set: BTreeSet<(u32, Strategy, String)> =
+            self.points.iter().map(|p| (p.key.model, p.key.strategy, p.key.opt_level.clone())).collect();
+        set.into_iter().collect()
+    }
+
+    /// The rank counts measured, ascending.
+    pub fn rank_counts(&self) -> Vec<usize> {
+        let set: BTreeSet<usize> = self.points.iter().map(|p| p.key.ranks).collect();
+        set.into_iter().collect()
+    }
+
+    /// The points of one line: a combination at `ranks` ranks, by ascending total cores.
+    pub fn line(&self, model: u32, strategy: Strategy, opt: &str, ranks: usize) -> Vec<&HybridPoint> {
+        let mut v: Vec<&HybridPoint> = self
+            .points
+            .iter()
+            .filter(|p| {
+                p.key.model == model && p.key.strategy == strategy && p.key.opt_level == opt && p.key.ranks == ranks
+            })
+            .collect();
+        v.sort_by_key(|p| p.cores());
+        v
+    }
+}
