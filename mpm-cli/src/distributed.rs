@@ -117,8 +117,10 @@ mod mpi_impl {
         world: SimpleCommunicator,
         rank: usize,
         boxes: RankBoxes,
-        /// This rank's box in lattice coordinates ([`RankBoxes::lattice_bounds`]).
+        /// This rank's box in lattice coordinates ([`RankBoxes::lattice_bounds`]), and the
+        /// axes along which it is bounded (the others need no test).
         bounds: [(f64, f64); 3],
+        bounded: Vec<usize>,
         /// Ranks adjacent in the layout (the only possible destinations of a particle).
         adjacent: Vec<usize>,
         ids: Ids,
@@ -159,6 +161,9 @@ mod mpi_impl {
                 world,
                 rank,
                 bounds: boxes.lattice_bounds(rank),
+                bounded: (0..3)
+                    .filter(|&d| boxes.lattice_bounds(rank)[d] != (f64::NEG_INFINITY, f64::INFINITY))
+                    .collect(),
                 boxes,
                 ids: Ids::Narrow(Vec::new()),
                 links: Vec::new(),
@@ -221,7 +226,7 @@ mod mpi_impl {
         /// for finite positions, without its floor and search).
         #[inline]
         fn in_box(&self, x: [f64; 3]) -> bool {
-            (0..3).all(|d| {
+            self.bounded.iter().all(|&d| {
                 let xi = (x[d] - self.boxes.anchor[d]) * self.boxes.inv_dx;
                 xi >= self.bounds[d].0 && xi < self.bounds[d].1
             })
