@@ -2,11 +2,15 @@
 //! build without MPI can say what is wrong) and, with the `mpi` feature, [`MpiExchange`],
 //! the implementation of `mpm-core`'s [`mpm_core::Exchange`] with MPI.
 //!
-//! Per step the exchange sends, to each rank whose local grid overlaps this rank's, the
-//! nodal values on the overlap (twice: after the P2G scatter and after the re-map), the
-//! particles that crossed into a neighbouring box (a count, then the states), and takes part
-//! in three small reductions (sums in rank order, counts, maxima). Point-to-point messages
-//! are non-blocking: every receive and send of a phase is posted before any is waited for.
+//! Per step the exchange sends, to each rank whose local grid (the nodes of its box's cells,
+//! [`mpm_core::exchange::RankBoxes::node_range`]) meets this rank's, the nodal values on
+//! the nodes they share (a face's node layer, an edge or a corner; twice: after the P2G
+//! scatter and after the re-map), one message per adjacent rank with the particles that
+//! crossed into its box (its length, found by a probe, is the count), and takes part in
+//! three small reductions (sums in rank order, counts, maxima). Halo messages are
+//! non-blocking: every receive and send of a phase is posted before any is waited for. The
+//! buffers are kept from step to step; a step allocates nothing once they have reached
+//! their largest size.
 
 /// Ranks the launcher started, from `OMPI_COMM_WORLD_SIZE` (Open MPI) or `PMI_SIZE`
 /// (MPICH, Slurm); `None` outside a launcher.
@@ -23,6 +27,8 @@ pub use mpi_impl::MpiExchange;
 #[cfg(feature = "mpi")]
 mod mpi_impl {
     use mpi::collective::SystemOperation;
+    use mpi::datatype::Equivalence;
+    use mpi::request::Request;
     use mpi::topology::{Communicator, SimpleCommunicator};
     use mpi::traits::{CommunicatorCollectives, Destination, Source};
     use mpm_core::exchange::{ExchangeStats, RankBoxes};
@@ -32,6 +38,71 @@ mod mpi_impl {
 
     /// Values per migrating particle: its state and its global id.
     const RECORD: usize = PACKED_WIDTH + 1;
+
+    /// Peers whose requests a phase holds on the stack (the 26 neighbours of an interior
+    /// box fit); more (many boxes clipped onto the grid's boundary cell) go to the heap.
+    const STACK_PEERS: usize = 32;
+
+    /// Tags of the two kinds of point-to-point messages.
+    const HALO: i32 = 1;
+    const MIGRATION: i32 = 2;
+
+    /// Global ids of a rank's particles: 4 bytes each while every id fits in 32 bits (sets
+    /// of fewer than 2^32 particles), 8 bytes from the first one that does not.
+    enum Ids {
+        Narrow(Vec<u32>),
+        Wide(Vec<u64>),
+    }
+
+    impl Ids {
+        fn new(ids: Vec<u64>) -> Self {
+            match ids.iter().map(|&id| u32::try_from(id)).collect() {
+                Ok(narrow) => Ids::Narrow(narrow),
+                Err(_) => Ids::Wide(ids),
+            }
+        }
+
+        fn get(&self, p: usize) -> u64 {
+            match self {
+                Ids::Narrow(v) => u64::from(v[p]),
+                Ids::Wide(v) => v[p],
+            }
+        }
+
+        fn swap_remove(&mut self, p: usize) {
+            match self {
+                Ids::Narrow(v) => _ = v.swap_remove(p),
+                Ids::Wide(v) => _ = v.swap_remove(p),
+            }
+        }
+
+        /// Room for `additional` more, growing by at least 1/16 (as the particles do).
+        fn reserve_headroom(&mut self, additional: usize) {
+            fn reserve<T>(v: &mut Vec<T>, additional: usize) {
+                if v.capacity() - v.len() < additional {
+                    v.reserve_exact(additional.max(v.len() / 16));
+                }
+            }
+            match self {
+                Ids::Narrow(v) => reserve(v, additional),
+                Ids::Wide(v) => reserve(v, additional),
+            }
+        }
+
+        fn push(&mut self, id: u64) {
+            match self {
+                Ids::Narrow(v) => match u32::try_from(id) {
+                    Ok(id) => v.push(id),
+                    Err(_) => {
+                        let mut wide: Vec<u64> = v.iter().map(|&i| u64::from(i)).collect();
+                        wide.push(id);
+                        *self = Ids::Wide(wide);
+                    }
+                },
+                Ids::Wide(v) => v.push(id),
+            }
+        }
+    }
 
     /// The nodes this rank shares with rank `rank`: a box of local node indices
     /// (inclusive ranges per axis).
@@ -46,20 +117,25 @@ mod mpi_impl {
         world: SimpleCommunicator,
         rank: usize,
         boxes: RankBoxes,
+        /// This rank's box in lattice coordinates ([`RankBoxes::lattice_bounds`]), and the
+        /// axes along which it is bounded (the others need no test).
+        bounds: [(f64, f64); 3],
+        bounded: Vec<usize>,
         /// Ranks adjacent in the layout (the only possible destinations of a particle).
         adjacent: Vec<usize>,
-        ids: Vec<u64>,
-        /// Links of the current global grid, increasing rank.
+        ids: Ids,
+        /// Links of the current global grid, increasing rank, and their ranks.
         links: Vec<Link>,
+        peers: Vec<usize>,
         links_for: Option<GridGeom>,
         /// Local node indices on any link, increasing, and this rank's values there.
         shared: Vec<usize>,
         saved: Vec<f64>,
         send: Vec<Vec<f64>>,
         recv: Vec<Vec<f64>>,
-        counts_out: Vec<u64>,
-        counts_in: Vec<u64>,
         gather: Vec<f64>,
+        scratch_f64: Vec<f64>,
+        scratch_u64: Vec<u64>,
         stats: ExchangeStats,
     }
 
@@ -84,17 +160,22 @@ mod mpi_impl {
             Ok(Self {
                 world,
                 rank,
+                bounds: boxes.lattice_bounds(rank),
+                bounded: (0..3)
+                    .filter(|&d| boxes.lattice_bounds(rank)[d] != (f64::NEG_INFINITY, f64::INFINITY))
+                    .collect(),
                 boxes,
-                ids: Vec::new(),
+                ids: Ids::Narrow(Vec::new()),
                 links: Vec::new(),
+                peers: Vec::new(),
                 links_for: None,
                 shared: Vec::new(),
                 saved: Vec::new(),
                 send: vec![Vec::new(); n],
                 recv: vec![Vec::new(); n],
-                counts_out: vec![0; n],
-                counts_in: vec![0; n],
                 gather: Vec::new(),
+                scratch_f64: Vec::new(),
+                scratch_u64: Vec::new(),
                 stats: ExchangeStats::default(),
                 adjacent,
             })
@@ -105,84 +186,50 @@ mod mpi_impl {
             &self.world
         }
 
-        /// Recompute the links for a new global grid.
+        /// Recompute the links for a new global grid: the nodes this rank's local grid
+        /// shares with each other rank's, in this rank's local numbering.
         fn link(&mut self, global: &GridGeom) {
             let mine = self.boxes.node_range(self.rank, global);
+            let offset = mine.map(|r| r.0);
             let local = self.boxes.local_grid(self.rank, global);
             self.links.clear();
-            for q in 0..self.boxes.ranks() {
-                if q == self.rank {
-                    continue;
-                }
+            for q in (0..self.boxes.ranks()).filter(|&q| q != self.rank) {
                 let theirs = self.boxes.node_range(q, global);
                 let mut nodes = [(0, 0); 3];
                 let overlaps = (0..3).all(|d| {
                     let (lo, hi) = (mine[d].0.max(theirs[d].0), mine[d].1.min(theirs[d].1));
-                    nodes[d] = (lo.wrapping_sub(mine[d].0), hi.wrapping_sub(mine[d].0));
+                    nodes[d] = (lo.wrapping_sub(offset[d]), hi.wrapping_sub(offset[d]));
                     lo <= hi
                 });
                 if overlaps {
                     self.links.push(Link { rank: q, nodes });
                 }
             }
-            let mut mark = vec![false; local.num_nodes()];
+            self.peers.clear();
+            self.peers.extend(self.links.iter().map(|l| l.rank));
+            // A node on an edge or corner is on several links: listed once.
+            self.shared.clear();
             for l in &self.links {
-                for_each_node(&local, l.nodes, |i| mark[i] = true);
+                for_each_node(&local, l.nodes, |i| self.shared.push(i));
             }
-            self.shared = (0..mark.len()).filter(|&i| mark[i]).collect();
+            self.shared.sort_unstable();
+            self.shared.dedup();
             self.links_for = Some(*global);
             let n = self.links.len().max(self.adjacent.len());
-            self.send.resize(n, Vec::new());
-            self.recv.resize(n, Vec::new());
+            if self.send.len() < n {
+                self.send.resize(n, Vec::new());
+                self.recv.resize(n, Vec::new());
+            }
         }
 
-        /// Post every receive and send of one phase and wait for all of them. `recv[i]` must
-        /// already have the size of the message from `peers[i]`.
-        fn swap(&mut self, peers: &[usize], tag: i32) {
-            let world = &self.world;
-            let (send, recv) = (&self.send, &mut self.recv);
-            mpi::request::scope(|scope| {
-                let mut requests = Vec::with_capacity(2 * peers.len());
-                for (&q, buf) in peers.iter().zip(recv.iter_mut()) {
-                    let p = world.process_at_rank(q as i32);
-                    requests.push(p.immediate_receive_into_with_tag(scope, &mut buf[..], tag));
-                }
-                for (&q, buf) in peers.iter().zip(send.iter()) {
-                    let p = world.process_at_rank(q as i32);
-                    requests.push(p.immediate_send_with_tag(scope, &buf[..], tag));
-                }
-                for r in requests {
-                    r.wait();
-                }
-            });
-        }
-
-        /// Element-wise `op` over ranks (exact operations only: integer sums, maxima).
-        fn all_reduce<T: mpi::datatype::Equivalence + Copy>(&mut self, values: &mut [T], op: SystemOperation) {
-            let t0 = Instant::now();
-            let mine = values.to_vec();
-            self.world.all_reduce_into(&mine[..], values, op);
-            self.stats.reduction_bytes += std::mem::size_of_val(values) as u64;
-            self.stats.reductions += 1;
-            self.stats.seconds += t0.elapsed().as_secs_f64();
-        }
-
-        /// Exchange the counts of particles leaving for each adjacent rank.
-        fn swap_counts(&mut self) {
-            let world = &self.world;
-            let (out, inc) = (&self.counts_out, &mut self.counts_in);
-            mpi::request::scope(|scope| {
-                let mut requests = Vec::with_capacity(2 * self.adjacent.len());
-                for (&q, c) in self.adjacent.iter().zip(inc.iter_mut()) {
-                    requests.push(world.process_at_rank(q as i32).immediate_receive_into_with_tag(scope, c, 3));
-                }
-                for (&q, c) in self.adjacent.iter().zip(out.iter()) {
-                    requests.push(world.process_at_rank(q as i32).immediate_send_with_tag(scope, c, 3));
-                }
-                for r in requests {
-                    r.wait();
-                }
-            });
+        /// Whether `x` lies in this rank's box (the same answer as `boxes.owner(x) == rank`
+        /// for finite positions, without its floor and search).
+        #[inline]
+        fn in_box(&self, x: [f64; 3]) -> bool {
+            self.bounded.iter().all(|&d| {
+                let xi = (x[d] - self.boxes.anchor[d]) * self.boxes.inv_dx;
+                xi >= self.bounds[d].0 && xi < self.bounds[d].1
+            })
         }
     }
 
@@ -204,6 +251,63 @@ mod mpi_impl {
         }
     }
 
+    /// Requests of one phase: on the stack for up to [`STACK_PEERS`] peers each way.
+    struct Pending<'a, S: mpi::request::Scope<'a>> {
+        stack: [Option<Request<'a, [f64], S>>; 2 * STACK_PEERS],
+        len: usize,
+        heap: Vec<Request<'a, [f64], S>>,
+    }
+
+    impl<'a, S: mpi::request::Scope<'a>> Pending<'a, S> {
+        fn new() -> Self {
+            Self { stack: std::array::from_fn(|_| None), len: 0, heap: Vec::new() }
+        }
+
+        fn hold(&mut self, r: Request<'a, [f64], S>) {
+            if self.len < self.stack.len() {
+                self.stack[self.len] = Some(r);
+                self.len += 1;
+            } else {
+                self.heap.push(r);
+            }
+        }
+
+        fn wait_all(self) {
+            for r in self.stack.into_iter().flatten().chain(self.heap) {
+                r.wait_without_status();
+            }
+        }
+    }
+
+    /// Post a receive into `recv[i]` (already of the message's size) and a send of
+    /// `send[i]` for every `peers[i]`, then wait for all of them: every request is posted
+    /// before any is waited for.
+    fn swap(world: &SimpleCommunicator, peers: &[usize], send: &[Vec<f64>], recv: &mut [Vec<f64>], tag: i32) {
+        mpi::request::scope(|scope| {
+            let mut pending = Pending::new();
+            for (&q, buf) in peers.iter().zip(recv.iter_mut()) {
+                pending.hold(world.process_at_rank(q as i32).immediate_receive_into_with_tag(scope, &mut buf[..], tag));
+            }
+            for (&q, buf) in peers.iter().zip(send) {
+                pending.hold(world.process_at_rank(q as i32).immediate_send_with_tag(scope, &buf[..], tag));
+            }
+            pending.wait_all();
+        });
+    }
+
+    /// Element-wise `op` over ranks (exact operations only: integer sums, maxima), through
+    /// a kept copy of the input.
+    fn all_reduce<T: Equivalence + Copy>(
+        world: &SimpleCommunicator,
+        values: &mut [T],
+        copy: &mut Vec<T>,
+        op: SystemOperation,
+    ) {
+        copy.clear();
+        copy.extend_from_slice(values);
+        world.all_reduce_into(&copy[..], values, op);
+    }
+
     impl Exchange for MpiExchange {
         fn ranks(&self) -> usize {
             self.boxes.ranks()
@@ -213,10 +317,23 @@ mod mpi_impl {
             self.rank
         }
 
-        fn adopt(&mut self, particles: &mut Particles) -> Result<(), SimError> {
-            let owners: Vec<usize> = particles.x.iter().map(|&x| self.boxes.owner(x)).collect();
-            self.ids = (0..owners.len() as u64).filter(|&p| owners[p as usize] == self.rank).collect();
-            particles.retain_indices(|p| owners[p] == self.rank);
+        fn adopt(&mut self, particles: &mut Particles, ids: Option<Vec<u64>>) -> Result<(), SimError> {
+            let ids = ids.unwrap_or_else(|| (0..particles.len() as u64).collect());
+            if ids.len() != particles.len() {
+                return Err(SimError::Config(format!(
+                    "{} particle ids for {} particles; build the set-up with one id per particle",
+                    ids.len(),
+                    particles.len()
+                )));
+            }
+            let mine: Vec<bool> = particles.x.iter().map(|&x| self.boxes.owner(x) == self.rank).collect();
+            if mine.iter().all(|&m| m) {
+                self.ids = Ids::new(ids);
+                return Ok(());
+            }
+            particles.retain_indices(|p| mine[p]);
+            particles.shrink_to_fit();
+            self.ids = Ids::new(ids.into_iter().zip(&mine).filter(|(_, &m)| m).map(|(id, _)| id).collect());
             Ok(())
         }
 
@@ -229,16 +346,14 @@ mod mpi_impl {
 
         fn sum_shared_nodes(&mut self, local: &GridGeom, values: &mut [f64], width: usize) -> Result<(), SimError> {
             let t0 = Instant::now();
-            let links = std::mem::take(&mut self.links);
-            for (l, (send, recv)) in links.iter().zip(self.send.iter_mut().zip(self.recv.iter_mut())) {
+            for (l, (send, recv)) in self.links.iter().zip(self.send.iter_mut().zip(self.recv.iter_mut())) {
                 send.clear();
                 for_each_node(local, l.nodes, |i| send.extend_from_slice(&values[i * width..(i + 1) * width]));
                 recv.resize(send.len(), 0.0);
                 self.stats.halo_bytes += (send.len() * 8) as u64;
             }
-            self.stats.halo_messages += links.len() as u64;
-            let peers: Vec<usize> = links.iter().map(|l| l.rank).collect();
-            self.swap(&peers, 1);
+            self.stats.halo_messages += self.links.len() as u64;
+            swap(&self.world, &self.peers, &self.send, &mut self.recv, HALO);
             // Every shared node becomes the sum of the ranks' values in rank order, the
             // same on every rank that holds it.
             self.saved.clear();
@@ -255,8 +370,8 @@ mod mpi_impl {
                     at += width;
                 });
             };
-            let split = links.partition_point(|l| l.rank < self.rank);
-            for (l, recv) in links[..split].iter().zip(&self.recv) {
+            let split = self.links.partition_point(|l| l.rank < self.rank);
+            for (l, recv) in self.links[..split].iter().zip(&self.recv) {
                 add_link(values, l, recv);
             }
             for (s, &i) in self.shared.iter().enumerate() {
@@ -264,10 +379,9 @@ mod mpi_impl {
                     values[i * width + c] += self.saved[s * width + c];
                 }
             }
-            for (l, recv) in links[split..].iter().zip(&self.recv[split..]) {
+            for (l, recv) in self.links[split..].iter().zip(&self.recv[split..]) {
                 add_link(values, l, recv);
             }
-            self.links = links;
             self.stats.seconds += t0.elapsed().as_secs_f64();
             Ok(())
         }
@@ -290,12 +404,20 @@ mod mpi_impl {
         }
 
         fn sum_counts(&mut self, values: &mut [u64]) -> Result<(), SimError> {
-            self.all_reduce(values, SystemOperation::sum());
+            let t0 = Instant::now();
+            all_reduce(&self.world, values, &mut self.scratch_u64, SystemOperation::sum());
+            self.stats.reduction_bytes += std::mem::size_of_val(values) as u64;
+            self.stats.reductions += 1;
+            self.stats.seconds += t0.elapsed().as_secs_f64();
             Ok(())
         }
 
         fn max(&mut self, values: &mut [f64]) -> Result<(), SimError> {
-            self.all_reduce(values, SystemOperation::max());
+            let t0 = Instant::now();
+            all_reduce(&self.world, values, &mut self.scratch_f64, SystemOperation::max());
+            self.stats.reduction_bytes += std::mem::size_of_val(values) as u64;
+            self.stats.reductions += 1;
+            self.stats.seconds += t0.elapsed().as_secs_f64();
             Ok(())
         }
 
@@ -307,6 +429,9 @@ mod mpi_impl {
             }
             let mut left = 0;
             for p in (0..particles.len()).rev() {
+                if self.in_box(particles.x[p]) {
+                    continue;
+                }
                 let owner = self.boxes.owner(particles.x[p]);
                 if owner == self.rank {
                     continue;
@@ -314,25 +439,34 @@ mod mpi_impl {
                 let Ok(slot) = self.adjacent.binary_search(&owner) else {
                     return Err(SimError::Exchange(format!(
                         "particle {} at {:?} m moved from rank {} to rank {owner}, which is not adjacent; the rank boxes are too thin for the step (use fewer ranks along that axis)",
-                        self.ids[p], particles.x[p], self.rank
+                        self.ids.get(p), particles.x[p], self.rank
                     )));
                 };
                 particles.pack(p, &mut self.send[slot]);
-                self.send[slot].push(self.ids[p] as f64);
+                self.send[slot].push(self.ids.get(p) as f64);
                 particles.swap_remove(p);
                 self.ids.swap_remove(p);
                 left += 1;
             }
-            for (c, b) in self.counts_out.iter_mut().zip(&self.send) {
-                *c = (b.len() / RECORD) as u64;
-            }
-            self.swap_counts();
-            for (r, &c) in self.recv.iter_mut().zip(&self.counts_in) {
-                r.resize(c as usize * RECORD, 0.0);
-            }
-            let adjacent = std::mem::take(&mut self.adjacent);
-            self.swap(&adjacent, 2);
-            self.adjacent = adjacent;
+            // One message per adjacent rank, empty when no particle goes there; its length,
+            // read by a probe, says how many particles it carries.
+            let (world, adjacent) = (&self.world, &self.adjacent);
+            let (send, recv) = (&self.send[..n_adj], &mut self.recv[..n_adj]);
+            mpi::request::scope(|scope| {
+                let mut pending = Pending::new();
+                for (&q, buf) in adjacent.iter().zip(send) {
+                    pending.hold(world.process_at_rank(q as i32).immediate_send_with_tag(scope, &buf[..], MIGRATION));
+                }
+                for (&q, buf) in adjacent.iter().zip(recv.iter_mut()) {
+                    let (message, status) = world.process_at_rank(q as i32).matched_probe_with_tag(MIGRATION);
+                    buf.resize(status.count(f64::equivalent_datatype()) as usize, 0.0);
+                    message.matched_receive_into(&mut buf[..]);
+                }
+                pending.wait_all();
+            });
+            let arriving: usize = self.recv[..n_adj].iter().map(|r| r.len() / RECORD).sum();
+            particles.reserve_headroom(arriving);
+            self.ids.reserve_headroom(arriving);
             for r in &self.recv[..n_adj] {
                 for rec in r.chunks_exact(RECORD) {
                     particles.push_packed(&rec[..PACKED_WIDTH]);
@@ -340,18 +474,37 @@ mod mpi_impl {
                 }
             }
             let sent: usize = self.send[..n_adj].iter().map(Vec::len).sum();
-            self.stats.migration_bytes += (sent * 8 + n_adj * 8) as u64;
-            self.stats.migration_messages += 2 * n_adj as u64;
+            self.stats.migration_bytes += (sent * 8) as u64;
+            self.stats.migration_messages += n_adj as u64;
             self.stats.seconds += t0.elapsed().as_secs_f64();
             Ok(left)
         }
 
-        fn global_ids(&self) -> Option<&[u64]> {
-            Some(&self.ids)
+        fn global_id(&self, p: usize) -> u64 {
+            self.ids.get(p)
         }
 
         fn stats(&self) -> ExchangeStats {
             self.stats
+        }
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::Ids;
+
+        #[test]
+        fn ids_stay_narrow_until_one_does_not_fit_and_keep_their_values() {
+            let mut ids = Ids::new(vec![7, 3, 9]);
+            assert!(matches!(ids, Ids::Narrow(_)));
+            ids.swap_remove(0);
+            ids.reserve_headroom(2);
+            ids.push(11);
+            assert!(matches!(ids, Ids::Narrow(_)));
+            ids.push(1 << 40);
+            assert!(matches!(ids, Ids::Wide(_)));
+            assert_eq!((0..4).map(|p| ids.get(p)).collect::<Vec<_>>(), [9, 3, 11, 1 << 40]);
+            assert!(matches!(Ids::new(vec![1, u64::MAX]), Ids::Wide(_)));
         }
     }
 }

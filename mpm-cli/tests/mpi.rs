@@ -2,7 +2,8 @@
 //! coarse impact over R = 1..4 ranks x T = 1, 2 threads end, after 50 steps, at the state of
 //! the serial solver to 1e-9 (relative to the largest value of each quantity), with
 //! particles moving between ranks on the way; an identical rerun is bitwise equal; rank 0's
-//! summary lists every rank.
+//! summary lists every rank; particles leaving the fixed grid stop a run over ranks as they
+//! stop one process.
 //!
 //! Needs `mpirun` (Open MPI: `apt-get install openmpi-bin libopenmpi-dev`, see
 //! scripts/bootstrap.sh).
@@ -139,4 +140,26 @@ fn model_1_over_one_to_four_ranks_matches_one_process() {
 #[test]
 fn coarse_impact_over_one_to_four_ranks_matches_one_process() {
     check_equivalence(&["impact", "--spacing", "2.12e-3", "--cell", "4.24e-3"]);
+}
+
+/// Particles leaving the fixed grid end a run over ranks at the step and with the count of
+/// one process (over ranks the test runs on the reduced bounding box, since a rank's grid is
+/// only its part).
+#[test]
+fn leaving_the_fixed_grid_over_ranks_fails_like_one_process() {
+    let args = ["run", "taylor", "--model", "1", "--velocity", "3000", "--energy-rise-limit", "inf", "--quiet"];
+    let what = |out: &std::process::Output| {
+        assert!(!out.status.success(), "the run should fail: particles leave the grid");
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        let line = err.lines().find(|l| l.contains("left the fixed grid")).unwrap_or_else(|| panic!("stderr:\n{err}"));
+        line[line.find("step ").unwrap()..line.find(" (particle").unwrap()].to_string()
+    };
+    let one = what(&Command::new(MPM).args(args).output().unwrap());
+    let two = Command::new("mpirun")
+        .args(["--oversubscribe", "--allow-run-as-root", "-n", "2", MPM])
+        .args(args)
+        .args(["--rank-layout", "2x1x1"])
+        .output()
+        .expect("cannot start mpirun: install openmpi-bin (scripts/bootstrap.sh)");
+    assert_eq!(what(&two), one);
 }

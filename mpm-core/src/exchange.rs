@@ -10,10 +10,14 @@
 //! ```text
 //! rank box   lattice cells [lo, hi) per axis, cut along cell boundaries (first and last
 //!            boxes open to -inf / +inf); a particle belongs to the box of its lattice cell
-//! local grid the box's cells plus one cell on every side, clipped to the global grid;
-//!            the rank's particles (all inside its box at the start of a step) scatter
-//!            only there, so a node is touched by another rank only where two local grids
-//!            overlap, and summing the overlaps gives every rank the global nodal values
+//! local grid the nodes of the box's cells inside the global grid (a box outside the grid
+//!            gets the boundary cell next to it). The rank's particles (all inside its box
+//!            at the start of a step) scatter there and read there, so the only nodes whose
+//!            values need other ranks' contributions are the ones two local grids share:
+//!            the node layer of a shared face, or a shared edge or corner. Summing those
+//!            gives every rank the global nodal values on its whole local grid. A particle
+//!            that round-off puts a hair outside its box is clamped into the box's boundary
+//!            cell (its weights extrapolated by that hair)
 //! ```
 //!
 //! Within one step particles move less than a cell (CFL <= 1), so they cross at most one
@@ -37,8 +41,10 @@ pub trait Exchange: Send {
     /// This process's rank.
     fn rank(&self) -> usize;
 
-    /// Keep only the particles this rank owns, out of the whole initial set (called once).
-    fn adopt(&mut self, particles: &mut Particles) -> Result<(), SimError>;
+    /// Keep only the particles this rank owns (called once, before the first step).
+    /// `ids` are the particles' indices in the whole initial set (a scenario built for this
+    /// rank alone, [`crate::scenario::Pick`]); `None` when `particles` is the whole set.
+    fn adopt(&mut self, particles: &mut Particles, ids: Option<Vec<u64>>) -> Result<(), SimError>;
 
     /// This rank's part of the `global` grid (see the module docs); the global grid itself
     /// for one rank.
@@ -62,9 +68,9 @@ pub trait Exchange: Send {
     /// ones that arrived; returns how many left.
     fn migrate(&mut self, particles: &mut Particles) -> Result<usize, SimError>;
 
-    /// Global ids (indices in the initial set) of this rank's particles, in the current
-    /// order; `None` when they are the identity (one rank).
-    fn global_ids(&self) -> Option<&[u64]>;
+    /// Global id (index in the initial set) of this rank's particle `p` (`p` itself for
+    /// one process).
+    fn global_id(&self, p: usize) -> u64;
 
     /// Traffic and time of the exchange so far (zero for one process).
     fn stats(&self) -> ExchangeStats {
@@ -102,7 +108,7 @@ impl Exchange for SingleProcess {
     fn rank(&self) -> usize {
         0
     }
-    fn adopt(&mut self, _: &mut Particles) -> Result<(), SimError> {
+    fn adopt(&mut self, _: &mut Particles, _: Option<Vec<u64>>) -> Result<(), SimError> {
         Ok(())
     }
     fn local_grid(&mut self, global: &GridGeom) -> GridGeom {
@@ -123,8 +129,8 @@ impl Exchange for SingleProcess {
     fn migrate(&mut self, _: &mut Particles) -> Result<usize, SimError> {
         Ok(0)
     }
-    fn global_ids(&self) -> Option<&[u64]> {
-        None
+    fn global_id(&self, p: usize) -> u64 {
+        p as u64
     }
 }
 
@@ -241,17 +247,31 @@ impl RankBoxes {
         out
     }
 
+    /// Lattice coordinates (cell widths from the anchor) of rank `r`'s box per axis, as a
+    /// half-open interval `[lo, hi)` (infinite at the open ends): `x` is in the box exactly
+    /// when `lo <= (x - anchor) / dx < hi` on every axis, the same test as [`RankBoxes::owner`]
+    /// without its floor and search.
+    pub fn lattice_bounds(&self, r: usize) -> [(f64, f64); 3] {
+        let q = self.coords(r);
+        std::array::from_fn(|d| {
+            let lo = if q[d] == 0 { f64::NEG_INFINITY } else { self.cuts[d][q[d] - 1] as f64 };
+            let hi = if q[d] == self.cuts[d].len() { f64::INFINITY } else { self.cuts[d][q[d]] as f64 };
+            (lo, hi)
+        })
+    }
+
     /// Rank `r`'s local grid inside `global` as node ranges `[lo, hi]` (inclusive, global
-    /// node indices): its box's cells plus one cell on each side, clipped to the grid (and
-    /// at least one cell wide).
+    /// node indices): the nodes of its box's cells, clipped to the grid (at least one cell
+    /// wide, so a box outside the grid gets the boundary cell next to it). Neighbours'
+    /// ranges share one node layer across each cut plane.
     pub fn node_range(&self, r: usize, global: &GridGeom) -> [(usize, usize); 3] {
         let q = self.coords(r);
         std::array::from_fn(|d| {
             let n = global.cells[d] as i64;
             let lo = if q[d] == 0 { i64::MIN / 2 } else { self.cuts[d][q[d] - 1] - global.start[d] };
             let hi = if q[d] == self.cuts[d].len() { i64::MAX / 2 } else { self.cuts[d][q[d]] - global.start[d] };
-            let c0 = (lo - 1).clamp(0, n - 1);
-            let c1 = (hi + 1).clamp(c0 + 1, n);
+            let c0 = lo.clamp(0, n - 1);
+            let c1 = hi.clamp(c0 + 1, n);
             (c0 as usize, c1 as usize)
         })
     }
@@ -293,11 +313,29 @@ mod tests {
             assert_eq!(boxes.rank_at(boxes.coords(r)), r);
             assert_eq!(boxes.neighbours(r).len(), 3);
         }
-        assert_eq!(boxes.node_range(0, &g), [(0, 5), (0, 3), (0, 2)]);
-        assert_eq!(boxes.node_range(3, &g), [(3, 8), (1, 4), (0, 2)]);
+        // Local grids share one node layer across each cut: x node 4, y node 2.
+        assert_eq!(boxes.node_range(0, &g), [(0, 4), (0, 2), (0, 2)]);
+        assert_eq!(boxes.node_range(3, &g), [(4, 8), (2, 4), (0, 2)]);
+        assert_eq!(
+            boxes.lattice_bounds(2),
+            [(4.0, f64::INFINITY), (f64::NEG_INFINITY, 2.0), (f64::NEG_INFINITY, f64::INFINITY)]
+        );
+        // The box test of the bounds agrees with the owner, also on the cut planes.
+        for x in [[3.0, 0.1, 0.1], [2.9999999, 1.0, 0.1], [3.0, 1.0, 0.1], [-7.0, 4.0, 0.3]] {
+            for r in 0..4 {
+                let inside = boxes.lattice_bounds(r).iter().enumerate().all(|(d, &(lo, hi))| {
+                    let xi = (x[d] - boxes.anchor[d]) * boxes.inv_dx;
+                    xi >= lo && xi < hi
+                });
+                assert_eq!(inside, boxes.owner(x) == r, "{x:?} rank {r}");
+            }
+        }
         let l = boxes.local_grid(3, &g);
-        assert_eq!((l.cells, l.start), ([5, 3, 2], [3, 1, 0]));
-        assert_eq!(l.node_position(0, 0, 0), g.node_position(3, 1, 0));
+        assert_eq!((l.cells, l.start), ([4, 2, 2], [4, 2, 0]));
+        assert_eq!(l.node_position(0, 0, 0), g.node_position(4, 2, 0));
+        // A box beyond the grid gets the boundary cell.
+        let small = GridGeom { cells: [3, 4, 2], ..g };
+        assert_eq!(boxes.node_range(2, &small)[0], (2, 3));
     }
 
     #[test]

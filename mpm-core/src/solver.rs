@@ -159,14 +159,17 @@ impl Simulation {
 
     /// Set up this rank's part of a simulation split over ranks by `exchange`.
     ///
-    /// Every rank passes the whole `setup`; the initial figures (dt, energies, grid) are
-    /// computed from all particles, then the rank keeps the particles of its box.
+    /// `setup` holds either the whole set (the rank keeps the particles of its box) or only
+    /// this rank's part of it ([`crate::scenario::Pick`], which never holds the whole set);
+    /// the initial figures (dt, energies, grid) are the whole set's, through the exchange's
+    /// reductions.
     pub fn with_exchange(setup: Setup, config: SimConfig, mut exchange: Box<dyn Exchange>) -> Result<Self, SimError> {
         config.strategy.check_threads(config.threads).map_err(SimError::Config)?;
         if !(config.cfl > 0.0 && config.cfl <= 1.0) {
             return Err(SimError::Config(format!("CFL number must be in (0, 1], got {}", config.cfl)));
         }
-        if setup.particles.is_empty() {
+        let total = setup.part.as_ref().map_or(setup.particles.len() as u64, |p| p.total);
+        if total == 0 {
             return Err(SimError::Config("the scenario has no particles".into()));
         }
         if config.energy_rise_limit.is_nan() || config.energy_rise_limit <= 0.0 {
@@ -177,34 +180,58 @@ impl Simulation {
         }
         config.bulk_viscosity.validate()?;
         setup.material.validate()?;
-        let Setup { mut particles, material, grid: spec, walls, spacing, .. } = setup;
-        let bbox = particles.bounding_box();
+        let Setup { mut particles, material, grid: spec, walls, spacing, part, .. } = setup;
+        let (bbox, ids) = match part {
+            Some(p) => ((p.lo, p.hi), Some(p.ids)),
+            None => (particles.bounding_box(), None),
+        };
         let global = match config.grid_mode {
             GridMode::Fixed => GridGeom::fixed(&spec),
             GridMode::Adaptive => GridGeom::fit(&spec, bbox.0, bbox.1),
         };
-        if let Some(p) = particles.x.iter().position(|&x| !global.contains(x)) {
-            return Err(SimError::Config(format!(
-                "particle {p} at {:?} m lies outside the grid; use the adaptive grid or a larger grid",
-                particles.x[p]
-            )));
+        exchange.adopt(&mut particles, ids)?;
+        let consts = material.consts().with_viscosity(config.bulk_viscosity, spec.dx);
+        // The whole set's figures: this rank's sums, counts and maxima, combined over the
+        // ranks (sums in rank order, maxima exact, so dt equals one process's).
+        let outside = particles.x.iter().position(|&x| !global.contains(x));
+        let negative = particles.e_int.iter().filter(|&&e| e < -consts.energy_tolerance).count() as u64;
+        let mut counts = [negative, u64::from(outside.is_some())];
+        exchange.sum_counts(&mut counts)?;
+        if counts[1] > 0 {
+            return Err(SimError::Config(match outside {
+                Some(p) => format!(
+                    "particle {} at {:?} m lies outside the grid; use the adaptive grid or a larger grid",
+                    exchange.global_id(p),
+                    particles.x[p]
+                ),
+                None => "particles of another rank lie outside the grid; use the adaptive grid or a larger grid".into(),
+            }));
         }
-        let mean_mass = particles.total_mass() / particles.len() as f64;
+        let momentum = particles.momentum();
+        let mut sums = [
+            particles.total_mass(),
+            particles.kinetic_energy(),
+            particles.internal_energy(),
+            momentum[0],
+            momentum[1],
+            momentum[2],
+        ];
+        exchange.sum(&mut sums)?;
+        let mut max_speed = [particles.sound.iter().zip(&particles.v).map(|(c, v)| c + norm(*v)).fold(0.0, f64::max)];
+        exchange.max(&mut max_speed)?;
+        let mean_mass = sums[0] / total as f64;
+        let initial = Diagnostics {
+            kinetic: sums[1],
+            internal: sums[2],
+            momentum: [sums[3], sums[4], sums[5]],
+            negative_internal: counts[0],
+        };
+        let dt = config.cfl * spec.dx / max_speed[0];
         let geom = exchange.local_grid(&global);
         let mut wall_layers = WallLayers::with_capacity(walls.len());
         wall_layers.resolve(&walls, &geom);
         let mut nodes = NodeArrays::default();
         nodes.resize(geom.num_nodes());
-        let consts = material.consts().with_viscosity(config.bulk_viscosity, spec.dx);
-        let initial = Diagnostics {
-            kinetic: particles.kinetic_energy(),
-            internal: particles.internal_energy(),
-            momentum: particles.momentum(),
-            negative_internal: particles.e_int.iter().filter(|&&e| e < -consts.energy_tolerance).count() as u64,
-        };
-        let max_speed = particles.sound.iter().zip(&particles.v).map(|(c, v)| c + norm(*v)).fold(0.0, f64::max);
-        let dt = config.cfl * spec.dx / max_speed;
-        exchange.adopt(&mut particles)?;
         // Size the strategy's buffers for the initial grid now, so that memory figures are
         // right before the first step and the first step does not allocate either.
         let mut engine = Engine::new(config.strategy, config.threads);
@@ -465,10 +492,16 @@ impl Simulation {
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
         let fixed = self.config.grid_mode == GridMode::Fixed;
+        // Over several ranks `geom` is this rank's part of the grid, which particles leave
+        // for a neighbour's: whether they stayed in the fixed grid is decided below, on the
+        // whole set's bounding box.
+        let check_cells = fixed && !distributed;
         let (nodes, particles, consts, partials) = (&self.nodes, &mut self.particles, &self.consts, &mut self.partials);
         match self.material.eos {
-            Eos::MieGruneisen(ref m) => transfer::update(exec, &geom, nodes, particles, consts, m, dt, fixed, partials),
-            Eos::Linear(ref l) => transfer::update(exec, &geom, nodes, particles, consts, l, dt, fixed, partials),
+            Eos::MieGruneisen(ref m) => {
+                transfer::update(exec, &geom, nodes, particles, consts, m, dt, check_cells, partials)
+            }
+            Eos::Linear(ref l) => transfer::update(exec, &geom, nodes, particles, consts, l, dt, check_cells, partials),
         }
         let mut total = Partial::default();
         for p in &self.partials[..exec.workers()] {
@@ -476,6 +509,15 @@ impl Simulation {
         }
         if distributed {
             reduce_partial(self.exchange.as_mut(), &mut total)?;
+            // The grid is a box: every particle is in it exactly when the (exact) bounding
+            // box's corners are; only then, on every rank alike, are they counted.
+            if fixed && !(self.global.contains(total.lo) && self.global.contains(total.hi)) {
+                let outside = self.particles.x.iter().position(|&x| !self.global.contains(x));
+                let mut count = [self.particles.x.iter().filter(|&&x| !self.global.contains(x)).count() as u64];
+                self.exchange.sum_counts(&mut count)?;
+                total.outside = count[0];
+                total.first_outside = outside;
+            }
         }
         lap.lap(&mut self.times, Substage::StressUpdate);
 
@@ -489,8 +531,8 @@ impl Simulation {
                 step: step_no,
                 count: total.outside,
                 first,
-                // With several ranks the first particle outside may be another rank's.
-                position: self.particles.x.get(first).copied().unwrap_or([f64::NAN; 3]),
+                // With several ranks the particles outside may all be other ranks'.
+                position: total.first_outside.map_or([f64::NAN; 3], |p| self.particles.x[p]),
             });
         }
         let e0 = self.initial.kinetic + self.initial.internal;

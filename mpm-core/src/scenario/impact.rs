@@ -41,7 +41,7 @@
 //! [`History::front_velocity`], the least-squares slope of the robust front over the last
 //! quarter of the run: the speed at which the cloud's leading edge has actually moved.
 
-use super::{lattice, Setup};
+use super::{lattice, seed, Pick, Setup};
 use crate::error::SimError;
 use crate::grid::GridSpec;
 use crate::material::{Material, MgForm};
@@ -131,6 +131,12 @@ impl Impact {
 
     /// Build the plate and sphere particles and the grid.
     pub fn setup(&self) -> Result<(Setup, ImpactGeometry), SimError> {
+        self.setup_picked(Pick::All)
+    }
+
+    /// Build the grid and the particles `pick` asks for (numbered as in the whole set: the
+    /// plate first).
+    pub fn setup_picked(&self, pick: Pick<'_>) -> Result<(Setup, ImpactGeometry), SimError> {
         for (name, v) in [("spacing", self.spacing), ("cell size", self.cell)] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(SimError::Config(format!("the impact {name} must be a positive length in m, got {v}")));
@@ -150,19 +156,17 @@ impl Impact {
         let h = self.spacing;
         let n = self.plate_counts();
         let half = 0.5 * n[0] as f64 * h;
-        let plate = lattice::cell_centred([-half, -half, 0.0], [h; 3], n, |_| true);
         let k = self.sphere_k();
         let zc = -(k as f64) * h;
         let mass = material.density * h * h * h;
-        let (_, sphere_count) = self.particle_counts();
-        let mut particles = Particles::with_capacity(plate.len() + sphere_count);
-        for x in &plate {
-            particles.push(*x, [0.0; 3], mass, material.density, c);
-        }
-        for [a, b, l] in sphere_points(k) {
-            let x = [0.5 * h * a as f64, 0.5 * h * b as f64, zc + 0.5 * h * l as f64];
-            particles.push(x, [0.0, 0.0, self.velocity], mass, material.density, c);
-        }
+        let (plate_count, sphere_count) = self.particle_counts();
+        let sphere_v = [0.0, 0.0, self.velocity];
+        let (particles, part) = seed(pick, plate_count + sphere_count, [mass, material.density, c], |f| {
+            lattice::for_each_cell_centre([-half, -half, 0.0], [h; 3], n, |x| f(x, [0.0; 3]));
+            for [a, b, l] in sphere_points(k) {
+                f([0.5 * h * a as f64, 0.5 * h * b as f64, zc + 0.5 * h * l as f64], sphere_v);
+            }
+        });
         let rear_face = n[2] as f64 * h;
         let setup = Setup {
             scenario: "impact".into(),
@@ -180,8 +184,9 @@ impl Impact {
             },
             walls: vec![],
             spacing: [h; 3],
+            part,
         };
-        Ok((setup, ImpactGeometry { plate_particles: plate.len(), rear_face }))
+        Ok((setup, ImpactGeometry { plate_particles: plate_count, rear_face }))
     }
 }
 

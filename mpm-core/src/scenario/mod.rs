@@ -13,6 +13,71 @@ use crate::material::Material;
 use crate::math::Vec3;
 use crate::particles::Particles;
 
+/// Which of a scenario's particles a set-up builds.
+#[derive(Clone, Copy, Default)]
+pub enum Pick<'a> {
+    /// Every particle (one process).
+    #[default]
+    All,
+    /// Only the particles whose initial position the filter accepts (one rank's box),
+    /// generated one at a time and filtered, so the whole set is never held; the set-up's
+    /// [`Setup::part`] tells which they are.
+    Where(&'a dyn Fn(Vec3) -> bool),
+}
+
+/// What a set-up built for [`Pick::Where`] knows of the whole set its particles come from.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Part {
+    /// Index in the whole set of each particle kept, increasing.
+    pub ids: Vec<u64>,
+    /// Particles in the whole set.
+    pub total: u64,
+    /// Smallest coordinate of any particle of the whole set, per axis.
+    pub lo: Vec3,
+    /// Largest coordinate of any particle of the whole set, per axis.
+    pub hi: Vec3,
+}
+
+/// The particles `generate` describes, as `pick` asks.
+///
+/// `generate` calls its argument with the position and velocity of every particle of the
+/// whole set (`count` of them), in the set's order, and does the same on every call; all
+/// particles have the same `mass`, density `rho` and `sound` speed. [`Pick::All`] calls it
+/// once; [`Pick::Where`] twice (count the particles kept, then build exactly that many), so
+/// the arrays hold only the kept particles.
+pub(crate) fn seed(
+    pick: Pick<'_>,
+    count: usize,
+    [mass, rho, sound]: [f64; 3],
+    generate: impl Fn(&mut dyn FnMut(Vec3, Vec3)),
+) -> (Particles, Option<Part>) {
+    let Pick::Where(keep) = pick else {
+        let mut particles = Particles::with_capacity(count);
+        generate(&mut |x, v| particles.push(x, v, mass, rho, sound));
+        return (particles, None);
+    };
+    let (mut kept, mut total, mut lo, mut hi) = (0, 0u64, [f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    generate(&mut |x, _| {
+        kept += usize::from(keep(x));
+        total += 1;
+        for d in 0..3 {
+            lo[d] = lo[d].min(x[d]);
+            hi[d] = hi[d].max(x[d]);
+        }
+    });
+    let mut particles = Particles::with_capacity(kept);
+    let mut ids = Vec::with_capacity(kept);
+    let mut index = 0u64;
+    generate(&mut |x, v| {
+        if keep(x) {
+            particles.push(x, v, mass, rho, sound);
+            ids.push(index);
+        }
+        index += 1;
+    });
+    (particles, Some(Part { ids, total, lo, hi }))
+}
+
 /// Everything a simulation needs from a scenario.
 #[derive(Clone, Debug)]
 pub struct Setup {
@@ -30,6 +95,9 @@ pub struct Setup {
     pub walls: Vec<Wall>,
     /// Particle lattice spacing per axis (m), used by the measurements.
     pub spacing: Vec3,
+    /// `None`: `particles` is the whole set; otherwise the part of it one rank built
+    /// ([`Pick::Where`]).
+    pub part: Option<Part>,
 }
 
 /// The least-squares line `y = slope x + intercept` through `points`: `(slope, intercept)`,
@@ -56,6 +124,27 @@ pub fn fit_line(points: &[(f64, f64)]) -> Option<(f64, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Five particles on a line; the filter keeps those with x > 1.5.
+    fn five(pick: Pick<'_>) -> (Particles, Option<Part>) {
+        seed(pick, 5, [2.0, 3.0, 4.0], |f| (0..5).for_each(|i| f([i as f64, -(i as f64), 0.5], [i as f64; 3])))
+    }
+
+    #[test]
+    fn a_picked_seed_keeps_the_filtered_particles_with_their_indices_and_the_whole_box() {
+        let (all, none) = five(Pick::All);
+        assert!(none.is_none());
+        assert_eq!((all.len(), all.x.capacity()), (5, 5));
+        let keep = |x: Vec3| x[0] > 1.5;
+        let (some, part) = five(Pick::Where(&keep));
+        let part = part.unwrap();
+        assert_eq!(part, Part { ids: vec![2, 3, 4], total: 5, lo: [0.0, -4.0, 0.5], hi: [4.0, 0.0, 0.5] });
+        assert_eq!((some.len(), some.x.capacity()), (3, 3));
+        for (k, &id) in part.ids.iter().enumerate() {
+            let i = id as usize;
+            assert_eq!((some.x[k], some.v[k], some.mass[k]), (all.x[i], all.v[i], all.mass[i]));
+        }
+    }
 
     #[test]
     fn fit_line_recovers_a_line_and_refuses_degenerate_input() {

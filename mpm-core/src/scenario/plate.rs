@@ -34,7 +34,7 @@
 //! scatters widely (at 3 km/s their densities by about 14 %) while the cell sums stay close
 //! to the Rankine-Hugoniot state. Hence the volume averages.
 
-use super::{fit_line, lattice, Setup};
+use super::{fit_line, lattice, seed, Pick, Setup};
 use crate::error::SimError;
 use crate::grid::{GridSpec, Wall, WallKind};
 use crate::material::{Eos, Material, MgForm, MieGruneisen};
@@ -106,6 +106,11 @@ impl PlateImpact {
 
     /// Build the slab, the column's grid and its five walls.
     pub fn setup(&self) -> Result<(Setup, PlateGeometry), SimError> {
+        self.setup_picked(Pick::All)
+    }
+
+    /// Build the column's grid, its walls and the particles `pick` asks for.
+    pub fn setup_picked(&self, pick: Pick<'_>) -> Result<(Setup, PlateGeometry), SimError> {
         for (name, v) in [("speed (m/s)", self.velocity), ("length (m)", self.length), ("cell size (m)", self.cell)] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(SimError::Config(format!("the plate impact {name} must be a finite number > 0, got {v}")));
@@ -129,13 +134,12 @@ impl PlateImpact {
         let width = COLUMN_CELLS as f64 * self.cell;
         let length = cells_z as f64 * self.cell;
         let n = [COLUMN_CELLS * ppc, COLUMN_CELLS * ppc, cells_z * ppc];
-        let points = lattice::cell_centred([0.0; 3], [h; 3], n, |_| true);
         let mass = material.density * h * h * h;
         let c = material.reference_sound_speed();
-        let mut particles = Particles::with_capacity(points.len());
-        for x in points {
-            particles.push(x, [0.0, 0.0, -self.velocity], mass, material.density, c);
-        }
+        let v = [0.0, 0.0, -self.velocity];
+        let (particles, part) = seed(pick, n[0] * n[1] * n[2], [mass, material.density, c], |f| {
+            lattice::for_each_cell_centre([0.0; 3], [h; 3], n, |x| f(x, v));
+        });
         let slip = |axis, position| Wall { axis, position, kind: WallKind::Slip };
         let setup = Setup {
             scenario: "plate".into(),
@@ -145,6 +149,7 @@ impl PlateImpact {
             grid: GridSpec { dx: self.cell, anchor: [0.0; 3], cells: [COLUMN_CELLS, COLUMN_CELLS, cells_z + 2] },
             walls: vec![slip(0, 0.0), slip(0, width), slip(1, 0.0), slip(1, width), slip(2, 0.0)],
             spacing: [h; 3],
+            part,
         };
         Ok((setup, PlateGeometry { velocity: self.velocity, length, cell: self.cell, eos }))
     }

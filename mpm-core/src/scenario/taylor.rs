@@ -31,7 +31,7 @@
 //! radial distance in the bottom layer band; the lattice's outermost points lie on the
 //! circle's diagonals within a few microns of `R`, so at `t = 0` it is within 0.5 % of `D0`.
 
-use super::{lattice, Setup};
+use super::{lattice, seed, Pick, Setup};
 use crate::error::SimError;
 use crate::grid::{GridSpec, Wall, WallKind};
 use crate::material::{Material, MgForm};
@@ -143,6 +143,11 @@ impl Default for TaylorBar {
 impl TaylorBar {
     /// Build the particles, grid and wall.
     pub fn setup(&self) -> Result<Setup, SimError> {
+        self.setup_picked(Pick::All)
+    }
+
+    /// Build the grid, the wall and the particles `pick` asks for.
+    pub fn setup_picked(&self, pick: Pick<'_>) -> Result<Setup, SimError> {
         let spec = ModelSpec::get(self.model)?;
         if !(self.velocity.is_finite() && self.velocity >= 0.0) {
             return Err(SimError::Config(format!(
@@ -157,23 +162,10 @@ impl TaylorBar {
         let volume = std::f64::consts::PI * 0.25 * DIAMETER * DIAMETER * LENGTH;
         let mass = material.density * volume / count as f64;
         let c = material.reference_sound_speed();
-        // Particles are numbered octant by octant of the grid (x halves first, then y, then
-        // z; layer by layer within an octant), so that the contiguous particle chunks of 2, 4
-        // and 8 threads cover the same regions as the domain-decomposition patches of the
-        // paper's layouts and each worker's data stays in its own core's caches.
-        let mut points: Vec<(u8, [f64; 3])> = Vec::with_capacity(count);
-        for k in 0..spec.n_layers {
-            let z = (k as f64 + 0.5) * h[2];
-            for p in &layer {
-                let octant = 4 * u8::from(p[0] >= 0.0) + 2 * u8::from(p[1] >= 0.0) + u8::from(z >= 0.5 * LENGTH);
-                points.push((octant, [p[0], p[1], z]));
-            }
-        }
-        points.sort_by_key(|p| p.0);
-        let mut particles = Particles::with_capacity(count);
-        for (_, x) in points {
-            particles.push(x, [0.0, 0.0, -self.velocity], mass, material.density, c);
-        }
+        let v = [0.0, 0.0, -self.velocity];
+        let (particles, part) = seed(pick, count, [mass, material.density, c], |f| {
+            for_each_position(&spec, &layer, &mut |x| f(x, v));
+        });
         let dx = spec.dx();
         let half = 0.5 * spec.nxy as f64 * dx;
         Ok(Setup {
@@ -184,7 +176,36 @@ impl TaylorBar {
             grid: GridSpec { dx, anchor: [-half, -half, 0.0], cells: [spec.nxy, spec.nxy, spec.nz] },
             walls: vec![Wall { axis: 2, position: 0.0, kind: self.wall }],
             spacing: h,
+            part,
         })
+    }
+
+    /// The bar's figures at `t = 0` ([`measure`] of the whole set), without building it.
+    pub fn initial_figures(&self) -> Result<TaylorFigures, SimError> {
+        let spec = ModelSpec::get(self.model)?;
+        let layer = spec.layer_points();
+        Ok(measure_positions(|f| for_each_position(&spec, &layer, f), spec.spacing()))
+    }
+}
+
+/// Call `f` with the position of every particle of the bar, in the set's order: octant by
+/// octant of the grid (x halves first, then y, then z; layer by layer within an octant), so
+/// that the contiguous particle chunks of 2, 4 and 8 threads cover the same regions as the
+/// domain-decomposition patches of the paper's layouts and each worker's data stays in its
+/// own core's caches. `layer` is [`ModelSpec::layer_points`].
+fn for_each_position(spec: &ModelSpec, layer: &[Vec3], f: &mut dyn FnMut(Vec3)) {
+    let hz = spec.spacing()[2];
+    for octant in 0..8u8 {
+        let (upper_x, upper_y, upper_z) = (octant & 4 != 0, octant & 2 != 0, octant & 1 != 0);
+        for k in 0..spec.n_layers {
+            let z = (k as f64 + 0.5) * hz;
+            if (z >= 0.5 * LENGTH) != upper_z {
+                continue;
+            }
+            for p in layer.iter().filter(|p| (p[0] >= 0.0) == upper_x && (p[1] >= 0.0) == upper_y) {
+                f([p[0], p[1], z]);
+            }
+        }
     }
 }
 
@@ -200,9 +221,26 @@ pub struct TaylorFigures {
 
 /// Measure the bar (see the module docs for the conventions).
 pub fn measure(particles: &Particles, spacing: Vec3) -> TaylorFigures {
-    let (lo, hi) = particles.bounding_box();
+    measure_positions(|f| particles.x.iter().for_each(|&x| f(x)), spacing)
+}
+
+/// [`measure`] of the positions `positions` calls its argument with (the same on each of
+/// its two calls).
+fn measure_positions(positions: impl Fn(&mut dyn FnMut(Vec3)), spacing: Vec3) -> TaylorFigures {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    positions(&mut |x| {
+        for d in 0..3 {
+            lo[d] = lo[d].min(x[d]);
+            hi[d] = hi[d].max(x[d]);
+        }
+    });
     let band = lo[2] + 0.5 * spacing[2];
-    let r2 = particles.x.iter().filter(|x| x[2] <= band).map(|x| x[0] * x[0] + x[1] * x[1]).fold(0.0, f64::max);
+    let mut r2 = 0.0f64;
+    positions(&mut |x| {
+        if x[2] <= band {
+            r2 = r2.max(x[0] * x[0] + x[1] * x[1]);
+        }
+    });
     TaylorFigures { length: hi[2] - lo[2] + spacing[2], face_diameter: 2.0 * r2.sqrt() }
 }
 
@@ -240,6 +278,37 @@ mod tests {
         let f = measure(&s.particles, s.spacing);
         assert!((f.length - LENGTH).abs() < 1e-12);
         assert!((f.face_diameter - DIAMETER).abs() < 0.005 * DIAMETER, "{}", f.face_diameter);
+    }
+
+    /// The particle numbering is the one the set-up has always had: the lattice layer by
+    /// layer, stably sorted by octant.
+    #[test]
+    fn particles_are_numbered_octant_by_octant_and_a_pick_keeps_that_numbering() {
+        let bar = TaylorBar::default();
+        let s = bar.setup().unwrap();
+        let spec = ModelSpec::get(1).unwrap();
+        let mut sorted: Vec<(u8, Vec3)> = Vec::new();
+        for k in 0..spec.n_layers {
+            let z = (k as f64 + 0.5) * spec.spacing()[2];
+            for p in spec.layer_points() {
+                sorted.push((
+                    4 * u8::from(p[0] >= 0.0) + 2 * u8::from(p[1] >= 0.0) + u8::from(z >= 0.5 * LENGTH),
+                    [p[0], p[1], z],
+                ));
+            }
+        }
+        sorted.sort_by_key(|p| p.0);
+        assert!(s.particles.x.iter().zip(&sorted).all(|(a, b)| *a == b.1));
+        assert_eq!(bar.initial_figures().unwrap(), measure(&s.particles, s.spacing));
+        let keep = |x: Vec3| x[2] < 0.3 * LENGTH && x[0] > 0.0;
+        let picked = bar.setup_picked(Pick::Where(&keep)).unwrap();
+        let part = picked.part.unwrap();
+        assert_eq!(part.total, 56_056);
+        assert_eq!((part.lo, part.hi), s.particles.bounding_box());
+        let expect: Vec<u64> = (0..s.particles.len() as u64).filter(|&p| keep(s.particles.x[p as usize])).collect();
+        assert_eq!(part.ids, expect);
+        assert!(part.ids.iter().enumerate().all(|(k, &p)| picked.particles.x[k] == s.particles.x[p as usize]));
+        assert_eq!(picked.particles.mass[0], s.particles.mass[0]);
     }
 
     #[test]

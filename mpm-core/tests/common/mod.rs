@@ -48,6 +48,7 @@ pub fn confined_column(material: Material, w: f64, h: f64, dx: f64, v: impl Fn(V
         grid: GridSpec { dx, anchor: [0.0; 3], cells: [n, n, nz] },
         walls,
         spacing: [dx / 2.0; 3],
+        part: None,
     }
 }
 
@@ -82,6 +83,7 @@ pub fn two_spheres(material: Material, r: f64, dx: f64, v: f64, ppc: usize) -> S
         grid: GridSpec { dx, anchor: [lo[0] - 2.0 * dx, lo[1] - 2.0 * dx, lo[2] - 2.0 * dx], cells: [1, 1, 1] },
         walls: vec![],
         spacing: [dx / ppc as f64; 3],
+        part: None,
     }
 }
 
@@ -113,6 +115,7 @@ pub fn mini_impact() -> Setup {
         grid: GridSpec { dx, anchor: [0.0; 3], cells: [1, 1, 1] },
         walls: vec![],
         spacing: [dx / 2.0; 3],
+        part: None,
     }
 }
 

@@ -3,11 +3,13 @@
 //! on rank 0 (for the summary's figures and `--dump-state`).
 
 use crate::cli::RunOptions;
+use crate::scenario::{Prepared, ScenarioRun};
 use anyhow::{bail, Context, Result};
 use mpm_cli::distributed::{launcher_ranks, MPI_COMPILED};
 use mpm_cli::pinning;
 use mpm_cli::summary::RankReport;
-use mpm_core::{Particles, Simulation};
+use mpm_core::scenario::Pick;
+use mpm_core::{Exchange, Particles, Simulation};
 use std::path::Path;
 
 /// The ranks a run asks for: `--ranks` or the launcher's count; `None` for one process.
@@ -52,33 +54,6 @@ pub fn place(rank: usize, threads: usize, others: &[(u64, Vec<usize>)]) -> (Vec<
         return (mask[local * threads..(local + 1) * threads].to_vec(), false);
     }
     ((0..threads).map(|j| mask[(local * threads + j) % mask.len()]).collect(), true)
-}
-
-#[cfg(feature = "mpi")]
-/// One process's share of the final state in flat form: per particle the global id, then
-/// the packed state.
-pub fn pack_final(sim: &Simulation) -> Vec<f64> {
-    let p = sim.particles();
-    let ids = sim.exchange().global_ids();
-    let mut out = Vec::with_capacity(p.len() * (mpm_core::particles::PACKED_WIDTH + 1));
-    for i in 0..p.len() {
-        out.push(ids.map_or(i as u64, |ids| ids[i]) as f64);
-        p.pack(i, &mut out);
-    }
-    out
-}
-
-#[cfg(feature = "mpi")]
-/// Particles from the flat records of every rank, in global id order.
-pub fn unpack_sorted(records: &[f64]) -> Particles {
-    let w = mpm_core::particles::PACKED_WIDTH + 1;
-    let mut recs: Vec<&[f64]> = records.chunks_exact(w).collect();
-    recs.sort_by(|a, b| a[0].total_cmp(&b[0]));
-    let mut all = Particles::with_capacity(recs.len());
-    for r in recs {
-        all.push_packed(&r[1..]);
-    }
-    all
 }
 
 /// Write `particles` (in global id order) as `--dump-state` describes.
@@ -132,17 +107,30 @@ impl Ranks {
         1
     }
 
-    /// The exchange of this rank, `None` for one process.
-    pub fn exchange(
+    /// The scenario built for this process, and its exchange (`None` for one process).
+    ///
+    /// Over several ranks no process holds the whole set: a first pass generates it only
+    /// to find its bounding box, over which the rank boxes of `layout` (default: the DD
+    /// layout for the rank count) are cut uniformly; the second builds the particles of this
+    /// rank's box alone, numbered as in the whole set.
+    pub fn build(
         &self,
-        _setup: &mpm_core::Setup,
+        scenario: &ScenarioRun,
         _layout: Option<[usize; 3]>,
-    ) -> Result<Option<Box<dyn mpm_core::Exchange>>> {
+    ) -> Result<(Prepared, Option<Box<dyn Exchange>>)> {
         #[cfg(feature = "mpi")]
         if let Some(m) = &self.mpi {
-            return m.exchange(_setup, _layout).map(Some);
+            let census = scenario.build(Pick::Where(&|_| false))?;
+            let part = census.setup.part.as_ref().context("a picked set-up describes the whole set")?;
+            if part.total == 0 {
+                bail!("the scenario has no particles; check its size options");
+            }
+            let boxes = m.boxes(&census.setup.grid, (part.lo, part.hi), _layout)?;
+            let rank = m.rank;
+            let prepared = scenario.build(Pick::Where(&|x| boxes.owner(x) == rank))?;
+            return Ok((prepared, Some(m.exchange(boxes)?)));
         }
-        Ok(None)
+        Ok((scenario.build(Pick::All)?, None))
     }
 
     /// This rank's CPUs for `threads` workers and whether ranks share CPUs ([`place`]).
@@ -157,12 +145,12 @@ impl Ranks {
 
     /// After the loop: every rank's particles, in global id order, on rank 0 (`None` on the
     /// other ranks); a copy of one process's particles (the caller avoids that copy).
-    pub fn gather_final(&self, sim: &Simulation) -> Option<Particles> {
+    pub fn gather_final(&self, sim: &Simulation) -> Result<Option<Particles>> {
         #[cfg(feature = "mpi")]
         if let Some(m) = &self.mpi {
-            return m.gather_on_lead(&pack_final(sim)).map(|all| unpack_sorted(&all.concat()));
+            return m.gather_particles(sim);
         }
-        Some(sim.particles().clone())
+        Ok(Some(sim.particles().clone()))
     }
 
     /// Every rank's `report` on rank 0 (`None` on the other ranks).
@@ -183,11 +171,21 @@ impl Ranks {
 #[cfg(feature = "mpi")]
 mod with_mpi {
     use anyhow::{bail, Context, Result};
+    use mpi::collective::SystemOperation;
+    use mpi::datatype::Equivalence;
     use mpi::topology::Communicator;
+    use mpi::traits::CommunicatorCollectives;
     use mpi::traits::{Destination, Source};
     use mpm_cli::distributed::MpiExchange;
     use mpm_core::exchange::{rank_layout, uniform_cuts, RankBoxes};
-    use mpm_core::{Exchange, GridGeom, Setup};
+    use mpm_core::math::Vec3;
+    use mpm_core::particles::PACKED_WIDTH;
+    use mpm_core::{Exchange, GridGeom, GridSpec, Particles, Simulation};
+
+    /// Particles per message of the final gather.
+    const GATHER_CHUNK: usize = 1 << 16;
+    /// Tag of the final gather's messages.
+    const GATHER: i32 = 7;
 
     /// MPI, started for the run (finalised when dropped).
     pub struct Mpi {
@@ -210,14 +208,17 @@ mod with_mpi {
             Ok(Self { universe, rank, size })
         }
 
-        /// The exchange of this rank: boxes of `layout` (default: the DD layout for the
-        /// rank count) cut uniformly over the particles' initial bounding box.
-        pub fn exchange(&self, setup: &Setup, layout: Option<[usize; 3]>) -> Result<Box<dyn Exchange>> {
-            let (lo, hi) = setup.particles.bounding_box();
-            let fit = GridGeom::fit(&setup.grid, lo, hi);
+        /// The rank boxes of `layout` (default: the DD layout for the rank count) cut
+        /// uniformly over the grid of `spec` fitted to the whole set's bounding box `bbox`.
+        pub fn boxes(&self, spec: &GridSpec, bbox: (Vec3, Vec3), layout: Option<[usize; 3]>) -> Result<RankBoxes> {
+            let fit = GridGeom::fit(spec, bbox.0, bbox.1);
             let layout = layout.unwrap_or_else(|| rank_layout(self.size, fit.cells));
             let cuts = uniform_cuts(layout, &fit)?;
-            let boxes = RankBoxes::new(cuts, setup.grid.anchor, 1.0 / setup.grid.dx)?;
+            Ok(RankBoxes::new(cuts, spec.anchor, 1.0 / spec.dx)?)
+        }
+
+        /// The exchange of this rank over `boxes`.
+        pub fn exchange(&self, boxes: RankBoxes) -> Result<Box<dyn Exchange>> {
             Ok(Box::new(MpiExchange::new(self.universe.world(), boxes)?))
         }
 
@@ -240,18 +241,64 @@ mod with_mpi {
                 .collect()
         }
 
-        /// Every rank's `data`, in rank order, on rank 0 (`None` elsewhere).
-        pub fn gather_on_lead(&self, data: &[f64]) -> Option<Vec<Vec<f64>>> {
+        /// Every rank's particles on rank 0, each at its global id (`None` elsewhere).
+        /// Streamed in messages of [`GATHER_CHUNK`] particles, an empty one ending a rank's,
+        /// so that a rank holds one message beyond its own particles and rank 0 the whole
+        /// set besides, never a packed copy of it.
+        pub fn gather_particles(&self, sim: &Simulation) -> Result<Option<Particles>> {
             let world = self.universe.world();
+            let (p, w) = (sim.particles(), PACKED_WIDTH + 1);
+            let mut total = 0u64;
+            world.all_reduce_into(&(p.len() as u64), &mut total, SystemOperation::sum());
+            let mut buf = Vec::with_capacity(GATHER_CHUNK.min(p.len()) * w);
             if self.rank != 0 {
-                world.process_at_rank(0).send(data);
-                return None;
+                for start in (0..p.len()).step_by(GATHER_CHUNK) {
+                    buf.clear();
+                    for i in start..(start + GATHER_CHUNK).min(p.len()) {
+                        buf.push(sim.exchange().global_id(i) as f64);
+                        p.pack(i, &mut buf);
+                    }
+                    world.process_at_rank(0).send_with_tag(&buf[..], GATHER);
+                }
+                world.process_at_rank(0).send_with_tag(&buf[..0], GATHER);
+                return Ok(None);
             }
-            let mut all = vec![data.to_vec()];
+            let mut all = Particles::with_capacity(total as usize);
+            for _ in 0..total {
+                all.push_packed(&[0.0; PACKED_WIDTH]);
+            }
+            let mut placed = vec![false; total as usize];
+            let mut place = |all: &mut Particles, id: u64, state: &[f64]| -> Result<()> {
+                match placed.get_mut(id as usize) {
+                    Some(seen @ false) => *seen = true,
+                    _ => bail!("the final gather got particle {id} twice or out of range (of {total}); the run's exchange lost track of its particles"),
+                }
+                all.set_packed(id as usize, state);
+                Ok(())
+            };
+            let mut one = Vec::with_capacity(PACKED_WIDTH);
+            for i in 0..p.len() {
+                one.clear();
+                p.pack(i, &mut one);
+                place(&mut all, sim.exchange().global_id(i), &one)?;
+            }
             for r in 1..self.size {
-                all.push(world.process_at_rank(r as i32).receive_vec::<f64>().0);
+                loop {
+                    let (message, status) = world.process_at_rank(r as i32).matched_probe_with_tag(GATHER);
+                    buf.resize(status.count(f64::equivalent_datatype()) as usize, 0.0);
+                    message.matched_receive_into(&mut buf[..]);
+                    if buf.is_empty() {
+                        break;
+                    }
+                    for rec in buf.chunks_exact(w) {
+                        place(&mut all, rec[0] as u64, &rec[1..])?;
+                    }
+                }
             }
-            Some(all)
+            if placed.iter().any(|&seen| !seen) {
+                bail!("the final gather is missing particles; the run's exchange lost track of some");
+            }
+            Ok(Some(all))
         }
 
         /// Every rank's `text`, in rank order, on rank 0.

@@ -131,7 +131,12 @@ fn start_pool(plan: &Plan) -> Result<PinnedPool> {
 }
 
 /// The simulation of a built scenario with the planned strategy, threads, grid and CFL.
-fn simulation(scenario: &ScenarioRun, plan: &Plan, setup: mpm_core::Setup, ranks: &Ranks) -> Result<Simulation> {
+fn simulation(
+    scenario: &ScenarioRun,
+    plan: &Plan,
+    setup: mpm_core::Setup,
+    exchange: Option<Box<dyn mpm_core::Exchange>>,
+) -> Result<Simulation> {
     let o = scenario.options();
     let config = SimConfig {
         strategy: plan.strategy,
@@ -146,7 +151,7 @@ fn simulation(scenario: &ScenarioRun, plan: &Plan, setup: mpm_core::Setup, ranks
         energy_rise_limit: o.energy_rise_limit,
         ..SimConfig::default()
     };
-    match ranks.exchange(&setup, o.rank_layout)? {
+    match exchange {
         Some(exchange) => Simulation::with_exchange(setup, config, exchange),
         None => Simulation::new(setup, config),
     }
@@ -188,7 +193,7 @@ fn gather_ranks(
         return Ok(Some(None));
     }
     let reports = ranks.gather_reports(rank_report(sim, pool, ranks, oversubscribed))?;
-    let Some(all) = ranks.gather_final(sim) else { return Ok(None) };
+    let Some(all) = ranks.gather_final(sim)? else { return Ok(None) };
     if let Some(path) = dump {
         ranks::dump_state(path, &all)?;
     }
@@ -364,9 +369,10 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
     }
     let mut outputs = if lead { Outputs::open(scenario)? } else { Outputs::none() };
     let pool = start_pool(&plan)?;
-    let Prepared { setup, model, velocity, wall, taylor, impact, plate } = scenario.build()?;
+    let (Prepared { setup, model, velocity, wall, taylor, impact, plate }, exchange) =
+        ranks.build(scenario, o.rank_layout)?;
     let model_name = setup.model.clone();
-    let mut sim = simulation(scenario, &plan, setup, &ranks)?;
+    let mut sim = simulation(scenario, &plan, setup, exchange)?;
     let (cells, nodes) = (sim.global_geom().num_cells(), sim.global_geom().num_nodes());
     let warmup = o.warmup.unwrap_or_else(|| plan.default_warmup(&sim));
     let interrupted = install_interrupt_handler();

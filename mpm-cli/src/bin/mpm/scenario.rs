@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use mpm_core::scenario::impact;
 use mpm_core::scenario::plate::{PlateGeometry, PlateImpact};
 use mpm_core::scenario::taylor::{self, TaylorBar};
+use mpm_core::scenario::Pick;
 use mpm_core::{GridMode, MgForm, WallKind, DEFAULT_CFL};
 use std::path::Path;
 
@@ -107,7 +108,9 @@ impl ScenarioRun {
         self.options().cfl.unwrap_or(default)
     }
 
-    pub fn build(&self) -> Result<Prepared> {
+    /// Build the scenario, with the particles `pick` asks for (the figures of the initial
+    /// state are always the whole set's).
+    pub fn build(&self, pick: Pick<'_>) -> Result<Prepared> {
         match self {
             ScenarioRun::Taylor(args) => {
                 let bar = TaylorBar {
@@ -119,8 +122,9 @@ impl ScenarioRun {
                         WallArg::Sticking => WallKind::Stick,
                     },
                 };
-                let setup = bar.setup().with_context(|| format!("cannot set up Taylor bar Model {}", args.model))?;
-                let figures = taylor::measure(&setup.particles, setup.spacing);
+                let context = || format!("cannot set up Taylor bar Model {}", args.model);
+                let setup = bar.setup_picked(pick).with_context(context)?;
+                let figures = bar.initial_figures().with_context(context)?;
                 let spacing = setup.spacing;
                 Ok(Prepared {
                     setup,
@@ -139,7 +143,7 @@ impl ScenarioRun {
                     velocity: args.velocity,
                     eos: eos_of(args.eos.eos),
                 };
-                let (setup, geometry) = imp.setup().context("cannot set up the impact")?;
+                let (setup, geometry) = imp.setup_picked(pick).context("cannot set up the impact")?;
                 Ok(Prepared {
                     setup,
                     model: 0,
@@ -151,7 +155,7 @@ impl ScenarioRun {
                 })
             }
             ScenarioRun::Plate(args) => {
-                let (setup, geometry) = plate_setup(args)?;
+                let (setup, geometry) = plate_of(args).setup_picked(pick).context("cannot set up the plate impact")?;
                 Ok(Prepared {
                     setup,
                     model: 0,
