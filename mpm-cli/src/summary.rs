@@ -109,6 +109,13 @@ pub struct EnergyReport {
     pub negative_internal_steps: u64,
     /// The first such step.
     pub first_negative_internal_step: Option<u64>,
+    /// Times a failed particle's negative internal energy was set to zero
+    /// (`mpm_core::material::failure`, "Internal energy").
+    #[serde(default)]
+    pub failed_energy_floors: u64,
+    /// The energy that added (J), booked as a known source in the balance.
+    #[serde(default)]
+    pub failed_energy_floor_j: f64,
 }
 
 impl EnergyReport {
@@ -131,6 +138,8 @@ impl EnergyReport {
             negative_internal_max: b.negative_internal_max,
             negative_internal_steps: b.negative_internal_steps,
             first_negative_internal_step: b.first_negative_internal_step,
+            failed_energy_floors: b.failed_floors,
+            failed_energy_floor_j: b.failed_floor_energy,
         }
     }
 }

@@ -43,6 +43,11 @@ pub struct Partial {
     pub non_finite: u64,
     /// Particles with negative specific internal energy.
     pub negative_internal: u64,
+    /// Failed particles whose negative internal energy was set to zero in this step
+    /// ([`crate::material::failure`]).
+    pub failed_floors: u64,
+    /// The energy that added (J).
+    pub failed_floor_energy: f64,
     /// Particles outside the (fixed) grid after the position update.
     pub outside: u64,
     /// The first particle outside the grid, if any.
@@ -60,6 +65,8 @@ impl Default for Partial {
             hi: [f64::NEG_INFINITY; 3],
             non_finite: 0,
             negative_internal: 0,
+            failed_floors: 0,
+            failed_floor_energy: 0.0,
             outside: 0,
             first_outside: None,
         }
@@ -79,6 +86,8 @@ impl Partial {
         self.max_speed = self.max_speed.max(other.max_speed);
         self.non_finite += other.non_finite;
         self.negative_internal += other.negative_internal;
+        self.failed_floors += other.failed_floors;
+        self.failed_floor_energy += other.failed_floor_energy;
         self.outside += other.outside;
         if self.first_outside.is_none() {
             self.first_outside = other.first_outside;
@@ -93,6 +102,11 @@ pub struct EnergyBalance {
     pub initial_total: f64,
     /// Work of the body forces so far `W` (J).
     pub external_work: f64,
+    /// Energy added so far by setting failed particles' negative internal energy to zero
+    /// `F` (J; [`crate::material::failure`]): a known source, like `W`.
+    pub failed_floor_energy: f64,
+    /// How many times a failed particle's energy was set to zero.
+    pub failed_floors: u64,
     /// Largest relative rise `(E - W - E0) / E0` after any step (0 if it never rose).
     pub max_rise: f64,
     /// The step of the largest rise (0: none).
@@ -115,11 +129,11 @@ impl EnergyBalance {
         Self { initial_total, ..Self::default() }
     }
 
-    /// `(E - W - E0) / E0` for the total energy `total`; 0 when `E0 = 0` (nothing to compare
-    /// with).
+    /// `(E - W - F - E0) / E0` for the total energy `total`; 0 when `E0 = 0` (nothing to
+    /// compare with).
     pub fn relative_change(&self, total: f64) -> f64 {
         if self.initial_total > 0.0 {
-            (total - self.external_work - self.initial_total) / self.initial_total
+            (total - self.external_work - self.failed_floor_energy - self.initial_total) / self.initial_total
         } else {
             0.0
         }
@@ -133,6 +147,13 @@ impl EnergyBalance {
             w += body_force[d] * 0.5 * (p_old[d] + p_new[d]);
         }
         self.external_work += dt * w;
+    }
+
+    /// Book `energy` (J) added in a step by `count` failed particles whose negative internal
+    /// energy was set to zero.
+    pub fn add_failed_floor(&mut self, energy: f64, count: u64) {
+        self.failed_floor_energy += energy;
+        self.failed_floors += count;
     }
 
     /// Record step `step` with total energy `total` and `negative_internal` particles of

@@ -138,13 +138,13 @@ impl Exchange for SingleProcess {
 /// largest speed and the bounding box (exact, so the next dt and the adaptive grid equal
 /// one process's).
 pub(crate) fn reduce_partial(ex: &mut dyn Exchange, t: &mut Partial) -> Result<(), SimError> {
-    let mut sums = [t.kinetic, t.internal, t.momentum[0], t.momentum[1], t.momentum[2]];
+    let mut sums = [t.kinetic, t.internal, t.momentum[0], t.momentum[1], t.momentum[2], t.failed_floor_energy];
     ex.sum(&mut sums)?;
-    [t.kinetic, t.internal] = [sums[0], sums[1]];
+    [t.kinetic, t.internal, t.failed_floor_energy] = [sums[0], sums[1], sums[5]];
     t.momentum = [sums[2], sums[3], sums[4]];
-    let mut counts = [t.non_finite, t.negative_internal, t.outside];
+    let mut counts = [t.non_finite, t.negative_internal, t.outside, t.failed_floors];
     ex.sum_counts(&mut counts)?;
-    [t.non_finite, t.negative_internal, t.outside] = counts;
+    [t.non_finite, t.negative_internal, t.outside, t.failed_floors] = counts;
     let mut maxima = [t.max_speed, -t.lo[0], -t.lo[1], -t.lo[2], t.hi[0], t.hi[1], t.hi[2]];
     ex.max(&mut maxima)?;
     t.max_speed = maxima[0];

@@ -541,6 +541,7 @@ impl Simulation {
             return Err(SimError::EnergyBlowUp { step: step_no, ratio: e / e0, cfl: self.config.cfl });
         }
         self.balance.add_body_force_work(self.config.body_force, self.last.momentum, total.momentum, dt);
+        self.balance.add_failed_floor(total.failed_floor_energy, total.failed_floors);
         let rise = self.balance.record(step_no, e, total.negative_internal);
         if rise > self.config.energy_rise_limit {
             let (limit, cfl) = (self.config.energy_rise_limit, self.config.cfl);

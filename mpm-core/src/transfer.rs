@@ -273,7 +273,7 @@ pub fn update<E: PressureModel + Sync>(
             let de = strain_increment(&l, dt);
             let dw = [half_dt * (l[1][2] - l[2][1]), half_dt * (l[2][0] - l[0][2]), half_dt * (l[0][1] - l[1][0])];
             let de_mid = strain_increment(&lm, dt);
-            let signal = update_point(
+            let (signal, floor) = update_point(
                 consts,
                 eos,
                 &de,
@@ -299,6 +299,10 @@ pub fn update<E: PressureModel + Sync>(
             sum.kinetic += 0.5 * m * v2;
             sum.internal += m * e_int[k];
             sum.negative_internal += u64::from(e_int[k] < -consts.energy_tolerance);
+            if floor > 0.0 {
+                sum.failed_floors += 1;
+                sum.failed_floor_energy += m * floor;
+            }
             for a in 0..3 {
                 sum.momentum[a] += m * vp[a];
                 sum.lo[a] = sum.lo[a].min(xp[a]);

@@ -251,6 +251,10 @@ pub struct PointState<'a> {
 /// from the EOS at the new density and energy. The stored stress is the total stress
 /// `s - (p + q) I`, so the viscosity's work enters the energy like the pressure's. A failed
 /// particle has `s = 0` and its `p + q` clipped at `>= 0`.
+///
+/// A failed particle's internal energy is not allowed to stay negative: see
+/// [`failure`], "Internal energy". The second value returned is the specific energy (J/kg) that rule
+/// added in this step (0 almost always).
 #[inline(always)]
 pub fn update_point<E: PressureModel>(
     c: &PointConsts,
@@ -260,7 +264,7 @@ pub fn update_point<E: PressureModel>(
     dw: Vec3,
     dt: f64,
     st: PointState<'_>,
-) -> f64 {
+) -> (f64, f64) {
     let rho_old = *st.rho;
     let tr_de = de[0] + de[1] + de[2];
     let rho_new = rho_old / (1.0 + tr_de); // Eq. 14
@@ -283,10 +287,19 @@ pub fn update_point<E: PressureModel>(
         s_new
     };
     let (q, big_q) = c.viscosity.q(rho_new, *st.sound, tr_de / dt);
-    let (p, dp_dmu) = eos.pressure(rho_new / c.rho0 - 1.0, e_new);
+    let mu_new = rho_new / c.rho0 - 1.0;
+    let (mut p, mut dp_dmu) = eos.pressure(mu_new, e_new);
     if !failed && c.failure.is_some_and(|f| f.fails(*st.eps_p, p)) {
         failed = true;
         *st.failed = true;
+    }
+    let mut floor = 0.0;
+    if failed && e_new < 0.0 {
+        // See failure.rs, "Internal energy": the deficit is added (and reported by the caller), the pressure
+        // is that of the heat-free state.
+        floor = -e_new;
+        *st.e_int = 0.0;
+        (p, dp_dmu) = eos.pressure(mu_new, 0.0);
     }
     *st.stress = if failed {
         let p_total = (p + q).max(0.0);
@@ -301,7 +314,7 @@ pub fn update_point<E: PressureModel>(
     let shear = if failed { 0.0 } else { c.four_thirds_g / rho_new };
     let sound = ((dp_dmu / c.rho0).max(0.0) + shear).sqrt();
     *st.sound = sound;
-    viscosity::signal_speed(big_q, sound)
+    (viscosity::signal_speed(big_q, sound), floor)
 }
 
 #[cfg(test)]
@@ -330,6 +343,11 @@ mod tests {
         /// One stress update with strain increment `de`, also at mid-step (a steady rate),
         /// no spin; the signal speed.
         fn step<E: PressureModel>(&mut self, c: &PointConsts, eos: &E, de: Sym) -> f64 {
+            self.step_floor(c, eos, de).0
+        }
+
+        /// [`Point::step`], also returning the energy the failed-particle rule added.
+        fn step_floor<E: PressureModel>(&mut self, c: &PointConsts, eos: &E, de: Sym) -> (f64, f64) {
             update_point(
                 c,
                 eos,
@@ -464,6 +482,33 @@ mod tests {
             pt.step(&c, &eos, uniform(de));
             assert_eq!((pt.s, pt.e), ([0.0; 6], e_sep));
         }
+    }
+
+    #[test]
+    fn a_failed_particles_negative_energy_is_set_to_zero_and_reported_an_intact_ones_is_not() {
+        let m = Material::lead(MgForm::Hugoniot);
+        let (c, eos) = (m.consts(), mg(&m));
+        // A failed particle left 2 kJ/kg below zero by the work lag, pulled apart: clipped
+        // to no stress, it would keep the deficit for ever; its energy becomes zero instead,
+        // and the step reports what that added.
+        let mut pt = Point { failed: true, e: -2.0e3, ..Point::at_rest(&m) };
+        let (_, added) = pt.step_floor(&c, &eos, uniform(1e-4));
+        assert_eq!((pt.e, added, pt.s), (0.0, 2.0e3, [0.0; 6]));
+        // The same in compression: the pressure is that of the state without heat.
+        let mut pt = Point { failed: true, e: -2.0e3, ..Point::at_rest(&m) };
+        let (_, added) = pt.step_floor(&c, &eos, uniform(-1e-3));
+        let mu = pt.rho / m.density - 1.0;
+        assert_eq!((pt.e, added), (0.0, 2.0e3));
+        assert!((pt.pressure() - eos.pressure_at(mu, 0.0)).abs() < 1e-9 * pt.pressure(), "{}", pt.pressure());
+        // Energy above zero is untouched, and nothing is reported.
+        let mut pt = Point { failed: true, e: 5.0e3, ..Point::at_rest(&m) };
+        assert_eq!(pt.step_floor(&c, &eos, uniform(1e-4)).1, 0.0);
+        assert_eq!(pt.e, 5.0e3);
+        // A particle that still carries stress keeps its deficit (it pays it back as it is
+        // loaded again; the solver counts it as a violation).
+        let mut pt = Point { e: -2.0e3, ..Point::at_rest(&m) };
+        assert_eq!(pt.step_floor(&c, &eos, uniform(1e-4)).1, 0.0);
+        assert_eq!((pt.e, pt.failed), (-2.0e3, false));
     }
 
     #[test]

@@ -170,7 +170,7 @@ fn physics(s: &Summary) -> Vec<String> {
     ));
     if let Some(e) = &s.energy {
         lines.push(format!(
-            "energy balance: total {:.4} J -> {:.4} J, largest rise {:.2e} (step {}), largest fall {:.2e} (step {}); negative internal energy after {} step(s) (at most {} particles)",
+            "energy balance: total {:.4} J -> {:.4} J, largest rise {:.2e} (step {}), largest fall {:.2e} (step {}); negative internal energy after {} step(s) (at most {} particles); failed particles' negative energy set to zero {} time(s), adding {:.4} J",
             e.initial_total_j,
             e.final_total_j,
             e.max_rise,
@@ -178,7 +178,9 @@ fn physics(s: &Summary) -> Vec<String> {
             e.max_fall,
             e.max_fall_step,
             e.negative_internal_steps,
-            e.negative_internal_max
+            e.negative_internal_max,
+            e.failed_energy_floors,
+            e.failed_energy_floor_j
         ));
     }
     lines.push(format!(
