@@ -137,6 +137,8 @@ mod mpi_impl {
         scratch_f64: Vec<f64>,
         scratch_u64: Vec<u64>,
         stats: ExchangeStats,
+        /// Time a barrier in front of each operation as waiting (see [`Self::split_wait`]).
+        split_wait: bool,
     }
 
     impl MpiExchange {
@@ -177,8 +179,31 @@ mod mpi_impl {
                 scratch_f64: Vec::new(),
                 scratch_u64: Vec::new(),
                 stats: ExchangeStats::default(),
+                split_wait: false,
                 adjacent,
             })
+        }
+
+        /// Put a barrier in front of every exchange operation and count the time spent in it
+        /// as `wait_seconds`, not as exchange time: separates waiting for a slower rank
+        /// (load imbalance, a CPU taken by another process) from the communication itself.
+        /// The barrier is a global synchronisation the step does not need otherwise: cheap
+        /// at a few ranks, a measurement aid at many.
+        pub fn split_wait(mut self, on: bool) -> Self {
+            self.split_wait = on;
+            self.stats.wait_seconds = on.then_some(0.0);
+            self
+        }
+
+        /// The start of an exchange operation: with [`Self::split_wait`], wait at a barrier
+        /// first and book that time as waiting.
+        fn arrive(&mut self) -> Instant {
+            if self.split_wait {
+                let t = Instant::now();
+                self.world.barrier();
+                *self.stats.wait_seconds.get_or_insert(0.0) += t.elapsed().as_secs_f64();
+            }
+            Instant::now()
         }
 
         /// The communicator.
@@ -345,7 +370,7 @@ mod mpi_impl {
         }
 
         fn sum_shared_nodes(&mut self, local: &GridGeom, values: &mut [f64], width: usize) -> Result<(), SimError> {
-            let t0 = Instant::now();
+            let t0 = self.arrive();
             for (l, (send, recv)) in self.links.iter().zip(self.send.iter_mut().zip(self.recv.iter_mut())) {
                 send.clear();
                 for_each_node(local, l.nodes, |i| send.extend_from_slice(&values[i * width..(i + 1) * width]));
@@ -387,7 +412,7 @@ mod mpi_impl {
         }
 
         fn sum(&mut self, values: &mut [f64]) -> Result<(), SimError> {
-            let t0 = Instant::now();
+            let t0 = self.arrive();
             let n = values.len();
             self.gather.resize(n * self.ranks(), 0.0);
             self.world.all_gather_into(&values[..], &mut self.gather[..]);
@@ -404,7 +429,7 @@ mod mpi_impl {
         }
 
         fn sum_counts(&mut self, values: &mut [u64]) -> Result<(), SimError> {
-            let t0 = Instant::now();
+            let t0 = self.arrive();
             all_reduce(&self.world, values, &mut self.scratch_u64, SystemOperation::sum());
             self.stats.reduction_bytes += std::mem::size_of_val(values) as u64;
             self.stats.reductions += 1;
@@ -413,7 +438,7 @@ mod mpi_impl {
         }
 
         fn max(&mut self, values: &mut [f64]) -> Result<(), SimError> {
-            let t0 = Instant::now();
+            let t0 = self.arrive();
             all_reduce(&self.world, values, &mut self.scratch_f64, SystemOperation::max());
             self.stats.reduction_bytes += std::mem::size_of_val(values) as u64;
             self.stats.reductions += 1;
@@ -422,7 +447,7 @@ mod mpi_impl {
         }
 
         fn migrate(&mut self, particles: &mut Particles) -> Result<usize, SimError> {
-            let t0 = Instant::now();
+            let t0 = self.arrive();
             let n_adj = self.adjacent.len();
             for b in &mut self.send[..n_adj] {
                 b.clear();

@@ -2,8 +2,8 @@
 //! coarse impact over R = 1..4 ranks x T = 1, 2 threads end, after 50 steps, at the state of
 //! the serial solver to 1e-9 (relative to the largest value of each quantity), with
 //! particles moving between ranks on the way; an identical rerun is bitwise equal; rank 0's
-//! summary lists every rank; particles leaving the fixed grid stop a run over ranks as they
-//! stop one process.
+//! summary lists every rank; `--split-wait` changes no bit and reports each rank's waiting;
+//! particles leaving the fixed grid stop a run over ranks as they stop one process.
 //!
 //! Needs `mpirun` (Open MPI: `apt-get install openmpi-bin libopenmpi-dev`, see
 //! scripts/bootstrap.sh).
@@ -127,9 +127,21 @@ fn check_equivalence(scenario: &[&str]) {
     // An identical rerun is bitwise equal.
     let args: Vec<&str> =
         scenario.iter().copied().chain(["--strategy", "dd", "--threads", "2", "--rank-layout", "1x1x3"]).collect();
-    let (first, _) = run(dir.path(), "again1", 3, &args);
+    let (first, plain) = run(dir.path(), "again1", 3, &args);
     let (second, _) = run(dir.path(), "again2", 3, &args);
     assert!(first == second, "two identical runs over 3 ranks differ");
+    // --split-wait only adds barriers: the same bits, and every rank reports its waiting
+    // apart from the exchange time.
+    let split: Vec<&str> = args.iter().copied().chain(["--split-wait"]).collect();
+    let (third, timed) = run(dir.path(), "again3", 3, &split);
+    assert!(first == third, "--split-wait changed the result");
+    for r in plain.ranks.as_ref().unwrap() {
+        assert_eq!(r.exchange.wait_seconds, None, "rank {}: waiting is not measured without --split-wait", r.rank);
+    }
+    for r in timed.ranks.as_ref().unwrap() {
+        let wait = r.exchange.wait_seconds.unwrap_or_else(|| panic!("rank {}: no wait_seconds", r.rank));
+        assert!(wait > 0.0 && r.exchange.seconds > 0.0, "rank {}: {:?}", r.rank, r.exchange);
+    }
 }
 
 #[test]

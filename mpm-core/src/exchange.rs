@@ -93,8 +93,15 @@ pub struct ExchangeStats {
     pub reduction_bytes: u64,
     /// Reductions (collective calls).
     pub reductions: u64,
-    /// Seconds spent in the exchange (packing, messages, waiting for other ranks).
+    /// Seconds spent in the exchange (packing, messages, and waiting for other ranks unless
+    /// `wait_seconds` is measured).
     pub seconds: f64,
+    /// Seconds spent waiting for the other ranks to arrive at an exchange, measured by a
+    /// barrier in front of each exchange operation (`mpm run --split-wait`), and then not
+    /// in `seconds`; `None` when not measured. The wait is load imbalance between ranks (or
+    /// a rank slowed from outside), not the cost of communicating.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wait_seconds: Option<f64>,
 }
 
 /// One process: every operation is the identity.

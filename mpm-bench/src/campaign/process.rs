@@ -425,6 +425,7 @@ fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool) -> Vec<mpm_cli::summar
                     reduction_bytes: 48 * s.steps,
                     reductions: 3 * s.steps,
                     seconds: s.wall_s * 0.02 * (r + 1) as f64,
+                    wait_seconds: None,
                 },
                 peak_rss_bytes: s.peak_rss_bytes.map(|b| b / ranks as u64 + (20 << 20)),
             }

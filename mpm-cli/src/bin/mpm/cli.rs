@@ -307,6 +307,14 @@ pub struct RunOptions {
     #[arg(long, value_name = "RXxRYxRZ", value_parser = parse_layout)]
     pub rank_layout: Option<[usize; 3]>,
 
+    /// With several ranks: wait at a barrier in front of every exchange operation and report
+    /// that time apart (`exchange.wait_seconds` per rank in the JSON), so that
+    /// `exchange.seconds` is the communication alone, not waiting for a slower rank (load
+    /// imbalance, or a CPU another process took). Adds one global synchronisation per
+    /// operation (6 per step): for measuring, not for production runs at many ranks.
+    #[arg(long)]
+    pub split_wait: bool,
+
     /// Write the final particle state to FILE (binary, little-endian, sorted by particle id:
     /// per particle the id as u64, then position, velocity and stress as 12 f64). Used to
     /// compare runs over different rank and thread counts.

@@ -20,6 +20,9 @@ pub fn wanted(o: &RunOptions) -> Result<Option<usize>> {
     if want.is_none() && o.rank_layout.is_some_and(|l| l.iter().product::<usize>() > 1) {
         bail!("--rank-layout needs several ranks: start the run with `mpirun -n R mpm run ...`");
     }
+    if want.is_none() && o.split_wait {
+        bail!("--split-wait measures waiting between ranks and needs several: start the run with `mpirun -n R mpm run ...`");
+    }
     match want {
         Some(r) if !MPI_COMPILED => bail!(
             "MPI is not compiled into this mpm, so it cannot run over {r} ranks; rebuild with the `mpi` feature \
@@ -117,6 +120,7 @@ impl Ranks {
         &self,
         scenario: &ScenarioRun,
         _layout: Option<[usize; 3]>,
+        _split_wait: bool,
     ) -> Result<(Prepared, Option<Box<dyn Exchange>>)> {
         #[cfg(feature = "mpi")]
         if let Some(m) = &self.mpi {
@@ -128,7 +132,7 @@ impl Ranks {
             let boxes = m.boxes(&census.setup.grid, (part.lo, part.hi), _layout)?;
             let rank = m.rank;
             let prepared = scenario.build(Pick::Where(&|x| boxes.owner(x) == rank))?;
-            return Ok((prepared, Some(m.exchange(boxes)?)));
+            return Ok((prepared, Some(m.exchange(boxes, _split_wait)?)));
         }
         Ok((scenario.build(Pick::All)?, None))
     }
@@ -217,9 +221,10 @@ mod with_mpi {
             Ok(RankBoxes::new(cuts, spec.anchor, 1.0 / spec.dx)?)
         }
 
-        /// The exchange of this rank over `boxes`.
-        pub fn exchange(&self, boxes: RankBoxes) -> Result<Box<dyn Exchange>> {
-            Ok(Box::new(MpiExchange::new(self.universe.world(), boxes)?))
+        /// The exchange of this rank over `boxes` (`split_wait`: see
+        /// [`MpiExchange::split_wait`]).
+        pub fn exchange(&self, boxes: RankBoxes, split_wait: bool) -> Result<Box<dyn Exchange>> {
+            Ok(Box::new(MpiExchange::new(self.universe.world(), boxes)?.split_wait(split_wait)))
         }
 
         /// Every rank's host (a hash of its name) and CPU mask, in rank order.

@@ -370,7 +370,7 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
     let mut outputs = if lead { Outputs::open(scenario)? } else { Outputs::none() };
     let pool = start_pool(&plan)?;
     let (Prepared { setup, model, velocity, wall, taylor, impact, plate }, exchange) =
-        ranks.build(scenario, o.rank_layout)?;
+        ranks.build(scenario, o.rank_layout, o.split_wait)?;
     let model_name = setup.model.clone();
     let mut sim = simulation(scenario, &plan, setup, exchange)?;
     let (cells, nodes) = (sim.global_geom().num_cells(), sim.global_geom().num_nodes());
