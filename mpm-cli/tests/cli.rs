@@ -102,6 +102,7 @@ fn help_teaches_the_commands_and_every_flag() {
         "--quiet",
         "--ranks",
         "--rank-layout",
+        "--split-wait",
         "--dump-state",
         "--help",
         "--version",

@@ -123,13 +123,13 @@ fn ranks(s: &Summary) -> Vec<String> {
             let e = &r.exchange;
             let per_step = |x: u64| x as f64 / r.steps.max(1) as f64;
             format!(
-                "rank {}: CPUs {:?}{}, {} particles ({} sent away), busy {:.3} s, exchange {:.3} s{}, peak RSS {}; per step {:.3} MB halo in {:.0} messages, {:.0} migration messages",
+                "rank {}: CPUs {:?}{}, {} particles ({} sent away), {}, exchange {:.3} s{}, peak RSS {}; per step {:.3} MB halo in {:.0} messages, {:.0} migration messages",
                 r.rank,
                 r.cpus,
                 if r.oversubscribed { " (shared: oversubscribed)" } else { "" },
                 group_digits(r.particles as u64),
                 group_digits(r.migrated),
-                r.busy_s,
+                if r.busy_s > 0.0 { format!("busy {:.3} s", r.busy_s) } else { "busy not measured (serial)".to_string() },
                 e.seconds,
                 e.wait_seconds.map_or(String::new(), |w| format!(" (+ {w:.3} s waiting for other ranks)")),
                 r.peak_rss_bytes.map_or("unknown".to_string(), |b| format!("{:.1} MiB", b as f64 / 1048576.0)),
