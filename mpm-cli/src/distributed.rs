@@ -206,6 +206,13 @@ mod mpi_impl {
             Instant::now()
         }
 
+        /// Book one reduction of this rank's `bytes` that began at `t0` (from [`Self::arrive`]).
+        fn reduced(&mut self, t0: Instant, bytes: usize) {
+            self.stats.reduction_bytes += bytes as u64;
+            self.stats.reductions += 1;
+            self.stats.seconds += t0.elapsed().as_secs_f64();
+        }
+
         /// The communicator.
         pub fn world(&self) -> &SimpleCommunicator {
             &self.world
@@ -422,27 +429,21 @@ mod mpi_impl {
                     *v += g;
                 }
             }
-            self.stats.reduction_bytes += (n * 8) as u64;
-            self.stats.reductions += 1;
-            self.stats.seconds += t0.elapsed().as_secs_f64();
+            self.reduced(t0, std::mem::size_of_val(values));
             Ok(())
         }
 
         fn sum_counts(&mut self, values: &mut [u64]) -> Result<(), SimError> {
             let t0 = self.arrive();
             all_reduce(&self.world, values, &mut self.scratch_u64, SystemOperation::sum());
-            self.stats.reduction_bytes += std::mem::size_of_val(values) as u64;
-            self.stats.reductions += 1;
-            self.stats.seconds += t0.elapsed().as_secs_f64();
+            self.reduced(t0, std::mem::size_of_val(values));
             Ok(())
         }
 
         fn max(&mut self, values: &mut [f64]) -> Result<(), SimError> {
             let t0 = self.arrive();
             all_reduce(&self.world, values, &mut self.scratch_f64, SystemOperation::max());
-            self.stats.reduction_bytes += std::mem::size_of_val(values) as u64;
-            self.stats.reductions += 1;
-            self.stats.seconds += t0.elapsed().as_secs_f64();
+            self.reduced(t0, std::mem::size_of_val(values));
             Ok(())
         }
 

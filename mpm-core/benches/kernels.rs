@@ -52,7 +52,7 @@ fn serial_kernels(c: &mut Criterion) {
     g.bench_function("stress_update", |b| {
         b.iter_batched_ref(
             || particles.clone(),
-            |p| transfer::update(&Exec::serial(), &geom, sim.nodes(), p, &consts, &eos, 1e-9, true, &mut partials),
+            |p| transfer::update(&Exec::serial(), &geom, sim.nodes(), p, &consts, &eos, 1e-9, &mut partials),
             BatchSize::LargeInput,
         )
     });

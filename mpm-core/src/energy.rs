@@ -48,10 +48,6 @@ pub struct Partial {
     pub failed_floors: u64,
     /// The energy that added (J).
     pub failed_floor_energy: f64,
-    /// Particles outside the (fixed) grid after the position update.
-    pub outside: u64,
-    /// The first particle outside the grid, if any.
-    pub first_outside: Option<usize>,
 }
 
 impl Default for Partial {
@@ -67,8 +63,6 @@ impl Default for Partial {
             negative_internal: 0,
             failed_floors: 0,
             failed_floor_energy: 0.0,
-            outside: 0,
-            first_outside: None,
         }
     }
 }
@@ -88,10 +82,6 @@ impl Partial {
         self.negative_internal += other.negative_internal;
         self.failed_floors += other.failed_floors;
         self.failed_floor_energy += other.failed_floor_energy;
-        self.outside += other.outside;
-        if self.first_outside.is_none() {
-            self.first_outside = other.first_outside;
-        }
     }
 }
 

@@ -149,9 +149,9 @@ pub(crate) fn reduce_partial(ex: &mut dyn Exchange, t: &mut Partial) -> Result<(
     ex.sum(&mut sums)?;
     [t.kinetic, t.internal, t.failed_floor_energy] = [sums[0], sums[1], sums[5]];
     t.momentum = [sums[2], sums[3], sums[4]];
-    let mut counts = [t.non_finite, t.negative_internal, t.outside, t.failed_floors];
+    let mut counts = [t.non_finite, t.negative_internal, t.failed_floors];
     ex.sum_counts(&mut counts)?;
-    [t.non_finite, t.negative_internal, t.outside, t.failed_floors] = counts;
+    [t.non_finite, t.negative_internal, t.failed_floors] = counts;
     let mut maxima = [t.max_speed, -t.lo[0], -t.lo[1], -t.lo[2], t.hi[0], t.hi[1], t.hi[2]];
     ex.max(&mut maxima)?;
     t.max_speed = maxima[0];

@@ -491,17 +491,10 @@ impl Simulation {
         transfer::remap_velocity(exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
-        let fixed = self.config.grid_mode == GridMode::Fixed;
-        // Over several ranks `geom` is this rank's part of the grid, which particles leave
-        // for a neighbour's: whether they stayed in the fixed grid is decided below, on the
-        // whole set's bounding box.
-        let check_cells = fixed && !distributed;
         let (nodes, particles, consts, partials) = (&self.nodes, &mut self.particles, &self.consts, &mut self.partials);
         match self.material.eos {
-            Eos::MieGruneisen(ref m) => {
-                transfer::update(exec, &geom, nodes, particles, consts, m, dt, check_cells, partials)
-            }
-            Eos::Linear(ref l) => transfer::update(exec, &geom, nodes, particles, consts, l, dt, check_cells, partials),
+            Eos::MieGruneisen(ref m) => transfer::update(exec, &geom, nodes, particles, consts, m, dt, partials),
+            Eos::Linear(ref l) => transfer::update(exec, &geom, nodes, particles, consts, l, dt, partials),
         }
         let mut total = Partial::default();
         for p in &self.partials[..exec.workers()] {
@@ -509,15 +502,21 @@ impl Simulation {
         }
         if distributed {
             reduce_partial(self.exchange.as_mut(), &mut total)?;
-            // The grid is a box: every particle is in it exactly when the (exact) bounding
-            // box's corners are; only then, on every rank alike, are they counted.
-            if fixed && !(self.global.contains(total.lo) && self.global.contains(total.hi)) {
-                let outside = self.particles.x.iter().position(|&x| !self.global.contains(x));
-                let mut count = [self.particles.x.iter().filter(|&&x| !self.global.contains(x)).count() as u64];
-                self.exchange.sum_counts(&mut count)?;
-                total.outside = count[0];
-                total.first_outside = outside;
-            }
+        }
+        // The fixed grid is a box: every particle is in it exactly when the corners of the
+        // (exact, whole-set) bounding box are. Only when they are not are the particles
+        // outside found and counted, on every rank alike (over ranks `geom` is this rank's
+        // part of the grid, which particles leave for a neighbour's, so the test is on the
+        // global grid).
+        let mut left = None;
+        if self.config.grid_mode == GridMode::Fixed
+            && !(self.global.contains(total.lo) && self.global.contains(total.hi))
+        {
+            let mut outside = self.particles.x.iter().enumerate().filter(|(_, &x)| !self.global.contains(x));
+            let first = outside.next().map(|(p, _)| p);
+            let mut count = [first.map_or(0, |_| 1 + outside.count() as u64)];
+            self.exchange.sum_counts(&mut count)?;
+            left = Some((count[0], first));
         }
         lap.lap(&mut self.times, Substage::StressUpdate);
 
@@ -525,14 +524,13 @@ impl Simulation {
         if total.non_finite > 0 || !(total.kinetic + total.internal).is_finite() {
             return Err(SimError::NonFinite { step: step_no, count: total.non_finite.max(1), cfl: self.config.cfl });
         }
-        if total.outside > 0 {
-            let first = total.first_outside.unwrap_or(0);
+        if let Some((count, first)) = left.filter(|&(count, _)| count > 0) {
             return Err(SimError::LeftGrid {
                 step: step_no,
-                count: total.outside,
-                first,
+                count,
+                first: first.unwrap_or(0),
                 // With several ranks the particles outside may all be other ranks'.
-                position: total.first_outside.map_or([f64::NAN; 3], |p| self.particles.x[p]),
+                position: first.map_or([f64::NAN; 3], |p| self.particles.x[p]),
             });
         }
         let e0 = self.initial.kinetic + self.initial.internal;

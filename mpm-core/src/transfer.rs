@@ -217,7 +217,6 @@ pub fn update<E: PressureModel + Sync>(
     consts: &PointConsts,
     eos: &E,
     dt: f64,
-    fixed: bool,
     partials: &mut [Partial],
 ) {
     let n = particles.len();
@@ -313,10 +312,6 @@ pub fn update<E: PressureModel + Sync>(
                 (xp[0] + xp[1] + xp[2] + v2 + stress[k][0] + stress[k][1] + stress[k][2] + e_int[k]).is_finite();
             if !finite {
                 sum.non_finite += 1;
-            }
-            if fixed && !geom.contains(*xp) {
-                sum.outside += 1;
-                sum.first_outside.get_or_insert(p);
             }
         }
         acc[0] = sum;

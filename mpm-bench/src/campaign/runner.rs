@@ -297,7 +297,7 @@ impl Plan {
                 i,
                 r.describe(),
                 budget_label(r),
-                if pl.requested.is_empty() { "-".to_string() } else { format_cpu_list(&pl.requested) },
+                if pl.requested().is_empty() { "-".to_string() } else { format_cpu_list(pl.requested()) },
                 human_bytes(est),
                 if pl.oversubscribed { "  oversubscribed" } else { "" },
                 verdict.map(|v| format!("  SKIP ({v})")).unwrap_or_default()
@@ -649,8 +649,6 @@ pub struct RunPlan {
     /// in worker order, or with several ranks the launcher's affinity mask, ascending and
     /// without repeats (each rank pins to its slice of it in this order).
     pub cpus: Option<Vec<usize>>,
-    /// What the row records as requested: `cpus`, or nothing.
-    pub requested: Vec<usize>,
     /// More workers than usable PUs, or two workers on one CPU.
     pub oversubscribed: bool,
 }
@@ -660,7 +658,12 @@ impl RunPlan {
     pub fn of(machine: &Machine, spec: &RunSpec) -> Result<Self> {
         let placement = machine.place_ranks(&spec.pin, spec.ranks, spec.threads)?;
         let cpus = (!matches!(spec.pin, PinPolicy::None)).then_some(placement.cpus);
-        Ok(Self { requested: cpus.clone().unwrap_or_default(), cpus, oversubscribed: placement.oversubscribed })
+        Ok(Self { cpus, oversubscribed: placement.oversubscribed })
+    }
+
+    /// What the row records as requested: `cpus`, or nothing.
+    pub fn requested(&self) -> &[usize] {
+        self.cpus.as_deref().unwrap_or_default()
     }
 }
 
@@ -697,7 +700,7 @@ fn base_row(
             String::new()
         },
         pin_policy: spec.pin.label(),
-        requested_cpus: cpus_cell(&plan.requested),
+        requested_cpus: cpus_cell(plan.requested()),
         oversubscribed: plan.oversubscribed,
         rep: spec.rep,
         warmup_steps: spec.budget.warmup,
@@ -937,7 +940,7 @@ mod tests {
         let p = RunPlan::of(&laptop, &spec(2, 2, PinPolicy::CLOSE)).unwrap();
         assert_eq!((p.cpus, p.oversubscribed), (Some(vec![0, 1]), true));
         let p = RunPlan::of(&laptop, &spec(2, 2, PinPolicy::None)).unwrap();
-        assert_eq!((p.cpus, p.requested, p.oversubscribed), (None, vec![], true));
+        assert_eq!((p.requested().to_vec(), p.cpus, p.oversubscribed), (vec![], None, true));
         // Two sockets of four cores: spread puts the ranks' workers on both sockets, close on one.
         let two = Machine::synthetic("pack:2 core:4 pu:1").unwrap();
         assert_eq!(RunPlan::of(&two, &spec(2, 2, PinPolicy::SPREAD)).unwrap().cpus, Some(vec![0, 2, 4, 6]));

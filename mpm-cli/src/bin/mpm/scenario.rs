@@ -124,7 +124,12 @@ impl ScenarioRun {
                 };
                 let context = || format!("cannot set up Taylor bar Model {}", args.model);
                 let setup = bar.setup_picked(pick).with_context(context)?;
-                let figures = bar.initial_figures().with_context(context)?;
+                // The whole set's figures: from its particles when they were built, else
+                // generated again without keeping them.
+                let figures = match setup.part {
+                    None => taylor::measure(&setup.particles, setup.spacing),
+                    Some(_) => bar.initial_figures().with_context(context)?,
+                };
                 let spacing = setup.spacing;
                 Ok(Prepared {
                     setup,
