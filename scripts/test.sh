@@ -4,9 +4,6 @@
 # the physics tests run fast, and the loom model check of mpm-core's parallel primitives.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-# No test reads standard input; detach it so that a caller's stdin (a pipe, a job-control
-# shell) cannot reach cargo's `rustc -` target probe, which reads it as source code.
-exec </dev/null
 scripts/bootstrap.sh
 [ -f "$HOME/.cargo/env" ] && . "$HOME/.cargo/env"
 

@@ -5,8 +5,20 @@ use anyhow::{Context, Result};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// Write `bytes` to `path` atomically; on failure the temporary file is removed.
+/// Whether `path` exists and is neither a regular file nor a directory: a device such as
+/// `/dev/null` or `/dev/stdout`, a FIFO, a terminal. Such a destination is written in place:
+/// renaming a file over it would replace it (run as root, `--json /dev/null` turned
+/// `/dev/null` into a regular file for every process on the machine).
+pub fn is_special(path: &Path) -> bool {
+    std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir())
+}
+
+/// Write `bytes` to `path` atomically; on failure the temporary file is removed. A special
+/// destination ([`is_special`]) is written in place instead.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    if is_special(path) {
+        return std::fs::write(path, bytes).with_context(|| format!("cannot write {}", path.display()));
+    }
     let tmp = temp_path_for(path);
     let result = (|| -> std::io::Result<()> {
         let mut f = std::fs::File::create(&tmp)?;
@@ -57,5 +69,19 @@ mod tests {
         write_atomic(&target, b"{}").unwrap();
         assert_eq!(std::fs::read(&target).unwrap(), b"{}");
         assert!(!temp_path_for(&target).exists());
+    }
+
+    /// A device is written in place, never replaced by a rename (as root the rename
+    /// succeeds and `/dev/null` becomes a regular file; otherwise it fails).
+    #[test]
+    fn dev_null_stays_a_device() {
+        use std::os::unix::fs::FileTypeExt;
+        let null = Path::new("/dev/null");
+        assert!(is_special(null));
+        write_atomic(null, b"{}").unwrap();
+        assert!(std::fs::metadata(null).unwrap().file_type().is_char_device(), "/dev/null was replaced");
+        assert!(!temp_path_for(null).exists());
+        let dir = tempfile::tempdir().unwrap();
+        assert!(!is_special(dir.path()) && !is_special(&dir.path().join("missing")));
     }
 }

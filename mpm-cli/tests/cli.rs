@@ -532,6 +532,18 @@ fn unwritable_json_path_is_detected_before_the_run() {
     rejects(&["--model", "1", "--json", dir.path().to_str().unwrap()], "is a directory");
 }
 
+/// `--json /dev/null` (discard the summary) works and leaves the device a device: writing
+/// the summary by a rename over it would, run as root (as CI is), replace `/dev/null` with
+/// a regular file for the whole machine.
+#[test]
+fn json_to_dev_null_leaves_the_device_alone() {
+    use std::os::unix::fs::FileTypeExt;
+    let out = mpm(&["run", "taylor", "--model", "1", "--steps", "2", "--quiet", "--json", "/dev/null"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let meta = std::fs::metadata("/dev/null").unwrap();
+    assert!(meta.file_type().is_char_device(), "mpm replaced /dev/null with a regular file");
+}
+
 /// A Taylor run with `args` that the solver stops: exit status 1, the step and `says` in the
 /// message, no summary.
 fn solver_fails(args: &[&str], says: &str) {

@@ -121,9 +121,10 @@ impl Outputs {
 }
 
 /// A JSON output reserved before the run: a temporary file in the target directory that
-/// becomes the summary by a rename when the run succeeds, and is removed otherwise.
+/// becomes the summary by a rename when the run succeeds, and is removed otherwise (`None`
+/// for a device such as `/dev/null`, written in place: [`atomic::is_special`]).
 struct PendingFile {
-    tmp: PathBuf,
+    tmp: Option<PathBuf>,
     dest: PathBuf,
     done: bool,
 }
@@ -144,6 +145,13 @@ impl PendingFile {
                 parent.display()
             );
         }
+        if atomic::is_special(dest) {
+            std::fs::OpenOptions::new()
+                .write(true)
+                .open(dest)
+                .with_context(|| format!("cannot write the JSON summary to {}", dest.display()))?;
+            return Ok(Self { tmp: None, dest: dest.to_path_buf(), done: false });
+        }
         let tmp = atomic::temp_path_for(dest);
         std::fs::File::create(&tmp).with_context(|| {
             format!(
@@ -152,7 +160,7 @@ impl PendingFile {
                 parent.display()
             )
         })?;
-        Ok(Self { tmp, dest: dest.to_path_buf(), done: false })
+        Ok(Self { tmp: Some(tmp), dest: dest.to_path_buf(), done: false })
     }
 
     fn commit(mut self, bytes: &[u8]) -> Result<()> {
@@ -164,8 +172,8 @@ impl PendingFile {
 
 impl Drop for PendingFile {
     fn drop(&mut self) {
-        if !self.done {
-            let _ = std::fs::remove_file(&self.tmp);
+        if let Some(tmp) = self.tmp.as_ref().filter(|_| !self.done) {
+            let _ = std::fs::remove_file(tmp);
         }
     }
 }
