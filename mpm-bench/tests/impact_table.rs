@@ -1,6 +1,7 @@
 //! `mpm-bench impact-table`: the Markdown table of the impact runs from mock summaries.
 
 use mpm_bench::report::impact_table::{fill_template, load_runs, table, PLACEHOLDER};
+use mpm_cli::identity::Provenance;
 use mpm_cli::summary::{EnergyReport, Summary};
 use mpm_core::scenario::impact::HistorySample;
 use std::path::Path;
@@ -43,10 +44,20 @@ fn mock(dx: f64, spacing: f64) -> Summary {
             final_internal_j: 134_250.0,
             max_rise: 1.5e-14,
             max_fall: 2.0e-3,
+            negative_internal_steps: 9,
+            negative_internal_max: 41,
+            negative_internal_final: 0,
+            failed_energy_floors: 12,
+            failed_energy_floor_j: 0.734,
             ..EnergyReport::default()
         }),
         failed_particles: 53_700,
         peak_rss_bytes: Some(238 << 20),
+        provenance: Some(Provenance {
+            git_commit: "0123456789abcdef".into(),
+            git_dirty: Some(false),
+            ..Provenance::default()
+        }),
         ..Summary::default()
     }
 }
@@ -75,7 +86,8 @@ fn table_has_one_row_per_run_in_model_and_cell_order() {
     assert_eq!(
         lines[2],
         "| small-2.12 | 0.53 mm | 2.12 mm | 847,888 | 273 | 30.6 µs | 29.1 s | 144.5 (143.0) mm | 86.9 (84.0) mm \
-         | 30.9 mm | 6123 m/s | 6632 m/s | 434.2 kJ | 300.0 kJ | 134.2 kJ | 1.5e-14 / 2.0e-3 | 53,700 | 238 MiB |"
+         | 30.9 mm | 6123 m/s | 6632 m/s | 434.2 kJ | 300.0 kJ | 134.2 kJ | 1.5e-14 / 2.0e-3 | 9 (41; 0) | 12 (0.73 J) \
+         | 53,700 | 238 MiB | 0123456 |"
     );
     assert!(lines[4].starts_with("| large | 0.21 mm | 1.00 mm | 13,542,030 |") && lines[4].contains("| 25.0 min |"));
 }
@@ -87,14 +99,14 @@ fn missing_figures_are_dashes_and_old_summaries_have_no_fitted_front_velocity() 
     let old =
         Summary { cloud_history: None, energy: None, leading_debris_velocity_m_s: None, ..mock(2.12e-3, 0.53e-3) };
     let mut json: serde_json::Value = serde_json::to_value(&old).unwrap();
-    for key in ["bulk_viscosity", "energy_rise_limit", "energy"] {
+    for key in ["bulk_viscosity", "energy_rise_limit", "energy", "provenance"] {
         json.as_object_mut().unwrap().remove(key);
     }
     std::fs::create_dir_all(dir.path().join("old")).unwrap();
     std::fs::write(dir.path().join("old/summary.json"), json.to_string()).unwrap();
     let t = table(&load_runs(dir.path()).unwrap());
     let row = t.lines().nth(2).unwrap();
-    assert!(row.contains("| 30.9 mm | - | - | - | - | - | - | 53,700 |"), "{row}");
+    assert!(row.contains("| 30.9 mm | - | - | - | - | - | - | - | - | 53,700 | 238 MiB | - |"), "{row}");
 }
 
 #[test]
@@ -109,4 +121,20 @@ fn template_gets_the_table_and_bad_input_is_an_error() {
     write(dir.path(), "taylor", &Summary { scenario: "taylor".into(), ..Summary::default() });
     let e = load_runs(dir.path()).unwrap_err().to_string();
     assert!(e.contains("not an impact"), "{e}");
+}
+
+/// A run from uncommitted sources says so in its row, so it cannot pass for a committed result.
+#[test]
+fn a_dirty_build_is_marked_in_the_commit_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = mock(2.12e-3, 0.53e-3);
+    s.provenance.as_mut().unwrap().git_dirty = Some(true);
+    write(dir.path(), "small", &s);
+    let mut old = mock(1.06e-3, 0.53e-3);
+    old.provenance = None;
+    write(dir.path(), "old", &old);
+    let t = table(&load_runs(dir.path()).unwrap());
+    let rows: Vec<&str> = t.lines().skip(2).collect();
+    assert!(rows[0].ends_with("| 0123456-dirty |"), "{t}");
+    assert!(rows[1].ends_with("| - |"), "{t}");
 }

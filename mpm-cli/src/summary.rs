@@ -51,6 +51,7 @@
 
 use crate::identity::Provenance;
 use crate::pinning::PinnedPool;
+use mpm_core::grid::Occupancy;
 use mpm_core::scenario::impact::{self, CloudFigures, History, HistorySample, ImpactGeometry};
 use mpm_core::scenario::plate::{PlateGeometry, PlateResult};
 use mpm_core::scenario::taylor::{measure, TaylorFigures};
@@ -453,6 +454,11 @@ pub struct Summary {
     pub mean_nodes: f64,
     /// Nodes of the last step's grid.
     pub final_nodes: usize,
+    /// How many of the last grid's cells, and of its blocks of 8^3 cells, hold a particle
+    /// (what a sparse grid would store instead of the box); `null` in older summaries and
+    /// when the particles are spread over MPI ranks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub final_occupancy: Option<Occupancy>,
     /// Cell size (m).
     pub dx_m: f64,
     /// Steps taken.
@@ -694,6 +700,7 @@ impl Summary {
             nodes: ctx.nodes,
             mean_nodes: sim.mean_nodes(),
             final_nodes: sim.global_geom().num_nodes(),
+            final_occupancy: Some(Occupancy::of(sim.global_geom(), &sim.particles().x)),
             dx_m: sim.geom().dx,
             steps: sim.steps(),
             dt_first: sim.dt_first(),

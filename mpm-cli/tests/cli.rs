@@ -180,6 +180,7 @@ const REQUIRED_KEYS: &[&str] = &[
     "nodes",
     "mean_nodes",
     "final_nodes",
+    "final_occupancy",
     "dx_m",
     "steps",
     "warmup_steps",
@@ -270,6 +271,10 @@ fn json_has_exactly_the_golden_keys() {
     assert_eq!(f(&v["bulk_viscosity"], "c1"), 1.5);
     assert_eq!(f(&v["bulk_viscosity"], "c2"), 0.06);
     assert_eq!(f(&v, "energy_rise_limit"), 0.05);
+    let o = &v["final_occupancy"];
+    assert_eq!(u(o, "cells") as usize, u(&v, "cells") as usize, "Model 1's grid is fixed");
+    assert!(u(o, "occupied_cells") > 0 && u(o, "occupied_cells") < u(o, "cells"), "{o}");
+    assert!(u(o, "occupied_blocks") * 512 >= u(o, "occupied_cells"), "{o}");
     let e = &v["energy"];
     assert_eq!(f(e, "initial_kinetic_j"), f(&v, "kinetic_energy_initial"));
     assert_eq!(f(e, "final_internal_j"), f(&v, "internal_energy"));

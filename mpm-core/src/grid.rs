@@ -13,7 +13,7 @@
 use crate::capacity_bytes;
 use crate::math::Vec3;
 use crate::shape::{self, Shape};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Values per node of the P2G scatter (Eqs. 1-5): mass, momentum (3), force (3).
 pub const P2G_WIDTH: usize = 7;
@@ -301,6 +301,50 @@ impl NodeArrays {
     }
 }
 
+/// Cells per axis of the blocks [`Occupancy`] counts.
+pub const OCCUPANCY_BLOCK: usize = 8;
+
+/// How much of a grid the particles occupy: the figure that says what a sparse (blocked)
+/// grid would hold instead of the whole box. Measured outside the time step (it allocates
+/// one bit per cell).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Occupancy {
+    /// Cells of the grid.
+    pub cells: u64,
+    /// Cells holding at least one particle.
+    pub occupied_cells: u64,
+    /// Blocks of [`OCCUPANCY_BLOCK`]^3 cells (aligned on the grid's first cell) holding at
+    /// least one particle.
+    pub occupied_blocks: u64,
+    /// Cells along an edge of those blocks.
+    pub block_cells: u64,
+}
+
+impl Occupancy {
+    /// The occupancy of `geom` by the particles at `x` (each counted in the cell
+    /// [`GridGeom::shape_cell`] gives it).
+    pub fn of(geom: &GridGeom, x: &[Vec3]) -> Self {
+        let b = OCCUPANCY_BLOCK;
+        let blocks_per_axis: [usize; 3] = std::array::from_fn(|d| geom.cells[d].div_ceil(b));
+        let mut cells = vec![0u64; geom.num_cells().div_ceil(64)];
+        let mut blocks = vec![0u64; (blocks_per_axis[0] * blocks_per_axis[1] * blocks_per_axis[2]).div_ceil(64)];
+        let set = |bits: &mut [u64], i: usize| bits[i / 64] |= 1 << (i % 64);
+        for &p in x {
+            let c = geom.shape_cell(p);
+            set(&mut cells, c[0] + geom.cells[0] * (c[1] + geom.cells[1] * c[2]));
+            let k: [usize; 3] = std::array::from_fn(|d| c[d] / b);
+            set(&mut blocks, k[0] + blocks_per_axis[0] * (k[1] + blocks_per_axis[1] * k[2]));
+        }
+        let count = |bits: &[u64]| bits.iter().map(|w| u64::from(w.count_ones())).sum();
+        Self {
+            cells: geom.num_cells() as u64,
+            occupied_cells: count(&cells),
+            occupied_blocks: count(&blocks),
+            block_cells: b as u64,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -316,6 +360,18 @@ mod tests {
         assert!(g.contains([0.1, -0.9, 0.0]));
         assert_eq!(g.layer_of(2, 0.0), Some(0));
         assert_eq!(g.layer_of(2, 0.2), None);
+    }
+
+    #[test]
+    fn occupancy_counts_distinct_cells_and_blocks() {
+        let spec = GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [20, 10, 10] };
+        let g = GridGeom::fixed(&spec);
+        // Two particles in cell (0,0,0), one in (7,7,7) (same block), one in (8,0,0) and one
+        // in (19,9,9) (two more blocks).
+        let x = [[0.2, 0.2, 0.2], [0.7, 0.1, 0.9], [7.5, 7.5, 7.5], [8.1, 0.5, 0.5], [19.5, 9.5, 9.5]];
+        let o = Occupancy::of(&g, &x);
+        assert_eq!(o, Occupancy { cells: 2000, occupied_cells: 4, occupied_blocks: 3, block_cells: 8 });
+        assert_eq!(Occupancy::of(&g, &[]).occupied_cells, 0);
     }
 
     #[test]

@@ -10,6 +10,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use mpm_cli::atomic::write_atomic;
 use mpm_cli::group_digits;
+use mpm_cli::identity::Provenance;
 use mpm_cli::summary::{EnergyReport, Summary};
 use std::path::{Path, PathBuf};
 
@@ -99,8 +100,24 @@ fn memory(bytes: Option<u64>) -> String {
     }
 }
 
+/// The short commit the run's binary was built from, `-dirty` when its sources were not
+/// committed; `-` for a summary without provenance.
+fn commit(p: Option<&Provenance>) -> String {
+    match p {
+        Some(p) => {
+            let short: String = p.git_commit.chars().take(7).collect();
+            match p.git_dirty {
+                Some(false) => short,
+                Some(true) => format!("{short}-dirty"),
+                None => format!("{short} (dirty unknown)"),
+            }
+        }
+        None => "-".into(),
+    }
+}
+
 /// The columns of the table.
-const HEAD: [&str; 18] = [
+const HEAD: [&str; 21] = [
     "run",
     "spacing",
     "cell",
@@ -117,8 +134,11 @@ const HEAD: [&str; 18] = [
     "final kinetic",
     "final internal",
     "largest rise / fall",
+    "negative internal energy: steps (most particles; at end)",
+    "failed-particle floors (energy)",
     "failed",
     "peak RSS",
+    "commit",
 ];
 
 /// One row of the table.
@@ -146,8 +166,13 @@ fn row(r: &ImpactRun) -> Vec<String> {
         kj(|e| e.final_kinetic_j),
         kj(|e| e.final_internal_j),
         e.map_or("-".into(), |e| format!("{:.1e} / {:.1e}", e.max_rise, e.max_fall)),
+        e.map_or("-".into(), |e| {
+            format!("{} ({}; {})", e.negative_internal_steps, e.negative_internal_max, e.negative_internal_final)
+        }),
+        e.map_or("-".into(), |e| format!("{} ({:.2} J)", e.failed_energy_floors, e.failed_energy_floor_j)),
         group_digits(s.failed_particles as u64),
         memory(s.peak_rss_bytes),
+        commit(s.provenance.as_ref()),
     ]
 }
 

@@ -189,6 +189,17 @@ fn physics(s: &Summary) -> Vec<String> {
         s.peak_rss_bytes.map_or("unknown".into(), |b| format!("{:.1} MiB", b as f64 / 1048576.0)),
         s.model_memory_bytes as f64 / 1048576.0
     ));
+    if let Some(o) = s.final_occupancy {
+        lines.push(format!(
+            "final grid: {} nodes; particles in {} of its {} cells ({:.1} %) and in {} blocks of {}^3 cells",
+            group_digits(s.final_nodes as u64),
+            group_digits(o.occupied_cells),
+            group_digits(o.cells),
+            100.0 * o.occupied_cells as f64 / o.cells.max(1) as f64,
+            group_digits(o.occupied_blocks),
+            o.block_cells
+        ));
+    }
     lines
 }
 
