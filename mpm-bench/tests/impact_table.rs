@@ -3,6 +3,7 @@
 use mpm_bench::report::impact_table::{fill_template, load_runs, table, PLACEHOLDER};
 use mpm_cli::identity::Provenance;
 use mpm_cli::summary::{EnergyReport, Summary};
+use mpm_core::grid::Occupancy;
 use mpm_core::scenario::impact::HistorySample;
 use std::path::Path;
 
@@ -53,6 +54,13 @@ fn mock(dx: f64, spacing: f64) -> Summary {
         }),
         failed_particles: 53_700,
         peak_rss_bytes: Some(238 << 20),
+        final_nodes: 1_054_017,
+        final_occupancy: Some(Occupancy {
+            cells: 1_022_048,
+            occupied_cells: 37_088,
+            occupied_blocks: 982,
+            block_cells: 8,
+        }),
         provenance: Some(Provenance {
             git_commit: "0123456789abcdef".into(),
             git_dirty: Some(false),
@@ -87,7 +95,7 @@ fn table_has_one_row_per_run_in_model_and_cell_order() {
         lines[2],
         "| small-2.12 | 0.53 mm | 2.12 mm | 847,888 | 273 | 30.6 µs | 29.1 s | 144.5 (143.0) mm | 86.9 (84.0) mm \
          | 30.9 mm | 6123 m/s | 6632 m/s | 434.2 kJ | 300.0 kJ | 134.2 kJ | 1.5e-14 / 2.0e-3 | 9 (41; 0) | 12 (0.73 J) \
-         | 53,700 | 238 MiB | 0123456 |"
+         | 53,700 | 238 MiB | 1,054,017 (3.6 %) | 0123456 |"
     );
     assert!(lines[4].starts_with("| large | 0.21 mm | 1.00 mm | 13,542,030 |") && lines[4].contains("| 25.0 min |"));
 }
@@ -106,7 +114,10 @@ fn missing_figures_are_dashes_and_old_summaries_have_no_fitted_front_velocity() 
     std::fs::write(dir.path().join("old/summary.json"), json.to_string()).unwrap();
     let t = table(&load_runs(dir.path()).unwrap());
     let row = t.lines().nth(2).unwrap();
-    assert!(row.contains("| 30.9 mm | - | - | - | - | - | - | - | - | 53,700 | 238 MiB | - |"), "{row}");
+    assert!(
+        row.contains("| 30.9 mm | - | - | - | - | - | - | - | - | 53,700 | 238 MiB | 1,054,017 (3.6 %) | - |"),
+        "{row}"
+    );
 }
 
 #[test]

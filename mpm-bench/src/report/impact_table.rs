@@ -117,7 +117,7 @@ fn commit(p: Option<&Provenance>) -> String {
 }
 
 /// The columns of the table.
-const HEAD: [&str; 21] = [
+const HEAD: [&str; 22] = [
     "run",
     "spacing",
     "cell",
@@ -138,6 +138,7 @@ const HEAD: [&str; 21] = [
     "failed-particle floors (energy)",
     "failed",
     "peak RSS",
+    "final grid: nodes (cells with particles)",
     "commit",
 ];
 
@@ -172,6 +173,13 @@ fn row(r: &ImpactRun) -> Vec<String> {
         e.map_or("-".into(), |e| format!("{} ({:.2} J)", e.failed_energy_floors, e.failed_energy_floor_j)),
         group_digits(s.failed_particles as u64),
         memory(s.peak_rss_bytes),
+        s.final_occupancy.map_or_else(
+            || group_digits(s.final_nodes as u64),
+            |o| {
+                let share = 100.0 * o.occupied_cells as f64 / o.cells.max(1) as f64;
+                format!("{} ({share:.1} %)", group_digits(s.final_nodes as u64))
+            },
+        ),
         commit(s.provenance.as_ref()),
     ]
 }
