@@ -14,8 +14,9 @@
 #   IMPACT_EXTRA_ARGS  more options for every `mpm run impact`, e.g. "--steps 3" for a smoke
 #                      test into a temporary IMPACT_RESULTS
 #
-# Times on the development machine (2 cores): the small model about 0.5-1.5 min per run,
-# the large model (13.5 M particles, about 2 GiB) 20-25 min.
+# Times on the development machine (2 cores): the small model 40 s, 1 min and 2.4 min at
+# 2.12, 1.59 and 1.06 mm cells; the large model (13.5 M particles) 28 min with an 8.3 GiB
+# peak (the dense adaptive grid: ARCHITECTURE.md, "Memory of the adaptive grid").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 [ -f "$HOME/.cargo/env" ] && . "$HOME/.cargo/env"

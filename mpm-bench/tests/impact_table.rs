@@ -94,7 +94,7 @@ fn table_has_one_row_per_run_in_model_and_cell_order() {
     assert_eq!(
         lines[2],
         "| small-2.12 | 0.53 mm | 2.12 mm | 847,888 | 273 | 30.6 µs | 29.1 s | 144.5 (143.0) mm | 86.9 (84.0) mm \
-         | 30.9 mm | 6123 m/s | 6632 m/s | 434.2 kJ | 300.0 kJ | 134.2 kJ | 1.5e-14 / 2.0e-3 | 9 (41; 0) | 12 (0.73 J) \
+         | 30.9 mm | 6123 m/s | 6632 m/s | 434.2 kJ | 300.0 kJ | 134.2 kJ | 1.5e-14 / 2.0e-3 | 9 (41; 0) | 12 (7.34e-1 J) \
          | 53,700 | 238 MiB | 1,054,017 (3.6 %) | 0123456 |"
     );
     assert!(lines[4].starts_with("| large | 0.21 mm | 1.00 mm | 13,542,030 |") && lines[4].contains("| 25.0 min |"));

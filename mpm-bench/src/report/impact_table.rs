@@ -170,7 +170,10 @@ fn row(r: &ImpactRun) -> Vec<String> {
         e.map_or("-".into(), |e| {
             format!("{} ({}; {})", e.negative_internal_steps, e.negative_internal_max, e.negative_internal_final)
         }),
-        e.map_or("-".into(), |e| format!("{} ({:.2} J)", e.failed_energy_floors, e.failed_energy_floor_j)),
+        e.map_or("-".into(), |e| match e.failed_energy_floors {
+            0 => "0".into(),
+            n => format!("{n} ({:.2e} J)", e.failed_energy_floor_j),
+        }),
         group_digits(s.failed_particles as u64),
         memory(s.peak_rss_bytes),
         s.final_occupancy.map_or_else(
