@@ -1,6 +1,8 @@
 //! Runs split over MPI ranks: the launcher's rank count (read from the environment, so a
 //! build without MPI can say what is wrong) and, with the `mpi` feature, [`MpiExchange`],
-//! the implementation of `mpm-core`'s [`mpm_core::Exchange`] with MPI.
+//! the implementation of `mpm-core`'s [`mpm_core::Exchange`] with MPI, and
+//! [`MpiCollectives`], its reductions and gather without the exchange's bookkeeping (what
+//! the program measures the scenario's figures with).
 //!
 //! Per step the exchange sends, to each rank whose local grid (the nodes of its box's cells,
 //! [`mpm_core::exchange::RankBoxes::node_range`]) meets this rank's, the nodal values on
@@ -22,18 +24,18 @@ pub fn launcher_ranks() -> Option<usize> {
 pub const MPI_COMPILED: bool = cfg!(feature = "mpi");
 
 #[cfg(feature = "mpi")]
-pub use mpi_impl::MpiExchange;
+pub use mpi_impl::{MpiCollectives, MpiExchange};
 
 #[cfg(feature = "mpi")]
 mod mpi_impl {
     use mpi::collective::SystemOperation;
-    use mpi::datatype::Equivalence;
+    use mpi::datatype::{Equivalence, PartitionMut};
     use mpi::request::Request;
-    use mpi::topology::{Communicator, SimpleCommunicator};
-    use mpi::traits::{CommunicatorCollectives, Destination, Source};
+    use mpi::topology::{Communicator, Rank, SimpleCommunicator};
+    use mpi::traits::{CommunicatorCollectives, Destination, Root, Source};
     use mpm_core::exchange::{ExchangeStats, RankBoxes};
     use mpm_core::particles::PACKED_WIDTH;
-    use mpm_core::{Exchange, GridGeom, Particles, SimError};
+    use mpm_core::{Collectives, Exchange, GridGeom, Particles, SimError};
     use std::time::Instant;
 
     /// Values per migrating particle: its state and its global id.
@@ -112,9 +114,103 @@ mod mpi_impl {
         nodes: [(usize, usize); 3],
     }
 
+    /// [`Collectives`] over an MPI communicator, counting nothing: what the program measures
+    /// the scenario's figures with, and what [`MpiExchange`] books its reductions around.
+    pub struct MpiCollectives {
+        world: SimpleCommunicator,
+        rank: usize,
+        size: usize,
+        /// Every rank's values of a sum, in rank order.
+        gathered: Vec<f64>,
+        scratch_f64: Vec<f64>,
+        scratch_u64: Vec<u64>,
+    }
+
+    impl MpiCollectives {
+        /// The collectives of this process in `world`.
+        pub fn new(world: SimpleCommunicator) -> Self {
+            let (rank, size) = (world.rank() as usize, world.size() as usize);
+            Self { world, rank, size, gathered: Vec::new(), scratch_f64: Vec::new(), scratch_u64: Vec::new() }
+        }
+
+        /// The communicator.
+        pub fn world(&self) -> &SimpleCommunicator {
+            &self.world
+        }
+    }
+
+    // SAFETY: the communicator handle is only used through `&mut self` (or `&self` of an
+    // owner borrowed mutably for the call), so by one thread at a time, and MPI runs with
+    // MPI_THREAD_SERIALIZED (checked by `MpiExchange::new`; `mpm` starts it so), which
+    // allows calls from any thread as long as they do not overlap. Covered by the
+    // equivalence tests (mpm-cli/tests/mpi.rs), where the step and the measurements call
+    // MPI from a pool worker.
+    unsafe impl Send for MpiCollectives {}
+
+    impl Collectives for MpiCollectives {
+        fn ranks(&self) -> usize {
+            self.size
+        }
+
+        fn rank(&self) -> usize {
+            self.rank
+        }
+
+        fn sum(&mut self, values: &mut [f64]) -> Result<(), SimError> {
+            let n = values.len();
+            self.gathered.resize(n * self.size, 0.0);
+            self.world.all_gather_into(&values[..], &mut self.gathered[..]);
+            values.fill(0.0);
+            for r in 0..self.size {
+                for (v, g) in values.iter_mut().zip(&self.gathered[r * n..(r + 1) * n]) {
+                    *v += g;
+                }
+            }
+            Ok(())
+        }
+
+        fn sum_counts(&mut self, values: &mut [u64]) -> Result<(), SimError> {
+            all_reduce(&self.world, values, &mut self.scratch_u64, SystemOperation::sum());
+            Ok(())
+        }
+
+        fn max(&mut self, values: &mut [f64]) -> Result<(), SimError> {
+            all_reduce(&self.world, values, &mut self.scratch_f64, SystemOperation::max());
+            Ok(())
+        }
+
+        fn gather(&mut self, values: Vec<f64>) -> Result<Option<Vec<f64>>, SimError> {
+            // MPI counts and displacements are `int`s.
+            let too_many = |n: usize| SimError::Exchange(format!("{n} values are too many for one MPI gather"));
+            let count = Rank::try_from(values.len()).map_err(|_| too_many(values.len()))?;
+            let root = self.world.process_at_rank(0);
+            if self.rank != 0 {
+                root.gather_into(&count);
+                root.gather_varcount_into(&values[..]);
+                return Ok(None);
+            }
+            let mut counts: Vec<Rank> = vec![0; self.size];
+            root.gather_into_root(&count, &mut counts[..]);
+            let total: usize = counts.iter().map(|&c| c as usize).sum();
+            Rank::try_from(total).map_err(|_| too_many(total))?;
+            let displs: Vec<Rank> = counts
+                .iter()
+                .scan(0, |at, &c| {
+                    let d = *at;
+                    *at += c;
+                    Some(d)
+                })
+                .collect();
+            let mut all = vec![0.0; total];
+            root.gather_varcount_into_root(&values[..], &mut PartitionMut::new(&mut all[..], &counts[..], &displs[..]));
+            Ok(Some(all))
+        }
+    }
+
     /// [`Exchange`] over an MPI communicator.
     pub struct MpiExchange {
-        world: SimpleCommunicator,
+        /// The reductions (booked in `stats` here).
+        collectives: MpiCollectives,
         rank: usize,
         boxes: RankBoxes,
         /// This rank's box in lattice coordinates ([`RankBoxes::lattice_bounds`]), and the
@@ -133,9 +229,6 @@ mod mpi_impl {
         saved: Vec<f64>,
         send: Vec<Vec<f64>>,
         recv: Vec<Vec<f64>>,
-        gather: Vec<f64>,
-        scratch_f64: Vec<f64>,
-        scratch_u64: Vec<u64>,
         stats: ExchangeStats,
         /// Time a barrier in front of each operation as waiting (see [`Self::split_wait`]).
         split_wait: bool,
@@ -160,7 +253,7 @@ mod mpi_impl {
             let adjacent = boxes.neighbours(rank);
             let n = adjacent.len();
             Ok(Self {
-                world,
+                collectives: MpiCollectives::new(world),
                 rank,
                 bounds: boxes.lattice_bounds(rank),
                 bounded: (0..3)
@@ -175,9 +268,6 @@ mod mpi_impl {
                 saved: Vec::new(),
                 send: vec![Vec::new(); n],
                 recv: vec![Vec::new(); n],
-                gather: Vec::new(),
-                scratch_f64: Vec::new(),
-                scratch_u64: Vec::new(),
                 stats: ExchangeStats::default(),
                 split_wait: false,
                 adjacent,
@@ -200,7 +290,7 @@ mod mpi_impl {
         fn arrive(&mut self) -> Instant {
             if self.split_wait {
                 let t = Instant::now();
-                self.world.barrier();
+                self.collectives.world.barrier();
                 *self.stats.wait_seconds.get_or_insert(0.0) += t.elapsed().as_secs_f64();
             }
             Instant::now()
@@ -215,7 +305,19 @@ mod mpi_impl {
 
         /// The communicator.
         pub fn world(&self) -> &SimpleCommunicator {
-            &self.world
+            self.collectives.world()
+        }
+
+        /// Book around the reduction `op` on this rank's `values` (their bytes).
+        fn booked<T>(
+            &mut self,
+            values: &mut [T],
+            op: impl FnOnce(&mut MpiCollectives, &mut [T]) -> Result<(), SimError>,
+        ) -> Result<(), SimError> {
+            let t0 = self.arrive();
+            op(&mut self.collectives, values)?;
+            self.reduced(t0, std::mem::size_of_val(values));
+            Ok(())
         }
 
         /// Recompute the links for a new global grid: the nodes this rank's local grid
@@ -264,12 +366,6 @@ mod mpi_impl {
             })
         }
     }
-
-    // SAFETY: the communicator handle is only used through `&mut self`, so by one thread at
-    // a time, and `new` checks that MPI runs with MPI_THREAD_SERIALIZED, which allows calls
-    // from any thread as long as they do not overlap. Covered by the equivalence tests
-    // (mpm-cli/tests/mpi.rs), where the step calls MPI from a pool worker.
-    unsafe impl Send for MpiExchange {}
 
     /// Call `f` with the linear index of every node of `geom` in the box `nodes`.
     fn for_each_node(geom: &GridGeom, nodes: [(usize, usize); 3], mut f: impl FnMut(usize)) {
@@ -340,7 +436,8 @@ mod mpi_impl {
         world.all_reduce_into(&copy[..], values, op);
     }
 
-    impl Exchange for MpiExchange {
+    /// The reductions of [`MpiCollectives`], each booked in the exchange's statistics.
+    impl Collectives for MpiExchange {
         fn ranks(&self) -> usize {
             self.boxes.ranks()
         }
@@ -349,6 +446,27 @@ mod mpi_impl {
             self.rank
         }
 
+        fn sum(&mut self, values: &mut [f64]) -> Result<(), SimError> {
+            self.booked(values, |c, v| c.sum(v))
+        }
+
+        fn sum_counts(&mut self, values: &mut [u64]) -> Result<(), SimError> {
+            self.booked(values, |c, v| c.sum_counts(v))
+        }
+
+        fn max(&mut self, values: &mut [f64]) -> Result<(), SimError> {
+            self.booked(values, |c, v| c.max(v))
+        }
+
+        fn gather(&mut self, values: Vec<f64>) -> Result<Option<Vec<f64>>, SimError> {
+            let (t0, bytes) = (self.arrive(), std::mem::size_of_val(&values[..]));
+            let all = self.collectives.gather(values)?;
+            self.reduced(t0, bytes);
+            Ok(all)
+        }
+    }
+
+    impl Exchange for MpiExchange {
         fn adopt(&mut self, particles: &mut Particles, ids: Option<Vec<u64>>) -> Result<(), SimError> {
             let ids = ids.unwrap_or_else(|| (0..particles.len() as u64).collect());
             if ids.len() != particles.len() {
@@ -385,7 +503,7 @@ mod mpi_impl {
                 self.stats.halo_bytes += (send.len() * 8) as u64;
             }
             self.stats.halo_messages += self.links.len() as u64;
-            swap(&self.world, &self.peers, &self.send, &mut self.recv, HALO);
+            swap(&self.collectives.world, &self.peers, &self.send, &mut self.recv, HALO);
             // Every shared node becomes the sum of the ranks' values in rank order, the
             // same on every rank that holds it.
             self.saved.clear();
@@ -418,35 +536,6 @@ mod mpi_impl {
             Ok(())
         }
 
-        fn sum(&mut self, values: &mut [f64]) -> Result<(), SimError> {
-            let t0 = self.arrive();
-            let n = values.len();
-            self.gather.resize(n * self.ranks(), 0.0);
-            self.world.all_gather_into(&values[..], &mut self.gather[..]);
-            values.fill(0.0);
-            for r in 0..self.ranks() {
-                for (v, g) in values.iter_mut().zip(&self.gather[r * n..(r + 1) * n]) {
-                    *v += g;
-                }
-            }
-            self.reduced(t0, std::mem::size_of_val(values));
-            Ok(())
-        }
-
-        fn sum_counts(&mut self, values: &mut [u64]) -> Result<(), SimError> {
-            let t0 = self.arrive();
-            all_reduce(&self.world, values, &mut self.scratch_u64, SystemOperation::sum());
-            self.reduced(t0, std::mem::size_of_val(values));
-            Ok(())
-        }
-
-        fn max(&mut self, values: &mut [f64]) -> Result<(), SimError> {
-            let t0 = self.arrive();
-            all_reduce(&self.world, values, &mut self.scratch_f64, SystemOperation::max());
-            self.reduced(t0, std::mem::size_of_val(values));
-            Ok(())
-        }
-
         fn migrate(&mut self, particles: &mut Particles) -> Result<usize, SimError> {
             let t0 = self.arrive();
             let n_adj = self.adjacent.len();
@@ -476,7 +565,7 @@ mod mpi_impl {
             }
             // One message per adjacent rank, empty when no particle goes there; its length,
             // read by a probe, says how many particles it carries.
-            let (world, adjacent) = (&self.world, &self.adjacent);
+            let (world, adjacent) = (&self.collectives.world, &self.adjacent);
             let (send, recv) = (&self.send[..n_adj], &mut self.recv[..n_adj]);
             mpi::request::scope(|scope| {
                 let mut pending = Pending::new();

@@ -15,7 +15,14 @@
 //!   steady_steps)` and `particle_steps_per_s` (its inverse, per second). They are `null`
 //!   when no step was left after the warm-up (for example `--steps 0`).
 //! * `peak_rss_bytes` is the process's own high-water mark `VmHWM` from
-//!   `/proc/self/status`, read when the summary is built (after the run).
+//!   `/proc/self/status`, read last (after the final figures and any `--dump-state`); over
+//!   several ranks it is rank 0's, and each rank's is in `ranks`, read at the same point.
+//! * `particles` counts the whole problem's particles (over every rank), and so do
+//!   `failed_particles` and the per-particle-step figures; `model_memory_bytes` is the
+//!   writing process's (over several ranks rank 0's part).
+//! * The scenario figures below are measured over every rank's particles (the program does
+//!   it through `mpm_core`'s collectives) and equal the ones one process computes from the
+//!   same state.
 //! * Taylor bar lengths (`initial_length_m`, `final_length_m`, `face_diameter_m`) are
 //!   measured by [`mpm_core::scenario::taylor::measure`]: the length is the z-extent of the
 //!   particle centres plus one layer spacing (half a spacing beyond the end particles at each
@@ -52,9 +59,9 @@
 use crate::identity::Provenance;
 use crate::pinning::PinnedPool;
 use mpm_core::grid::Occupancy;
-use mpm_core::scenario::impact::{self, CloudFigures, History, HistorySample, ImpactGeometry};
+use mpm_core::scenario::impact::{CloudFigures, History, HistorySample};
 use mpm_core::scenario::plate::{PlateGeometry, PlateResult};
-use mpm_core::scenario::taylor::{measure, TaylorFigures};
+use mpm_core::scenario::taylor::TaylorFigures;
 use mpm_core::{BulkViscosity, Simulation, StageTimes, Strategy};
 use serde::de::{MapAccess, Visitor};
 use serde::ser::SerializeMap;
@@ -360,10 +367,12 @@ pub struct RunContext<'a> {
     pub history: Vec<HistoryPoint>,
     /// Model label (`Model1`, `impact-h0.53mm-dx2.12mm`, ...).
     pub model_name: String,
-    /// Taylor bar: figures at `t = 0` and the lattice spacing to measure with.
-    pub taylor: Option<(TaylorFigures, [f64; 3])>,
-    /// Impact: which particles are the plate and where its rear face is.
-    pub impact: Option<ImpactGeometry>,
+    /// Failed particles at the end, over every rank.
+    pub failed_particles: usize,
+    /// Taylor bar: figures at `t = 0` and at the end.
+    pub taylor: Option<(TaylorFigures, TaylorFigures)>,
+    /// Impact: the debris cloud's figures at the end.
+    pub cloud: Option<CloudFigures>,
     /// Impact: the cloud's history.
     pub cloud_history: Option<History>,
     /// Plate: the plate and the shock measurements (`None` when the front was not tracked
@@ -660,7 +669,8 @@ pub struct Summary {
 }
 
 impl Summary {
-    /// Build the summary of a finished run. Reads `VmHWM` now.
+    /// Build the summary of a finished run from its simulation and what the program
+    /// measured (`ctx`). `peak_rss_bytes` is left for the caller to read last.
     pub fn build(sim: &Simulation, ctx: RunContext<'_>) -> Self {
         let mut s = Self::configuration(sim, &ctx);
         s.fill_timing(sim, ctx.timing);
@@ -695,12 +705,14 @@ impl Summary {
             cfl: cfg.cfl,
             wall: ctx.wall.to_string(),
             velocity_m_s: ctx.velocity,
-            particles: sim.particles().len(),
+            particles: sim.total_particles(),
             cells: ctx.cells,
             nodes: ctx.nodes,
             mean_nodes: sim.mean_nodes(),
             final_nodes: sim.global_geom().num_nodes(),
-            final_occupancy: Some(Occupancy::of(sim.global_geom(), &sim.particles().x)),
+            // Only a process holding every particle can count the cells they occupy.
+            final_occupancy: (sim.particles().len() == sim.total_particles())
+                .then(|| Occupancy::of(sim.global_geom(), &sim.particles().x)),
             dx_m: sim.geom().dx,
             steps: sim.steps(),
             dt_first: sim.dt_first(),
@@ -709,9 +721,8 @@ impl Summary {
             end_time: ctx.end_time,
             step_limit: ctx.step_limit,
             end_reason: ctx.end_reason,
-            peak_rss_bytes: peak_rss_bytes(),
             model_memory_bytes: sim.memory_bytes(),
-            spacing_m: ctx.impact.map(|_| sim.spacing()[0]),
+            spacing_m: ctx.cloud.map(|_| sim.spacing()[0]),
             dd_layout: sim.domain_decomposition().map(|dd| dd.layout()),
             dd_patch_particles: sim.domain_decomposition().map(|dd| PatchCounts::from(dd.load())),
             started_unix_s: ctx.started_unix_s,
@@ -721,7 +732,7 @@ impl Summary {
 
     /// Wall time, stage times and the steady state after the warm-up (see the module docs).
     fn fill_timing(&mut self, sim: &Simulation, t: &Timing) {
-        let particles = sim.particles().len();
+        let particles = sim.total_particles();
         let warmup = t.warmup_steps.min(self.steps);
         let steady_steps = self.steps - warmup;
         let steady_times = sim.times().since(&t.warmup_times);
@@ -774,17 +785,15 @@ impl Summary {
         self.internal_energy = last.internal;
         self.momentum_initial = init.momentum;
         self.momentum = last.momentum;
-        self.failed_particles = sim.particles().failed_count();
-        if let Some((f0, spacing)) = ctx.taylor {
-            let f = measure(sim.particles(), spacing);
+        self.failed_particles = ctx.failed_particles;
+        if let Some((f0, f)) = ctx.taylor {
             self.initial_length_m = Some(f0.length);
             self.final_length_m = Some(f.length);
             self.initial_face_diameter_m = Some(f0.face_diameter);
             self.face_diameter_m = Some(f.face_diameter);
             self.length_convention = Some(LENGTH_CONVENTION.to_string());
         }
-        if let Some(g) = &ctx.impact {
-            let c: CloudFigures = impact::measure(sim.particles(), g);
+        if let Some(c) = &ctx.cloud {
             self.cloud_front_m = Some(c.cloud_front);
             self.cloud_front_robust_m = Some(c.cloud_front_robust);
             self.cloud_width_m = Some(c.cloud_width);
@@ -897,8 +906,9 @@ pub struct RankReport {
     pub steps: u64,
     /// Its exchange traffic and time over the run.
     pub exchange: mpm_core::exchange::ExchangeStats,
-    /// Its peak resident memory (`VmHWM`, bytes) at the end of the time steps, before rank 0
-    /// gathers the particles for the summary; `null` if unreadable.
+    /// Its peak resident memory (`VmHWM`, bytes) at the end of the run, after the final
+    /// figures and any `--dump-state` (which releases the grid's arrays before rank 0 takes
+    /// in every particle); `null` if unreadable.
     #[serde(default)]
     pub peak_rss_bytes: Option<u64>,
 }

@@ -5,11 +5,19 @@
 //! summary lists every rank; `--split-wait` changes no bit and reports each rank's waiting;
 //! particles leaving the fixed grid stop a run over ranks as they stop one process.
 //!
+//! The scenario figures over 2 and 3 ranks (measured across the ranks, no particle gathered)
+//! are to the bit those one process computes from the run's own final state (its
+//! `--dump-state`), match one process's run to round-off, and the impact's cloud history
+//! and the plate's shock front are sampled at the steps one process samples them.
+//!
 //! Needs `mpirun` (Open MPI: `apt-get install openmpi-bin libopenmpi-dev`, see
 //! scripts/bootstrap.sh).
 #![cfg(feature = "mpi")]
 
 use mpm_cli::summary::Summary;
+use mpm_core::scenario::impact::{self, Impact};
+use mpm_core::scenario::taylor::{self, TaylorBar};
+use mpm_core::Setup;
 use std::path::Path;
 use std::process::Command;
 
@@ -174,4 +182,164 @@ fn leaving_the_fixed_grid_over_ranks_fails_like_one_process() {
         .output()
         .expect("cannot start mpirun: install openmpi-bin (scripts/bootstrap.sh)");
     assert_eq!(what(&two), one);
+}
+
+/// `|a - b|` within `tol` of the larger magnitude (equal values, zeros included, pass).
+fn close(a: f64, b: f64, tol: f64) -> bool {
+    a == b || (a - b).abs() <= tol * a.abs().max(b.abs())
+}
+
+/// The scenario figures of a summary by name (Taylor bar or impact; `NaN` when absent).
+fn figures(s: &Summary) -> Vec<(&'static str, f64)> {
+    let v = |x: Option<f64>| x.unwrap_or(f64::NAN);
+    match s.scenario.as_str() {
+        "taylor" => vec![
+            ("initial_length_m", v(s.initial_length_m)),
+            ("initial_face_diameter_m", v(s.initial_face_diameter_m)),
+            ("final_length_m", v(s.final_length_m)),
+            ("face_diameter_m", v(s.face_diameter_m)),
+        ],
+        _ => vec![
+            ("cloud_front_m", v(s.cloud_front_m)),
+            ("cloud_front_robust_m", v(s.cloud_front_robust_m)),
+            ("cloud_width_m", v(s.cloud_width_m)),
+            ("cloud_width_robust_m", v(s.cloud_width_robust_m)),
+            ("hole_diameter_m", v(s.hole_diameter_m)),
+            ("leading_debris_velocity_m_s", v(s.leading_debris_velocity_m_s)),
+            ("debris_mass_kg", v(s.debris_mass_kg)),
+        ],
+    }
+}
+
+/// The final figures one process computes from a whole state: `setup` (the scenario's
+/// initial set, for the masses and the numbering) moved to the positions and velocities of
+/// the `--dump-state` records `state`, measured by mpm-core's one-process functions.
+fn figures_of_state(
+    s: &Summary,
+    mut setup: Setup,
+    geometry: Option<impact::ImpactGeometry>,
+    state: &[Record],
+) -> Vec<(&'static str, f64)> {
+    let p = &mut setup.particles;
+    assert_eq!(p.len(), state.len());
+    for (i, (id, r)) in state.iter().enumerate() {
+        assert_eq!(*id, i as u64, "the state is in id order");
+        p.x[i] = [r[0], r[1], r[2]];
+        p.v[i] = [r[3], r[4], r[5]];
+    }
+    let mut whole = figures(s);
+    match geometry {
+        None => {
+            let f = taylor::measure(p, setup.spacing);
+            whole[2].1 = f.length;
+            whole[3].1 = f.face_diameter;
+        }
+        Some(g) => {
+            let f = impact::measure(p, &g);
+            let values = [
+                f.cloud_front,
+                f.cloud_front_robust,
+                f.cloud_width,
+                f.cloud_width_robust,
+                f.hole_diameter,
+                f.leading_debris_velocity,
+                f.debris_mass,
+            ];
+            for (w, v) in whole.iter_mut().zip(values) {
+                w.1 = v;
+            }
+        }
+    }
+    whole
+}
+
+/// One process and 2 and 3 ranks (layouts across the motion, so particles migrate): the
+/// figures over ranks are bitwise those of the run's own final state measured as one
+/// process, and one process's run's to round-off; the impact's history has one process's
+/// samples (the code before the figures were measured across ranks sampled only the end).
+fn check_figures(scenario: &[&str], setup: &dyn Fn() -> (Setup, Option<impact::ImpactGeometry>)) {
+    let dir = tempfile::tempdir().unwrap();
+    let serial: Vec<&str> = scenario.iter().copied().chain(["--strategy", "serial"]).collect();
+    let (_, one) = run(dir.path(), "one", 0, &serial);
+    for (ranks, layout) in [(0, ""), (2, "1x1x2"), (3, "1x1x3")] {
+        let name = format!("r{ranks}");
+        let summary = if ranks == 0 {
+            one.clone()
+        } else {
+            let args: Vec<&str> =
+                scenario.iter().copied().chain(["--strategy", "serial", "--rank-layout", layout]).collect();
+            run(dir.path(), &name, ranks, &args).1
+        };
+        let name = if ranks == 0 { "one" } else { name.as_str() };
+        let state = read_state(&dir.path().join(format!("{name}.bin")));
+        let (set, geometry) = setup();
+        let got = figures(&summary);
+        assert!(got.iter().all(|f| f.1.is_finite()), "{name}: {got:?}");
+        let whole = figures_of_state(&summary, set, geometry, &state);
+        for ((key, a), (_, b)) in got.iter().zip(&whole) {
+            assert_eq!(a.to_bits(), b.to_bits(), "{name}: {key} {a} over ranks, {b} from the whole state");
+        }
+        for ((key, a), (_, b)) in got.iter().zip(&figures(&one)) {
+            assert!(close(*a, *b, 1e-12), "{name}: {key} {a}, one process {b}");
+        }
+        assert_eq!(summary.failed_particles, one.failed_particles, "{name}");
+        let (Some(h), Some(h1)) = (&summary.cloud_history, &one.cloud_history) else {
+            assert!(geometry.is_none(), "{name}: an impact without its cloud history");
+            continue;
+        };
+        assert!(h1.len() > 10, "one process sampled {} times", h1.len());
+        assert_eq!(h.len(), h1.len(), "{name}: cloud history samples");
+        for (a, b) in h.iter().zip(h1) {
+            let pairs = [
+                (a.time, b.time),
+                (a.cloud_front, b.cloud_front),
+                (a.cloud_front_robust, b.cloud_front_robust),
+                (a.cloud_width, b.cloud_width),
+                (a.cloud_width_robust, b.cloud_width_robust),
+                (a.kinetic, b.kinetic),
+                (a.internal, b.internal),
+            ];
+            assert!(pairs.iter().all(|&(x, y)| close(x, y, 1e-12)) && a.failed == b.failed, "{name}: {a:?} vs {b:?}");
+        }
+    }
+}
+
+#[test]
+fn taylor_figures_over_ranks_are_the_whole_sets() {
+    check_figures(&["taylor", "--model", "1"], &|| (TaylorBar::default().setup().unwrap(), None));
+}
+
+#[test]
+fn impact_figures_and_history_over_ranks_are_the_whole_sets() {
+    check_figures(&["impact", "--spacing", "2.12e-3", "--cell", "4.24e-3"], &|| {
+        let (setup, g) = Impact { spacing: 2.12e-3, cell: 4.24e-3, ..Default::default() }.setup().unwrap();
+        (setup, Some(g))
+    });
+}
+
+/// The plate's shock front is tracked at every step over ranks as in one process: the same
+/// front samples and shock speed (its path from slice sums over ranks, which differ from one
+/// process's in the order of additions only).
+#[test]
+fn plate_shock_is_tracked_over_ranks_like_one_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = |name: &str| dir.path().join(format!("{name}.json"));
+    let summary =
+        |name: &str| -> Summary { serde_json::from_str(&std::fs::read_to_string(json(name)).unwrap()).unwrap() };
+    let args = ["run", "plate", "--quiet", "--json"];
+    assert!(Command::new(MPM).args(args).arg(json("one")).status().unwrap().success());
+    let two = Command::new("mpirun")
+        .args(["--oversubscribe", "--allow-run-as-root", "-n", "2", MPM])
+        .args(args)
+        .arg(json("two"))
+        .status()
+        .expect("cannot start mpirun: install openmpi-bin (scripts/bootstrap.sh)");
+    assert!(two.success());
+    let (one, two) = (summary("one"), summary("two"));
+    assert!(one.shock_front_samples.is_some_and(|n| n > 100), "{:?}", one.shock_front_samples);
+    assert_eq!(two.shock_front_samples, one.shock_front_samples);
+    let (a, b) = (two.shock_speed_m_s.unwrap(), one.shock_speed_m_s.unwrap());
+    assert!(close(a, b, 1e-9), "shock speed {a} over ranks, {b} in one process");
+    let (a, b) = (two.shock_pressure_pa.unwrap(), one.shock_pressure_pa.unwrap());
+    assert!(close(a, b, 1e-9), "shock pressure {a} over ranks, {b} in one process");
 }

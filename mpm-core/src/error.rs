@@ -85,4 +85,7 @@ pub enum SimError {
     /// The simulation failed earlier and cannot continue.
     #[error("the simulation stopped with an error at step {0} and cannot continue; start a new one")]
     Poisoned(u64),
+    /// The simulation's grid arrays were released after its last step.
+    #[error("the simulation's grid arrays were released after step {0} (release_grid_arrays), so it cannot step again; start a new one")]
+    Released(u64),
 }

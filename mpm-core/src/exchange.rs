@@ -1,7 +1,8 @@
-//! What a step needs from other processes when the problem is split over ranks: the
-//! [`Exchange`] trait (halo sums, particle migration, reductions), its single-process no-op
-//! [`SingleProcess`], and the rank boxes ([`RankBoxes`]) every implementation cuts the
-//! lattice into.
+//! What a run needs from other processes when the problem is split over ranks: the
+//! [`Collectives`] trait (reductions and a gather, also what the scenario figures need to
+//! measure the whole set from its parts), the [`Exchange`] trait built on it (halo sums,
+//! particle migration: what a step needs), their single-process no-op [`SingleProcess`],
+//! and the rank boxes ([`RankBoxes`]) every implementation cuts the lattice into.
 //!
 //! The library has no MPI code: a program implements [`Exchange`] with its message-passing
 //! library (the `mpm` program does it with MPI behind its `mpi` feature) and hands it to
@@ -30,17 +31,36 @@ use crate::math::Vec3;
 use crate::particles::Particles;
 use crate::strategy::domain_decomposition::patch_layout;
 
-/// The operations a distributed step calls, once per step each (never per particle).
+/// Collective operations over the ranks: every rank calls the same ones in the same order.
 ///
 /// Sums over ranks must be done in rank order on every rank, so that every rank gets the
-/// same value and reruns are bitwise equal.
-pub trait Exchange: Send {
+/// same value and reruns are bitwise equal. The step's reductions go through its
+/// [`Exchange`], which counts them in its [`ExchangeStats`]; the scenario figures
+/// ([`crate::scenario`]) take any implementation, so that a program can measure through
+/// one that counts nothing (a measurement is not part of a step).
+pub trait Collectives: Send {
     /// Number of ranks.
     fn ranks(&self) -> usize;
 
     /// This process's rank.
     fn rank(&self) -> usize;
 
+    /// Element-wise sums over ranks, in rank order, on every rank.
+    fn sum(&mut self, values: &mut [f64]) -> Result<(), SimError>;
+
+    /// Element-wise sums of counts over ranks, on every rank.
+    fn sum_counts(&mut self, values: &mut [u64]) -> Result<(), SimError>;
+
+    /// Element-wise maxima over ranks, on every rank.
+    fn max(&mut self, values: &mut [f64]) -> Result<(), SimError>;
+
+    /// Every rank's `values` concatenated in rank order, on rank 0; `None` on the others.
+    fn gather(&mut self, values: Vec<f64>) -> Result<Option<Vec<f64>>, SimError>;
+}
+
+/// The operations a distributed step calls, once per step each (never per particle),
+/// besides the reductions of [`Collectives`].
+pub trait Exchange: Collectives {
     /// Keep only the particles this rank owns (called once, before the first step).
     /// `ids` are the particles' indices in the whole initial set (a scenario built for this
     /// rank alone, [`crate::scenario::Pick`]); `None` when `particles` is the whole set.
@@ -54,15 +74,6 @@ pub trait Exchange: Send {
     /// `values` holds `width` values per node of `local` (the grid from
     /// [`Exchange::local_grid`]).
     fn sum_shared_nodes(&mut self, local: &GridGeom, values: &mut [f64], width: usize) -> Result<(), SimError>;
-
-    /// Element-wise sums over ranks, in rank order.
-    fn sum(&mut self, values: &mut [f64]) -> Result<(), SimError>;
-
-    /// Element-wise sums of counts over ranks.
-    fn sum_counts(&mut self, values: &mut [u64]) -> Result<(), SimError>;
-
-    /// Element-wise maxima over ranks.
-    fn max(&mut self, values: &mut [f64]) -> Result<(), SimError>;
 
     /// Move the particles that left this rank's box to their new owners and take in the
     /// ones that arrived; returns how many left.
@@ -108,21 +119,12 @@ pub struct ExchangeStats {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SingleProcess;
 
-impl Exchange for SingleProcess {
+impl Collectives for SingleProcess {
     fn ranks(&self) -> usize {
         1
     }
     fn rank(&self) -> usize {
         0
-    }
-    fn adopt(&mut self, _: &mut Particles, _: Option<Vec<u64>>) -> Result<(), SimError> {
-        Ok(())
-    }
-    fn local_grid(&mut self, global: &GridGeom) -> GridGeom {
-        *global
-    }
-    fn sum_shared_nodes(&mut self, _: &GridGeom, _: &mut [f64], _: usize) -> Result<(), SimError> {
-        Ok(())
     }
     fn sum(&mut self, _: &mut [f64]) -> Result<(), SimError> {
         Ok(())
@@ -131,6 +133,21 @@ impl Exchange for SingleProcess {
         Ok(())
     }
     fn max(&mut self, _: &mut [f64]) -> Result<(), SimError> {
+        Ok(())
+    }
+    fn gather(&mut self, values: Vec<f64>) -> Result<Option<Vec<f64>>, SimError> {
+        Ok(Some(values))
+    }
+}
+
+impl Exchange for SingleProcess {
+    fn adopt(&mut self, _: &mut Particles, _: Option<Vec<u64>>) -> Result<(), SimError> {
+        Ok(())
+    }
+    fn local_grid(&mut self, global: &GridGeom) -> GridGeom {
+        *global
+    }
+    fn sum_shared_nodes(&mut self, _: &GridGeom, _: &mut [f64], _: usize) -> Result<(), SimError> {
         Ok(())
     }
     fn migrate(&mut self, _: &mut Particles) -> Result<usize, SimError> {

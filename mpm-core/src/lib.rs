@@ -14,8 +14,8 @@
 //! * the parallel region a step runs in, its phases and the per-worker parts of shared
 //!   arrays, with a safe API: [`parallel`];
 //! * what a step needs from other processes when a run is split over ranks (halo sums,
-//!   particle migration, reductions), as a trait with a single-process no-op, and the rank
-//!   boxes: [`exchange`];
+//!   particle migration, reductions) and the collectives the scenario figures are measured
+//!   with, as traits with a single-process no-op, and the rank boxes: [`exchange`];
 //! * the Taylor bar Models 1-4 ([`scenario::taylor`]), the hypervelocity impact
 //!   ([`scenario::impact`]) and a 1D plate impact checked against the Rankine-Hugoniot
 //!   relations ([`scenario::plate`]).
@@ -55,7 +55,7 @@ pub mod timers;
 pub mod transfer;
 
 pub use error::SimError;
-pub use exchange::{Exchange, RankBoxes, SingleProcess};
+pub use exchange::{Collectives, Exchange, RankBoxes, SingleProcess};
 pub use grid::{GridGeom, GridMode, GridSpec, Wall, WallKind};
 pub use material::{BulkViscosity, Material, MgForm};
 pub use particles::Particles;

@@ -120,6 +120,8 @@ pub struct Simulation {
     exchange: Box<dyn Exchange>,
     /// Particles that left this rank over the steps taken.
     migrated: u64,
+    /// Particles of the whole problem, over every rank (constant).
+    total: u64,
     walls: Vec<Wall>,
     wall_layers: WallLayers,
     config: SimConfig,
@@ -145,6 +147,8 @@ pub struct Simulation {
     node_steps: u128,
     times: StageTimes,
     poisoned: Option<u64>,
+    /// Whether [`Simulation::release_grid_arrays`] freed the arrays a step needs.
+    released: bool,
     /// The workers of the parallel strategies, built once; `None` for the serial strategy.
     /// Shared (`Arc`) only so that a step can hold the team while it borrows the rest of
     /// the simulation mutably.
@@ -248,6 +252,7 @@ impl Simulation {
             global,
             exchange,
             migrated: 0,
+            total,
             walls,
             wall_layers,
             geom,
@@ -265,6 +270,7 @@ impl Simulation {
             node_steps: 0,
             times: StageTimes::default(),
             poisoned: None,
+            released: false,
             team: config.strategy.is_parallel().then(|| Arc::new(Team::new(config.threads))),
             config,
         })
@@ -315,6 +321,12 @@ impl Simulation {
     /// Particles that left this rank for another over the steps taken (0 with one rank).
     pub fn migrated(&self) -> u64 {
         self.migrated
+    }
+
+    /// Particles of the whole problem, over every rank (`particles().len()` with one rank;
+    /// constant: particles move between ranks but are neither created nor destroyed).
+    pub fn total_particles(&self) -> usize {
+        self.total as usize
     }
 
     /// The scenario's grid specification.
@@ -406,6 +418,18 @@ impl Simulation {
             + self.engine.bytes()
     }
 
+    /// After the last step: free the node arrays and the strategy's scatter buffers, which
+    /// only a step uses, so that whatever the caller does next with the particles (gather
+    /// every rank's for a state dump) does not stack on them. The particles, the figures
+    /// and the strategy's tables stay; [`Simulation::memory_bytes`] drops accordingly. A
+    /// further step returns [`SimError::Released`].
+    pub fn release_grid_arrays(&mut self) {
+        self.nodes = NodeArrays::default();
+        self.p2g_parts = Vec::new();
+        self.remap_parts = Vec::new();
+        self.released = true;
+    }
+
     /// Advance one step of at most `dt_max` seconds inside `pool`.
     ///
     /// The step runs on the pool's threads (serial: `pool.install`; AE and DD: one
@@ -417,6 +441,9 @@ impl Simulation {
     pub fn step(&mut self, pool: &ThreadPool, dt_max: f64) -> Result<(), SimError> {
         if let Some(s) = self.poisoned {
             return Err(SimError::Poisoned(s));
+        }
+        if self.released {
+            return Err(SimError::Released(self.steps));
         }
         let result = match self.team.clone() {
             None => pool.install(|| self.step_inner(&Exec::serial(), dt_max)),

@@ -8,7 +8,7 @@ use common::pool;
 use mpm_core::scenario::impact::{
     measure, History, Impact, ImpactGeometry, DEFAULT_HISTORY_INTERVAL, PLATE_SIDE, SPHERE_RADIUS,
 };
-use mpm_core::{GridMode, Setup, SimConfig, Simulation, Strategy};
+use mpm_core::{GridMode, Setup, SimConfig, Simulation, SingleProcess, Strategy};
 
 fn coarse() -> (Setup, ImpactGeometry) {
     Impact { spacing: 2.5e-3, cell: 5.0e-3, ..Default::default() }.setup().unwrap()
@@ -30,10 +30,10 @@ fn coarse_impact_conserves_mass_momentum_and_energy_fails_material_and_measures_
     let ke0 = sim.initial().kinetic;
     let end = 30.6e-6;
     let mut history = History::new(DEFAULT_HISTORY_INTERVAL).unwrap();
-    assert!(history.observe(&sim, &geometry), "the initial state is the first sample");
+    assert!(history.observe(&sim, &geometry, &mut SingleProcess).unwrap(), "the initial state is the first sample");
     while sim.time() < end * (1.0 - 1e-12) {
         sim.step(&pool, end - sim.time()).unwrap();
-        history.observe(&sim, &geometry);
+        history.observe(&sim, &geometry, &mut SingleProcess).unwrap();
         // Mass: the grid carries exactly the particles' mass (Eq. 1, partition of unity).
         let grid_mass: f64 = sim.nodes().p2g[..sim.geom().num_nodes()].iter().map(|n| n[0]).sum();
         assert!((grid_mass / mass - 1.0).abs() < 1e-12, "grid mass {grid_mass} vs {mass}");
@@ -43,7 +43,7 @@ fn coarse_impact_conserves_mass_momentum_and_energy_fails_material_and_measures_
             assert!((p[d] - p0[d]).abs() < 1e-10 * p0[2].abs(), "momentum {d}: {} vs {}", p[d], p0[d]);
         }
     }
-    history.finish(&sim, &geometry);
+    history.finish(&sim, &geometry, &mut SingleProcess).unwrap();
     let failed = sim.particles().failed_count();
     assert!(failed > 0, "hypervelocity impact must fail material");
     let f = measure(sim.particles(), &geometry);

@@ -15,7 +15,7 @@ mod common;
 
 use common::pool;
 use mpm_core::scenario::plate::{PlateImpact, PlateResult, ShockTracker};
-use mpm_core::{SimConfig, Simulation};
+use mpm_core::{SimConfig, Simulation, SingleProcess};
 
 /// The CFL number of these tests (see the module docs).
 const CFL: f64 = 0.2;
@@ -32,10 +32,10 @@ fn run(velocity: f64) -> (PlateResult, f64, Simulation) {
     let mut worst = 0.0f64;
     while sim.time() < end * (1.0 - 1e-12) {
         sim.step(&pool, end - sim.time()).unwrap();
-        tracker.observe(&sim);
+        tracker.observe(&sim, &mut SingleProcess).unwrap();
         worst = worst.max((sim.diagnostics().total() / e0 - 1.0).abs());
     }
-    let result = tracker.result(&sim).expect("the shock was tracked");
+    let result = tracker.result(&sim, &mut SingleProcess).unwrap().expect("the shock was tracked");
     let (r, t) = (result.shocked, result.theory);
     println!(
         "v = {velocity} m/s, {} steps, {} front samples: U_s {:.1} m/s (RH {:.1}, {:+.2} %), p {:.3} GPa, \

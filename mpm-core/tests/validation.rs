@@ -255,6 +255,24 @@ fn nan_is_reported_with_its_step_number() {
     assert!(matches!(sim.step(&pool, f64::INFINITY), Err(SimError::Poisoned(4))));
 }
 
+/// After the last step the grid's arrays can be freed (before a state dump gathers every
+/// rank's particles): the memory goes, the particles and figures stay, and the simulation
+/// refuses another step instead of stepping on empty arrays.
+#[test]
+fn released_grid_arrays_free_their_memory_and_refuse_another_step() {
+    let (mut sim, pool) = model1_after_three_steps();
+    let (before, nodes) = (sim.memory_bytes(), sim.nodes().bytes());
+    let (x, energy) = (sim.particles().x.clone(), sim.diagnostics());
+    assert!(nodes > 0);
+    sim.release_grid_arrays();
+    assert_eq!(sim.nodes().bytes(), 0);
+    assert_eq!(sim.memory_bytes(), before - nodes);
+    assert_eq!((&sim.particles().x, sim.diagnostics()), (&x, energy));
+    let err = sim.step(&pool, f64::INFINITY).unwrap_err();
+    assert!(matches!(err, SimError::Released(3)), "{err:?}");
+    assert_eq!(sim.particles().x, x, "the refused step changed nothing");
+}
+
 #[test]
 fn energy_blow_up_is_reported_with_its_step_number() {
     let setup = TaylorBar::default().setup().unwrap();

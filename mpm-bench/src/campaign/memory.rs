@@ -37,15 +37,12 @@ pub fn estimate_memory(scenario: &str, model: u32, strategy: Strategy, threads: 
 pub const RANK_OVERHEAD_BYTES: u64 = 64 << 20;
 
 /// Estimated memory, summed over the ranks, of a run split over `ranks` ranks of `threads`
-/// threads each: the one-process model (split between the ranks, their overlaps small), once
-/// more for rank 0's gather of every particle at the end (an upper bound), and
+/// threads each: the one-process model (split between the ranks, their overlaps small; no
+/// rank gathers the particles, the figures are measured across the ranks) and
 /// [`RANK_OVERHEAD_BYTES`] per extra rank. At one rank, [`estimate_memory`].
 pub fn estimate_ranks_memory(scenario: &str, model: u32, strategy: Strategy, threads: usize, ranks: usize) -> u64 {
     let one = estimate_memory(scenario, model, strategy, threads);
-    if ranks <= 1 {
-        return one;
-    }
-    2 * one + (ranks as u64 - 1) * RANK_OVERHEAD_BYTES
+    one + (ranks.max(1) as u64 - 1) * RANK_OVERHEAD_BYTES
 }
 
 /// Memory available to a new process now, bytes: `MemAvailable`, capped by a cgroup v2

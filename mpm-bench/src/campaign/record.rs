@@ -225,11 +225,13 @@ pub struct Row {
     /// of the cuts, not of the machine). Since schema 3.
     #[serde(default)]
     pub dd_work_imbalance: Option<f64>,
-    /// Peak resident memory of the solver process (VmHWM read by the solver), bytes; with
-    /// several ranks rank 0's, which includes gathering every particle for the summary.
+    /// Peak resident memory of the solver process (VmHWM read by the solver at its exit),
+    /// bytes; with several ranks rank 0's (rows of solvers before the figures were measured
+    /// across the ranks include rank 0's gathering every particle).
     pub peak_rss_bytes: Option<u64>,
-    /// Peak resident memory summed over the ranks (each rank's VmHWM at the end of its time
-    /// steps, before the final gather); equal to `peak_rss_bytes` at one rank. Since schema 4.
+    /// Peak resident memory summed over the ranks (each rank's VmHWM at its exit; in rows of
+    /// older solvers at the end of its time steps); equal to `peak_rss_bytes` at one rank.
+    /// Since schema 4.
     #[serde(default)]
     pub peak_rss_sum_bytes: Option<u64>,
     /// With several ranks: each rank's particles at the end (space-separated, rank order).

@@ -40,9 +40,14 @@
 //! Histories ([`History`]): the figures and energies sampled about every microsecond, and
 //! [`History::front_velocity`], the least-squares slope of the robust front over the last
 //! quarter of the run: the speed at which the cloud's leading edge has actually moved.
+//!
+//! Over ranks ([`measure_over`]) the hole is a minimum over the ranks and the debris's few
+//! values per particle are gathered on rank 0 in the whole set's order, so the figures are
+//! the ones one process computes from the same state.
 
 use super::{lattice, seed, Pick, Setup};
 use crate::error::SimError;
+use crate::exchange::{Collectives, SingleProcess};
 use crate::grid::GridSpec;
 use crate::material::{Material, MgForm};
 use crate::math::Vec3;
@@ -227,56 +232,95 @@ fn mass_quantile_from_top(items: &mut [(f64, f64)], fraction: f64) -> f64 {
     items.last().map_or(f64::NAN, |i| i.0)
 }
 
-/// Measure the debris cloud and the hole.
+/// Values per debris particle that [`measure_over`] gathers: global id, z, squared distance
+/// from the flight axis, mass, z-velocity.
+const DEBRIS_ROW: usize = 5;
+
+/// Measure the debris cloud and the hole of one process's particles (particle `p` is
+/// particle `p` of the whole set).
 pub fn measure(p: &Particles, g: &ImpactGeometry) -> CloudFigures {
-    let mut front = Vec::new();
-    let mut radial = Vec::new();
-    let (mut zmax, mut rmax, mut mass) = (f64::NEG_INFINITY, 0.0f64, 0.0);
+    measure_over(p, |i| i as u64, g, &mut SingleProcess)
+        .expect("one process's collectives cannot fail")
+        .expect("one process is rank 0")
+}
+
+/// Measure the debris cloud and the hole of a set spread over ranks, `p` being this rank's
+/// particles and `global_id` their indices in the whole set: collective (every rank calls
+/// it, [`Collectives`]); the figures on rank 0, `None` on the others.
+///
+/// The hole is a minimum over ranks (exact). The cloud's figures need the debris as a
+/// whole (the robust ones are mass quantiles), so its few values per particle
+/// ([`DEBRIS_ROW`]) are gathered on rank 0 and put in global id order, one process's
+/// order: the figures are computed from the same values in the same order as one process
+/// holding every particle computes them. No other particle data moves.
+pub fn measure_over(
+    p: &Particles,
+    global_id: impl Fn(usize) -> u64,
+    g: &ImpactGeometry,
+    ranks: &mut dyn Collectives,
+) -> Result<Option<CloudFigures>, SimError> {
+    let mut debris = Vec::new();
     let mut hole_r2 = f64::INFINITY;
     for i in 0..p.len() {
         let x: Vec3 = p.x[i];
         let r2 = x[0] * x[0] + x[1] * x[1];
         if x[2] > g.rear_face {
-            front.push((x[2], p.mass[i]));
-            radial.push((r2.sqrt(), p.mass[i]));
-            zmax = zmax.max(x[2]);
-            rmax = rmax.max(r2);
-            mass += p.mass[i];
-        } else if i < g.plate_particles && x[2] >= 0.0 {
+            debris.extend_from_slice(&[global_id(i) as f64, x[2], r2, p.mass[i], p.v[i][2]]);
+        } else if x[2] >= 0.0 && global_id(i) < g.plate_particles as u64 {
             hole_r2 = hole_r2.min(r2);
         }
     }
-    let debris = front.len();
-    if debris == 0 {
+    let mut hole = [-hole_r2];
+    ranks.max(&mut hole)?;
+    let Some(rows) = ranks.gather(debris)? else { return Ok(None) };
+    let mut rows: Vec<[f64; DEBRIS_ROW]> =
+        rows.chunks_exact(DEBRIS_ROW).map(|r| r.try_into().expect("chunks of DEBRIS_ROW")).collect();
+    rows.sort_unstable_by(|a, b| a[0].total_cmp(&b[0]));
+    Ok(Some(cloud_figures(&rows, -hole[0], g)))
+}
+
+/// The figures of the debris `rows` ([`DEBRIS_ROW`] values each, in global id order) and
+/// the hole's smallest squared radius `hole_r2` (infinite: no plate particle left in the
+/// slab).
+fn cloud_figures(rows: &[[f64; DEBRIS_ROW]], hole_r2: f64, g: &ImpactGeometry) -> CloudFigures {
+    let hole_diameter = if hole_r2.is_finite() { 2.0 * hole_r2.sqrt() } else { f64::NAN };
+    if rows.is_empty() {
         return CloudFigures {
             cloud_front: 0.0,
             cloud_front_robust: 0.0,
             cloud_width: 0.0,
             cloud_width_robust: 0.0,
-            hole_diameter: if hole_r2.is_finite() { 2.0 * hole_r2.sqrt() } else { f64::NAN },
+            hole_diameter,
             leading_debris_velocity: 0.0,
             debris_mass: 0.0,
             debris_particles: 0,
         };
     }
+    let mut front: Vec<(f64, f64)> = rows.iter().map(|r| (r[1], r[3])).collect();
+    let mut radial: Vec<(f64, f64)> = rows.iter().map(|r| (r[2].sqrt(), r[3])).collect();
+    let (mut zmax, mut rmax, mut mass) = (f64::NEG_INFINITY, 0.0f64, 0.0);
+    for r in rows {
+        zmax = zmax.max(r[1]);
+        rmax = rmax.max(r[2]);
+        mass += r[3];
+    }
     let z_robust = mass_quantile_from_top(&mut front, 1e-3);
     let r_robust = mass_quantile_from_top(&mut radial, 1e-3);
+    // Every particle at or beyond the robust front is debris (the front is a debris z).
     let (mut mv, mut m) = (0.0, 0.0);
-    for i in 0..p.len() {
-        if p.x[i][2] >= z_robust {
-            mv += p.mass[i] * p.v[i][2];
-            m += p.mass[i];
-        }
+    for r in rows.iter().filter(|r| r[1] >= z_robust) {
+        mv += r[3] * r[4];
+        m += r[3];
     }
     CloudFigures {
         cloud_front: zmax - g.rear_face,
         cloud_front_robust: z_robust - g.rear_face,
         cloud_width: 2.0 * rmax.sqrt(),
         cloud_width_robust: 2.0 * r_robust,
-        hole_diameter: if hole_r2.is_finite() { 2.0 * hole_r2.sqrt() } else { f64::NAN },
+        hole_diameter,
         leading_debris_velocity: mv / m,
         debris_mass: mass,
-        debris_particles: debris,
+        debris_particles: rows.len(),
     }
 }
 
@@ -304,11 +348,21 @@ pub struct HistorySample {
 }
 
 impl HistorySample {
-    /// Measure `sim` now.
-    pub fn of(sim: &Simulation, geometry: &ImpactGeometry) -> Self {
-        let f = measure(sim.particles(), geometry);
+    /// Measure `sim` now, over every rank's particles ([`measure_over`]): collective; the
+    /// sample on rank 0, `None` on the others.
+    pub fn of(
+        sim: &Simulation,
+        geometry: &ImpactGeometry,
+        ranks: &mut dyn Collectives,
+    ) -> Result<Option<Self>, SimError> {
+        let mut failed = [sim.particles().failed_count() as u64];
+        ranks.sum_counts(&mut failed)?;
+        let exchange = sim.exchange();
+        let Some(f) = measure_over(sim.particles(), |p| exchange.global_id(p), geometry, ranks)? else {
+            return Ok(None);
+        };
         let d = sim.diagnostics();
-        Self {
+        Ok(Some(Self {
             time: sim.time(),
             cloud_front: f.cloud_front,
             cloud_front_robust: f.cloud_front_robust,
@@ -317,19 +371,26 @@ impl HistorySample {
             kinetic: d.kinetic,
             internal: d.internal,
             total: d.total(),
-            failed: sim.particles().failed_count(),
-        }
+            failed: failed[0] as usize,
+        }))
     }
 }
 
 /// An impact's history: a sample at the first step in every `interval` of time (and, by
 /// [`History::finish`], at the end).
+///
+/// Over ranks every rank keeps a history and calls [`History::observe`] after every step:
+/// the decision to sample depends on the time alone (the same on every rank), so all of
+/// them take part in each sample's collective measurement; rank 0 holds the samples.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct History {
     /// Interval between samples (s).
     pub interval: f64,
-    /// The samples, in time order.
+    /// The samples, in time order (rank 0's; empty on the other ranks).
     pub samples: Vec<HistorySample>,
+    /// Time of the last sample taken (on every rank).
+    #[serde(skip)]
+    last_time: Option<f64>,
     #[serde(skip)]
     last_slot: Option<u64>,
 }
@@ -342,27 +403,49 @@ impl History {
                 "the history interval must be a positive time in s (default {DEFAULT_HISTORY_INTERVAL}), got {interval}"
             )));
         }
-        Ok(Self { interval, samples: Vec::new(), last_slot: None })
+        Ok(Self { interval, samples: Vec::new(), last_time: None, last_slot: None })
     }
 
     /// Record a sample of `sim` if it has entered a new interval since the last sample (or
-    /// none was taken yet); whether it did.
-    pub fn observe(&mut self, sim: &Simulation, geometry: &ImpactGeometry) -> bool {
+    /// none was taken yet); whether it did. Collective over ranks (see [`History`]).
+    pub fn observe(
+        &mut self,
+        sim: &Simulation,
+        geometry: &ImpactGeometry,
+        ranks: &mut dyn Collectives,
+    ) -> Result<bool, SimError> {
         let slot = (sim.time() / self.interval).floor() as u64;
         if self.last_slot.is_some_and(|s| slot <= s) {
-            return false;
+            return Ok(false);
         }
-        self.last_slot = Some(slot);
-        self.samples.push(HistorySample::of(sim, geometry));
-        true
+        self.sample(sim, geometry, ranks)?;
+        Ok(true)
     }
 
-    /// Record the final state, unless the last sample already is at this time.
-    pub fn finish(&mut self, sim: &Simulation, geometry: &ImpactGeometry) {
-        if self.samples.last().is_none_or(|s| s.time < sim.time()) {
-            self.last_slot = Some((sim.time() / self.interval).floor() as u64);
-            self.samples.push(HistorySample::of(sim, geometry));
+    /// Record the final state, unless the last sample already is at this time. Collective
+    /// over ranks.
+    pub fn finish(
+        &mut self,
+        sim: &Simulation,
+        geometry: &ImpactGeometry,
+        ranks: &mut dyn Collectives,
+    ) -> Result<(), SimError> {
+        if self.last_time.is_none_or(|t| t < sim.time()) {
+            self.sample(sim, geometry, ranks)?;
         }
+        Ok(())
+    }
+
+    fn sample(
+        &mut self,
+        sim: &Simulation,
+        geometry: &ImpactGeometry,
+        ranks: &mut dyn Collectives,
+    ) -> Result<(), SimError> {
+        self.last_slot = Some((sim.time() / self.interval).floor() as u64);
+        self.last_time = Some(sim.time());
+        self.samples.extend(HistorySample::of(sim, geometry, ranks)?);
+        Ok(())
     }
 
     /// The speed at which the debris cloud's leading edge has moved: the least-squares

@@ -29,6 +29,10 @@
 //!   velocity jump (shocked minus undisturbed velocity, the latter averaged over the slab
 //!   ahead of the front) averaged over mass.
 //!
+//! Each measurement takes [`Collectives`], so a run split over ranks measures its whole slab
+//! (slice and region sums summed over the ranks, the free end a maximum); one process passes
+//! [`crate::SingleProcess`].
+//!
 //! With linear shape functions the particles of one cell act on the grid only through their
 //! cell's sum `sum V_p sigma_p`: the state of the individual particles behind a strong shock
 //! scatters widely (at 3 km/s their densities by about 14 %) while the cell sums stay close
@@ -36,6 +40,7 @@
 
 use super::{fit_line, lattice, seed, Pick, Setup};
 use crate::error::SimError;
+use crate::exchange::Collectives;
 use crate::grid::{GridSpec, Wall, WallKind};
 use crate::material::{Eos, Material, MgForm, MieGruneisen};
 use crate::particles::Particles;
@@ -198,35 +203,59 @@ pub fn rankine_hugoniot(eos: &MieGruneisen, up: f64) -> HugoniotState {
 
 /// Mass-weighted mean z-velocity of the particles in slices `[k dx, (k+1) dx)`, k = 0, 1,
 /// ...: `(slice centre, mean velocity)` for the non-empty slices, in increasing z.
-pub fn velocity_profile(particles: &Particles, g: &PlateGeometry) -> Vec<(f64, f64)> {
-    let top = particles.x.iter().map(|x| x[2]).fold(0.0, f64::max);
-    let slices = (top / g.cell).floor() as usize + 1;
-    let mut acc = vec![(0.0, 0.0); slices];
+///
+/// Over ranks `particles` are this rank's: collective ([`Collectives`]: the highest z is a
+/// maximum over ranks, the slices' sums are summed over ranks in rank order), the same
+/// profile on every rank.
+pub fn velocity_profile(
+    particles: &Particles,
+    g: &PlateGeometry,
+    ranks: &mut dyn Collectives,
+) -> Result<Vec<(f64, f64)>, SimError> {
+    let mut top = [particles.x.iter().map(|x| x[2]).fold(0.0, f64::max)];
+    ranks.max(&mut top)?;
+    let slices = (top[0] / g.cell).floor() as usize + 1;
+    // Per slice: momentum, mass.
+    let mut acc = vec![0.0; 2 * slices];
     for ((x, v), m) in particles.x.iter().zip(&particles.v).zip(&particles.mass) {
         let k = ((x[2] / g.cell).floor().max(0.0) as usize).min(slices - 1);
-        acc[k].0 += m * v[2];
-        acc[k].1 += m;
+        acc[2 * k] += m * v[2];
+        acc[2 * k + 1] += m;
     }
-    acc.iter().enumerate().filter(|(_, a)| a.1 > 0.0).map(|(k, a)| ((k as f64 + 0.5) * g.cell, a.0 / a.1)).collect()
+    ranks.sum(&mut acc)?;
+    Ok(acc
+        .chunks_exact(2)
+        .enumerate()
+        .filter(|(_, a)| a[1] > 0.0)
+        .map(|(k, a)| ((k as f64 + 0.5) * g.cell, a[0] / a[1]))
+        .collect())
 }
 
 /// The shock front's z (m): where the slice velocity crosses `-v/2`, the mean of the
 /// undisturbed slab's velocity `-v` and the wall's, found from the free end towards the
-/// wall; `None` before the velocity anywhere has risen that far.
-pub fn shock_front(particles: &Particles, g: &PlateGeometry) -> Option<f64> {
-    let profile = velocity_profile(particles, g);
+/// wall; `None` before the velocity anywhere has risen that far. Collective over ranks
+/// ([`velocity_profile`]).
+pub fn shock_front(
+    particles: &Particles,
+    g: &PlateGeometry,
+    ranks: &mut dyn Collectives,
+) -> Result<Option<f64>, SimError> {
+    let profile = velocity_profile(particles, g, ranks)?;
     let level = -0.5 * g.velocity;
-    let k = profile.iter().rposition(|&(_, v)| v >= level)?;
+    let Some(k) = profile.iter().rposition(|&(_, v)| v >= level) else { return Ok(None) };
     let (z0, v0) = profile[k];
-    match profile.get(k + 1) {
-        Some(&(z1, v1)) => Some(z0 + (v0 - level) / (v0 - v1) * (z1 - z0)),
-        None => Some(z0),
-    }
+    Ok(Some(match profile.get(k + 1) {
+        Some(&(z1, v1)) => z0 + (v0 - level) / (v0 - v1) * (z1 - z0),
+        None => z0,
+    }))
 }
 
-/// The z of the slab's free end: the farthest particle from the wall (m).
-fn free_end(particles: &Particles) -> f64 {
-    particles.x.iter().map(|x| x[2]).fold(f64::NEG_INFINITY, f64::max)
+/// The z of the slab's free end: the farthest particle from the wall (m); a maximum over
+/// ranks.
+fn free_end(particles: &Particles, ranks: &mut dyn Collectives) -> Result<f64, SimError> {
+    let mut end = [particles.x.iter().map(|x| x[2]).fold(f64::NEG_INFINITY, f64::max)];
+    ranks.max(&mut end)?;
+    Ok(end[0])
 }
 
 /// Means over the shocked material (see the module docs for the weights).
@@ -248,23 +277,28 @@ pub struct ShockedState {
 }
 
 /// The shocked state behind a front at `front` (see the module docs); `None` if the shocked
-/// or the undisturbed region, without its margins, holds no particle.
-pub fn shocked_state(particles: &Particles, g: &PlateGeometry, front: f64) -> Option<ShockedState> {
+/// or the undisturbed region, without its margins, holds no particle. Collective over ranks
+/// (sums over ranks in rank order), the same on every rank.
+pub fn shocked_state(
+    particles: &Particles,
+    g: &PlateGeometry,
+    front: f64,
+    ranks: &mut dyn Collectives,
+) -> Result<Option<ShockedState>, SimError> {
     let margin = MARGIN_CELLS * g.cell;
-    let end = free_end(particles);
-    let (mut ahead_mv, mut ahead_m) = (0.0, 0.0);
-    // mass, volume, momentum, V tr(sigma) / 3, V sigma_zz, m e
-    let mut sums = [0.0; 6];
-    let mut count = 0;
+    let end = free_end(particles, ranks)?;
+    // ahead: momentum, mass; behind: mass, volume, momentum, V tr(sigma) / 3, V sigma_zz, m e
+    let mut sums = [0.0; 8];
+    let mut count = [0u64];
     for p in 0..particles.len() {
         let (z, m) = (particles.x[p][2], particles.mass[p]);
         if z > front + margin && z < end - margin {
-            ahead_mv += m * particles.v[p][2];
-            ahead_m += m;
+            sums[0] += m * particles.v[p][2];
+            sums[1] += m;
         } else if z > margin && z < front - margin {
             let s = &particles.stress[p];
             let vol = m / particles.rho[p];
-            for (acc, val) in sums.iter_mut().zip([
+            for (acc, val) in sums[2..].iter_mut().zip([
                 m,
                 vol,
                 m * particles.v[p][2],
@@ -274,21 +308,23 @@ pub fn shocked_state(particles: &Particles, g: &PlateGeometry, front: f64) -> Op
             ]) {
                 *acc += val;
             }
-            count += 1;
+            count[0] += 1;
         }
     }
-    if count == 0 || ahead_m == 0.0 {
-        return None;
+    ranks.sum(&mut sums)?;
+    ranks.sum_counts(&mut count)?;
+    let [ahead_mv, ahead_m, m, vol, mv, v_tr, v_zz, me] = sums;
+    if count[0] == 0 || ahead_m == 0.0 {
+        return Ok(None);
     }
-    let [m, vol, mv, v_tr, v_zz, me] = sums;
-    Some(ShockedState {
+    Ok(Some(ShockedState {
         particle_velocity: mv / m - ahead_mv / ahead_m,
         pressure: -v_tr / vol,
         normal_stress: -v_zz / vol,
         density: m / vol,
         specific_energy: me / m,
-        particles: count,
-    })
+        particles: count[0] as usize,
+    }))
 }
 
 /// The shock front's path `(time, z)` while the front is at least [`MARGIN_CELLS`] cells
@@ -321,17 +357,17 @@ impl ShockTracker {
     }
 
     /// Record the front of `sim`'s current state if it is away from the wall and the free
-    /// end; whether it was recorded.
-    pub fn observe(&mut self, sim: &Simulation) -> bool {
+    /// end; whether it was recorded. Collective over ranks: every rank records the same path.
+    pub fn observe(&mut self, sim: &Simulation, ranks: &mut dyn Collectives) -> Result<bool, SimError> {
         let p = sim.particles();
         let margin = MARGIN_CELLS * self.geometry.cell;
-        match shock_front(p, &self.geometry) {
-            Some(z) if z > margin && z < free_end(p) - margin => {
-                self.path.push((sim.time(), z));
-                true
-            }
-            _ => false,
+        // The front is the same on every rank, so they all take the same branch.
+        let Some(z) = shock_front(p, &self.geometry, ranks)?.filter(|&z| z > margin) else { return Ok(false) };
+        if z >= free_end(p, ranks)? - margin {
+            return Ok(false);
         }
+        self.path.push((sim.time(), z));
+        Ok(true)
     }
 
     /// Shock speed relative to the undisturbed slab: the least-squares slope of the later
@@ -344,18 +380,19 @@ impl ShockTracker {
     }
 
     /// The measurements on `sim`'s current state against theory; `None` if the front was
-    /// never tracked or the shocked region is empty.
-    pub fn result(&self, sim: &Simulation) -> Option<PlateResult> {
-        let shock_speed = self.shock_speed()?;
-        let front = shock_front(sim.particles(), &self.geometry)?;
-        let shocked = shocked_state(sim.particles(), &self.geometry, front)?;
-        Some(PlateResult { shock_speed, shocked, theory: self.geometry.theory(), samples: self.path.len() })
+    /// never tracked or the shocked region is empty. Collective over ranks.
+    pub fn result(&self, sim: &Simulation, ranks: &mut dyn Collectives) -> Result<Option<PlateResult>, SimError> {
+        let Some(shock_speed) = self.shock_speed() else { return Ok(None) };
+        let Some(front) = shock_front(sim.particles(), &self.geometry, ranks)? else { return Ok(None) };
+        let Some(shocked) = shocked_state(sim.particles(), &self.geometry, front, ranks)? else { return Ok(None) };
+        Ok(Some(PlateResult { shock_speed, shocked, theory: self.geometry.theory(), samples: self.path.len() }))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::exchange::SingleProcess;
 
     #[test]
     fn rankine_hugoniot_values_for_lead() {
@@ -386,7 +423,7 @@ mod tests {
         assert_eq!(g.length, 0.1);
         assert!((g.end_time() - 0.8 * 0.1 / 2817.0).abs() < 1e-15);
         // At rest nothing has been shocked.
-        assert_eq!(shock_front(&s.particles, &g), None);
+        assert_eq!(shock_front(&s.particles, &g, &mut SingleProcess).unwrap(), None);
         let bad = PlateImpact { velocity: -1.0, ..plate.clone() }.setup().unwrap_err();
         assert!(bad.to_string().contains("speed"), "{bad}");
         let short = PlateImpact { length: 5e-3, ..plate }.setup().unwrap_err();
@@ -405,11 +442,11 @@ mod tests {
                 p.e_int[i] = 1.2e5;
             }
         }
-        let front = shock_front(&p, &g).unwrap();
+        let front = shock_front(&p, &g, &mut SingleProcess).unwrap().unwrap();
         // Slice 80 ([40, 40.5) mm) holds particles at 40.125 and 40.375 mm of equal mass:
         // mean -250 m/s exactly at the level, so the front is its centre.
         assert!((front - 40.25e-3).abs() < 1e-12, "{front}");
-        let st = shocked_state(&p, &g, front).unwrap();
+        let st = shocked_state(&p, &g, front, &mut SingleProcess).unwrap().unwrap();
         assert!((st.particle_velocity - 500.0).abs() < 1e-9, "{}", st.particle_velocity);
         assert!((st.pressure / (46e9 / 3.0) - 1.0).abs() < 1e-12 && (st.normal_stress / 16e9 - 1.0).abs() < 1e-12);
         assert!((st.density / 11350.0 - 1.0).abs() < 1e-12 && (st.specific_energy / 1.2e5 - 1.0).abs() < 1e-12);

@@ -30,9 +30,12 @@
 //! at `t = 0`. The impact-face diameter is taken from particle centres: twice the largest
 //! radial distance in the bottom layer band; the lattice's outermost points lie on the
 //! circle's diagonals within a few microns of `R`, so at `t = 0` it is within 0.5 % of `D0`.
+//! Both are extremes, so a run split over ranks measures them with two maxima over the ranks
+//! ([`measure_over`]), exactly.
 
 use super::{lattice, seed, Pick, Setup};
 use crate::error::SimError;
+use crate::exchange::{Collectives, SingleProcess};
 use crate::grid::{GridSpec, Wall, WallKind};
 use crate::material::{Material, MgForm};
 use crate::math::Vec3;
@@ -179,13 +182,6 @@ impl TaylorBar {
             part,
         })
     }
-
-    /// The bar's figures at `t = 0` ([`measure`] of the whole set), without building it.
-    pub fn initial_figures(&self) -> Result<TaylorFigures, SimError> {
-        let spec = ModelSpec::get(self.model)?;
-        let layer = spec.layer_points();
-        Ok(measure_positions(|f| for_each_position(&spec, &layer, f), spec.spacing()))
-    }
 }
 
 /// Call `f` with the position of every particle of the bar, in the set's order: octant by
@@ -219,29 +215,34 @@ pub struct TaylorFigures {
     pub face_diameter: f64,
 }
 
-/// Measure the bar (see the module docs for the conventions).
+/// Measure the bar of one process's particles (see the module docs for the conventions).
 pub fn measure(particles: &Particles, spacing: Vec3) -> TaylorFigures {
-    measure_positions(|f| particles.x.iter().for_each(|&x| f(x)), spacing)
+    measure_over(particles, spacing, &mut SingleProcess).expect("one process's collectives cannot fail")
 }
 
-/// [`measure`] of the positions `positions` calls its argument with (the same on each of
-/// its two calls).
-fn measure_positions(positions: impl Fn(&mut dyn FnMut(Vec3)), spacing: Vec3) -> TaylorFigures {
-    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    positions(&mut |x| {
-        for d in 0..3 {
-            lo[d] = lo[d].min(x[d]);
-            hi[d] = hi[d].max(x[d]);
-        }
-    });
-    let band = lo[2] + 0.5 * spacing[2];
-    let mut r2 = 0.0f64;
-    positions(&mut |x| {
-        if x[2] <= band {
-            r2 = r2.max(x[0] * x[0] + x[1] * x[1]);
-        }
-    });
-    TaylorFigures { length: hi[2] - lo[2] + spacing[2], face_diameter: 2.0 * r2.sqrt() }
+/// Measure the bar whose particles are spread over ranks, `particles` being this rank's:
+/// collective (every rank calls it, [`Collectives`]), and every rank gets the figures of
+/// the whole set. They are extremes only (maxima over ranks are exact), so they are
+/// bitwise those of one process holding every particle.
+pub fn measure_over(
+    particles: &Particles,
+    spacing: Vec3,
+    ranks: &mut dyn Collectives,
+) -> Result<TaylorFigures, SimError> {
+    // -min z and max z.
+    let mut ends = [f64::NEG_INFINITY; 2];
+    for x in &particles.x {
+        ends = [ends[0].max(-x[2]), ends[1].max(x[2])];
+    }
+    ranks.max(&mut ends)?;
+    let (lo, hi) = (-ends[0], ends[1]);
+    let band = lo + 0.5 * spacing[2];
+    let mut r2 = [0.0f64];
+    for x in particles.x.iter().filter(|x| x[2] <= band) {
+        r2[0] = r2[0].max(x[0] * x[0] + x[1] * x[1]);
+    }
+    ranks.max(&mut r2)?;
+    Ok(TaylorFigures { length: hi - lo + spacing[2], face_diameter: 2.0 * r2[0].sqrt() })
 }
 
 #[cfg(test)]
@@ -299,7 +300,6 @@ mod tests {
         }
         sorted.sort_by_key(|p| p.0);
         assert!(s.particles.x.iter().zip(&sorted).all(|(a, b)| *a == b.1));
-        assert_eq!(bar.initial_figures().unwrap(), measure(&s.particles, s.spacing));
         let keep = |x: Vec3| x[2] < 0.3 * LENGTH && x[0] > 0.0;
         let picked = bar.setup_picked(Pick::Where(&keep)).unwrap();
         let part = picked.part.unwrap();

@@ -1,6 +1,8 @@
 //! A run split over MPI ranks: starting MPI (or saying that this build has none), the rank
-//! boxes and the exchange, each rank's CPUs, and after the loop the final particles gathered
-//! on rank 0 (for the summary's figures and `--dump-state`).
+//! boxes and the exchange, each rank's CPUs, the collectives the scenario's figures are
+//! measured with, and after the loop the `--dump-state` file (the only output that needs
+//! every particle in one place: the ranks stream their particles to rank 0, which places
+//! each record in the file's bytes at its global id).
 
 use crate::cli::RunOptions;
 use crate::scenario::{Prepared, ScenarioRun};
@@ -9,7 +11,7 @@ use mpm_cli::distributed::{launcher_ranks, MPI_COMPILED};
 use mpm_cli::pinning;
 use mpm_cli::summary::RankReport;
 use mpm_core::scenario::Pick;
-use mpm_core::{Exchange, Particles, Simulation};
+use mpm_core::{Collectives, Exchange, Particles, Simulation, SingleProcess};
 use std::path::Path;
 
 /// The ranks a run asks for: `--ranks` or the launcher's count; `None` for one process.
@@ -59,17 +61,28 @@ pub fn place(rank: usize, threads: usize, others: &[(u64, Vec<usize>)]) -> (Vec<
     ((0..threads).map(|j| mask[(local * threads + j) % mask.len()]).collect(), true)
 }
 
-/// Write `particles` (in global id order) as `--dump-state` describes.
-pub fn dump_state(path: &Path, particles: &Particles) -> Result<()> {
-    let mut bytes = Vec::with_capacity(particles.len() * 104);
-    for i in 0..particles.len() {
-        bytes.extend_from_slice(&(i as u64).to_le_bytes());
-        let values = particles.x[i].iter().chain(&particles.v[i]).chain(&particles.stress[i]);
-        for v in values {
-            bytes.extend_from_slice(&v.to_le_bytes());
-        }
+/// Values of a `--dump-state` record: the particle's global id, then its position,
+/// velocity and stress.
+const RECORD_VALUES: usize = 13;
+/// Bytes of a record: the id as a little-endian u64, then 12 little-endian f64.
+const RECORD_BYTES: usize = 8 * RECORD_VALUES;
+
+/// The values of particle `p` a record holds after its id: position, velocity, stress.
+fn state_values(particles: &Particles, p: usize) -> impl Iterator<Item = f64> + '_ {
+    particles.x[p].iter().chain(&particles.v[p]).chain(&particles.stress[p]).copied()
+}
+
+/// Write the record of particle `id` with its `values` ([`state_values`]) into `out`.
+fn put_record(out: &mut [u8], id: u64, values: impl Iterator<Item = f64>) {
+    out[..8].copy_from_slice(&id.to_le_bytes());
+    for (k, v) in values.enumerate() {
+        out[8 + 8 * k..16 + 8 * k].copy_from_slice(&v.to_le_bytes());
     }
-    mpm_cli::atomic::write_atomic(path, &bytes)
+}
+
+/// Write the `--dump-state` file's `bytes`.
+fn write_state(path: &Path, bytes: &[u8]) -> Result<()> {
+    mpm_cli::atomic::write_atomic(path, bytes)
         .with_context(|| format!("cannot write the particle state to {}", path.display()))
 }
 
@@ -77,6 +90,8 @@ pub fn dump_state(path: &Path, particles: &Particles) -> Result<()> {
 pub struct Ranks {
     #[cfg(feature = "mpi")]
     mpi: Option<with_mpi::Mpi>,
+    /// The collectives of one process (the identity).
+    single: SingleProcess,
 }
 
 impl Ranks {
@@ -84,11 +99,11 @@ impl Ranks {
     pub fn start(o: &RunOptions) -> Result<Self> {
         let want = wanted(o)?;
         #[cfg(feature = "mpi")]
-        return Ok(Self { mpi: want.map(|_| with_mpi::Mpi::start()).transpose()? });
+        return Ok(Self { mpi: want.map(|_| with_mpi::Mpi::start()).transpose()?, single: SingleProcess });
         #[cfg(not(feature = "mpi"))]
         {
             debug_assert!(want.is_none(), "wanted() refuses several ranks without MPI");
-            Ok(Self {})
+            Ok(Self { single: SingleProcess })
         }
     }
 
@@ -147,14 +162,36 @@ impl Ranks {
         Ok(place(0, threads, &[(0, mask)]))
     }
 
-    /// After the loop: every rank's particles, in global id order, on rank 0 (`None` on the
-    /// other ranks); a copy of one process's particles (the caller avoids that copy).
-    pub fn gather_final(&self, sim: &Simulation) -> Result<Option<Particles>> {
+    /// What the scenario's figures are measured with: MPI's collectives (which count
+    /// nothing in the exchange's statistics) over several ranks, the identity for one.
+    pub fn collectives(&mut self) -> &mut dyn Collectives {
+        #[cfg(feature = "mpi")]
+        if let Some(m) = &mut self.mpi {
+            return &mut m.collectives;
+        }
+        &mut self.single
+    }
+
+    /// After the loop: write `--dump-state`, every particle's record in global id order.
+    /// Over several ranks (collective) the simulation's grid arrays are released first (the
+    /// run is over) and rank 0 receives the other ranks' particles in messages straight
+    /// into the file's bytes (104 per particle), never into particle arrays; the other
+    /// ranks write nothing.
+    pub fn dump_state(&self, sim: &mut Simulation, path: &Path) -> Result<()> {
         #[cfg(feature = "mpi")]
         if let Some(m) = &self.mpi {
-            return m.gather_particles(sim);
+            sim.release_grid_arrays();
+            return match m.gather_states(sim)? {
+                Some(bytes) => write_state(path, &bytes),
+                None => Ok(()),
+            };
         }
-        Ok(Some(sim.particles().clone()))
+        let p = sim.particles();
+        let mut bytes = vec![0u8; p.len() * RECORD_BYTES];
+        for (i, out) in bytes.chunks_exact_mut(RECORD_BYTES).enumerate() {
+            put_record(out, i as u64, state_values(p, i));
+        }
+        write_state(path, &bytes)
     }
 
     /// Every rank's `report` on rank 0 (`None` on the other ranks).
@@ -174,25 +211,25 @@ impl Ranks {
 
 #[cfg(feature = "mpi")]
 mod with_mpi {
+    use super::{put_record, state_values, RECORD_BYTES, RECORD_VALUES};
     use anyhow::{bail, Context, Result};
-    use mpi::collective::SystemOperation;
     use mpi::datatype::Equivalence;
     use mpi::topology::Communicator;
-    use mpi::traits::CommunicatorCollectives;
     use mpi::traits::{Destination, Source};
-    use mpm_cli::distributed::MpiExchange;
+    use mpm_cli::distributed::{MpiCollectives, MpiExchange};
     use mpm_core::exchange::{rank_layout, uniform_cuts, RankBoxes};
     use mpm_core::math::Vec3;
-    use mpm_core::particles::PACKED_WIDTH;
-    use mpm_core::{Exchange, GridGeom, GridSpec, Particles, Simulation};
+    use mpm_core::{Exchange, GridGeom, GridSpec, Simulation};
 
-    /// Particles per message of the final gather.
+    /// Particles per message of the state dump's gather.
     const GATHER_CHUNK: usize = 1 << 16;
-    /// Tag of the final gather's messages.
+    /// Tag of the state dump's messages.
     const GATHER: i32 = 7;
 
     /// MPI, started for the run (finalised when dropped).
     pub struct Mpi {
+        /// Declared first, so dropped before the universe finalises MPI.
+        pub collectives: MpiCollectives,
         universe: mpi::environment::Universe,
         /// This process's rank.
         pub rank: usize,
@@ -209,7 +246,7 @@ mod with_mpi {
             };
             let world = universe.world();
             let (rank, size) = (world.rank() as usize, world.size() as usize);
-            Ok(Self { universe, rank, size })
+            Ok(Self { collectives: MpiCollectives::new(world), universe, rank, size })
         }
 
         /// The rank boxes of `layout` (default: the DD layout for the rank count) cut
@@ -246,46 +283,40 @@ mod with_mpi {
                 .collect()
         }
 
-        /// Every rank's particles on rank 0, each at its global id (`None` elsewhere).
-        /// Streamed in messages of [`GATHER_CHUNK`] particles, an empty one ending a rank's,
-        /// so that a rank holds one message beyond its own particles and rank 0 the whole
-        /// set besides, never a packed copy of it.
-        pub fn gather_particles(&self, sim: &Simulation) -> Result<Option<Particles>> {
-            let world = self.universe.world();
-            let (p, w) = (sim.particles(), PACKED_WIDTH + 1);
-            let mut total = 0u64;
-            world.all_reduce_into(&(p.len() as u64), &mut total, SystemOperation::sum());
-            let mut buf = Vec::with_capacity(GATHER_CHUNK.min(p.len()) * w);
+        /// The `--dump-state` file's bytes on rank 0 (`None` elsewhere): every rank's
+        /// particles streamed in messages of [`GATHER_CHUNK`] records, an empty one ending
+        /// a rank's, each record placed at its global id. A rank holds one message beyond
+        /// its own particles, rank 0 the file's bytes besides.
+        pub fn gather_states(&self, sim: &Simulation) -> Result<Option<Vec<u8>>> {
+            let world = self.collectives.world();
+            let (p, ids) = (sim.particles(), sim.exchange());
+            let mut buf = Vec::with_capacity(GATHER_CHUNK.min(p.len()) * RECORD_VALUES);
             if self.rank != 0 {
                 for start in (0..p.len()).step_by(GATHER_CHUNK) {
                     buf.clear();
                     for i in start..(start + GATHER_CHUNK).min(p.len()) {
-                        buf.push(sim.exchange().global_id(i) as f64);
-                        p.pack(i, &mut buf);
+                        buf.push(ids.global_id(i) as f64);
+                        buf.extend(state_values(p, i));
                     }
                     world.process_at_rank(0).send_with_tag(&buf[..], GATHER);
                 }
                 world.process_at_rank(0).send_with_tag(&buf[..0], GATHER);
                 return Ok(None);
             }
-            let mut all = Particles::with_capacity(total as usize);
-            for _ in 0..total {
-                all.push_packed(&[0.0; PACKED_WIDTH]);
-            }
-            let mut placed = vec![false; total as usize];
-            let mut place = |all: &mut Particles, id: u64, state: &[f64]| -> Result<()> {
+            let total = sim.total_particles();
+            let mut bytes = vec![0u8; total * RECORD_BYTES];
+            let mut placed = vec![false; total];
+            let mut place = |id: u64, values: &mut dyn Iterator<Item = f64>| -> Result<()> {
                 match placed.get_mut(id as usize) {
                     Some(seen @ false) => *seen = true,
-                    _ => bail!("the final gather got particle {id} twice or out of range (of {total}); the run's exchange lost track of its particles"),
+                    _ => bail!("the state dump got particle {id} twice or out of range (of {total}); the run's exchange lost track of its particles"),
                 }
-                all.set_packed(id as usize, state);
+                let at = id as usize * RECORD_BYTES;
+                put_record(&mut bytes[at..at + RECORD_BYTES], id, values);
                 Ok(())
             };
-            let mut one = Vec::with_capacity(PACKED_WIDTH);
             for i in 0..p.len() {
-                one.clear();
-                p.pack(i, &mut one);
-                place(&mut all, sim.exchange().global_id(i), &one)?;
+                place(ids.global_id(i), &mut state_values(p, i))?;
             }
             for r in 1..self.size {
                 loop {
@@ -295,15 +326,15 @@ mod with_mpi {
                     if buf.is_empty() {
                         break;
                     }
-                    for rec in buf.chunks_exact(w) {
-                        place(&mut all, rec[0] as u64, &rec[1..])?;
+                    for rec in buf.chunks_exact(RECORD_VALUES) {
+                        place(rec[0] as u64, &mut rec[1..].iter().copied())?;
                     }
                 }
             }
             if placed.iter().any(|&seen| !seen) {
-                bail!("the final gather is missing particles; the run's exchange lost track of some");
+                bail!("the state dump is missing particles; the run's exchange lost track of some");
             }
-            Ok(Some(all))
+            Ok(Some(bytes))
         }
 
         /// Every rank's `text`, in rank order, on rank 0.

@@ -7,14 +7,15 @@ use crate::cli::GridArg;
 use crate::human::print_human;
 use crate::output::Outputs;
 use crate::progress::Progress;
-use crate::ranks::{self, Ranks};
+use crate::ranks::Ranks;
 use crate::scenario::{Prepared, ScenarioRun};
 use anyhow::{bail, Context, Result};
 use mpm_cli::pinning::{self, PinnedPool};
-use mpm_cli::summary::{EndReason, HistoryPoint, HistoryRecorder, RankReport, RunContext, Summary, Timing};
-use mpm_core::scenario::impact::{History, ImpactGeometry, DEFAULT_HISTORY_INTERVAL};
-use mpm_core::scenario::plate::{PlateGeometry, ShockTracker};
-use mpm_core::{GridMode, SimConfig, Simulation, Strategy};
+use mpm_cli::summary::{EndReason, HistoryPoint, HistoryRecorder, RunContext, Summary, Timing};
+use mpm_core::scenario::impact::{self, CloudFigures, History, ImpactGeometry, DEFAULT_HISTORY_INTERVAL};
+use mpm_core::scenario::plate::{PlateGeometry, PlateResult, ShockTracker};
+use mpm_core::scenario::taylor::{self, TaylorFigures};
+use mpm_core::{Collectives, GridMode, SimConfig, Simulation, Strategy};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
@@ -176,31 +177,6 @@ fn place_rank(plan: &mut Plan, ranks: &Ranks) -> Result<bool> {
     Ok(shared)
 }
 
-/// After the loop: every rank's report and every particle on rank 0 (which then holds them
-/// all, so that the scenario's figures are the whole problem's), `--dump-state` written.
-/// `None` on the other ranks, which write nothing; `Some(None)` for one process.
-fn gather_ranks(
-    sim: &mut Simulation,
-    pool: &PinnedPool,
-    ranks: &Ranks,
-    oversubscribed: bool,
-    dump: Option<&std::path::Path>,
-) -> Result<Option<Option<Vec<RankReport>>>> {
-    if ranks.size() == 1 {
-        if let Some(path) = dump {
-            ranks::dump_state(path, sim.particles())?;
-        }
-        return Ok(Some(None));
-    }
-    let reports = ranks.gather_reports(rank_report(sim, pool, ranks, oversubscribed))?;
-    let Some(all) = ranks.gather_final(sim)? else { return Ok(None) };
-    if let Some(path) = dump {
-        ranks::dump_state(path, &all)?;
-    }
-    *sim.particles_mut() = all;
-    Ok(Some(reports))
-}
-
 /// This rank's line of the summary's `ranks` section.
 fn rank_report(
     sim: &Simulation,
@@ -241,7 +217,8 @@ fn record(history: &mut HistoryRecorder, sim: &Simulation) {
 }
 
 /// What a run measures while it steps besides the energy history: the impact's cloud
-/// history, the plate's shock front.
+/// history, the plate's shock front. Over several ranks every rank tracks them, since the
+/// measurements are collective (rank 0 holds the cloud history's samples).
 struct Tracking {
     cloud: Option<(History, ImpactGeometry)>,
     shock: Option<ShockTracker>,
@@ -257,20 +234,58 @@ impl Tracking {
     }
 
     /// Sample the current state (the history only when a new interval has begun).
-    fn observe(&mut self, sim: &Simulation) {
+    fn observe(&mut self, sim: &Simulation, ranks: &mut dyn Collectives) -> Result<()> {
         if let Some((h, g)) = &mut self.cloud {
-            h.observe(sim, g);
+            h.observe(sim, g, ranks)?;
         }
         if let Some(t) = &mut self.shock {
-            t.observe(sim);
+            t.observe(sim, ranks)?;
         }
+        Ok(())
     }
 
     /// The last history sample at the final state.
-    fn finish(&mut self, sim: &Simulation) {
+    fn finish(&mut self, sim: &Simulation, ranks: &mut dyn Collectives) -> Result<()> {
         if let Some((h, g)) = &mut self.cloud {
-            h.finish(sim, g);
+            h.finish(sim, g, ranks)?;
         }
+        Ok(())
+    }
+}
+
+/// The scenario's figures of the final state, measured over every rank's particles:
+/// collective (every rank calls it), without gathering the particles themselves.
+struct FinalFigures {
+    /// Failed particles.
+    failed: usize,
+    taylor: Option<TaylorFigures>,
+    /// The debris cloud (rank 0 only).
+    cloud: Option<CloudFigures>,
+    plate: Option<PlateResult>,
+}
+
+/// The Taylor bar's figures of `sim` now (collective), when the run is a bar (`taylor`).
+fn bar_figures(taylor: bool, sim: &Simulation, ranks: &mut dyn Collectives) -> Result<Option<TaylorFigures>> {
+    Ok(match taylor {
+        true => Some(taylor::measure_over(sim.particles(), sim.spacing(), ranks)?),
+        false => None,
+    })
+}
+
+impl FinalFigures {
+    fn measure(sim: &Simulation, taylor: bool, tracking: &Tracking, ranks: &mut dyn Collectives) -> Result<Self> {
+        let mut failed = [sim.particles().failed_count() as u64];
+        ranks.sum_counts(&mut failed)?;
+        let taylor = bar_figures(taylor, sim, ranks)?;
+        let cloud = match &tracking.cloud {
+            Some((_, g)) => impact::measure_over(sim.particles(), |p| sim.exchange().global_id(p), g, ranks)?,
+            None => None,
+        };
+        let plate = match &tracking.shock {
+            Some(t) => t.result(sim, ranks)?,
+            None => None,
+        };
+        Ok(Self { failed: failed[0] as usize, taylor, cloud, plate })
     }
 }
 
@@ -292,20 +307,19 @@ struct LoopContext<'a> {
     geometry: Option<&'a ImpactGeometry>,
     /// The scenario, for the error message of a failed step.
     describe: String,
-    /// Whether the run is one process (not split over ranks).
-    one_rank: bool,
 }
 
 /// Step until the end time or the step limit (or Ctrl-C, or a solver error). The whole
 /// loop runs on the pool's first worker (one hand-over to the pool per run, not per step);
 /// the solver's parallel phases broadcast from there. Returns why it stopped and the
-/// loop's timing (output time excluded).
+/// loop's timing (output time excluded). `ranks`: what the tracking measures with.
 fn step_loop(
     ctx: &LoopContext<'_>,
     sim: &mut Simulation,
     outputs: &mut Outputs,
     history: &mut HistoryRecorder,
     tracking: &mut Tracking,
+    ranks: &mut dyn Collectives,
 ) -> Result<(EndReason, Timing)> {
     let mut timing = Timing { warmup_steps: ctx.warmup, ..Timing::default() };
     let mut warm_done = ctx.warmup == 0;
@@ -332,11 +346,7 @@ fn step_loop(
             }
             record(history, sim);
             let t0 = Instant::now();
-            if ctx.one_rank {
-                // With several ranks the particles are spread over them: the cloud history
-                // and the plate's shock front are sampled at the end only.
-                tracking.observe(sim);
-            }
+            tracking.observe(sim, ranks)?;
             outputs.spent += t0.elapsed();
             if !warm_done && sim.steps() >= ctx.warmup {
                 warm_done = true;
@@ -360,7 +370,7 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
     let started_unix_s =
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64());
     let o = scenario.options();
-    let ranks = Ranks::start(o)?;
+    let mut ranks = Ranks::start(o)?;
     let lead = ranks.rank() == 0;
     let mut plan = Plan::check(scenario)?;
     let rank_oversubscribed = place_rank(&mut plan, &ranks)?;
@@ -379,8 +389,9 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
 
     let mut history = HistoryRecorder::new();
     record(&mut history, &sim);
+    let initial_taylor = bar_figures(taylor, &sim, ranks.collectives())?;
     let mut tracking = Tracking::new(impact, plate)?;
-    tracking.observe(&sim);
+    tracking.observe(&sim, ranks.collectives())?;
     outputs.initial(&sim)?;
     let progress = Progress::new(o.quiet || !lead, plan.end_time, plan.step_limit);
     let ctx = LoopContext {
@@ -391,13 +402,11 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
         progress: progress.as_ref(),
         geometry: impact.as_ref(),
         describe: scenario.describe(),
-        one_rank: ranks.size() == 1,
     };
-    let (end_reason, mut timing) = step_loop(&ctx, &mut sim, &mut outputs, &mut history, &mut tracking)?;
-    let Some(reports) = gather_ranks(&mut sim, &pool, &ranks, rank_oversubscribed, o.dump_state.as_deref())? else {
-        return Ok(());
-    };
-    tracking.finish(&sim);
+    let (end_reason, mut timing) =
+        step_loop(&ctx, &mut sim, &mut outputs, &mut history, &mut tracking, ranks.collectives())?;
+    tracking.finish(&sim, ranks.collectives())?;
+    let figures = FinalFigures::measure(&sim, taylor, &tracking, ranks.collectives())?;
     outputs.finish(&sim, impact.as_ref(), o.quiet)?;
     let cloud_history = tracking.cloud.map(|(h, _)| h);
     if let Some(h) = &cloud_history {
@@ -408,31 +417,47 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
         p.bar.finish_and_clear();
     }
 
-    let context = RunContext {
-        scenario: scenario.name(),
-        model,
-        model_name,
-        velocity,
-        wall,
-        cells,
-        nodes,
-        end_time: plan.end_time,
-        step_limit: plan.step_limit,
-        end_reason,
-        timing: &timing,
-        pool: &pool,
-        available_cores: plan.available_cores,
-        oversubscribed: plan.oversubscribed,
-        history: history.finish(200),
-        taylor,
-        impact,
-        cloud_history,
-        plate: plate.map(|g| (g, tracking.shock.as_ref().and_then(|t| t.result(&sim)))),
-        command_line,
-        started_unix_s,
+    // Rank 0's summary, built before a state dump can release the grid's arrays.
+    let summary = lead.then(|| {
+        Summary::build(
+            &sim,
+            RunContext {
+                scenario: scenario.name(),
+                model,
+                model_name,
+                velocity,
+                wall,
+                cells,
+                nodes,
+                end_time: plan.end_time,
+                step_limit: plan.step_limit,
+                end_reason,
+                timing: &timing,
+                pool: &pool,
+                available_cores: plan.available_cores,
+                oversubscribed: plan.oversubscribed,
+                history: history.finish(200),
+                failed_particles: figures.failed,
+                taylor: initial_taylor.zip(figures.taylor),
+                cloud: figures.cloud,
+                cloud_history,
+                plate: plate.map(|g| (g, figures.plate)),
+                command_line,
+                started_unix_s,
+            },
+        )
+    });
+    if let Some(path) = &o.dump_state {
+        ranks.dump_state(&mut sim, path)?;
+    }
+    // Every rank's peak memory, read after the last thing the run holds memory for.
+    let reports = match ranks.size() {
+        1 => None,
+        _ => ranks.gather_reports(rank_report(&sim, &pool, &ranks, rank_oversubscribed))?,
     };
-    let mut summary = Summary::build(&sim, context);
+    let Some(mut summary) = summary else { return Ok(()) };
     summary.ranks = reports;
+    summary.peak_rss_bytes = mpm_cli::summary::peak_rss_bytes();
     outputs.commit_json(&summary)?;
     if !o.quiet {
         print_human(&summary, o.json.as_deref(), outputs.snapshots());

@@ -26,7 +26,9 @@ pub struct Prepared {
     pub model: u8,
     pub velocity: f64,
     pub wall: &'static str,
-    pub taylor: Option<(taylor::TaylorFigures, [f64; 3])>,
+    /// Whether the run measures a Taylor bar (its figures come from the simulation's
+    /// particles at the start and the end).
+    pub taylor: bool,
     pub impact: Option<impact::ImpactGeometry>,
     pub plate: Option<PlateGeometry>,
 }
@@ -108,8 +110,7 @@ impl ScenarioRun {
         self.options().cfl.unwrap_or(default)
     }
 
-    /// Build the scenario, with the particles `pick` asks for (the figures of the initial
-    /// state are always the whole set's).
+    /// Build the scenario, with the particles `pick` asks for.
     pub fn build(&self, pick: Pick<'_>) -> Result<Prepared> {
         match self {
             ScenarioRun::Taylor(args) => {
@@ -122,21 +123,14 @@ impl ScenarioRun {
                         WallArg::Sticking => WallKind::Stick,
                     },
                 };
-                let context = || format!("cannot set up Taylor bar Model {}", args.model);
-                let setup = bar.setup_picked(pick).with_context(context)?;
-                // The whole set's figures: from its particles when they were built, else
-                // generated again without keeping them.
-                let figures = match setup.part {
-                    None => taylor::measure(&setup.particles, setup.spacing),
-                    Some(_) => bar.initial_figures().with_context(context)?,
-                };
-                let spacing = setup.spacing;
+                let setup =
+                    bar.setup_picked(pick).with_context(|| format!("cannot set up Taylor bar Model {}", args.model))?;
                 Ok(Prepared {
                     setup,
                     model: args.model,
                     velocity: args.velocity,
                     wall: args.wall.name(),
-                    taylor: Some((figures, spacing)),
+                    taylor: true,
                     impact: None,
                     plate: None,
                 })
@@ -154,7 +148,7 @@ impl ScenarioRun {
                     model: 0,
                     velocity: args.velocity,
                     wall: "none",
-                    taylor: None,
+                    taylor: false,
                     impact: Some(geometry),
                     plate: None,
                 })
@@ -166,7 +160,7 @@ impl ScenarioRun {
                     model: 0,
                     velocity: args.velocity,
                     wall: "frictionless",
-                    taylor: None,
+                    taylor: false,
                     impact: None,
                     plate: Some(geometry),
                 })
