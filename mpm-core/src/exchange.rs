@@ -319,6 +319,36 @@ mod tests {
     use super::*;
     use crate::grid::GridSpec;
 
+    /// The step calls the exchange for one process too: its reductions must leave every
+    /// value bit for bit (signed zeros and infinite bounds included).
+    #[test]
+    fn one_process_reductions_change_no_bit() {
+        let before = Partial {
+            kinetic: 1.0 / 3.0,
+            internal: -2.5e-300,
+            momentum: [-0.0, 7.0e-17, -1.0e30],
+            max_speed: 4321.123,
+            lo: [-0.0, f64::INFINITY, -3.25],
+            hi: [0.0, f64::NEG_INFINITY, 1e-310],
+            non_finite: 2,
+            negative_internal: 17,
+            failed_floors: 5,
+            failed_floor_energy: 0.125,
+        };
+        let mut after = before;
+        reduce_partial(&mut SingleProcess, &mut after).unwrap();
+        let bits = |p: &Partial| {
+            let f = [p.kinetic, p.internal, p.max_speed, p.failed_floor_energy];
+            let v = [p.momentum, p.lo, p.hi].concat();
+            (
+                f.map(f64::to_bits),
+                v.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                [p.non_finite, p.negative_internal, p.failed_floors],
+            )
+        };
+        assert_eq!(bits(&after), bits(&before));
+    }
+
     fn grid() -> GridGeom {
         GridGeom::fixed(&GridSpec { dx: 0.5, anchor: [1.0, 0.0, 0.0], cells: [8, 4, 2] })
     }

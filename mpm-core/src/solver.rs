@@ -493,14 +493,13 @@ impl Simulation {
 
         let geom = self.geom;
         let n = self.particles.len();
-        let distributed = self.exchange.ranks() > 1;
+        // The exchange calls below are no-ops for one process (`SingleProcess`): the sums and
+        // maxima over one rank leave every value as it is, bit for bit.
         let p2g = transfer::P2g { geom: &geom, particles: &self.particles, body_force: self.config.body_force };
         self.engine.scatter(exec, &geom, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
         lap.lap(&mut self.times, Substage::Scatter);
         self.engine.assemble(exec, &geom, &mut self.nodes.p2g, &self.p2g_parts);
-        if distributed {
-            self.exchange.sum_shared_nodes(&geom, self.nodes.p2g.as_flattened_mut(), P2G_WIDTH)?;
-        }
+        self.exchange.sum_shared_nodes(&geom, self.nodes.p2g.as_flattened_mut(), P2G_WIDTH)?;
         lap.lap(&mut self.times, Substage::Assembly);
         transfer::grid_update(exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::GridUpdate);
@@ -512,9 +511,7 @@ impl Simulation {
         self.engine.scatter(exec, &geom, n, &mut self.nodes.remap, &mut self.remap_parts, &remap);
         lap.lap(&mut self.times, Substage::RemapScatter);
         self.engine.assemble(exec, &geom, &mut self.nodes.remap, &self.remap_parts);
-        if distributed {
-            self.exchange.sum_shared_nodes(&geom, self.nodes.remap.as_flattened_mut(), REMAP_WIDTH)?;
-        }
+        self.exchange.sum_shared_nodes(&geom, self.nodes.remap.as_flattened_mut(), REMAP_WIDTH)?;
         transfer::remap_velocity(exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
@@ -527,9 +524,7 @@ impl Simulation {
         for p in &self.partials[..exec.workers()] {
             total.merge(p);
         }
-        if distributed {
-            reduce_partial(self.exchange.as_mut(), &mut total)?;
-        }
+        reduce_partial(self.exchange.as_mut(), &mut total)?;
         // The fixed grid is a box: every particle is in it exactly when the corners of the
         // (exact, whole-set) bounding box are. Only when they are not are the particles
         // outside found and counted, on every rank alike (over ranks `geom` is this rank's
@@ -582,9 +577,7 @@ impl Simulation {
         self.time += dt;
         self.steps = step_no;
         self.dt_next = self.config.cfl * geom.dx / total.max_speed;
-        if distributed {
-            self.migrated += self.exchange.migrate(&mut self.particles)? as u64;
-        }
+        self.migrated += self.exchange.migrate(&mut self.particles)? as u64;
         Ok(())
     }
 }
