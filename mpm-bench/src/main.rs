@@ -196,7 +196,10 @@ struct RunArgs {
     #[arg(long, value_name = "LIST")]
     threads: Option<String>,
     /// MPI rank counts, comma list (e.g. 1,2). 1 runs `mpm` directly; more start it through
-    /// the launcher. A run occupies ranks x threads workers (what oversubscription counts).
+    /// the launcher, with `mpm run --split-wait`: the rows' comm_s_per_step and comm_frac are
+    /// then the communication alone and wait_s_per_step and wait_frac the waiting for other
+    /// ranks (each the largest over ranks; empty at one rank). A run occupies ranks x threads
+    /// workers (what oversubscription counts).
     #[arg(long, value_name = "LIST")]
     ranks: Option<String>,
     /// Launcher of runs with several ranks: a command with {ranks} (and optionally {threads},

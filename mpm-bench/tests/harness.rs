@@ -325,7 +325,7 @@ fn pinning_none_passes_no_cpus() {
 /// Snapshot of the CSV header: changing it must be deliberate (bump SCHEMA_VERSION).
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 4);
+    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 5);
     let want = "schema_version,campaign_id,run_id,timestamp,git_commit,git_dirty,machine_id,binary_sha256,seed,\
 order_index,scenario,model,particles,cells,nodes,mean_nodes,grid_mode,strategy,opt_level,threads,ranks,\
 threads_per_rank,launcher,pin_policy,requested_cpus,observed_cpus,rank_cpus,oversubscribed,rep,warmup_steps,\
@@ -334,7 +334,7 @@ dt_first_s,wall_s,process_wall_s,grid_stage_s,particle_stage_s,sub_grid_fit_s,su
 sub_assembly_s,sub_grid_update_s,sub_gather_s,sub_remap_scatter_s,sub_remap_assembly_s,sub_stress_update_s,\
 steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,dd_work_imbalance,peak_rss_bytes,\
 peak_rss_sum_bytes,rank_particles,rank_busy_imbalance,migrated_particles,comm_s_per_step,comm_frac,\
-comm_bytes_per_step,comm_messages_per_step,mem_estimate_bytes,exit_code,\
+wait_s_per_step,wait_frac,comm_bytes_per_step,comm_messages_per_step,mem_estimate_bytes,exit_code,\
 kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
 failed_particles,host_load1_before,host_load1_after,host_others_running_before,host_others_running_after,\
 host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,\
@@ -720,9 +720,10 @@ fn sigterm_and_sigint_leave_no_temporary_files() {
 }
 
 /// The hybrid preset with the mock solver on a two-core machine: ranks x threads rows, the
-/// launcher in front of `mpm` for two ranks only (no `--cpus`, the CPU set as its mask),
-/// 2 x 2 flagged oversubscribed, the exchange columns filled, resume by rank count; the
-/// one-process analyses never see the rows over two ranks, the hybrid one does.
+/// launcher in front of `mpm` for two ranks only (no `--cpus`, the CPU set as its mask,
+/// `--split-wait`), 2 x 2 flagged oversubscribed, the exchange and waiting columns filled
+/// (the waiting empty at one rank), resume by rank count; the one-process analyses never
+/// see the rows over two ranks, the hybrid one does.
 #[test]
 fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses() {
     use mpm_bench::analysis::hybrid::HybridAnalysis;
@@ -739,10 +740,12 @@ fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses()
         if call.spec.ranks == 1 {
             assert_eq!((program.as_str(), &call.launcher, &call.mask), ("mock", &None, &None));
             assert!(args.contains(&"--cpus".to_string()));
+            assert!(!args.contains(&"--split-wait".to_string()), "mpm refuses --split-wait at one rank");
         } else {
             assert_eq!(program, "mpirun");
             assert_eq!(args[..4], ["--bind-to", "none", "-n", "2"]);
             assert!(!args.contains(&"--cpus".to_string()), "every rank would take the same list");
+            assert!(args.contains(&"--split-wait".to_string()), "waiting measured apart from communication");
             assert_eq!(call.mask, Some(vec![0, 1]));
         }
     }
@@ -758,9 +761,12 @@ fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses()
             assert_eq!(row.rank_cpus.split('|').count(), 2);
             assert!(row.comm_bytes_per_step.is_some_and(|b| b > 0.0));
             assert!(row.comm_frac.is_some_and(|f| f > 0.0 && f < 1.0));
+            assert!(row.wait_frac.is_some_and(|f| f > 0.0 && f < 1.0) && row.wait_s_per_step.is_some());
+            assert!(!row.comm_includes_wait());
             assert!(row.peak_rss_sum_bytes.unwrap() > row.peak_rss_bytes.unwrap());
         } else {
             assert_eq!((row.launcher.as_str(), row.comm_bytes_per_step), ("", Some(0.0)));
+            assert_eq!((row.wait_s_per_step, row.wait_frac), (None, None), "nothing to wait for at one rank");
         }
     }
     assert_eq!(s.counts.oversubscribed, rows.iter().filter(|r| r.ranks == 2 && r.threads_per_rank == 2).count());
@@ -778,6 +784,7 @@ fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses()
         let two = h.line(m, Strategy::DomainDecomposition, "o3", 2);
         assert_eq!(two.iter().map(|p| p.cores()).collect::<Vec<_>>(), vec![2, 4]);
         assert!(two.iter().all(|p| p.speedup.is_some() && p.comm_frac.is_some_and(|f| f > 0.0)));
+        assert!(two.iter().all(|p| p.wait_frac.is_some_and(|f| f > 0.0) && !p.comm_includes_wait));
         assert!(two[1].oversubscribed && !two[0].oversubscribed);
         let one = h.line(m, Strategy::DomainDecomposition, "o3", 1);
         assert_eq!(one[0].speedup.unwrap().value, 1.0);
@@ -833,8 +840,9 @@ fn hybrid_launcher_failures_are_recorded() {
 
 /// The real thing: a tiny hybrid campaign (Model 1, ranks 1,2 x threads 1,2, a few steps)
 /// through the `mpm-bench` binary, `mpm` started by `mpirun --oversubscribe
-/// --allow-run-as-root` for two ranks; rows over two ranks with exchange bytes, then the
-/// figures (fig_hybrid) and the report's hybrid section.
+/// --allow-run-as-root` for two ranks; rows over two ranks with exchange bytes and the
+/// waiting measured apart (`--split-wait`; empty at one rank), then the figures
+/// (fig_hybrid) and the report's hybrid section with communication and waiting apart.
 #[test]
 fn end_to_end_hybrid_campaign_with_mpirun() {
     if !mpm_cli::distributed::MPI_COMPILED {
@@ -882,12 +890,17 @@ fn end_to_end_hybrid_campaign_with_mpirun() {
         if r.ranks == 2 {
             assert!(r.comm_bytes_per_step.is_some_and(|b| b > 0.0), "{}: {:?}", r.run_id, r.comm_bytes_per_step);
             assert!(r.comm_messages_per_step.is_some_and(|m| m > 0.0));
+            let (comm, wait) = (r.comm_frac.unwrap(), r.wait_frac.unwrap_or(f64::NAN));
+            assert!(comm > 0.0 && comm < 1.0 && (0.0..1.0).contains(&wait), "{}: comm {comm}, wait {wait}", r.run_id);
+            assert!(r.wait_s_per_step.is_some_and(|w| w >= 0.0));
             let per_rank: Vec<u64> = r.rank_particles.split(' ').map(|p| p.parse().unwrap()).collect();
             assert_eq!(per_rank.len(), 2);
             assert_eq!(per_rank.iter().sum::<u64>(), 56_056);
             assert_eq!(r.rank_cpus.split('|').count(), 2);
             assert!(r.peak_rss_sum_bytes > r.peak_rss_bytes);
             assert!(r.launcher.starts_with("mpirun") && r.launcher.ends_with("-n 2"));
+        } else {
+            assert_eq!((r.wait_s_per_step, r.wait_frac), (None, None), "{}", r.run_id);
         }
     }
     // The same physics either way: the final bar length agrees to 1e-9 across the layouts.
@@ -907,4 +920,7 @@ fn end_to_end_hybrid_campaign_with_mpirun() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let md = std::fs::read_to_string(rep.join("report.md")).unwrap();
     assert!(md.contains("Hybrid MPI x threads") && md.contains("2 x 1"), "{md}");
+    assert!(md.contains("| waiting for other ranks (% of wall) |"), "{md}");
+    let two_by_one = md.lines().find(|l| l.starts_with("| Model1 DD O3 | 2 x 1 |")).expect("2 x 1 in the table");
+    assert!(!two_by_one.contains("not measured") && !two_by_one.contains("incl. waiting"), "{two_by_one}");
 }

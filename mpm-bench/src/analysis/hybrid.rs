@@ -6,8 +6,13 @@
 //! median steady-state time per step (rank 0's, which every step's reductions keep in step
 //! with the others) over the `ok` repetitions. The base `T_1` is the same model, strategy and
 //! opt level at one rank and one thread, so `S = T_1 / T_{R x T}` and `E = S / (R x T)`, with
-//! 95 % bootstrap intervals as in [`super::stats`]. The exchange's share of the step, the
-//! bytes sent per step and the memory summed over the ranks are medians over the same rows.
+//! 95 % bootstrap intervals as in [`super::stats`]. The communication's and the waiting's
+//! shares of the wall time (each a run's maximum over ranks: the row's `comm_frac` and
+//! `wait_frac`), the bytes sent per step and the memory summed over the ranks are medians
+//! over the same rows. Rows that did not measure the waiting apart (before CSV schema 5)
+//! give the exchange with the waiting in it, flagged [`HybridPoint::comm_includes_wait`],
+//! and no waiting (not measured); when a configuration has rows of both kinds, only those
+//! that split the waiting off count for the communication.
 //!
 //! One-process rows enter only as the `ranks = 1` configurations of a (model, strategy, opt)
 //! that also has rows over several ranks; the paper's analyses never see the rows over
@@ -67,8 +72,15 @@ pub struct HybridPoint {
     pub speedup: Option<Estimate>,
     /// Speedup over the total cores.
     pub efficiency: Option<Estimate>,
-    /// Median exchange seconds over the run's wall time (0 at one rank).
+    /// Median communication seconds over the run's wall time (0 at one rank); with
+    /// `comm_includes_wait`, the exchange seconds with the waiting for other ranks in them.
     pub comm_frac: Option<f64>,
+    /// `comm_frac` includes waiting for the other ranks (rows before schema 5, which did not
+    /// measure it apart).
+    pub comm_includes_wait: bool,
+    /// Median seconds waiting for other ranks over the run's wall time; `None` at one rank
+    /// (nothing to wait for) and where it was not measured.
+    pub wait_frac: Option<f64>,
     /// Median bytes sent per step, all ranks.
     pub comm_bytes_per_step: Option<f64>,
     /// Median peak memory summed over the ranks (bytes).
@@ -103,7 +115,11 @@ pub struct HybridAnalysis {
 #[derive(Default)]
 struct Samples {
     time: Vec<f64>,
+    /// Communication alone (the waiting measured apart, or one rank).
     comm_frac: Vec<f64>,
+    /// Exchange seconds with the waiting in them (rows that did not split it off).
+    comm_with_wait: Vec<f64>,
+    wait_frac: Vec<f64>,
     bytes: Vec<f64>,
     memory: Vec<f64>,
     oversubscribed: bool,
@@ -142,7 +158,12 @@ impl HybridAnalysis {
             let Some(t) = r.steady_s_per_step.filter(|_| r.status == Status::Ok) else { continue };
             s.time.push(t);
             s.noisy |= r.host_noisy;
-            s.comm_frac.extend(r.comm_frac);
+            if r.comm_includes_wait() {
+                s.comm_with_wait.extend(r.comm_frac);
+            } else {
+                s.comm_frac.extend(r.comm_frac);
+            }
+            s.wait_frac.extend(r.wait_frac);
             s.bytes.extend(r.comm_bytes_per_step);
             s.memory.extend(r.peak_rss_sum_bytes.or(r.peak_rss_bytes).map(|b| b as f64));
         }
@@ -167,13 +188,19 @@ impl HybridAnalysis {
                 }
             };
             let med = |v: &[f64]| (!v.is_empty()).then(|| median(v));
+            let (comm_frac, comm_includes_wait) = match med(&s.comm_frac) {
+                Some(c) => (Some(c), false),
+                None => (med(&s.comm_with_wait), !s.comm_with_wait.is_empty()),
+            };
             an.points.push(HybridPoint {
                 key: key.clone(),
                 time,
                 t1,
                 speedup,
                 efficiency: speedup.map(|e| e.scale(1.0 / key.cores() as f64)),
-                comm_frac: med(&s.comm_frac),
+                comm_frac,
+                comm_includes_wait,
+                wait_frac: med(&s.wait_frac),
                 comm_bytes_per_step: med(&s.bytes),
                 memory_sum_bytes: med(&s.memory),
                 oversubscribed: s.oversubscribed,

@@ -47,7 +47,7 @@ pub struct RunRequest {
 }
 
 impl RunRequest {
-    /// Arguments of `mpm` for this run.
+    /// Arguments of `mpm` for this run (with several ranks `--split-wait`, at one rank not).
     pub fn args(&self) -> Vec<String> {
         let s = &self.spec;
         let mut a: Vec<String> = vec!["run".into(), self.scenario.clone()];
@@ -71,6 +71,11 @@ impl RunRequest {
             a.push(format!("{t:e}"));
         }
         a.extend(["--grid".into(), s.grid.clone(), "--warmup".into(), s.budget.warmup.to_string()]);
+        if s.ranks > 1 {
+            // Each rank's waiting for the others apart from its communication (the row's
+            // wait_* and comm_* columns); mpm refuses the flag at one rank.
+            a.push("--split-wait".into());
+        }
         a.extend(["--json".into(), self.json_path.display().to_string(), "--quiet".into()]);
         a
     }
@@ -375,12 +380,22 @@ impl Runner for MockRunner {
                 ..RunOutput::default()
             };
         }
+        // As mpm: `--split-wait` needs several ranks, and reports each rank's waiting.
+        let split_wait = req.args().iter().any(|a| a == "--split-wait");
+        if split_wait && req.spec.ranks < 2 {
+            return RunOutput {
+                exit_code: Some(2),
+                stderr_tail: "error: --split-wait measures waiting between ranks and needs several".into(),
+                process_wall_s: 0.01,
+                ..RunOutput::default()
+            };
+        }
         let requested = req.cpus.clone().unwrap_or_default();
         let wrong = self.wrong_cpus_when.as_ref().is_some_and(|f| desc.contains(f.as_str()));
         let observed: Vec<usize> = if wrong { requested.iter().map(|c| c + 1).collect() } else { requested.clone() };
         let mut summary = mock_summary(req, requested, observed);
         if req.spec.ranks > 1 {
-            summary.ranks = Some(mock_ranks(req, &summary, wrong));
+            summary.ranks = Some(mock_ranks(req, &summary, wrong, split_wait));
         }
         let wall = summary.wall_s;
         let text = match serde_json::to_string(&summary) {
@@ -396,8 +411,9 @@ impl Runner for MockRunner {
 
 /// Plausible rank reports of a run over several ranks: each rank's workers on its slice of
 /// the mask as `mpm` places them (shared and flagged when the mask is too small), the
-/// particles split evenly, a halo of 1 % of the particles' 80 bytes each way per step.
-fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool) -> Vec<mpm_cli::summary::RankReport> {
+/// particles split evenly, a halo of 1 % of the particles' 80 bytes each way per step; with
+/// `split_wait` each rank's waiting (the later ranks wait less).
+fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool, split_wait: bool) -> Vec<mpm_cli::summary::RankReport> {
     let (ranks, threads) = (req.spec.ranks, req.spec.threads);
     let mask = req.mask.clone().unwrap_or_default();
     let fits = mask.len() >= ranks * threads;
@@ -425,7 +441,7 @@ fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool) -> Vec<mpm_cli::summar
                     reduction_bytes: 48 * s.steps,
                     reductions: 3 * s.steps,
                     seconds: s.wall_s * 0.02 * (r + 1) as f64,
-                    wait_seconds: None,
+                    wait_seconds: split_wait.then(|| s.wall_s * 0.04 * (ranks - r) as f64),
                 },
                 peak_rss_bytes: s.peak_rss_bytes.map(|b| b / ranks as u64 + (20 << 20)),
             }
@@ -518,11 +534,13 @@ mod tests {
             timeout: None,
         };
         let a = req.args().join(" ");
+        // One rank: no --split-wait (mpm refuses it without several ranks).
         let want = "run taylor --model 2 --strategy dd --threads 2 --cpus 0,1 --steps 5 --grid fixed --warmup 1 --json x.json --quiet";
         assert_eq!(a, want);
         assert_eq!(req.command_line(), ("mpm".to_string(), req.args()));
         // Several ranks: the launcher's words, then the binary, then the same arguments
-        // without --cpus (each rank pins inside the launcher's mask).
+        // without --cpus (each rank pins inside the launcher's mask), with --split-wait (the
+        // waiting for other ranks apart from the communication).
         let launcher = crate::campaign::launcher::Launcher::parse("mpirun --bind-to none -n {ranks}").unwrap();
         let hybrid = RunRequest {
             spec: RunSpec { ranks: 2, ..req.spec.clone() },
@@ -536,7 +554,7 @@ mod tests {
         assert_eq!(
             args.join(" "),
             "--bind-to none -n 2 mpm run taylor --model 2 --strategy dd --threads 2 --steps 5 --grid fixed \
-             --warmup 1 --json x.json --quiet"
+             --warmup 1 --split-wait --json x.json --quiet"
         );
     }
 }

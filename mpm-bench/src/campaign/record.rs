@@ -26,12 +26,15 @@ use std::path::{Path, PathBuf};
 /// the work imbalance of DD's cuts (`dd_work_imbalance`). Schema 4 added MPI ranks
 /// (`ranks`, `threads_per_rank`, `launcher`, `rank_*`, `comm_*`, `migrated_particles`,
 /// `peak_rss_sum_bytes`); `threads` became the run's total worker count (ranks x threads
-/// per rank, equal to the old meaning at one rank).
-pub const SCHEMA_VERSION: u32 = 4;
+/// per rank, equal to the old meaning at one rank). Schema 5 runs every row over several
+/// ranks with `mpm run --split-wait` and records the waiting for other ranks apart
+/// (`wait_s_per_step`, `wait_frac`); `comm_*` seconds are then the communication alone
+/// (in schema-4 rows they include the waiting, and the `wait_*` columns read as empty).
+pub const SCHEMA_VERSION: u32 = 5;
 
 /// Columns added since schema 1; older files lack them and still read (as empty / false;
 /// `ranks` as 1 and `threads_per_rank` as `threads`).
-const ADDED_SINCE_V1: [&str; 26] = [
+const ADDED_SINCE_V1: [&str; 28] = [
     // schema 2
     "worker_busy_s",
     "load_imbalance",
@@ -61,6 +64,9 @@ const ADDED_SINCE_V1: [&str; 26] = [
     "comm_bytes_per_step",
     "comm_messages_per_step",
     "peak_rss_sum_bytes",
+    // schema 5
+    "wait_s_per_step",
+    "wait_frac",
 ];
 
 /// Outcome of one run.
@@ -246,14 +252,29 @@ pub struct Row {
     /// Since schema 4.
     #[serde(default)]
     pub migrated_particles: Option<u64>,
-    /// With several ranks: seconds in the exchange (packing, messages, waiting) per step, of
-    /// the rank that spent the most, over all steps taken (warm-up included). 0 at one rank.
-    /// Since schema 4.
+    /// With several ranks: seconds in the exchange per step (packing, messages, reductions),
+    /// of the rank that spent the most (the maximum over ranks), over all steps taken
+    /// (warm-up included). 0 at one rank. Since schema 5 the communication alone (the runs
+    /// use `--split-wait`, and the waiting is in `wait_s_per_step`); in schema-4 rows, whose
+    /// `wait_s_per_step` is empty, it includes waiting for the other ranks. Since schema 4.
     #[serde(default)]
     pub comm_s_per_step: Option<f64>,
-    /// That rank's exchange seconds over the run's wall time. Since schema 4.
+    /// That rank's exchange seconds over the run's wall time (with or without the waiting,
+    /// as `comm_s_per_step`). Since schema 4.
     #[serde(default)]
     pub comm_frac: Option<f64>,
+    /// With several ranks: seconds per step spent waiting for other ranks at the barrier in
+    /// front of each exchange operation (`mpm run --split-wait`, the ranks'
+    /// `exchange.wait_seconds`), of the rank that waited the most (the maximum over ranks,
+    /// like `comm_s_per_step`, taken on its own: the two may come from different ranks), over
+    /// all steps taken. Load imbalance or a CPU taken by another process, not the cost of
+    /// the exchange. Empty at one rank (no other rank to wait for), when a rank did not
+    /// report it, and in rows before schema 5 (not measured). Since schema 5.
+    #[serde(default)]
+    pub wait_s_per_step: Option<f64>,
+    /// That rank's waiting over the run's wall time. Since schema 5.
+    #[serde(default)]
+    pub wait_frac: Option<f64>,
     /// Bytes sent per step, summed over the ranks: halo sums, migration and reductions.
     /// Since schema 4.
     #[serde(default)]
@@ -340,6 +361,13 @@ impl Row {
     /// analyses: figures 7-14, claims, regress).
     pub fn is_hybrid(&self) -> bool {
         self.ranks > 1
+    }
+
+    /// Whether this row's exchange seconds (`comm_*`) include waiting for the other ranks:
+    /// a run over several ranks without the waiting measured apart (rows before schema 5,
+    /// or a rank that did not report it).
+    pub fn comm_includes_wait(&self) -> bool {
+        self.is_hybrid() && self.wait_s_per_step.is_none()
     }
 
     /// Threads of each rank: `threads_per_rank`, or `threads` for rows written before
@@ -745,20 +773,74 @@ mod tests {
             wall_s: Some(1.5),
             ..Row::default()
         };
-        let mut w = csv::Writer::from_writer(Vec::new());
-        w.serialize(&row).unwrap();
-        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
-        // Drop the columns of schemas 2 and 3 from header and row.
-        let drop = |line: &str, idx: &[usize]| {
-            line.split(',').enumerate().filter(|(i, _)| !idx.contains(i)).map(|(_, c)| c).collect::<Vec<_>>().join(",")
-        };
-        let header = Row::header();
-        let idx: Vec<usize> = ADDED_SINCE_V1.iter().map(|c| header.iter().position(|h| h == c).unwrap()).collect();
-        let old: String = text.lines().map(|l| drop(l, &idx) + "\n").collect();
+        // Without the columns added since schema 1.
+        let old = csv_without(&row, &ADDED_SINCE_V1);
         assert!(!old.lines().next().unwrap().contains("load_imbalance"));
         std::fs::write(&p, old).unwrap();
         let rows = read_rows(&p).unwrap();
         assert_eq!(rows, vec![row]);
-        assert!(CsvLog::open(&p).is_err(), "appending schema-3 rows to a schema-1 file must be refused");
+        assert!(CsvLog::open(&p).is_err(), "appending schema-5 rows to a schema-1 file must be refused");
+    }
+
+    /// `row` as a CSV file (header and one line) without the columns `drop` (none of the
+    /// row's cells may hold a comma).
+    fn csv_without(row: &Row, drop: &[&str]) -> String {
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.serialize(row).unwrap();
+        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        let header = Row::header();
+        let idx: Vec<usize> = drop.iter().map(|c| header.iter().position(|h| h == c).unwrap()).collect();
+        let keep = |line: &str| {
+            line.split(',').enumerate().filter(|(i, _)| !idx.contains(i)).map(|(_, c)| c).collect::<Vec<_>>().join(",")
+        };
+        text.lines().map(|l| keep(l) + "\n").collect()
+    }
+
+    /// A row over two ranks with the waiting measured apart: schema 5's `wait_*` columns
+    /// round-trip. The same row in a schema-4 file (no `wait_*` columns) reads with them
+    /// empty, its exchange seconds flagged as including the waiting, and the file is not
+    /// appended to (its header is not this schema's).
+    #[test]
+    fn wait_columns_round_trip_and_are_empty_in_schema_4_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("runs.csv");
+        let row = Row {
+            schema_version: SCHEMA_VERSION,
+            model: 3,
+            threads: 2,
+            ranks: 2,
+            threads_per_rank: 1,
+            launcher: "mpirun -n 2".into(),
+            comm_s_per_step: Some(0.004),
+            comm_frac: Some(0.031),
+            wait_s_per_step: Some(0.008),
+            wait_frac: Some(0.062),
+            ..Row::default()
+        };
+        let mut log = CsvLog::open(&p).unwrap();
+        log.append(&row).unwrap();
+        drop(log);
+        let rows = read_rows(&p).unwrap();
+        assert_eq!(rows, vec![row.clone()]);
+        assert!(!rows[0].comm_includes_wait());
+        let four = Row { schema_version: 4, ..row };
+        std::fs::write(&p, csv_without(&four, &["wait_s_per_step", "wait_frac"])).unwrap();
+        let rows = read_rows(&p).unwrap();
+        assert_eq!(rows, vec![Row { wait_s_per_step: None, wait_frac: None, ..four }]);
+        assert!(rows[0].comm_includes_wait() && rows[0].comm_frac == Some(0.031));
+        assert!(CsvLog::open(&p).is_err(), "appending schema-5 rows to a schema-4 file must be refused");
+    }
+
+    /// The committed hybrid reference campaign (schema 4) still reads: no waiting measured,
+    /// so every row over two ranks has its exchange seconds flagged as including it.
+    #[test]
+    fn committed_schema_4_hybrid_campaign_reads() {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results/5b9efbec6a3d/hybrid/runs.csv");
+        let rows = read_rows(&p).unwrap();
+        assert!(rows.iter().all(|r| r.schema_version == 4 && r.wait_s_per_step.is_none() && r.wait_frac.is_none()));
+        let two: Vec<&Row> = rows.iter().filter(|r| r.ranks == 2).collect();
+        assert!(!two.is_empty() && two.len() < rows.len());
+        assert!(two.iter().all(|r| r.comm_includes_wait() && r.comm_frac.is_some_and(|f| f > 0.0)));
+        assert!(rows.iter().filter(|r| r.ranks == 1).all(|r| !r.comm_includes_wait()));
     }
 }

@@ -824,7 +824,8 @@ fn copy_measurements(row: &mut Row, s: &Summary) {
 }
 
 /// The `ranks` section of a summary (rank 0's report of every rank) into the row: every
-/// rank's CPUs, particles and memory, and the exchange per step.
+/// rank's CPUs, particles and memory, and the exchange per step: seconds and waiting of the
+/// rank with the most of each (maxima over ranks), bytes and messages of all ranks.
 fn copy_ranks(row: &mut Row, s: &Summary, ranks: &[RankReport]) {
     row.oversubscribed |= ranks.iter().any(|r| r.oversubscribed);
     row.observed_cpus = cpus_cell(&ranks.iter().flat_map(|r| r.cpus.iter().copied()).collect::<Vec<_>>());
@@ -837,6 +838,11 @@ fn copy_ranks(row: &mut Row, s: &Summary, ranks: &[RankReport]) {
     let comm_max = ranks.iter().map(|r| r.exchange.seconds).fold(0.0, f64::max);
     row.comm_s_per_step = Some(comm_max / steps);
     row.comm_frac = (s.wall_s > 0.0).then(|| comm_max / s.wall_s);
+    // The waiting (--split-wait) aggregates as the communication: its own maximum over
+    // ranks; not measured unless every rank reports it.
+    let wait_max = ranks.iter().map(|r| r.exchange.wait_seconds).try_fold(0.0, |m, w| w.map(|w| f64::max(m, w)));
+    row.wait_s_per_step = wait_max.map(|w| w / steps);
+    row.wait_frac = wait_max.filter(|_| s.wall_s > 0.0).map(|w| w / s.wall_s);
     let bytes: u64 =
         ranks.iter().map(|r| r.exchange.halo_bytes + r.exchange.migration_bytes + r.exchange.reduction_bytes).sum();
     let messages: u64 =
@@ -976,7 +982,8 @@ mod tests {
     }
 
     /// The `ranks` section fills the hybrid columns: CPUs rank by rank, memory summed, the
-    /// slowest rank's exchange per step, bytes and messages of all ranks per step.
+    /// slowest rank's exchange per step, bytes and messages of all ranks per step, and the
+    /// waiting of the rank that waited most when every rank measured it (--split-wait).
     #[test]
     fn rank_reports_fill_the_hybrid_columns() {
         let mut s = summary(&[&[0], &[1]]);
@@ -995,7 +1002,7 @@ mod tests {
             r.exchange.seconds = 0.1 * (i + 1) as f64;
         }
         s.ranks.as_mut().unwrap()[1].oversubscribed = true;
-        let mut row = Row::default();
+        let mut row = Row { ranks: 2, ..Row::default() };
         copy_measurements(&mut row, &s);
         assert_eq!(row.observed_cpus, "0 1");
         assert_eq!(row.rank_cpus, "0|1");
@@ -1008,5 +1015,21 @@ mod tests {
         assert!((row.comm_frac.unwrap() - 0.1).abs() < 1e-15);
         assert!((row.rank_busy_imbalance.unwrap() - 2.0 / 1.5).abs() < 1e-12);
         assert!(row.oversubscribed, "a rank that shares its CPUs flags the row");
+        assert_eq!((row.wait_s_per_step, row.wait_frac), (None, None), "run without --split-wait");
+        assert!(row.comm_includes_wait());
+        // With --split-wait: the waiting of the rank that waited most (rank 0 here, while
+        // rank 1 communicated most), apart from the communication.
+        for (i, r) in s.ranks.as_mut().unwrap().iter_mut().enumerate() {
+            r.exchange.wait_seconds = Some(0.3 - 0.1 * i as f64);
+        }
+        copy_measurements(&mut row, &s);
+        assert!((row.wait_s_per_step.unwrap() - 0.03).abs() < 1e-15);
+        assert!((row.wait_frac.unwrap() - 0.15).abs() < 1e-15);
+        assert!((row.comm_frac.unwrap() - 0.1).abs() < 1e-15, "the communication is unchanged");
+        assert!(!row.comm_includes_wait());
+        // A rank without it: not measured.
+        s.ranks.as_mut().unwrap()[1].exchange.wait_seconds = None;
+        copy_measurements(&mut row, &s);
+        assert_eq!((row.wait_s_per_step, row.wait_frac), (None, None));
     }
 }

@@ -345,12 +345,14 @@ fn memory_section(sets: &[Set]) -> Section {
 /// Runs over several MPI ranks, per set that has them: the table and the figure against
 /// total cores. `None` when no set has such runs.
 fn hybrid_section(sets: &[Set]) -> Result<Option<Section>> {
+    let [communication, waiting] = super::hybrid::EXCHANGE_NOTES;
     let mut blocks = vec![Block::Para(format!(
         "Runs split over MPI ranks, each rank with its own pinned threads: time per step, speedup against one rank of \
-         one thread and efficiency over the total cores (ranks x threads per rank), the share of the wall time the \
-         slowest rank spent in the exchange, the bytes all ranks sent per step and the peak memory summed over the \
-         ranks. Medians with 95 % bootstrap intervals. *: oversubscribed. These runs are not part of the tables, \
-         figures, ratios and claims above, which compare one-process runs only. {}",
+         one thread and efficiency over the total cores (ranks x threads per rank), the shares of the wall time spent \
+         communicating and waiting for other ranks (apart: the waiting is not the exchange's cost; - (1 rank): \
+         nothing to wait for), the bytes all ranks sent per step and the peak memory summed over the ranks. Medians \
+         with 95 % bootstrap intervals. *: oversubscribed. These runs are not part of the tables, figures, ratios \
+         and claims above, which compare one-process runs only. {} {communication} {waiting}",
         super::hybrid::FOOTNOTE
     ))];
     for (i, set) in sets.iter().enumerate().filter(|(_, s)| !s.hybrid.points.is_empty()) {
@@ -359,7 +361,7 @@ fn hybrid_section(sets: &[Set]) -> Result<Option<Section>> {
         blocks.extend(set.hybrid.notes.iter().map(|n| Block::Para(format!("{}: note: {n}", set.label))));
         let (panels, grid) = super::hybrid::panels(&set.hybrid);
         let title = format!("{} on {}", super::hybrid::TITLE, set.label);
-        let svg = svg_string(super::hybrid::size(grid.0), &title, &panels, grid, &[super::hybrid::FOOTNOTE.into()])?;
+        let svg = svg_string(super::hybrid::size(grid.0), &title, &panels, grid, &super::hybrid::footnotes())?;
         blocks.push(Block::Figure { title, file: format!("hybrid-{}.svg", i + 1), svg });
     }
     Ok((blocks.len() > 1).then(|| section("hybrid", "Hybrid MPI x threads: speedup against total cores", blocks)))

@@ -331,7 +331,7 @@ pub fn write_all(c: &Campaign, an: &Analysis, out: &Path, command: &str) -> Resu
     let hybrid = HybridAnalysis::from_rows(&c.rows, &c.hybrid, Some(&an.pin_policy), &StatsOptions::default());
     if !hybrid.points.is_empty() {
         let (panels, grid) = super::hybrid::panels(&hybrid);
-        let mut notes = vec![super::hybrid::FOOTNOTE.to_string()];
+        let mut notes = super::hybrid::footnotes();
         notes.push(format!(
             "Campaign {} on machine {} ({} rows over several ranks, pinning '{}').",
             c.id(),
@@ -385,7 +385,7 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
     if !hybrid.points.is_empty() {
         let _ = writeln!(
             s,
-            "| fig_hybrid.png / .svg | Hybrid MPI x threads: speedup, efficiency and exchange share vs total cores, one line per rank count |"
+            "| fig_hybrid.png / .svg | Hybrid MPI x threads: speedup, efficiency, communication and waiting for other ranks (% of wall time, apart) vs total cores, one line per rank count |"
         );
     }
     let _ = writeln!(s);
