@@ -135,6 +135,46 @@ impl Launcher {
     }
 }
 
+/// Open MPI refuses to start as root unless told twice: `--allow-run-as-root` on its command
+/// line or both of these variables set.
+const OMPI_ROOT_ENV: [&str; 2] = ["OMPI_ALLOW_RUN_AS_ROOT", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM"];
+
+impl Launcher {
+    /// Why every run over several ranks would fail before it starts, if it would: this
+    /// process is root and the launcher is Open MPI's without `--allow-run-as-root` (nor
+    /// [`OMPI_ROOT_ENV`] set). Checked before a campaign's first run, so that it stops with
+    /// what to do instead of writing a failed row per run.
+    pub fn root_refusal(&self) -> Option<String> {
+        use std::os::unix::fs::MetadataExt;
+        // /proc/self belongs to the process's effective user.
+        let root = std::fs::metadata("/proc/self").is_ok_and(|m| m.uid() == 0);
+        let env_allows = OMPI_ROOT_ENV.iter().all(|v| std::env::var_os(v).is_some_and(|x| !x.is_empty()));
+        refusal(&self.template, root, env_allows, || self.version())
+    }
+}
+
+/// [`Launcher::root_refusal`] for a given `template`, user and environment; `version` is
+/// asked only when it matters (it runs the launcher).
+fn refusal(template: &str, root: bool, env_allows: bool, version: impl FnOnce() -> String) -> Option<String> {
+    let words: Vec<&str> = template.split(' ').collect();
+    if !root || env_allows || words.contains(&"--allow-run-as-root") {
+        return None;
+    }
+    let v = version();
+    if !v.contains("Open MPI") {
+        return None;
+    }
+    let fixed = std::iter::once(words[0]).chain(["--allow-run-as-root"]).chain(words[1..].iter().copied());
+    Some(format!(
+        "this harness runs as root, and {v} refuses to start ranks as root, so every run over several \
+         ranks would fail: add --allow-run-as-root to the launcher, e.g. --launcher '{}' (or in {LAUNCHER_ENV} \
+         or the preset), or set {} and {} to 1",
+        fixed.collect::<Vec<_>>().join(" "),
+        OMPI_ROOT_ENV[0],
+        OMPI_ROOT_ENV[1]
+    ))
+}
+
 impl TryFrom<String> for Launcher {
     type Error = LauncherError;
     fn try_from(s: String) -> Result<Self, Self::Error> {
@@ -172,6 +212,20 @@ pub fn failure_hint(stderr: &str) -> Option<&'static str> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn open_mpi_as_root_without_permission_is_refused_before_the_runs() {
+        let ompi = || "mpirun (Open MPI) 4.1.4".to_string();
+        let msg = refusal(DEFAULT_LAUNCHER, true, false, ompi).expect("refused");
+        assert!(msg.contains("--launcher 'mpirun --allow-run-as-root --bind-to none -n {ranks}'"), "{msg}");
+        assert!(msg.contains("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM"), "{msg}");
+        // Not root, permission given either way, or another launcher: nothing to say.
+        assert_eq!(refusal(DEFAULT_LAUNCHER, false, false, ompi), None);
+        assert_eq!(refusal(DEFAULT_LAUNCHER, true, true, ompi), None);
+        assert_eq!(refusal("mpirun --allow-run-as-root -n {ranks}", true, false, ompi), None);
+        assert_eq!(refusal(DEFAULT_LAUNCHER, true, false, || "HYDRA build details: Version: 4.1".into()), None);
+        assert_eq!(refusal("srun -n {ranks}", true, false, || "slurm 23.02.6".into()), None);
+    }
 
     #[test]
     fn templates_expand_ranks_and_threads() {

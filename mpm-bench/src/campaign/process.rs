@@ -10,6 +10,7 @@
 //! at once; leftovers of a harness killed outright are swept when the campaign is opened again
 //! ([`remove_stale_temp_files`]).
 
+use super::launcher::Launcher;
 use super::matrix::RunSpec;
 use super::memory::{estimate_memory, impact_variant, scenario_size};
 use super::preset::OptLevel;
@@ -115,6 +116,13 @@ pub struct RunOutput {
 pub trait Runner {
     /// Run `req`; the summary, if any, is at `req.json_path` afterwards.
     fn run(&mut self, req: &RunRequest) -> RunOutput;
+
+    /// Why runs through `launcher` would all fail before they start, if they would (checked
+    /// once, before a campaign's first run over several ranks). Only a runner that starts
+    /// the launcher has anything to check.
+    fn launcher_refusal(&self, _launcher: &Launcher) -> Option<String> {
+        None
+    }
 }
 
 /// Spawns the real solver, one fresh process per run.
@@ -227,6 +235,10 @@ fn cpu_set(cpus: &[usize]) -> libc::cpu_set_t {
 }
 
 impl Runner for ProcessRunner {
+    fn launcher_refusal(&self, launcher: &Launcher) -> Option<String> {
+        launcher.root_refusal()
+    }
+
     fn run(&mut self, req: &RunRequest) -> RunOutput {
         let start = Instant::now();
         let _ = std::fs::remove_file(&req.json_path);

@@ -25,7 +25,7 @@ use crate::machine::load::Calibration;
 use crate::machine::placement::PinPolicy;
 use crate::machine::topology::{format_cpu_list, human_bytes, Machine};
 use crate::util::now_rfc3339;
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mpm_cli::summary::{RankReport, Summary};
 use std::collections::{HashMap, HashSet};
@@ -590,6 +590,11 @@ pub fn execute(
     if plan.todo.is_empty() {
         // Nothing to do: the folder, its manifest and topology stay as they are.
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
+    }
+    if plan.todo.iter().any(|(_, spec)| spec.ranks > 1) {
+        if let Some(why) = runner.launcher_refusal(&campaign.launcher) {
+            bail!("{why}");
+        }
     }
     let (mut log, json_dir) = plan.open_folder(opts.fresh)?;
     let mut watch = opts.watch.map(|w| HostWatch::start(w, machine.usable_pus().len()));
