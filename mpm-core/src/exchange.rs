@@ -56,6 +56,13 @@ pub trait Collectives: Send {
 
     /// Every rank's `values` concatenated in rank order, on rank 0; `None` on the others.
     fn gather(&mut self, values: Vec<f64>) -> Result<Option<Vec<f64>>, SimError>;
+
+    /// The sum over ranks of one count (this rank's `count`), on every rank.
+    fn total(&mut self, count: usize) -> Result<usize, SimError> {
+        let mut c = [count as u64];
+        self.sum_counts(&mut c)?;
+        Ok(c[0] as usize)
+    }
 }
 
 /// The operations a distributed step calls, once per step each (never per particle),

@@ -355,14 +355,16 @@ impl HistorySample {
         geometry: &ImpactGeometry,
         ranks: &mut dyn Collectives,
     ) -> Result<Option<Self>, SimError> {
-        let mut failed = [sim.particles().failed_count() as u64];
-        ranks.sum_counts(&mut failed)?;
+        let failed = ranks.total(sim.particles().failed_count())?;
         let exchange = sim.exchange();
-        let Some(f) = measure_over(sim.particles(), |p| exchange.global_id(p), geometry, ranks)? else {
-            return Ok(None);
-        };
+        let cloud = measure_over(sim.particles(), |p| exchange.global_id(p), geometry, ranks)?;
+        Ok(cloud.map(|f| Self::from_figures(sim, &f, failed)))
+    }
+
+    /// The sample of `sim` now, its cloud `f` and `failed` particles measured already.
+    pub fn from_figures(sim: &Simulation, f: &CloudFigures, failed: usize) -> Self {
         let d = sim.diagnostics();
-        Ok(Some(Self {
+        Self {
             time: sim.time(),
             cloud_front: f.cloud_front,
             cloud_front_robust: f.cloud_front_robust,
@@ -371,8 +373,8 @@ impl HistorySample {
             kinetic: d.kinetic,
             internal: d.internal,
             total: d.total(),
-            failed: failed[0] as usize,
-        }))
+            failed,
+        }
     }
 }
 
@@ -391,8 +393,6 @@ pub struct History {
     /// Time of the last sample taken (on every rank).
     #[serde(skip)]
     last_time: Option<f64>,
-    #[serde(skip)]
-    last_slot: Option<u64>,
 }
 
 impl History {
@@ -403,7 +403,7 @@ impl History {
                 "the history interval must be a positive time in s (default {DEFAULT_HISTORY_INTERVAL}), got {interval}"
             )));
         }
-        Ok(Self { interval, samples: Vec::new(), last_time: None, last_slot: None })
+        Ok(Self { interval, samples: Vec::new(), last_time: None })
     }
 
     /// Record a sample of `sim` if it has entered a new interval since the last sample (or
@@ -414,38 +414,23 @@ impl History {
         geometry: &ImpactGeometry,
         ranks: &mut dyn Collectives,
     ) -> Result<bool, SimError> {
-        let slot = (sim.time() / self.interval).floor() as u64;
-        if self.last_slot.is_some_and(|s| slot <= s) {
+        let slot = |t: f64| (t / self.interval).floor() as u64;
+        if self.last_time.is_some_and(|t| slot(sim.time()) <= slot(t)) {
             return Ok(false);
         }
-        self.sample(sim, geometry, ranks)?;
+        self.last_time = Some(sim.time());
+        self.samples.extend(HistorySample::of(sim, geometry, ranks)?);
         Ok(true)
     }
 
-    /// Record the final state, unless the last sample already is at this time. Collective
-    /// over ranks.
-    pub fn finish(
-        &mut self,
-        sim: &Simulation,
-        geometry: &ImpactGeometry,
-        ranks: &mut dyn Collectives,
-    ) -> Result<(), SimError> {
+    /// Record the final state from its figures, measured already over every rank (`cloud`
+    /// on rank 0, `None` on the others; `failed` particles), unless the last sample already
+    /// is at this time.
+    pub fn finish(&mut self, sim: &Simulation, cloud: Option<&CloudFigures>, failed: usize) {
         if self.last_time.is_none_or(|t| t < sim.time()) {
-            self.sample(sim, geometry, ranks)?;
+            self.last_time = Some(sim.time());
+            self.samples.extend(cloud.map(|f| HistorySample::from_figures(sim, f, failed)));
         }
-        Ok(())
-    }
-
-    fn sample(
-        &mut self,
-        sim: &Simulation,
-        geometry: &ImpactGeometry,
-        ranks: &mut dyn Collectives,
-    ) -> Result<(), SimError> {
-        self.last_slot = Some((sim.time() / self.interval).floor() as u64);
-        self.last_time = Some(sim.time());
-        self.samples.extend(HistorySample::of(sim, geometry, ranks)?);
-        Ok(())
     }
 
     /// The speed at which the debris cloud's leading edge has moved: the least-squares

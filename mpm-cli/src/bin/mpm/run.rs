@@ -244,12 +244,11 @@ impl Tracking {
         Ok(())
     }
 
-    /// The last history sample at the final state.
-    fn finish(&mut self, sim: &Simulation, ranks: &mut dyn Collectives) -> Result<()> {
-        if let Some((h, g)) = &mut self.cloud {
-            h.finish(sim, g, ranks)?;
+    /// The last history sample at the final state, from its `figures`.
+    fn finish(&mut self, sim: &Simulation, figures: &FinalFigures) {
+        if let Some((h, _)) = &mut self.cloud {
+            h.finish(sim, figures.cloud.as_ref(), figures.failed);
         }
-        Ok(())
     }
 }
 
@@ -266,16 +265,12 @@ struct FinalFigures {
 
 /// The Taylor bar's figures of `sim` now (collective), when the run is a bar (`taylor`).
 fn bar_figures(taylor: bool, sim: &Simulation, ranks: &mut dyn Collectives) -> Result<Option<TaylorFigures>> {
-    Ok(match taylor {
-        true => Some(taylor::measure_over(sim.particles(), sim.spacing(), ranks)?),
-        false => None,
-    })
+    Ok(taylor.then(|| taylor::measure_over(sim.particles(), sim.spacing(), ranks)).transpose()?)
 }
 
 impl FinalFigures {
     fn measure(sim: &Simulation, taylor: bool, tracking: &Tracking, ranks: &mut dyn Collectives) -> Result<Self> {
-        let mut failed = [sim.particles().failed_count() as u64];
-        ranks.sum_counts(&mut failed)?;
+        let failed = ranks.total(sim.particles().failed_count())?;
         let taylor = bar_figures(taylor, sim, ranks)?;
         let cloud = match &tracking.cloud {
             Some((_, g)) => impact::measure_over(sim.particles(), |p| sim.exchange().global_id(p), g, ranks)?,
@@ -285,7 +280,7 @@ impl FinalFigures {
             Some(t) => t.result(sim, ranks)?,
             None => None,
         };
-        Ok(Self { failed: failed[0] as usize, taylor, cloud, plate })
+        Ok(Self { failed, taylor, cloud, plate })
     }
 }
 
@@ -405,8 +400,9 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
     };
     let (end_reason, mut timing) =
         step_loop(&ctx, &mut sim, &mut outputs, &mut history, &mut tracking, ranks.collectives())?;
-    tracking.finish(&sim, ranks.collectives())?;
+    // The final figures, measured once: the summary's, and the history's last sample.
     let figures = FinalFigures::measure(&sim, taylor, &tracking, ranks.collectives())?;
+    tracking.finish(&sim, &figures);
     outputs.finish(&sim, impact.as_ref(), o.quiet)?;
     let cloud_history = tracking.cloud.map(|(h, _)| h);
     if let Some(h) = &cloud_history {
