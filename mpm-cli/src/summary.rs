@@ -441,7 +441,7 @@ pub struct Summary {
     pub debug_assertions: bool,
     /// Target triple of the build.
     pub target: String,
-    /// Grid mode: `fixed` or `adaptive`.
+    /// Grid mode: `fixed`, `adaptive` or `sparse`.
     pub grid_mode: String,
     /// Equation of state, `mie-gruneisen (hugoniot form)` or `mie-gruneisen (paper-printed form)`.
     pub eos: String,
@@ -459,10 +459,15 @@ pub struct Summary {
     pub cells: usize,
     /// Nodes of the initial grid.
     pub nodes: usize,
-    /// Mean node count over the steps (the initial count if no step was taken).
+    /// Mean count of stored nodes over the steps (the initial count if no step was taken):
+    /// every node of the grid's box, or on the sparse grid the nodes of its stored blocks.
     pub mean_nodes: f64,
-    /// Nodes of the last step's grid.
+    /// Nodes of the last step's grid (its box).
     pub final_nodes: usize,
+    /// Nodes the last step stored: `final_nodes` on a dense grid, the stored blocks' nodes
+    /// on the sparse grid (this rank's with several ranks); `null` in older summaries.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub final_stored_nodes: Option<usize>,
     /// How many of the last grid's cells, and of its blocks of 8^3 cells, hold a particle
     /// (what a sparse grid would store instead of the box); `null` in older summaries and
     /// when the particles are spread over MPI ranks.
@@ -710,6 +715,7 @@ impl Summary {
             nodes: ctx.nodes,
             mean_nodes: sim.mean_nodes(),
             final_nodes: sim.global_geom().num_nodes(),
+            final_stored_nodes: Some(sim.stored_nodes()),
             // Only a process holding every particle can count the cells they occupy.
             final_occupancy: (sim.particles().len() == sim.total_particles())
                 .then(|| Occupancy::of(sim.global_geom(), &sim.particles().x)),

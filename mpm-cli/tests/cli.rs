@@ -181,6 +181,7 @@ const REQUIRED_KEYS: &[&str] = &[
     "mean_nodes",
     "final_nodes",
     "final_occupancy",
+    "final_stored_nodes",
     "dx_m",
     "steps",
     "warmup_steps",
@@ -610,7 +611,9 @@ fn impact_run_reports_the_cloud_and_draws_a_radiograph() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(v["scenario"], "impact");
-    assert_eq!(v["grid_mode"], "adaptive");
+    assert_eq!(v["grid_mode"], "sparse", "the impact's default grid");
+    let (stored, boxed) = (v["final_stored_nodes"].as_u64().unwrap(), v["final_nodes"].as_u64().unwrap());
+    assert!(stored > 0 && stored <= boxed + 64 * 64, "stored {stored} of {boxed}");
     for key in [
         "cloud_front_m",
         "cloud_front_robust_m",

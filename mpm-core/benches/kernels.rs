@@ -11,7 +11,7 @@ use mpm_core::material::Eos;
 use mpm_core::parallel::{Exec, Team};
 use mpm_core::scenario::taylor::TaylorBar;
 use mpm_core::strategy::{array_expansion, serial, DomainDecomposition, ScatterStrategy};
-use mpm_core::{transfer, SimConfig, Simulation};
+use mpm_core::{transfer, NodeIndex, SimConfig, Simulation};
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
@@ -35,15 +35,16 @@ fn serial_kernels(c: &mut Criterion) {
     g.throughput(Throughput::Elements(n as u64));
     g.sample_size(20);
 
+    let index = NodeIndex::of(&geom, None);
     let mut out = vec![[0.0; 7]; geom.num_nodes()];
     g.bench_function("p2g_scatter", |b| {
-        b.iter(|| serial::scatter(&geom, n, &mut out, &|p| transfer::p2g(&geom, &particles, [0.0; 3], p)))
+        b.iter(|| serial::scatter(&index, n, &mut out, &|p| transfer::p2g(&geom, &particles, [0.0; 3], p)))
     });
 
     let kin = sim.nodes().kin.clone();
     let mut v = particles.v.clone();
     g.bench_function("g2p_gather", |b| {
-        b.iter(|| transfer::gather(&Exec::serial(), &geom, black_box(&kin), &particles.x, &mut v, 0.0))
+        b.iter(|| transfer::gather(&Exec::serial(), &geom, &index, black_box(&kin), &particles.x, &mut v, 0.0))
     });
 
     let consts = *sim.point_consts();
@@ -52,7 +53,7 @@ fn serial_kernels(c: &mut Criterion) {
     g.bench_function("stress_update", |b| {
         b.iter_batched_ref(
             || particles.clone(),
-            |p| transfer::update(&Exec::serial(), &geom, sim.nodes(), p, &consts, &eos, 1e-9, &mut partials),
+            |p| transfer::update(&Exec::serial(), &geom, &index, sim.nodes(), p, &consts, &eos, 1e-9, &mut partials),
             BatchSize::LargeInput,
         )
     });
@@ -95,14 +96,16 @@ fn strategy_kernels(c: &mut Criterion) {
     let mut dd = DomainDecomposition::new(threads);
     g.throughput(Throughput::Elements(x.len() as u64));
     g.bench_function("dd_binning", |b| {
-        b.iter_custom(|iters| in_region(&team, &pool, iters, |exec| dd.prepare(exec, &geom, black_box(&x))))
+        b.iter_custom(|iters| in_region(&team, &pool, iters, |exec| dd.prepare(exec, &geom, None, black_box(&x))))
     });
 
     let subgrids = vec![[1.0; 7]; dd.subgrid_nodes()];
     g.throughput(Throughput::Elements(nn as u64));
     g.bench_function("dd_assembly", |b| {
         b.iter_custom(|iters| {
-            in_region(&team, &pool, iters, |exec| dd.assemble(exec, &geom, &mut global, black_box(&subgrids)))
+            in_region(&team, &pool, iters, |exec| {
+                dd.assemble(exec, &geom, &NodeIndex::of(&geom, None), &mut global, black_box(&subgrids))
+            })
         })
     });
     g.finish();

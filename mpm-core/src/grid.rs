@@ -6,13 +6,18 @@
 //! * [`GridMode::Adaptive`]: every step the grid is re-fitted to the particles' current
 //!   bounding box with the same cell size. Nodes stay on one lattice (anchored at the
 //!   scenario's grid origin), so walls keep falling on node layers.
+//! * [`GridMode::Sparse`]: the adaptive grid, storing only the blocks of nodes that the
+//!   particles' cells touch ([`crate::blocks`]). Results are bitwise those of the adaptive
+//!   grid for every strategy and thread count; memory follows the particles, not their box.
 //!
-//! Node arrays are contiguous and indexed `i + (nx+1) (j + (ny+1) k)`. They only grow: a
-//! smaller grid reuses the capacity, so steady-state steps do not allocate.
+//! Node arrays are contiguous: on a dense grid indexed `i + (nx+1) (j + (ny+1) k)`, on a
+//! sparse one by block slot ([`NodeIndex`] says which). They only grow: a smaller grid reuses
+//! the capacity, so steady-state steps do not allocate.
 
-use crate::capacity_bytes;
+use crate::blocks::BlockMap;
 use crate::math::Vec3;
 use crate::shape::{self, Shape};
+use crate::{capacity_bytes, resize_with_headroom};
 use serde::{Deserialize, Serialize};
 
 /// Values per node of the P2G scatter (Eqs. 1-5): mass, momentum (3), force (3).
@@ -31,6 +36,8 @@ pub enum GridMode {
     Fixed,
     /// Re-fitted to the particles' bounding box every step.
     Adaptive,
+    /// Adaptive, storing only the blocks of nodes the particles touch.
+    Sparse,
 }
 
 impl GridMode {
@@ -39,6 +46,15 @@ impl GridMode {
         match self {
             GridMode::Fixed => "fixed",
             GridMode::Adaptive => "adaptive",
+            GridMode::Sparse => "sparse",
+        }
+    }
+
+    /// Whether the grid is re-fitted to the particles every step.
+    pub fn is_adaptive(self) -> bool {
+        match self {
+            GridMode::Fixed => false,
+            GridMode::Adaptive | GridMode::Sparse => true,
         }
     }
 }
@@ -49,7 +65,8 @@ impl std::str::FromStr for GridMode {
         match s {
             "fixed" => Ok(GridMode::Fixed),
             "adaptive" => Ok(GridMode::Adaptive),
-            _ => Err(format!("unknown grid mode '{s}': use 'fixed' or 'adaptive'")),
+            "sparse" => Ok(GridMode::Sparse),
+            _ => Err(format!("unknown grid mode '{s}': use 'fixed', 'adaptive' or 'sparse'")),
         }
     }
 }
@@ -163,6 +180,42 @@ impl GridGeom {
         let l = ((coord - self.origin[axis]) * self.inv_dx).round();
         let on_lattice = (self.origin[axis] + l * self.dx - coord).abs() <= 1e-9 * self.dx;
         (on_lattice && l >= 0.0 && l <= self.cells[axis] as f64).then_some(l as usize)
+    }
+}
+
+/// Where the nodes of a grid, or of a part of it, are stored: the rule that turns a cell
+/// into the indices of its 8 nodes in every scatter and gather.
+#[derive(Clone, Copy, Debug)]
+pub enum NodeIndex<'a> {
+    /// A dense box of `dims` nodes from grid node `lo`, numbered `i + dims[0] (j + dims[1] k)`
+    /// (the whole grid: `lo = 0`, `dims` its node counts).
+    Box {
+        /// Grid node of the box's first node (also its first cell).
+        lo: [usize; 3],
+        /// Nodes per axis.
+        dims: [usize; 3],
+    },
+    /// Stored blocks ([`GridMode::Sparse`]).
+    Blocks(&'a BlockMap),
+}
+
+impl<'a> NodeIndex<'a> {
+    /// The whole grid `geom`, stored densely or in `blocks`.
+    pub fn of(geom: &GridGeom, blocks: Option<&'a BlockMap>) -> Self {
+        match blocks {
+            Some(map) => NodeIndex::Blocks(map),
+            None => NodeIndex::Box { lo: [0; 3], dims: geom.node_dims() },
+        }
+    }
+
+    /// Indices of the 8 nodes of `cell` (the grid's cell numbering), in the order of
+    /// [`crate::shape`].
+    #[inline(always)]
+    pub fn cell_nodes(&self, cell: [usize; 3]) -> [usize; 8] {
+        match self {
+            NodeIndex::Box { lo, dims } => shape::cell_nodes(*dims, std::array::from_fn(|d| cell[d] - lo[d])),
+            NodeIndex::Blocks(map) => map.cell_nodes(cell),
+        }
     }
 }
 
@@ -288,11 +341,12 @@ pub struct NodeArrays {
 }
 
 impl NodeArrays {
-    /// Resize to `n` nodes, growing capacity only when needed.
+    /// Resize to `n` nodes, growing capacity only when needed (by an eighth more than
+    /// needed).
     pub fn resize(&mut self, n: usize) {
-        self.p2g.resize(n, [0.0; P2G_WIDTH]);
-        self.kin.resize(n, [0.0; KIN_WIDTH]);
-        self.remap.resize(n, [0.0; REMAP_WIDTH]);
+        resize_with_headroom(&mut self.p2g, n, [0.0; P2G_WIDTH]);
+        resize_with_headroom(&mut self.kin, n, [0.0; KIN_WIDTH]);
+        resize_with_headroom(&mut self.remap, n, [0.0; REMAP_WIDTH]);
     }
 
     /// Bytes held (by capacity).

@@ -39,6 +39,7 @@
 //! # Ok::<(), mpm_core::SimError>(())
 //! ```
 
+pub mod blocks;
 pub mod energy;
 pub mod error;
 pub mod exchange;
@@ -56,13 +57,24 @@ pub mod transfer;
 
 pub use error::SimError;
 pub use exchange::{Collectives, Exchange, RankBoxes, SingleProcess};
-pub use grid::{GridGeom, GridMode, GridSpec, Wall, WallKind};
+pub use grid::{GridGeom, GridMode, GridSpec, NodeIndex, Wall, WallKind};
 pub use material::{BulkViscosity, Material, MgForm};
 pub use particles::Particles;
 pub use scenario::Setup;
 pub use solver::{Diagnostics, SimConfig, Simulation, DEFAULT_CFL, DEFAULT_ENERGY_RISE_LIMIT};
 pub use strategy::{MemoryModel, Strategy};
 pub use timers::{StageTimes, Substage};
+
+/// Resize `v` to `n` elements (new ones `value`). When it must grow, its capacity becomes
+/// `n` plus an eighth, not the doubling of `Vec::resize`: the node arrays of a growing
+/// debris cloud grow step after step, and doubling would leave up to half of their memory
+/// unused (the large impact model's budget is 3 GiB).
+pub(crate) fn resize_with_headroom<T: Clone>(v: &mut Vec<T>, n: usize, value: T) {
+    if n > v.capacity() {
+        v.reserve_exact(n + n / 8 - v.len());
+    }
+    v.resize(n, value);
+}
 
 /// Bytes held by `v`'s allocation (its capacity, not its length).
 pub(crate) fn capacity_bytes<T>(v: &Vec<T>) -> usize {

@@ -20,10 +20,11 @@
 //! has reached its largest size, except rayon's job list for the region's one `broadcast`
 //! (`T` entries; the count of such allocations does not depend on the problem size).
 
+use crate::blocks::BlockMap;
 use crate::energy::{EnergyBalance, Partial};
 use crate::error::SimError;
 use crate::exchange::{reduce_partial, Exchange, SingleProcess};
-use crate::grid::{GridGeom, GridMode, GridSpec, NodeArrays, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH};
+use crate::grid::{GridGeom, GridMode, GridSpec, NodeArrays, NodeIndex, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH};
 use crate::material::{BulkViscosity, Eos, Material, PointConsts};
 use crate::math::{norm, Vec3};
 use crate::parallel::{Exec, RegionError, Team};
@@ -127,6 +128,8 @@ pub struct Simulation {
     config: SimConfig,
     geom: GridGeom,
     nodes: NodeArrays,
+    /// The blocks of nodes stored this step ([`GridMode::Sparse`]); `None` on a dense grid.
+    blocks: Option<BlockMap>,
     engine: Engine,
     /// Each worker's part of the P2G scatter before assembly (AE copies or DD sub-grids);
     /// empty for the serial strategy, which scatters into `nodes.p2g` directly.
@@ -191,8 +194,14 @@ impl Simulation {
         };
         let global = match config.grid_mode {
             GridMode::Fixed => GridGeom::fixed(&spec),
-            GridMode::Adaptive => GridGeom::fit(&spec, bbox.0, bbox.1),
+            GridMode::Adaptive | GridMode::Sparse => GridGeom::fit(&spec, bbox.0, bbox.1),
         };
+        if config.grid_mode == GridMode::Sparse && exchange.ranks() > 1 {
+            return Err(SimError::Config(format!(
+                "the sparse grid runs in one process only, not over {} ranks: use the adaptive grid (--grid adaptive) with several ranks",
+                exchange.ranks()
+            )));
+        }
         exchange.adopt(&mut particles, ids)?;
         let consts = material.consts().with_viscosity(config.bulk_viscosity, spec.dx);
         // The whole set's figures: this rank's sums, counts and maxima, combined over the
@@ -234,12 +243,17 @@ impl Simulation {
         let geom = exchange.local_grid(&global);
         let mut wall_layers = WallLayers::with_capacity(walls.len());
         wall_layers.resolve(&walls, &geom);
+        let blocks = (config.grid_mode == GridMode::Sparse).then(|| {
+            let mut map = BlockMap::default();
+            map.build(&Exec::serial(), &geom, &particles.x);
+            map
+        });
         let mut nodes = NodeArrays::default();
-        nodes.resize(geom.num_nodes());
+        nodes.resize(blocks.as_ref().map_or(geom.num_nodes(), BlockMap::num_nodes));
         // Size the strategy's buffers for the initial grid now, so that memory figures are
         // right before the first step and the first step does not allocate either.
         let mut engine = Engine::new(config.strategy, config.threads);
-        let parts_len = engine.reserve(&geom);
+        let parts_len = engine.reserve(&geom, blocks.as_ref());
         Ok(Self {
             engine,
             spacing,
@@ -257,6 +271,7 @@ impl Simulation {
             wall_layers,
             geom,
             nodes,
+            blocks,
             p2g_parts: vec![[0.0; P2G_WIDTH]; parts_len],
             remap_parts: vec![[0.0; REMAP_WIDTH]; parts_len],
             time: 0.0,
@@ -334,9 +349,21 @@ impl Simulation {
         &self.spec
     }
 
-    /// Nodal arrays of the last step.
+    /// Nodal arrays of the last step, numbered by [`Simulation::node_index`].
     pub fn nodes(&self) -> &NodeArrays {
         &self.nodes
+    }
+
+    /// How the nodal arrays are numbered: the dense grid, or its stored blocks
+    /// ([`GridMode::Sparse`]).
+    pub fn node_index(&self) -> NodeIndex<'_> {
+        NodeIndex::of(&self.geom, self.blocks.as_ref())
+    }
+
+    /// Nodes stored on the last step's grid: every node of a dense grid, the stored blocks'
+    /// nodes of a sparse one.
+    pub fn stored_nodes(&self) -> usize {
+        self.blocks.as_ref().map_or(self.geom.num_nodes(), BlockMap::num_nodes)
     }
 
     /// Simulated time (s).
@@ -385,10 +412,11 @@ impl Simulation {
         &self.consts
     }
 
-    /// Mean node count over the steps taken (the initial count before any step).
+    /// Mean count of stored nodes over the steps taken (the initial count before any
+    /// step).
     pub fn mean_nodes(&self) -> f64 {
         if self.steps == 0 {
-            self.geom.num_nodes() as f64
+            self.stored_nodes() as f64
         } else {
             self.node_steps as f64 / self.steps as f64
         }
@@ -416,6 +444,7 @@ impl Simulation {
             + capacity_bytes(&self.p2g_parts)
             + capacity_bytes(&self.remap_parts)
             + self.engine.bytes()
+            + self.blocks.as_ref().map_or(0, BlockMap::bytes)
     }
 
     /// After the last step: free the node arrays and the strategy's scatter buffers, which
@@ -425,6 +454,9 @@ impl Simulation {
     /// further step returns [`SimError::Released`].
     pub fn release_grid_arrays(&mut self) {
         self.nodes = NodeArrays::default();
+        if let Some(map) = &mut self.blocks {
+            *map = BlockMap::default();
+        }
         self.p2g_parts = Vec::new();
         self.remap_parts = Vec::new();
         self.released = true;
@@ -469,7 +501,7 @@ impl Simulation {
         let mut lap = Lap::start();
 
         // ---- grid-node stage -------------------------------------------------------
-        if self.config.grid_mode == GridMode::Adaptive {
+        if self.config.grid_mode.is_adaptive() {
             let global = GridGeom::fit(&self.spec, self.bbox.0, self.bbox.1);
             if global.num_nodes() > self.config.max_nodes {
                 return Err(SimError::GridTooLarge {
@@ -482,43 +514,52 @@ impl Simulation {
             let geom = self.exchange.local_grid(&global);
             if geom != self.geom {
                 self.geom = geom;
-                self.nodes.resize(geom.num_nodes());
+                if self.blocks.is_none() {
+                    self.nodes.resize(geom.num_nodes());
+                }
                 self.wall_layers.resolve(&self.walls, &geom);
             }
         }
-        self.node_steps += self.geom.num_nodes() as u128;
+        if let Some(map) = &mut self.blocks {
+            map.build(exec, &self.geom, &self.particles.x);
+            self.nodes.resize(map.num_nodes());
+        }
+        self.node_steps += self.stored_nodes() as u128;
         lap.lap(&mut self.times, Substage::GridFit);
-        self.engine.prepare(exec, &self.geom, &self.particles.x);
+        self.engine.prepare(exec, &self.geom, self.blocks.as_ref(), &self.particles.x);
         lap.lap(&mut self.times, Substage::Binning);
 
         let geom = self.geom;
+        let index = NodeIndex::of(&geom, self.blocks.as_ref());
         let n = self.particles.len();
         // The exchange calls below are no-ops for one process (`SingleProcess`): the sums and
         // maxima over one rank leave every value as it is, bit for bit.
         let p2g = transfer::P2g { geom: &geom, particles: &self.particles, body_force: self.config.body_force };
-        self.engine.scatter(exec, &geom, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
+        self.engine.scatter(exec, &geom, &index, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
         lap.lap(&mut self.times, Substage::Scatter);
-        self.engine.assemble(exec, &geom, &mut self.nodes.p2g, &self.p2g_parts);
+        self.engine.assemble(exec, &geom, &index, &mut self.nodes.p2g, &self.p2g_parts);
         self.exchange.sum_shared_nodes(&geom, self.nodes.p2g.as_flattened_mut(), P2G_WIDTH)?;
         lap.lap(&mut self.times, Substage::Assembly);
-        transfer::grid_update(exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
+        transfer::grid_update(exec, &geom, &index, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::GridUpdate);
 
         // ---- particle stage --------------------------------------------------------
-        transfer::gather(exec, &geom, &self.nodes.kin, &self.particles.x, &mut self.particles.v, dt);
+        transfer::gather(exec, &geom, &index, &self.nodes.kin, &self.particles.x, &mut self.particles.v, dt);
         lap.lap(&mut self.times, Substage::Gather);
         let remap = transfer::Remap { geom: &geom, particles: &self.particles };
-        self.engine.scatter(exec, &geom, n, &mut self.nodes.remap, &mut self.remap_parts, &remap);
+        self.engine.scatter(exec, &geom, &index, n, &mut self.nodes.remap, &mut self.remap_parts, &remap);
         lap.lap(&mut self.times, Substage::RemapScatter);
-        self.engine.assemble(exec, &geom, &mut self.nodes.remap, &self.remap_parts);
+        self.engine.assemble(exec, &geom, &index, &mut self.nodes.remap, &self.remap_parts);
         self.exchange.sum_shared_nodes(&geom, self.nodes.remap.as_flattened_mut(), REMAP_WIDTH)?;
-        transfer::remap_velocity(exec, &geom, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
+        transfer::remap_velocity(exec, &geom, &index, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
         let (nodes, particles, consts, partials) = (&self.nodes, &mut self.particles, &self.consts, &mut self.partials);
         match self.material.eos {
-            Eos::MieGruneisen(ref m) => transfer::update(exec, &geom, nodes, particles, consts, m, dt, partials),
-            Eos::Linear(ref l) => transfer::update(exec, &geom, nodes, particles, consts, l, dt, partials),
+            Eos::MieGruneisen(ref m) => {
+                transfer::update(exec, &geom, &index, nodes, particles, consts, m, dt, partials)
+            }
+            Eos::Linear(ref l) => transfer::update(exec, &geom, &index, nodes, particles, consts, l, dt, partials),
         }
         let mut total = Partial::default();
         for p in &self.partials[..exec.workers()] {

@@ -5,8 +5,9 @@
 //!
 //! They are public so that benchmarks measure exactly the code the solver runs.
 
+use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
 use crate::energy::Partial;
-use crate::grid::{GridGeom, NodeArrays, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
+use crate::grid::{GridGeom, NodeArrays, NodeIndex, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
 use crate::material::{update_point, PointConsts, PointState, PressureModel};
 use crate::math::{sym_mul_vec, Sym, Vec3};
 use crate::parallel::{partition, Exec, Split};
@@ -83,39 +84,89 @@ impl Kernel<REMAP_WIDTH> for Remap<'_> {
     }
 }
 
+/// How the node loops split a grid's nodes between workers: node rows of a dense grid, or
+/// the blocks of a sparse one (whole parts of the node arrays either way).
+fn node_split(geom: &GridGeom, index: &NodeIndex<'_>) -> Split<'static> {
+    match index {
+        NodeIndex::Box { lo, dims } => {
+            assert!(*lo == [0; 3] && *dims == geom.node_dims(), "the node loops run over the whole grid");
+            Split::EvenRows(dims[0])
+        }
+        NodeIndex::Blocks(_) => Split::EvenRows(BLOCK_NODES),
+    }
+}
+
 /// Visit every node of the grid with its wall mask (1 = free component, 0 = constrained),
-/// parallel over node rows: `f(node, mask, &mut out[node])`.
-fn for_each_node<T, F>(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, out: &mut [T], f: F)
+/// parallel over node rows (dense) or blocks (sparse): `f(node, mask, &mut out[node])`.
+fn for_each_node<T, F>(exec: &Exec<'_>, geom: &GridGeom, index: &NodeIndex<'_>, walls: &WallLayers, out: &mut [T], f: F)
 where
     T: Send,
     F: Fn(usize, Vec3, &mut T) + Sync,
 {
     let t = exec.workers();
-    exec.for_each_chunk_mut(Split::EvenRows(geom.node_dims()[0]).of(out), |w, mine| {
-        visit_rows(geom, walls, w, t, |n, mask, local| f(n, mask, &mut mine[local]));
+    exec.for_each_chunk_mut(node_split(geom, index).of(out), |w, mine| {
+        visit_nodes(geom, index, walls, w, t, |n, mask, local| f(n, mask, &mut mine[local]));
     });
 }
 
-/// Worker `w`'s node rows out of `t` (the split of `Split::EvenRows`): `f(node, mask, local)`
-/// for each node, `local` its index within the worker's part.
+/// Worker `w`'s nodes out of `t` (the split of [`node_split`]): `f(node, mask, local)` for
+/// each node of the grid, `local` its index within the worker's part. On a sparse grid the
+/// stored nodes past the grid's last node layer (in blocks at its upper end) are skipped.
 #[inline(always)]
-fn visit_rows(geom: &GridGeom, walls: &WallLayers, w: usize, t: usize, mut f: impl FnMut(usize, Vec3, usize)) {
+fn visit_nodes(
+    geom: &GridGeom,
+    index: &NodeIndex<'_>,
+    walls: &WallLayers,
+    w: usize,
+    t: usize,
+    mut f: impl FnMut(usize, Vec3, usize),
+) {
     let d = geom.node_dims();
     let has_x = walls.x_layers().next().is_some();
-    for (ri, row) in partition(d[1] * d[2], t, w).enumerate() {
-        let mask_row = walls.row_mask(row % d[1], row / d[1]);
-        for i in 0..d[0] {
-            f(row * d[0] + i, walls.node_mask(mask_row, i, has_x), ri * d[0] + i);
+    match index {
+        NodeIndex::Box { .. } => {
+            for (ri, row) in partition(d[1] * d[2], t, w).enumerate() {
+                let mask_row = walls.row_mask(row % d[1], row / d[1]);
+                for i in 0..d[0] {
+                    f(row * d[0] + i, walls.node_mask(mask_row, i, has_x), ri * d[0] + i);
+                }
+            }
+        }
+        NodeIndex::Blocks(map) => {
+            let parts = partition(map.len(), t, w);
+            let first = parts.start;
+            for s in parts {
+                let b = map.block(s);
+                let [ri, rj, rk] = BlockMap::node_ranges(b, [0; 3], geom.cells);
+                for c in rk {
+                    for bb in rj.clone() {
+                        let mask_row = walls.row_mask(b[1] * BLOCK + bb, b[2] * BLOCK + c);
+                        for a in ri.clone() {
+                            let local = a + BLOCK * (bb + BLOCK * c);
+                            let mask = walls.node_mask(mask_row, b[0] * BLOCK + a, has_x);
+                            f(s * BLOCK_NODES + local, mask, (s - first) * BLOCK_NODES + local);
+                        }
+                    }
+                }
+            }
         }
     }
 }
 
 /// Eq. 6 and the walls: `p += f dt`; wall nodes lose the constrained components of `p`
 /// and `f`; `v = p/m`, `a = f/m` (zero on massless nodes). Parallel over node rows.
-pub fn grid_update(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: &mut NodeArrays, dt: f64, tol: f64) {
+pub fn grid_update(
+    exec: &Exec<'_>,
+    geom: &GridGeom,
+    index: &NodeIndex<'_>,
+    walls: &WallLayers,
+    nodes: &mut NodeArrays,
+    dt: f64,
+    tol: f64,
+) {
     let NodeArrays { p2g, kin, .. } = nodes;
     let p2g = &p2g[..];
-    for_each_node(exec, geom, walls, kin, |n, mask, o| {
+    for_each_node(exec, geom, index, walls, kin, |n, mask, o| {
         let a = &p2g[n];
         let m = a[0];
         if m > tol {
@@ -137,13 +188,21 @@ pub fn grid_update(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: 
 /// velocity `(v_i(k) + v_i(k+1)) / 2 = (v - dt a + v_remap) / 2`, whose gradient the
 /// particle update needs for the work of the stress: once per node here instead of once per
 /// particle and node there.
-pub fn remap_velocity(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, nodes: &mut NodeArrays, dt: f64, tol: f64) {
+pub fn remap_velocity(
+    exec: &Exec<'_>,
+    geom: &GridGeom,
+    index: &NodeIndex<'_>,
+    walls: &WallLayers,
+    nodes: &mut NodeArrays,
+    dt: f64,
+    tol: f64,
+) {
     let NodeArrays { p2g, kin, remap } = nodes;
     let p2g = &p2g[..];
     let t = exec.workers();
-    let rows = Split::EvenRows(geom.node_dims()[0]);
-    exec.for_each_chunk_mut((rows.of(remap), rows.of(kin)), |w, (remap, kin)| {
-        visit_rows(geom, walls, w, t, |n, mask, local| {
+    let split = node_split(geom, index);
+    exec.for_each_chunk_mut((split.of(remap), split.of(kin)), |w, (remap, kin)| {
+        visit_nodes(geom, index, walls, w, t, |n, mask, local| {
             let (o, kn) = (&mut remap[local], &mut kin[local]);
             let m = p2g[n][0];
             if m > tol {
@@ -161,15 +220,23 @@ pub fn remap_velocity(exec: &Exec<'_>, geom: &GridGeom, walls: &WallLayers, node
     });
 }
 
-/// Eqs. 8, 10: `v_p += dt sum_i S_ip a_i`, by loop splitting.
-pub fn gather(exec: &Exec<'_>, geom: &GridGeom, kin: &[[f64; KIN_WIDTH]], x: &[Vec3], v: &mut [Vec3], dt: f64) {
+/// Eqs. 8, 10: `v_p += dt sum_i S_ip a_i`, by loop splitting (`kin` numbered by `index`).
+pub fn gather(
+    exec: &Exec<'_>,
+    geom: &GridGeom,
+    index: &NodeIndex<'_>,
+    kin: &[[f64; KIN_WIDTH]],
+    x: &[Vec3],
+    v: &mut [Vec3],
+    dt: f64,
+) {
     assert_eq!(x.len(), v.len(), "one velocity per position");
     let n = x.len();
     let t = exec.workers();
     exec.for_each_chunk_mut(Split::Even.of(v), |w, vw| {
         for (vp, xp) in vw.iter_mut().zip(&x[partition(n, t, w)]) {
             let s = geom.shape(*xp);
-            let idx = geom.cell_nodes(s.cell);
+            let idx = index.cell_nodes(s.cell);
             let mut acc = [0.0; 3];
             for q in 0..8 {
                 let a = &kin[idx[q]];
@@ -286,6 +353,7 @@ fn strain_increment(l: &[[f64; 3]; 3], dt: f64) -> Sym {
 pub fn update<E: PressureModel + Sync>(
     exec: &Exec<'_>,
     geom: &GridGeom,
+    index: &NodeIndex<'_>,
     nodes: &NodeArrays,
     particles: &mut Particles,
     consts: &PointConsts,
@@ -315,7 +383,7 @@ pub fn update<E: PressureModel + Sync>(
         for k in 0..r.len() {
             let p = r.start + k;
             let s = geom.shape(x[k]);
-            let idx = geom.cell_nodes(s.cell);
+            let idx = index.cell_nodes(s.cell);
             let mut vx = [0.0; 3];
             for q in 0..8 {
                 let vn = &kin[idx[q]];

@@ -141,3 +141,39 @@ fn a_pool_of_the_wrong_size_is_an_error() {
     let err = sim.step(&pool(2), f64::INFINITY).unwrap_err();
     assert!(err.to_string().contains("num_threads(4)"), "{err}");
 }
+
+/// The sparse grid stores only the blocks of nodes the particles touch, and gives bitwise the
+/// adaptive grid's results for every strategy and thread count: on the mini impact with a
+/// fragment flying off far ahead and sideways (so that most of the box is empty), and on
+/// the Taylor bar, whose wall lies on the grid's lowest node layer.
+#[test]
+fn sparse_grid_is_bitwise_the_adaptive_grid() {
+    let mut impact = mini_impact();
+    let p = &mut impact.particles;
+    let (m, rho, c) = (p.mass[0], p.rho[0], p.sound[0]);
+    for i in 0..6 {
+        let f = i as f64 * 4e-4;
+        p.push([0.03 + f, 0.021 - f, 0.012 + f], [900.0, -500.0, 2500.0], m, rho, c);
+    }
+    let taylor = TaylorBar::default().setup().unwrap();
+    let runs = std::iter::once((Strategy::Serial, 1))
+        .chain(Strategy::ALL.into_iter().filter(|s| s.is_parallel()).flat_map(|s| THREADS.map(|t| (s, t))));
+    for (strategy, threads) in runs {
+        for (setup, steps) in [(&impact, 30), (&taylor, 8)] {
+            let dense = run(setup, strategy, threads, GridMode::Adaptive, steps);
+            let sparse = run(setup, strategy, threads, GridMode::Sparse, steps);
+            let what = format!("{} {strategy} x{threads}", setup.model);
+            assert!(dense.particles() == sparse.particles(), "{what}: the sparse grid changed the particles");
+            assert_eq!(dense.diagnostics(), sparse.diagnostics(), "{what}");
+            assert_eq!(dense.geom(), sparse.geom(), "{what}");
+            if setup.model == "mini-impact" {
+                assert!(
+                    4 * sparse.stored_nodes() < dense.stored_nodes(),
+                    "{what}: {} nodes stored of {}",
+                    sparse.stored_nodes(),
+                    dense.stored_nodes()
+                );
+            }
+        }
+    }
+}

@@ -113,7 +113,7 @@ fn scenario(a: &ImbalanceArgs) -> Result<(Setup, GridMode, f64)> {
                 bail!("unknown impact model {}: use 1-3 (small model, 2.12/1.59/1.06 mm cells) or 4 (large)", a.model)
             };
             let (setup, _) = Impact { spacing, cell, ..Impact::default() }.setup()?;
-            Ok((setup, GridMode::Adaptive, mpm_core::scenario::impact::DEFAULT_END_TIME))
+            Ok((setup, GridMode::Sparse, mpm_core::scenario::impact::DEFAULT_END_TIME))
         }
     }
 }
@@ -184,12 +184,11 @@ pub fn measure(a: &ImbalanceArgs) -> Result<ImbalanceReport> {
     let mut step = 0u64;
     while a.steps.map_or(sim.time() < end_time * (1.0 - 1e-12), |n| step < n) {
         let x = &sim.particles().x;
-        let geom = match grid_mode {
-            GridMode::Adaptive => {
-                let (lo, hi) = sim.particles().bounding_box();
-                GridGeom::fit(&spec, lo, hi)
-            }
-            GridMode::Fixed => *sim.geom(),
+        let geom = if grid_mode.is_adaptive() {
+            let (lo, hi) = sim.particles().bounding_box();
+            GridGeom::fit(&spec, lo, hi)
+        } else {
+            *sim.geom()
         };
         ev.load(&geom, x);
         for (k, &t) in a.threads.iter().enumerate() {

@@ -138,7 +138,7 @@ const HEAD: [&str; 22] = [
     "failed-particle floors (energy)",
     "failed",
     "peak RSS",
-    "final grid: nodes (cells with particles)",
+    "final grid: nodes (cells with particles); stored",
     "commit",
 ];
 
@@ -180,7 +180,11 @@ fn row(r: &ImpactRun) -> Vec<String> {
             || group_digits(s.final_nodes as u64),
             |o| {
                 let share = 100.0 * o.occupied_cells as f64 / o.cells.max(1) as f64;
-                format!("{} ({share:.1} %)", group_digits(s.final_nodes as u64))
+                let stored = s
+                    .final_stored_nodes
+                    .filter(|&n| n != s.final_nodes)
+                    .map_or_else(String::new, |n| format!("; {} stored", group_digits(n as u64)));
+                format!("{} ({share:.1} %){stored}", group_digits(s.final_nodes as u64))
             },
         ),
         commit(s.provenance.as_ref()),

@@ -4,8 +4,9 @@
 //! `A(:) = sum_j A_list(:, j)` (Eq. 16). No races and no atomics; the memory grows with
 //! `(T - 1) x` the nodal arrays, and the assembly with `N x T`.
 
-use super::{Kernel, NodeBox, ScatterStrategy};
-use crate::grid::GridGeom;
+use super::{add, Kernel, ScatterStrategy};
+use crate::blocks::BlockMap;
+use crate::grid::{GridGeom, NodeIndex};
 use crate::math::Vec3;
 use crate::parallel::{partition, Exec, Split};
 
@@ -22,19 +23,24 @@ impl ArrayExpansion {
     }
 }
 
-/// Scatter particle chunk `j` into column `j` of `columns` (sized `N x T`, column-major).
-pub fn scatter<const K: usize, F>(exec: &Exec<'_>, geom: &GridGeom, n: usize, columns: &mut Vec<[f64; K]>, kernel: &F)
-where
+/// Scatter particle chunk `j` into column `j` of `columns` (sized `N x T`, column-major;
+/// `N` the grid's stored nodes, numbered by `index`).
+pub fn scatter<const K: usize, F>(
+    exec: &Exec<'_>,
+    nn: usize,
+    index: &NodeIndex<'_>,
+    n: usize,
+    columns: &mut Vec<[f64; K]>,
+    kernel: &F,
+) where
     F: Kernel<K>,
 {
-    let nn = geom.num_nodes();
     let t = exec.workers();
-    columns.resize(nn * t, [0.0; K]);
-    let bx = NodeBox::grid(geom);
+    crate::resize_with_headroom(columns, nn * t, [0.0; K]);
     exec.for_each_chunk_mut(Split::Blocks(nn).of(columns), |j, column| {
         column.fill([0.0; K]);
         for p in partition(n, t, j) {
-            bx.add(column, &kernel.contribution(p));
+            add(index, column, &kernel.contribution(p));
         }
     });
 }
@@ -58,27 +64,36 @@ pub fn assemble<const K: usize>(exec: &Exec<'_>, global: &mut [[f64; K]], column
 }
 
 impl ScatterStrategy for ArrayExpansion {
-    fn reserve(&mut self, geom: &GridGeom) -> usize {
-        geom.num_nodes() * self.threads
+    fn reserve(&mut self, geom: &GridGeom, blocks: Option<&BlockMap>) -> usize {
+        blocks.map_or(geom.num_nodes(), BlockMap::num_nodes) * self.threads
     }
 
-    fn prepare(&mut self, _exec: &Exec<'_>, _geom: &GridGeom, _x: &[Vec3]) {}
+    fn prepare(&mut self, _exec: &Exec<'_>, _geom: &GridGeom, _blocks: Option<&BlockMap>, _x: &[Vec3]) {}
 
+    /// The columns are as long as `global`: the grid's nodes, or its stored nodes.
     fn scatter<const K: usize, F>(
         &self,
         exec: &Exec<'_>,
-        geom: &GridGeom,
+        _geom: &GridGeom,
+        index: &NodeIndex<'_>,
         n: usize,
-        _global: &mut [[f64; K]],
+        global: &mut [[f64; K]],
         parts: &mut Vec<[f64; K]>,
         kernel: &F,
     ) where
         F: Kernel<K>,
     {
-        scatter(exec, geom, n, parts, kernel);
+        scatter(exec, global.len(), index, n, parts, kernel);
     }
 
-    fn assemble<const K: usize>(&self, exec: &Exec<'_>, _geom: &GridGeom, global: &mut [[f64; K]], parts: &[[f64; K]]) {
+    fn assemble<const K: usize>(
+        &self,
+        exec: &Exec<'_>,
+        _geom: &GridGeom,
+        _index: &NodeIndex<'_>,
+        global: &mut [[f64; K]],
+        parts: &[[f64; K]],
+    ) {
         assemble(exec, global, parts);
     }
 

@@ -40,10 +40,17 @@
 //! those of uniform cuts (the sub-grid node count, `(nx + px)(ny + py)(nz + pz)`, does not
 //! depend on where the planes lie; the buffers are sized for the paper's layout and grow,
 //! once, if another layout needs more nodes).
+//!
+//! **Sparse grid** ([`crate::GridMode::Sparse`]): a patch's sub-grid is the stored blocks
+//! that meet the patch's nodes ([`BlockMap::restrict`], rebuilt every step), so a block cut
+//! by a patch boundary is held by both patches, as a shared face is on the dense grid. The
+//! assembly goes patch by patch, parallel over the patch's blocks, with the same
+//! first-holder rule over the patch's nodes: every sum is the dense grid's, bit for bit.
 
 use super::cuts::{Cuts, LayoutChooser, PatchLoad};
-use super::{Kernel, NodeBox, ScatterStrategy};
-use crate::grid::GridGeom;
+use super::{add, Kernel, ScatterStrategy};
+use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
+use crate::grid::{GridGeom, NodeIndex};
 use crate::math::Vec3;
 use crate::parallel::{partition, DisjointSlice, Exec, Split};
 use std::mem::size_of;
@@ -117,8 +124,14 @@ impl Patch {
         (0..3).all(|d| node[d] > 0 || self.index[d] == 0)
     }
 
-    pub(crate) fn node_box(&self) -> NodeBox {
-        NodeBox { lo: self.cell_lo, dims: self.node_dims() }
+    /// The sub-grid's numbering on a dense grid: a box from the patch's first node.
+    pub fn node_box(&self) -> NodeIndex<'static> {
+        NodeIndex::Box { lo: self.cell_lo, dims: self.node_dims() }
+    }
+
+    /// The patch's last node (grid node coordinates, inclusive).
+    pub fn node_hi(&self) -> [usize; 3] {
+        std::array::from_fn(|d| self.cell_lo[d] + self.cells[d])
     }
 
     /// The paper's `globalnode(s, j)`: global node index of local node `s`.
@@ -311,6 +324,8 @@ pub struct DomainDecomposition {
     chooser: LayoutChooser,
     /// Particles per patch over the steps binned.
     load: PatchLoad,
+    /// On a sparse grid, each patch's stored blocks (its sub-grid); empty on a dense grid.
+    patch_blocks: Vec<BlockMap>,
 }
 
 impl DomainDecomposition {
@@ -330,6 +345,7 @@ impl DomainDecomposition {
             hist_sum: Vec::new(),
             chooser: LayoutChooser::default(),
             load: PatchLoad::default(),
+            patch_blocks: Vec::new(),
         }
     }
 
@@ -475,19 +491,97 @@ impl DomainDecomposition {
     pub fn subgrid_nodes(&self) -> usize {
         *self.offsets.last().unwrap_or(&0)
     }
+
+    /// On a sparse grid (`blocks`), each patch's sub-grid is the stored blocks meeting it:
+    /// restrict the grid's map to every patch and size the sub-grids accordingly. On a dense
+    /// grid the sub-grids are the patches' node boxes ([`Self::rebuild_patches`]).
+    fn fit_subgrids(&mut self, blocks: Option<&BlockMap>) {
+        let Some(global) = blocks else {
+            self.patch_blocks.clear();
+            return;
+        };
+        self.patch_blocks.resize_with(self.patches.len(), BlockMap::default);
+        self.offsets.clear();
+        self.offsets.push(0);
+        let mut off = 0;
+        for (patch, map) in self.patches.iter().zip(&mut self.patch_blocks) {
+            map.restrict(global, patch.cell_lo, patch.node_hi());
+            off += map.num_nodes();
+            self.offsets.push(off);
+        }
+    }
+
+    /// Patch `j`'s sub-grid numbering.
+    #[inline]
+    fn subgrid_index(&self, j: usize) -> NodeIndex<'_> {
+        match self.patch_blocks.get(j) {
+            Some(map) => NodeIndex::Blocks(map),
+            None => self.patches[j].node_box(),
+        }
+    }
+
+    /// The sparse assembly: for each patch in turn, parallel over its blocks, store each of
+    /// the patch's nodes into `global` (numbered by `grid`) where the patch is the node's
+    /// first, add it elsewhere: the dense assembly's rule, node by node.
+    fn assemble_blocks<const K: usize>(
+        &self,
+        exec: &Exec<'_>,
+        grid: &BlockMap,
+        global: &mut [[f64; K]],
+        subgrids: &[[f64; K]],
+    ) {
+        let t = exec.workers();
+        let out = DisjointSlice::new(global);
+        for (j, (patch, map)) in self.patches.iter().zip(&self.patch_blocks).enumerate() {
+            let sub = &subgrids[self.offsets[j]..self.offsets[j + 1]];
+            let (lo, hi) = (patch.cell_lo, patch.node_hi());
+            exec.run(|w| {
+                for s in partition(map.len(), t, w) {
+                    let b = map.block(s);
+                    let g = grid.slot(b).expect("a patch's blocks are stored in the grid's map");
+                    // SAFETY: a patch's map lists distinct blocks of the grid (one per table
+                    // entry of its box), so their slots in the grid's map, and the node
+                    // ranges below, are distinct; workers take disjoint ranges of the
+                    // patch's blocks (one partition), and the patches are assembled one
+                    // phase after another.
+                    let dst = unsafe { out.range_mut(g * BLOCK_NODES..(g + 1) * BLOCK_NODES) };
+                    let src = &sub[s * BLOCK_NODES..(s + 1) * BLOCK_NODES];
+                    let [ri, rj, rk] = BlockMap::node_ranges(b, lo, hi);
+                    for c in rk {
+                        for bb in rj.clone() {
+                            for a in ri.clone() {
+                                let local = a + BLOCK * (bb + BLOCK * c);
+                                let node =
+                                    [b[0] * BLOCK + a - lo[0], b[1] * BLOCK + bb - lo[1], b[2] * BLOCK + c - lo[2]];
+                                if patch.is_first_holder(node) {
+                                    dst[local] = src[local];
+                                } else {
+                                    for k in 0..K {
+                                        dst[local][k] += src[local][k];
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            });
+        }
+    }
 }
 
 /// The DD strategy: [`ScatterStrategy::prepare`] cuts the patches for the grid (if it
 /// changed) and bins the particles; the scatter fills the sub-grids; the assembly adds them
 /// into the global arrays patch by patch.
 impl ScatterStrategy for DomainDecomposition {
-    fn reserve(&mut self, geom: &GridGeom) -> usize {
+    fn reserve(&mut self, geom: &GridGeom, blocks: Option<&BlockMap>) -> usize {
         self.cut(geom);
+        self.fit_subgrids(blocks);
         self.subgrid_nodes()
     }
 
-    /// Cut the patches for `geom` (if it changed) and bin the particles at `x`.
-    fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
+    /// Cut the patches for `geom` (if it changed), bin the particles at `x` and, on a
+    /// sparse grid, find each patch's blocks.
+    fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, blocks: Option<&BlockMap>, x: &[Vec3]) {
         self.cut(geom);
         if self.balanced {
             self.cut_balanced(exec, geom, x);
@@ -506,6 +600,7 @@ impl ScatterStrategy for DomainDecomposition {
         }
         self.load.record(&binning.patnp);
         self.binning = binning;
+        self.fit_subgrids(blocks);
     }
 
     /// Thread `j` zeroes sub-grid `j` of `subgrids` and scatters patch `j`'s particles into it.
@@ -513,6 +608,7 @@ impl ScatterStrategy for DomainDecomposition {
         &self,
         exec: &Exec<'_>,
         _geom: &GridGeom,
+        _index: &NodeIndex<'_>,
         _n: usize,
         _global: &mut [[f64; K]],
         subgrids: &mut Vec<[f64; K]>,
@@ -520,12 +616,12 @@ impl ScatterStrategy for DomainDecomposition {
     ) where
         F: Kernel<K>,
     {
-        subgrids.resize(self.subgrid_nodes(), [0.0; K]);
+        crate::resize_with_headroom(subgrids, self.subgrid_nodes(), [0.0; K]);
         exec.for_each_chunk_mut(Split::Offsets(&self.offsets).of(subgrids), |j, sub| {
             sub.fill([0.0; K]);
-            let bx = self.patches[j].node_box();
+            let index = self.subgrid_index(j);
             for &id in self.binning.column(j) {
-                bx.add(sub, &kernel.contribution(id as usize - 1));
+                add(&index, sub, &kernel.contribution(id as usize - 1));
             }
         });
     }
@@ -536,11 +632,16 @@ impl ScatterStrategy for DomainDecomposition {
         &self,
         exec: &Exec<'_>,
         geom: &GridGeom,
+        index: &NodeIndex<'_>,
         global: &mut [[f64; K]],
         subgrids: &[[f64; K]],
     ) {
         // The row ranges below are disjoint only for the grid the patches were cut for.
         assert!(self.cut_for == Some(*geom), "DD assembly on a grid the patches were not cut for");
+        if let NodeIndex::Blocks(grid) = index {
+            assert_eq!(self.patch_blocks.len(), self.patches.len(), "DD assembly on a sparse grid before its blocks");
+            return self.assemble_blocks(exec, grid, global, subgrids);
+        }
         let t = exec.workers();
         let out = DisjointSlice::new(global);
         for (j, patch) in self.patches.iter().enumerate() {
@@ -582,6 +683,8 @@ impl ScatterStrategy for DomainDecomposition {
             + crate::capacity_bytes(&self.cell_of)
             + crate::capacity_bytes(&self.hist)
             + crate::capacity_bytes(&self.hist_sum)
+            + self.patch_blocks.iter().map(BlockMap::bytes).sum::<usize>()
+            + crate::capacity_bytes(&self.patch_blocks)
     }
 }
 
@@ -710,8 +813,61 @@ mod tests {
             }
         }
         let mut global = vec![[f64::NAN; 2]; geom.num_nodes()];
-        in_region(threads, |exec| dd.assemble(exec, geom, &mut global, &buf));
+        in_region(threads, |exec| dd.assemble(exec, geom, &NodeIndex::of(geom, None), &mut global, &buf));
         assert_eq!(global, want, "cells {:?}, {threads} threads, balanced {}", geom.cells, dd.is_balanced());
+    }
+
+    /// On a sparse grid each patch's sub-grid is the stored blocks meeting it; the assembly
+    /// must store or add each patch's nodes exactly once into the grid's blocks, for every
+    /// layout (uniform and balanced cuts), over NaN-filled global arrays.
+    #[test]
+    fn sparse_assembly_sums_every_patch_block_exactly_once() {
+        // The particles fill 9 x 7 x 11 cells of a larger grid.
+        let geom = GridGeom::fixed(&GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [25, 19, 31] });
+        let x = clustered(3000);
+        let mut grid = BlockMap::default();
+        grid.build(&Exec::serial(), &geom, &x);
+        assert!(grid.num_nodes() < geom.num_nodes(), "the test wants a grid with blocks left out");
+        for balanced in [false, true] {
+            for threads in [1, 2, 3, 4, 6, 8] {
+                let mut dd =
+                    if balanced { DomainDecomposition::balanced(threads) } else { DomainDecomposition::new(threads) };
+                dd.reserve(&geom, Some(&grid));
+                in_region(threads, |exec| dd.prepare(exec, &geom, Some(&grid), &x));
+                let buf: Vec<[f64; 2]> = (0..dd.subgrid_nodes()).map(|i| [1.0 + i as f64, -0.5 * i as f64]).collect();
+                let mut want = vec![[0.0; 2]; grid.num_nodes()];
+                for (j, (p, map)) in dd.patches().iter().zip(&dd.patch_blocks).enumerate() {
+                    for s in 0..map.len() {
+                        let b = map.block(s);
+                        let g = grid.slot(b).unwrap();
+                        let [ri, rj, rk] = BlockMap::node_ranges(b, p.cell_lo, p.node_hi());
+                        for c in rk {
+                            for bb in rj.clone() {
+                                for a in ri.clone() {
+                                    let l = a + BLOCK * (bb + BLOCK * c);
+                                    for k in 0..2 {
+                                        want[g * BLOCK_NODES + l][k] += buf[dd.offsets[j] + s * BLOCK_NODES + l][k];
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+                let mut global = vec![[f64::NAN; 2]; grid.num_nodes()];
+                in_region(threads, |exec| dd.assemble(exec, &geom, &NodeIndex::Blocks(&grid), &mut global, &buf));
+                for s in 0..grid.len() {
+                    let [ri, rj, rk] = BlockMap::node_ranges(grid.block(s), [0; 3], geom.cells);
+                    for c in rk {
+                        for bb in rj.clone() {
+                            for a in ri.clone() {
+                                let n = s * BLOCK_NODES + a + BLOCK * (bb + BLOCK * c);
+                                assert_eq!(global[n], want[n], "node {n}, {threads} threads, balanced {balanced}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
     }
 
     /// Particles in a dense block plus a sparse spread over a 9 x 7 x 11 grid.
@@ -742,8 +898,8 @@ mod tests {
         let cell_of: Vec<[u32; 3]> = x.iter().map(|&p| geom.shape_cell(p).map(|v| v as u32)).collect();
         for threads in [1, 2, 3, 4, 6, 8] {
             let mut dd = DomainDecomposition::balanced(threads);
-            dd.reserve(&geom);
-            in_region(threads, |exec| dd.prepare(exec, &geom, &x));
+            dd.reserve(&geom, None);
+            in_region(threads, |exec| dd.prepare(exec, &geom, None, &x));
             assert_eq!(dd.cuts(), &Cuts::balanced(&cell_of, geom.cells, dd.layout()), "{threads} threads");
             let mut listed = 0;
             for (j, p) in dd.patches().iter().enumerate() {

@@ -24,10 +24,10 @@ pub mod cuts;
 pub mod domain_decomposition;
 pub mod serial;
 
-use crate::grid::GridGeom;
+use crate::blocks::BlockMap;
+use crate::grid::{GridGeom, NodeIndex};
 use crate::math::Vec3;
 use crate::parallel::Exec;
-use crate::shape;
 use serde::{Deserialize, Serialize};
 
 pub use array_expansion::ArrayExpansion;
@@ -175,32 +175,15 @@ impl<const K: usize, F: Fn(usize) -> Contribution<K> + Sync> Kernel<K> for F {
     }
 }
 
-/// A box of nodes with its own contiguous numbering: the global grid, an AE copy (the same
-/// box) or a DD sub-grid.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) struct NodeBox {
-    /// Global index of the box's first node (also its first cell).
-    pub lo: [usize; 3],
-    /// Nodes per axis.
-    pub dims: [usize; 3],
-}
-
-impl NodeBox {
-    /// The whole grid.
-    pub fn grid(geom: &GridGeom) -> Self {
-        Self { lo: [0; 3], dims: geom.node_dims() }
-    }
-
-    /// Add a particle's contribution (its cell must lie in the box).
-    #[inline(always)]
-    pub fn add<const K: usize>(&self, data: &mut [[f64; K]], con: &Contribution<K>) {
-        let local = std::array::from_fn(|d| con.cell[d] - self.lo[d]);
-        let idx = shape::cell_nodes(self.dims, local);
-        for q in 0..8 {
-            let d = &mut data[idx[q]];
-            for k in 0..K {
-                d[k] += con.c[q][k];
-            }
+/// Add a particle's contribution at the nodes `index` gives its cell (every node of the
+/// cell must be stored there).
+#[inline(always)]
+pub(crate) fn add<const K: usize>(index: &NodeIndex<'_>, data: &mut [[f64; K]], con: &Contribution<K>) {
+    let idx = index.cell_nodes(con.cell);
+    for q in 0..8 {
+        let d = &mut data[idx[q]];
+        for k in 0..K {
+            d[k] += con.c[q][k];
         }
     }
 }
@@ -216,20 +199,24 @@ impl NodeBox {
 /// [`scatter`]: ScatterStrategy::scatter
 /// [`assemble`]: ScatterStrategy::assemble
 pub trait ScatterStrategy {
-    /// Get ready for `geom` (re-cut whatever depends on the grid) and return the length of
-    /// `parts` the scatter will need (0 if it scatters straight into the global arrays).
-    fn reserve(&mut self, geom: &GridGeom) -> usize;
+    /// Get ready for `geom`, whose nodes are stored in `blocks` if it is sparse (re-cut
+    /// whatever depends on the grid), and return the length of `parts` the scatter will need
+    /// (0 if it scatters straight into the global arrays).
+    fn reserve(&mut self, geom: &GridGeom, blocks: Option<&BlockMap>) -> usize;
 
-    /// Per-step work before the first scatter, given the particle positions `x`.
-    fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]);
+    /// Per-step work before the first scatter, given the particle positions `x` and, on a
+    /// sparse grid, the blocks stored this step.
+    fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, blocks: Option<&BlockMap>, x: &[Vec3]);
 
-    /// Add `kernel.contribution(p)` of every particle `p < n`, either into `global` (zeroed first) or
-    /// into `parts` for [`ScatterStrategy::assemble`] to sum into `global`.
+    /// Add `kernel.contribution(p)` of every particle `p < n`, either into `global` (zeroed
+    /// first; its nodes numbered by `index`) or into `parts` for
+    /// [`ScatterStrategy::assemble`] to sum into `global`.
     #[allow(clippy::too_many_arguments)]
     fn scatter<const K: usize, F>(
         &self,
         exec: &Exec<'_>,
         geom: &GridGeom,
+        index: &NodeIndex<'_>,
         n: usize,
         global: &mut [[f64; K]],
         parts: &mut Vec<[f64; K]>,
@@ -239,7 +226,14 @@ pub trait ScatterStrategy {
 
     /// Make `global` the sum of what [`ScatterStrategy::scatter`] put into `parts` (nothing
     /// to do if it scattered into `global`).
-    fn assemble<const K: usize>(&self, exec: &Exec<'_>, geom: &GridGeom, global: &mut [[f64; K]], parts: &[[f64; K]]);
+    fn assemble<const K: usize>(
+        &self,
+        exec: &Exec<'_>,
+        geom: &GridGeom,
+        index: &NodeIndex<'_>,
+        global: &mut [[f64; K]],
+        parts: &[[f64; K]],
+    );
 
     /// Bytes held by the strategy's own tables (not `parts`).
     fn bytes(&self) -> usize;
@@ -275,21 +269,23 @@ impl Engine {
     }
 
     /// See [`ScatterStrategy::reserve`].
-    pub fn reserve(&mut self, geom: &GridGeom) -> usize {
-        dispatch!(self, s => s.reserve(geom))
+    pub fn reserve(&mut self, geom: &GridGeom, blocks: Option<&BlockMap>) -> usize {
+        dispatch!(self, s => s.reserve(geom, blocks))
     }
 
     /// See [`ScatterStrategy::prepare`].
-    pub fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, x: &[Vec3]) {
-        dispatch!(self, s => s.prepare(exec, geom, x))
+    pub fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, blocks: Option<&BlockMap>, x: &[Vec3]) {
+        dispatch!(self, s => s.prepare(exec, geom, blocks, x))
     }
 
     /// See [`ScatterStrategy::scatter`].
     #[inline]
+    #[allow(clippy::too_many_arguments)]
     pub fn scatter<const K: usize, F>(
         &self,
         exec: &Exec<'_>,
         geom: &GridGeom,
+        index: &NodeIndex<'_>,
         n: usize,
         global: &mut [[f64; K]],
         parts: &mut Vec<[f64; K]>,
@@ -297,7 +293,7 @@ impl Engine {
     ) where
         F: Kernel<K>,
     {
-        dispatch!(self, s => s.scatter(exec, geom, n, global, parts, kernel))
+        dispatch!(self, s => s.scatter(exec, geom, index, n, global, parts, kernel))
     }
 
     /// See [`ScatterStrategy::assemble`].
@@ -306,10 +302,11 @@ impl Engine {
         &self,
         exec: &Exec<'_>,
         geom: &GridGeom,
+        index: &NodeIndex<'_>,
         global: &mut [[f64; K]],
         parts: &[[f64; K]],
     ) {
-        dispatch!(self, s => s.assemble(exec, geom, global, parts))
+        dispatch!(self, s => s.assemble(exec, geom, index, global, parts))
     }
 
     /// See [`ScatterStrategy::bytes`].

@@ -145,7 +145,8 @@ fn simulation(
         grid_mode: match o.grid {
             Some(GridArg::Fixed) => GridMode::Fixed,
             Some(GridArg::Adaptive) => GridMode::Adaptive,
-            None => scenario.default_grid(),
+            Some(GridArg::Sparse) => GridMode::Sparse,
+            None => scenario.default_grid(exchange.as_ref().is_some_and(|e| e.ranks() > 1)),
         },
         cfl: scenario.cfl(),
         bulk_viscosity: o.q,

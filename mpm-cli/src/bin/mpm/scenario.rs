@@ -94,10 +94,13 @@ impl ScenarioRun {
         })
     }
 
-    pub fn default_grid(&self) -> GridMode {
+    /// The grid when `--grid` is not given; `distributed` for a run over several ranks,
+    /// which the sparse grid does not support.
+    pub fn default_grid(&self, distributed: bool) -> GridMode {
         match self {
             ScenarioRun::Taylor(_) | ScenarioRun::Plate(_) => GridMode::Fixed,
-            ScenarioRun::Impact(_) => GridMode::Adaptive,
+            ScenarioRun::Impact(_) if distributed => GridMode::Adaptive,
+            ScenarioRun::Impact(_) => GridMode::Sparse,
         }
     }
 
