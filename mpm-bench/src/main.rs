@@ -237,7 +237,8 @@ struct RunArgs {
     /// Warm-up steps (timed, excluded from the steady-state time per step).
     #[arg(long, value_name = "K")]
     warmup: Option<u64>,
-    /// Grid mode: fixed or adaptive.
+    /// Grid mode: fixed, adaptive, or sparse (the adaptive grid storing only the blocks of
+    /// nodes the particles touch: the same results, less memory; one process only).
     #[arg(long, value_name = "MODE")]
     grid: Option<String>,
     /// Treat the machine as having at most this much memory (e.g. 8GiB) for the memory

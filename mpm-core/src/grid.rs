@@ -219,6 +219,40 @@ impl<'a> NodeIndex<'a> {
     }
 }
 
+/// [`NodeIndex::cell_nodes`] for a loop over particles, remembering the last cell's nodes.
+/// Neighbouring particles often share a cell (4-5 in a row along x in the impact's
+/// lattices), and on the sparse grid a repeat then skips the block look-ups; on a dense grid
+/// the indices are computed every time (8 additions).
+#[derive(Clone, Copy, Debug)]
+pub struct CellNodes<'a> {
+    index: NodeIndex<'a>,
+    key: usize,
+    nodes: [usize; 8],
+}
+
+impl<'a> CellNodes<'a> {
+    /// A cursor over `index` with no cell remembered.
+    pub fn new(index: NodeIndex<'a>) -> Self {
+        Self { index, key: usize::MAX, nodes: [0; 8] }
+    }
+
+    /// Indices of the 8 nodes of `cell`, as [`NodeIndex::cell_nodes`].
+    #[inline(always)]
+    pub fn get(&mut self, cell: [usize; 3]) -> [usize; 8] {
+        match self.index {
+            NodeIndex::Box { .. } => self.index.cell_nodes(cell),
+            NodeIndex::Blocks(map) => {
+                let key = map.cell_key(cell);
+                if key != self.key {
+                    self.key = key;
+                    self.nodes = map.cell_nodes(cell);
+                }
+                self.nodes
+            }
+        }
+    }
+}
+
 /// What a wall does to the nodes on it (paper Eq. 6: momentum and force are zeroed).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Default)]
 #[serde(rename_all = "lowercase")]

@@ -5,9 +5,9 @@
 //!
 //! They are public so that benchmarks measure exactly the code the solver runs.
 
-use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
+use crate::blocks::{local, BlockMap, BLOCK, BLOCK_NODES};
 use crate::energy::Partial;
-use crate::grid::{GridGeom, NodeArrays, NodeIndex, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
+use crate::grid::{CellNodes, GridGeom, NodeArrays, NodeIndex, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
 use crate::material::{update_point, PointConsts, PointState, PressureModel};
 use crate::math::{sym_mul_vec, Sym, Vec3};
 use crate::parallel::{partition, Exec, Split};
@@ -140,11 +140,11 @@ fn visit_nodes(
                 let [ri, rj, rk] = BlockMap::node_ranges(b, [0; 3], geom.cells);
                 for c in rk {
                     for bb in rj.clone() {
-                        let mask_row = walls.row_mask(b[1] * BLOCK + bb, b[2] * BLOCK + c);
+                        let mask_row = walls.row_mask(b[1] * BLOCK[1] + bb, b[2] * BLOCK[2] + c);
                         for a in ri.clone() {
-                            let local = a + BLOCK * (bb + BLOCK * c);
-                            let mask = walls.node_mask(mask_row, b[0] * BLOCK + a, has_x);
-                            f(s * BLOCK_NODES + local, mask, (s - first) * BLOCK_NODES + local);
+                            let l = local(a, bb, c);
+                            let mask = walls.node_mask(mask_row, b[0] * BLOCK[0] + a, has_x);
+                            f(s * BLOCK_NODES + l, mask, (s - first) * BLOCK_NODES + l);
                         }
                     }
                 }
@@ -234,9 +234,10 @@ pub fn gather(
     let n = x.len();
     let t = exec.workers();
     exec.for_each_chunk_mut(Split::Even.of(v), |w, vw| {
+        let mut nodes = CellNodes::new(*index);
         for (vp, xp) in vw.iter_mut().zip(&x[partition(n, t, w)]) {
             let s = geom.shape(*xp);
-            let idx = index.cell_nodes(s.cell);
+            let idx = nodes.get(s.cell);
             let mut acc = [0.0; 3];
             for q in 0..8 {
                 let a = &kin[idx[q]];
@@ -380,10 +381,11 @@ pub fn update<E: PressureModel + Sync>(
     exec.for_each_chunk_mut(chunks, |w, (x, rho, stress, eps_p, e_int, sound, failed, acc)| {
         let r = partition(n, t, w);
         let mut sum = Partial::default();
+        let mut nodes = CellNodes::new(*index);
         for k in 0..r.len() {
             let p = r.start + k;
             let s = geom.shape(x[k]);
-            let idx = index.cell_nodes(s.cell);
+            let idx = nodes.get(s.cell);
             let mut vx = [0.0; 3];
             for q in 0..8 {
                 let vn = &kin[idx[q]];

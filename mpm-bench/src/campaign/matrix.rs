@@ -319,8 +319,12 @@ impl Campaign {
         if self.reps == 0 {
             bail!("repetitions must be at least 1");
         }
-        if self.grid != "fixed" && self.grid != "adaptive" {
-            bail!("unknown grid mode '{}' (known: fixed, adaptive)", self.grid);
+        let grid: mpm_core::GridMode =
+            self.grid.parse().map_err(|e: String| anyhow::anyhow!("{e} (the preset's `grid` or --grid)"))?;
+        if grid == mpm_core::GridMode::Sparse && self.ranks.iter().any(|&r| r > 1) {
+            bail!(
+                "the sparse grid runs in one process only: use grid = \"adaptive\" for a campaign over several ranks"
+            );
         }
         if self.scenario != "taylor" && self.scenario != "impact" {
             bail!("unknown scenario '{}' (the campaign harness runs: taylor, impact)", self.scenario);
@@ -505,8 +509,17 @@ mod tests {
         assert!(c.expand().iter().all(|r| r.ranks == 2));
         assert!(c.id.contains("ranks2"), "{}", c.id);
         let ov = Overrides { ranks: Some(vec![0, 1]), ..Overrides::default() };
-        let err = Campaign::resolve(p, "builtin".into(), &ov).unwrap_err().to_string();
+        let err = Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap_err().to_string();
         assert!(err.contains("rank counts must be at least 1"), "{err}");
+        // The sparse grid is one process's; an unknown grid names the known ones.
+        let ov = Overrides { grid: Some("sparse".into()), ..Overrides::default() };
+        assert_eq!(Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap().grid, "sparse");
+        let ov = Overrides { grid: Some("sparse".into()), ranks: Some(vec![1, 2]), ..Overrides::default() };
+        let err = Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap_err().to_string();
+        assert!(err.contains("one process only"), "{err}");
+        let ov = Overrides { grid: Some("dense".into()), ..Overrides::default() };
+        let err = Campaign::resolve(p, "builtin".into(), &ov).unwrap_err().to_string();
+        assert!(err.contains("'fixed', 'adaptive' or 'sparse'"), "{err}");
     }
 
     /// The preset's `ranks` and `launcher` keys; `--launcher` wins over the preset and is

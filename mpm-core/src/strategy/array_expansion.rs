@@ -6,7 +6,7 @@
 
 use super::{add, Kernel, ScatterStrategy};
 use crate::blocks::BlockMap;
-use crate::grid::{GridGeom, NodeIndex};
+use crate::grid::{CellNodes, GridGeom, NodeIndex};
 use crate::math::Vec3;
 use crate::parallel::{partition, Exec, Split};
 
@@ -39,8 +39,9 @@ pub fn scatter<const K: usize, F>(
     crate::resize_with_headroom(columns, nn * t, [0.0; K]);
     exec.for_each_chunk_mut(Split::Blocks(nn).of(columns), |j, column| {
         column.fill([0.0; K]);
+        let mut nodes = CellNodes::new(*index);
         for p in partition(n, t, j) {
-            add(index, column, &kernel.contribution(p));
+            add(&mut nodes, column, &kernel.contribution(p));
         }
     });
 }

@@ -49,8 +49,8 @@
 
 use super::cuts::{Cuts, LayoutChooser, PatchLoad};
 use super::{add, Kernel, ScatterStrategy};
-use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
-use crate::grid::{GridGeom, NodeIndex};
+use crate::blocks::{local, BlockMap, BLOCK, BLOCK_NODES};
+use crate::grid::{CellNodes, GridGeom, NodeIndex};
 use crate::math::Vec3;
 use crate::parallel::{partition, DisjointSlice, Exec, Split};
 use std::mem::size_of;
@@ -550,14 +550,17 @@ impl DomainDecomposition {
                     for c in rk {
                         for bb in rj.clone() {
                             for a in ri.clone() {
-                                let local = a + BLOCK * (bb + BLOCK * c);
-                                let node =
-                                    [b[0] * BLOCK + a - lo[0], b[1] * BLOCK + bb - lo[1], b[2] * BLOCK + c - lo[2]];
+                                let l = local(a, bb, c);
+                                let node = [
+                                    b[0] * BLOCK[0] + a - lo[0],
+                                    b[1] * BLOCK[1] + bb - lo[1],
+                                    b[2] * BLOCK[2] + c - lo[2],
+                                ];
                                 if patch.is_first_holder(node) {
-                                    dst[local] = src[local];
+                                    dst[l] = src[l];
                                 } else {
                                     for k in 0..K {
-                                        dst[local][k] += src[local][k];
+                                        dst[l][k] += src[l][k];
                                     }
                                 }
                             }
@@ -619,9 +622,9 @@ impl ScatterStrategy for DomainDecomposition {
         crate::resize_with_headroom(subgrids, self.subgrid_nodes(), [0.0; K]);
         exec.for_each_chunk_mut(Split::Offsets(&self.offsets).of(subgrids), |j, sub| {
             sub.fill([0.0; K]);
-            let index = self.subgrid_index(j);
+            let mut nodes = CellNodes::new(self.subgrid_index(j));
             for &id in self.binning.column(j) {
-                add(&index, sub, &kernel.contribution(id as usize - 1));
+                add(&mut nodes, sub, &kernel.contribution(id as usize - 1));
             }
         });
     }
@@ -844,7 +847,7 @@ mod tests {
                         for c in rk {
                             for bb in rj.clone() {
                                 for a in ri.clone() {
-                                    let l = a + BLOCK * (bb + BLOCK * c);
+                                    let l = local(a, bb, c);
                                     for k in 0..2 {
                                         want[g * BLOCK_NODES + l][k] += buf[dd.offsets[j] + s * BLOCK_NODES + l][k];
                                     }
@@ -860,7 +863,7 @@ mod tests {
                     for c in rk {
                         for bb in rj.clone() {
                             for a in ri.clone() {
-                                let n = s * BLOCK_NODES + a + BLOCK * (bb + BLOCK * c);
+                                let n = s * BLOCK_NODES + local(a, bb, c);
                                 assert_eq!(global[n], want[n], "node {n}, {threads} threads, balanced {balanced}");
                             }
                         }

@@ -25,7 +25,7 @@ pub mod domain_decomposition;
 pub mod serial;
 
 use crate::blocks::BlockMap;
-use crate::grid::{GridGeom, NodeIndex};
+use crate::grid::{CellNodes, GridGeom, NodeIndex};
 use crate::math::Vec3;
 use crate::parallel::Exec;
 use serde::{Deserialize, Serialize};
@@ -175,11 +175,11 @@ impl<const K: usize, F: Fn(usize) -> Contribution<K> + Sync> Kernel<K> for F {
     }
 }
 
-/// Add a particle's contribution at the nodes `index` gives its cell (every node of the
+/// Add a particle's contribution at the nodes `nodes` gives its cell (every node of the
 /// cell must be stored there).
 #[inline(always)]
-pub(crate) fn add<const K: usize>(index: &NodeIndex<'_>, data: &mut [[f64; K]], con: &Contribution<K>) {
-    let idx = index.cell_nodes(con.cell);
+pub(crate) fn add<const K: usize>(nodes: &mut CellNodes<'_>, data: &mut [[f64; K]], con: &Contribution<K>) {
+    let idx = nodes.get(con.cell);
     for q in 0..8 {
         let d = &mut data[idx[q]];
         for k in 0..K {

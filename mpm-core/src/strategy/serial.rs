@@ -3,7 +3,7 @@
 
 use super::{add, Kernel, ScatterStrategy};
 use crate::blocks::BlockMap;
-use crate::grid::{GridGeom, NodeIndex};
+use crate::grid::{CellNodes, GridGeom, NodeIndex};
 use crate::math::Vec3;
 use crate::parallel::Exec;
 
@@ -17,8 +17,9 @@ where
     F: Kernel<K>,
 {
     global.fill([0.0; K]);
+    let mut nodes = CellNodes::new(*index);
     for p in 0..n {
-        add(index, global, &kernel.contribution(p));
+        add(&mut nodes, global, &kernel.contribution(p));
     }
 }
 
