@@ -14,9 +14,10 @@
 #   IMPACT_EXTRA_ARGS  more options for every `mpm run impact`, e.g. "--steps 3" for a smoke
 #                      test into a temporary IMPACT_RESULTS
 #
-# Times on the development machine (2 cores): the small model 40 s, 1 min and 2.4 min at
-# 2.12, 1.59 and 1.06 mm cells; the large model (13.5 M particles) 28 min with an 8.3 GiB
-# peak (the dense adaptive grid: ARCHITECTURE.md, "Memory of the adaptive grid").
+# Times on the development machine (2 cores), on the sparse grid (the impact's default): the
+# small model 34 s, 53 s and 1.6 min at 2.12, 1.59 and 1.06 mm cells; the large model
+# (13.5 M particles) 24.4 min with a 2.6 GiB peak (8.3 GiB on the dense adaptive grid,
+# --grid adaptive: ARCHITECTURE.md, "Memory of the adaptive grid: the sparse grid").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 [ -f "$HOME/.cargo/env" ] && . "$HOME/.cargo/env"
@@ -38,7 +39,7 @@ for a in "$@"; do
         --force) force=1 ;;
         all) runs+=("${small[@]}" large) ;;
         small) runs+=("${small[@]}") ;;
-        -h|--help) sed -n '2,19p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h|--help) sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *)
             if [ -z "${model[$a]+x}" ]; then
                 echo "error: unknown run '$a': use all, small, large or one of ${!model[*]}" >&2
