@@ -674,6 +674,12 @@ pub struct Summary {
 }
 
 impl Summary {
+    /// The nodes the last step stored when the run used the sparse grid (`None` on a dense
+    /// grid, where they are `final_nodes`, and in older summaries).
+    pub fn sparse_stored_nodes(&self) -> Option<usize> {
+        self.final_stored_nodes.filter(|_| self.grid_mode == mpm_core::GridMode::Sparse.name())
+    }
+
     /// Build the summary of a finished run from its simulation and what the program
     /// measured (`ctx`). `peak_rss_bytes` is left for the caller to read last.
     pub fn build(sim: &Simulation, ctx: RunContext<'_>) -> Self {

@@ -27,6 +27,7 @@ use crate::capacity_bytes;
 use crate::grid::GridGeom;
 use crate::math::Vec3;
 use crate::parallel::{partition, Exec};
+use std::ops::Range;
 use std::sync::atomic::{AtomicU8, Ordering};
 
 /// Nodes per block along x, y and z (powers of two). On the impact (1.59 mm cells, 100
@@ -237,13 +238,27 @@ impl BlockMap {
     /// `lo ..= hi` (grid node coordinates), as block-local `start..end`; empty if the block
     /// does not meet the box.
     #[inline]
-    pub fn node_ranges(block: [usize; 3], lo: [usize; 3], hi: [usize; 3]) -> [std::ops::Range<usize>; 3] {
+    pub fn node_ranges(block: [usize; 3], lo: [usize; 3], hi: [usize; 3]) -> [Range<usize>; 3] {
         std::array::from_fn(|d| {
             let first = block[d] * BLOCK[d];
             let start = lo[d].saturating_sub(first).min(BLOCK[d]);
             let end = (hi[d] + 1).saturating_sub(first).min(BLOCK[d]);
             start..end.max(start)
         })
+    }
+
+    /// The nodes of block `block` (block coordinates) that lie in the node box `lo ..= hi`
+    /// (grid node coordinates), a row along x at a time: `f(first, locals)` with `first` the
+    /// row's first node as an offset `[a, b, c]` from the block's first node and `locals`
+    /// the row's block-local indices (consecutive).
+    #[inline]
+    pub fn rows_in(block: [usize; 3], lo: [usize; 3], hi: [usize; 3], mut f: impl FnMut([usize; 3], Range<usize>)) {
+        let [ri, rj, rk] = Self::node_ranges(block, lo, hi);
+        for c in rk {
+            for b in rj.clone() {
+                f([ri.start, b, c], local(ri.start, b, c)..local(ri.end, b, c));
+            }
+        }
     }
 
     /// Bytes held.

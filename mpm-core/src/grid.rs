@@ -208,6 +208,14 @@ impl<'a> NodeIndex<'a> {
         }
     }
 
+    /// Nodes numbered: the box's, or the stored blocks'.
+    pub fn num_nodes(&self) -> usize {
+        match self {
+            NodeIndex::Box { dims, .. } => dims.iter().product(),
+            NodeIndex::Blocks(map) => map.num_nodes(),
+        }
+    }
+
     /// Indices of the 8 nodes of `cell` (the grid's cell numbering), in the order of
     /// [`crate::shape`].
     #[inline(always)]

@@ -249,7 +249,7 @@ impl Simulation {
             map
         });
         let mut nodes = NodeArrays::default();
-        nodes.resize(blocks.as_ref().map_or(geom.num_nodes(), BlockMap::num_nodes));
+        nodes.resize(NodeIndex::of(&geom, blocks.as_ref()).num_nodes());
         // Size the strategy's buffers for the initial grid now, so that memory figures are
         // right before the first step and the first step does not allocate either.
         let mut engine = Engine::new(config.strategy, config.threads);
@@ -363,7 +363,7 @@ impl Simulation {
     /// Nodes stored on the last step's grid: every node of a dense grid, the stored blocks'
     /// nodes of a sparse one.
     pub fn stored_nodes(&self) -> usize {
-        self.blocks.as_ref().map_or(self.geom.num_nodes(), BlockMap::num_nodes)
+        self.node_index().num_nodes()
     }
 
     /// Simulated time (s).
@@ -514,16 +514,14 @@ impl Simulation {
             let geom = self.exchange.local_grid(&global);
             if geom != self.geom {
                 self.geom = geom;
-                if self.blocks.is_none() {
-                    self.nodes.resize(geom.num_nodes());
-                }
                 self.wall_layers.resolve(&self.walls, &geom);
             }
         }
         if let Some(map) = &mut self.blocks {
             map.build(exec, &self.geom, &self.particles.x);
-            self.nodes.resize(map.num_nodes());
         }
+        // Unchanged length (a dense grid that kept its box): nothing to do.
+        self.nodes.resize(self.stored_nodes());
         self.node_steps += self.stored_nodes() as u128;
         lap.lap(&mut self.times, Substage::GridFit);
         self.engine.prepare(exec, &self.geom, self.blocks.as_ref(), &self.particles.x);

@@ -5,7 +5,7 @@
 //!
 //! They are public so that benchmarks measure exactly the code the solver runs.
 
-use crate::blocks::{local, BlockMap, BLOCK, BLOCK_NODES};
+use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
 use crate::energy::Partial;
 use crate::grid::{CellNodes, GridGeom, NodeArrays, NodeIndex, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
 use crate::material::{update_point, PointConsts, PointState, PressureModel};
@@ -137,17 +137,13 @@ fn visit_nodes(
             let first = parts.start;
             for s in parts {
                 let b = map.block(s);
-                let [ri, rj, rk] = BlockMap::node_ranges(b, [0; 3], geom.cells);
-                for c in rk {
-                    for bb in rj.clone() {
-                        let mask_row = walls.row_mask(b[1] * BLOCK[1] + bb, b[2] * BLOCK[2] + c);
-                        for a in ri.clone() {
-                            let l = local(a, bb, c);
-                            let mask = walls.node_mask(mask_row, b[0] * BLOCK[0] + a, has_x);
-                            f(s * BLOCK_NODES + l, mask, (s - first) * BLOCK_NODES + l);
-                        }
+                BlockMap::rows_in(b, [0; 3], geom.cells, |[a0, bb, c], locals| {
+                    let mask_row = walls.row_mask(b[1] * BLOCK[1] + bb, b[2] * BLOCK[2] + c);
+                    for (a, l) in (a0..).zip(locals) {
+                        let mask = walls.node_mask(mask_row, b[0] * BLOCK[0] + a, has_x);
+                        f(s * BLOCK_NODES + l, mask, (s - first) * BLOCK_NODES + l);
                     }
-                }
+                });
             }
         }
     }

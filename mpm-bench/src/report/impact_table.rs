@@ -181,8 +181,7 @@ fn row(r: &ImpactRun) -> Vec<String> {
             |o| {
                 let share = 100.0 * o.occupied_cells as f64 / o.cells.max(1) as f64;
                 let stored = s
-                    .final_stored_nodes
-                    .filter(|&n| n != s.final_nodes)
+                    .sparse_stored_nodes()
                     .map_or_else(String::new, |n| format!("; {} stored", group_digits(n as u64)));
                 format!("{} ({share:.1} %){stored}", group_digits(s.final_nodes as u64))
             },

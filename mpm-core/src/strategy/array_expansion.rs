@@ -66,7 +66,7 @@ pub fn assemble<const K: usize>(exec: &Exec<'_>, global: &mut [[f64; K]], column
 
 impl ScatterStrategy for ArrayExpansion {
     fn reserve(&mut self, geom: &GridGeom, blocks: Option<&BlockMap>) -> usize {
-        blocks.map_or(geom.num_nodes(), BlockMap::num_nodes) * self.threads
+        NodeIndex::of(geom, blocks).num_nodes() * self.threads
     }
 
     fn prepare(&mut self, _exec: &Exec<'_>, _geom: &GridGeom, _blocks: Option<&BlockMap>, _x: &[Vec3]) {}

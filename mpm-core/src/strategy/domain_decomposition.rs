@@ -49,7 +49,7 @@
 
 use super::cuts::{Cuts, LayoutChooser, PatchLoad};
 use super::{add, Kernel, ScatterStrategy};
-use crate::blocks::{local, BlockMap, BLOCK, BLOCK_NODES};
+use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
 use crate::grid::{CellNodes, GridGeom, NodeIndex};
 use crate::math::Vec3;
 use crate::parallel::{partition, DisjointSlice, Exec, Split};
@@ -546,26 +546,19 @@ impl DomainDecomposition {
                     // phase after another.
                     let dst = unsafe { out.range_mut(g * BLOCK_NODES..(g + 1) * BLOCK_NODES) };
                     let src = &sub[s * BLOCK_NODES..(s + 1) * BLOCK_NODES];
-                    let [ri, rj, rk] = BlockMap::node_ranges(b, lo, hi);
-                    for c in rk {
-                        for bb in rj.clone() {
-                            for a in ri.clone() {
-                                let l = local(a, bb, c);
-                                let node = [
-                                    b[0] * BLOCK[0] + a - lo[0],
-                                    b[1] * BLOCK[1] + bb - lo[1],
-                                    b[2] * BLOCK[2] + c - lo[2],
-                                ];
-                                if patch.is_first_holder(node) {
-                                    dst[l] = src[l];
-                                } else {
-                                    for k in 0..K {
-                                        dst[l][k] += src[l][k];
-                                    }
+                    BlockMap::rows_in(b, lo, hi, |[a0, bb, c], locals| {
+                        // The node's position in the patch, as `is_first_holder` takes it.
+                        let (py, pz) = (b[1] * BLOCK[1] + bb - lo[1], b[2] * BLOCK[2] + c - lo[2]);
+                        for (a, l) in (a0..).zip(locals) {
+                            if patch.is_first_holder([b[0] * BLOCK[0] + a - lo[0], py, pz]) {
+                                dst[l] = src[l];
+                            } else {
+                                for v in 0..K {
+                                    dst[l][v] += src[l][v];
                                 }
                             }
                         }
-                    }
+                    });
                 }
             });
         }
@@ -843,31 +836,24 @@ mod tests {
                     for s in 0..map.len() {
                         let b = map.block(s);
                         let g = grid.slot(b).unwrap();
-                        let [ri, rj, rk] = BlockMap::node_ranges(b, p.cell_lo, p.node_hi());
-                        for c in rk {
-                            for bb in rj.clone() {
-                                for a in ri.clone() {
-                                    let l = local(a, bb, c);
-                                    for k in 0..2 {
-                                        want[g * BLOCK_NODES + l][k] += buf[dd.offsets[j] + s * BLOCK_NODES + l][k];
-                                    }
+                        BlockMap::rows_in(b, p.cell_lo, p.node_hi(), |_, locals| {
+                            for l in locals {
+                                for k in 0..2 {
+                                    want[g * BLOCK_NODES + l][k] += buf[dd.offsets[j] + s * BLOCK_NODES + l][k];
                                 }
                             }
-                        }
+                        });
                     }
                 }
                 let mut global = vec![[f64::NAN; 2]; grid.num_nodes()];
                 in_region(threads, |exec| dd.assemble(exec, &geom, &NodeIndex::Blocks(&grid), &mut global, &buf));
                 for s in 0..grid.len() {
-                    let [ri, rj, rk] = BlockMap::node_ranges(grid.block(s), [0; 3], geom.cells);
-                    for c in rk {
-                        for bb in rj.clone() {
-                            for a in ri.clone() {
-                                let n = s * BLOCK_NODES + local(a, bb, c);
-                                assert_eq!(global[n], want[n], "node {n}, {threads} threads, balanced {balanced}");
-                            }
+                    BlockMap::rows_in(grid.block(s), [0; 3], geom.cells, |_, locals| {
+                        for l in locals {
+                            let n = s * BLOCK_NODES + l;
+                            assert_eq!(global[n], want[n], "node {n}, {threads} threads, balanced {balanced}");
                         }
-                    }
+                    });
                 }
             }
         }

@@ -190,10 +190,9 @@ fn physics(s: &Summary) -> Vec<String> {
         s.model_memory_bytes as f64 / 1048576.0
     ));
     if let Some(o) = s.final_occupancy {
-        let stored = match s.final_stored_nodes.filter(|&n| n != s.final_nodes) {
-            Some(n) => format!(" in its box, {} stored ({} grid)", group_digits(n as u64), s.grid_mode),
-            None => String::new(),
-        };
+        let stored = s.sparse_stored_nodes().map_or_else(String::new, |n| {
+            format!(" in its box, {} stored ({} grid)", group_digits(n as u64), s.grid_mode)
+        });
         lines.push(format!(
             "final grid: {} nodes{stored}; particles in {} of its {} cells ({:.1} %) and in {} blocks of {}^3 cells",
             group_digits(s.final_nodes as u64),
