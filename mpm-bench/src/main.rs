@@ -392,8 +392,11 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
             })
         })
         .transpose()?;
-    let opt =
-        a.opt.as_deref().map(|s| preset::parse_list(s, "optimisation level", |x| x.parse::<OptLevel>())).transpose()?;
+    let opt = a
+        .opt
+        .as_deref()
+        .map(|s| preset::parse_list(s, "optimisation level", |x| x.parse::<OptLevel>().map_err(anyhow::Error::msg)))
+        .transpose()?;
     let places = a.places.unwrap_or_default();
     let pin = if a.bind.is_empty() {
         None
@@ -413,7 +416,7 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         steps: a.steps,
         end_time: a.end_time.as_deref().map(preset::parse_seconds).transpose()?,
         warmup: a.warmup,
-        grid: a.grid.clone(),
+        grid: a.grid.as_deref().map(str::parse::<mpm_core::GridMode>).transpose().map_err(anyhow::Error::msg)?,
         mem_limit: a.mem_limit.as_deref().map(preset::parse_size).transpose()?,
         seed: a.seed,
     })

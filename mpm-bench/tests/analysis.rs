@@ -7,7 +7,6 @@ use mpm_bench::analysis::results::load_campaign;
 use mpm_bench::analysis::stats::{Analysis, CellKey, Stage, StatsOptions};
 use mpm_bench::campaign::record::{read_rows, CsvLog, Row, Status};
 use mpm_bench::machine::bandwidth;
-use mpm_bench::report::comparison::{self as report, ReportArgs};
 use mpm_bench::report::figures::{self, FiguresArgs};
 use std::path::{Path, PathBuf};
 
@@ -302,17 +301,19 @@ fn noisy_rows_are_excluded_unless_asked_and_grey_in_figures() {
     let extra: Vec<Row> = read_rows(&csv)
         .unwrap()
         .into_iter()
-        .filter(|r| r.threads > 1 && r.status == Status::Ok)
+        .filter(|r| r.threads() > 1 && r.outcome.status == Status::Ok)
         .flat_map(|r| {
-            (10..13).map(move |rep| Row {
-                rep,
-                run_id: format!("{}-busy{rep}", r.run_id),
-                steady_s_per_step: r.steady_s_per_step.map(|t| 3.0 * t),
-                grid_stage_s: r.grid_stage_s.map(|t| 3.0 * t),
-                particle_stage_s: r.particle_stage_s.map(|t| 3.0 * t),
-                host_noisy: true,
-                host_noise: "its CPUs 60 % busy with other work before the run".into(),
-                ..r.clone()
+            (10..13).map(move |rep| {
+                let mut b = r.clone();
+                b.run.rep = rep;
+                b.id.run_id = format!("{}-busy{rep}", r.id.run_id);
+                let m = &mut b.measured;
+                for t in [&mut m.steady_s_per_step, &mut m.steady_grid_stage_s, &mut m.steady_particle_stage_s] {
+                    *t = t.map(|t| 3.0 * t);
+                }
+                b.host.host_noisy = true;
+                b.host.host_noise = "its CPUs 60 % busy with other work before the run".into();
+                b
             })
         })
         .collect();
@@ -488,25 +489,42 @@ fn bandwidth_smoke() {
     assert_eq!(r.bytes_per_element, 24);
 }
 
-/// Run every analysis command on a real campaign: `MPM_ANALYSIS_DIR=... cargo test ... -- --ignored`.
+/// Every campaign committed under results/ (whatever its CSV schema) loads in every
+/// analysis command: `figures`, `claims`, `regress` against itself (which passes) and
+/// `report`, through the real binary.
 #[test]
-#[ignore]
-fn on_campaign_from_env() {
-    let Ok(dir) = std::env::var("MPM_ANALYSIS_DIR") else { return };
-    let out = PathBuf::from(std::env::var("MPM_ANALYSIS_OUT").unwrap_or_else(|_| "/tmp/mpm-analysis".into()));
-    figures::run(FiguresArgs { results: dir.clone().into(), out: out.join("figures"), pin: None }).unwrap();
-    claims::run(claims::ClaimsArgs {
-        results: dir.clone().into(),
-        markdown: Some(out.join("claims.md")),
-        pin: None,
-        include_noisy: false,
-    })
-    .unwrap();
-    let code = regress::run(RegressArgs {
-        json: Some(out.join("regress.json")),
-        ..regress_args(Path::new(&dir), Path::new(&dir))
-    })
-    .unwrap();
-    assert_eq!(code, 0);
-    report::run(ReportArgs { dirs: vec![dir.clone().into(), dir.into()], out: out.join("report"), pin: None }).unwrap();
+fn every_committed_campaign_loads_in_every_analysis_command() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results");
+    let mut dirs = Vec::new();
+    let mut stack = vec![root];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap().flatten() {
+            if e.path().is_dir() {
+                stack.push(e.path());
+            } else if e.file_name() == "runs.csv" {
+                dirs.push(d.clone());
+            }
+        }
+    }
+    assert!(dirs.len() >= 5, "{dirs:?}");
+    let tmp = tempfile::tempdir().unwrap();
+    for (i, d) in dirs.iter().enumerate() {
+        let out = tmp.path().join(i.to_string());
+        let dir = d.to_str().unwrap();
+        let run = |args: &[&str]| {
+            let o = std::process::Command::new(env!("CARGO_BIN_EXE_mpm-bench")).args(args).output().unwrap();
+            (o.status.code(), String::from_utf8_lossy(&o.stderr).into_owned())
+        };
+        let figs = out.join("figures");
+        let (code, err) = run(&["figures", "--results", dir, "--out", figs.to_str().unwrap()]);
+        assert_eq!(code, Some(0), "figures of {dir}: {err}");
+        let (code, err) = run(&["claims", "--results", dir]);
+        assert_eq!(code, Some(0), "claims of {dir}: {err}");
+        let (code, err) = run(&["regress", "--baseline", dir, "--current", dir]);
+        assert_eq!(code, Some(0), "regress of {dir} against itself: {err}");
+        let rep = out.join("report");
+        let (code, err) = run(&["report", "--results", dir, "--out", rep.to_str().unwrap()]);
+        assert_eq!(code, Some(0), "report of {dir}: {err}");
+        assert!(rep.join("index.html").is_file());
+    }
 }

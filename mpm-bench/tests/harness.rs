@@ -12,7 +12,8 @@ use mpm_bench::campaign::solver::Solver;
 use mpm_bench::machine::fingerprint;
 use mpm_bench::machine::placement::PinPolicy;
 use mpm_bench::machine::topology::Machine;
-use mpm_core::Strategy;
+use mpm_core::{Strategy, Substage};
+use mpm_spec::summary::EndReason;
 use std::collections::HashSet;
 use std::path::Path;
 use std::process::Command;
@@ -60,7 +61,9 @@ fn matrix_expansion_covers_every_cell() {
         for opt in [OptLevel::O3, OptLevel::O0] {
             for s in [Strategy::ArrayExpansion, Strategy::DomainDecomposition] {
                 for t in [1, 2, 4, 6, 8] {
-                    assert!(runs.iter().any(|r| r.model == m && r.opt == opt && r.strategy == s && r.threads == t));
+                    assert!(runs
+                        .iter()
+                        .any(|r| r.model == m && r.opt == opt && r.spec.strategy == s && r.spec.threads == t));
                 }
             }
         }
@@ -69,20 +72,20 @@ fn matrix_expansion_covers_every_cell() {
     let b40 = quick.budget_for(4, OptLevel::O0);
     let b43 = quick.budget_for(4, OptLevel::O3);
     let b13 = quick.budget_for(1, OptLevel::O3);
-    assert!(b40.step_limit.unwrap() <= b43.step_limit.unwrap());
-    assert!(b43.step_limit.unwrap() < b13.step_limit.unwrap());
-    assert!(b40.warmup < b40.step_limit.unwrap().max(1));
+    assert!(b40.steps.unwrap() <= b43.steps.unwrap());
+    assert!(b43.steps.unwrap() < b13.steps.unwrap());
+    assert!(b40.warmup.unwrap() < b40.steps.unwrap().max(1));
 
     let paper = campaign("paper", &Overrides::default());
     assert_eq!(paper.expand().len(), 4 * 5 * 2 * 2 * paper.reps as usize);
-    assert!(paper.expand().iter().all(|r| r.budget.end_time == Some(4e-5) && r.budget.step_limit.is_none()));
+    assert!(paper.expand().iter().all(|r| r.spec.budget.end_time_s == Some(4e-5) && r.spec.budget.steps.is_none()));
 
     // Serial pairs with one thread only.
     let ov =
         Overrides { strategies: Some(vec![Strategy::Serial, Strategy::DomainDecomposition]), ..Overrides::default() };
     let c = campaign("smoke", &ov);
-    assert!(c.expand().iter().all(|r| r.strategy != Strategy::Serial || r.threads == 1));
-    assert_eq!(c.expand().iter().filter(|r| r.strategy == Strategy::Serial).count(), 2);
+    assert!(c.expand().iter().all(|r| r.spec.strategy != Strategy::Serial || r.spec.threads == 1));
+    assert_eq!(c.expand().iter().filter(|r| r.spec.strategy == Strategy::Serial).count(), 2);
 }
 
 #[test]
@@ -93,7 +96,7 @@ fn overrides_change_the_campaign_id_but_not_the_seed() {
         Overrides { models: Some(vec![1, 2]), threads: Some(vec![1, 2, 4]), steps: Some(3), ..Overrides::default() };
     let c = campaign("smoke", &ov);
     assert_eq!(c.id, "smoke_m1-2_t1-2-4_n3");
-    assert!(c.expand().iter().all(|r| r.budget.step_limit == Some(3)));
+    assert!(c.expand().iter().all(|r| r.spec.budget.steps == Some(3)));
     let seeded = campaign("smoke", &Overrides { seed: Some(99), ..Overrides::default() });
     assert_eq!(seeded.id, "smoke");
     assert_eq!(seeded.seed, 99);
@@ -149,7 +152,7 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
     assert_eq!(rows.len(), 8);
     let keys: HashSet<_> = rows.iter().map(Row::key).collect();
     assert_eq!(keys.len(), 8);
-    assert!(rows.iter().all(|r| r.status == Status::Ok && r.campaign_id == "smoke"));
+    assert!(rows.iter().all(|r| r.outcome.status == Status::Ok && r.id.campaign_id == "smoke"));
     // Again: nothing to do, and nothing rewritten.
     let before = std::fs::read(s.dir.join("manifest.json")).unwrap();
     let mut r = MockRunner::default();
@@ -166,6 +169,39 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
         .all(|s| s.machine.as_ref().is_some_and(|mi| mi.fingerprint == man.machine.fingerprint)));
     assert_eq!(man.machine.fingerprint, fingerprint::fingerprint(&m));
     assert!(s.dir.starts_with(dir.path().join(&man.machine.fingerprint)));
+}
+
+/// The resume key is the whole planned run: a preset whose only change is its scenario
+/// (Taylor Model 1 -> the impact's model 1, same name, same folder) runs again instead of
+/// presenting the Taylor row as the impact's; run once more, nothing is left to do. A
+/// physics option of the preset is a new run too.
+#[test]
+fn changing_only_the_scenario_runs_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = |scenario: &str, extra: &str| {
+        format!(
+            "name = \"holetest\"\nscenario = \"{scenario}\"\nmodels = [1]\nthreads = [1]\nstrategies = [\"dd\"]\n\
+             opt = [\"o3\"]\n{extra}[budget]\nsteps = 3\nwarmup = 1\n"
+        )
+    };
+    let resolve =
+        |t: String| Campaign::resolve(preset::parse_preset(&t).unwrap(), "file".into(), &Overrides::default()).unwrap();
+    let taylor = resolve(text("taylor", ""));
+    let s = run_mock(&taylor, &laptop(), dir.path(), &mut MockRunner::default());
+    assert_eq!(s.counts.written, 1);
+    let impact = resolve(text("impact", ""));
+    let mut r = MockRunner::default();
+    let s2 = run_mock(&impact, &laptop(), dir.path(), &mut r);
+    assert_eq!(s2.dir, s.dir, "the same campaign folder");
+    assert_eq!(s2.counts.written, 1, "the impact is not the Taylor bar's row");
+    assert!(matches!(r.calls[0].spec.scenario, mpm_spec::Scenario::Impact(_)));
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    let kinds: Vec<_> = rows.iter().map(|r| r.scenario()).collect();
+    assert_eq!(kinds, [mpm_spec::ScenarioKind::Taylor, mpm_spec::ScenarioKind::Impact]);
+    assert_ne!(rows[0].key(), rows[1].key());
+    assert_eq!(run_mock(&impact, &laptop(), dir.path(), &mut MockRunner::default()).counts.written, 0);
+    let q = resolve(text("impact", "[physics]\nq = { c1 = 1.0, c2 = 0.06 }\n"));
+    assert_eq!(run_mock(&q, &laptop(), dir.path(), &mut MockRunner::default()).counts.written, 1);
 }
 
 /// Copy the campaign folder `from` to `to` (files of the top level and `json/`).
@@ -241,13 +277,21 @@ fn host_load_is_recorded_around_every_run() {
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), 8);
     for r in &rows {
-        assert!(r.host_load1_before.is_some() && r.host_load1_after.is_some(), "{}", r.run_id);
-        assert!(r.host_others_running_before.is_some() && r.host_others_running_after.is_some());
-        assert!(r.host_cpus_busy_before.is_some_and(|b| (0.0..=1.0).contains(&b)), "{:?}", r.host_cpus_busy_before);
-        assert!(r.host_cpus_busy_after.is_some() && r.calib_spin_ratio.is_some() && r.calib_copy_ratio.is_some());
-        let why = r.host_reading().noise(r.threads, m.usable_pus().len());
-        assert_eq!(r.host_noisy, why.is_some());
-        assert_eq!(r.host_noise, why.unwrap_or_default());
+        assert!(r.host.host_load1_before.is_some() && r.host.host_load1_after.is_some(), "{}", r.id.run_id);
+        assert!(r.host.host_others_running_before.is_some() && r.host.host_others_running_after.is_some());
+        assert!(
+            r.host.host_cpus_busy_before.is_some_and(|b| (0.0..=1.0).contains(&b)),
+            "{:?}",
+            r.host.host_cpus_busy_before
+        );
+        assert!(
+            r.host.host_cpus_busy_after.is_some()
+                && r.host.calib_spin_ratio.is_some()
+                && r.host.calib_copy_ratio.is_some()
+        );
+        let why = r.host.reading().noise(r.threads(), m.usable_pus().len());
+        assert_eq!(r.host.host_noisy, why.is_some());
+        assert_eq!(r.host.host_noise, why.unwrap_or_default());
     }
     let man = mpm_bench::campaign::manifest::read(&s.dir.join("manifest.json")).unwrap();
     assert!(man.sessions[0].calibration.is_some_and(|c| c.spin_s > 0.0 && c.copy_s > 0.0));
@@ -263,11 +307,11 @@ fn memory_guard_skips_with_a_reason() {
     assert_eq!(r.calls.len(), 0, "skipped runs are not attempted");
     assert_eq!(s.counts.skipped, 8);
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
-    assert!(rows.iter().all(|r| r.status == Status::Skipped && r.reason.contains("memory guard")));
-    assert!(rows.iter().all(|r| r.wall_s.is_none() && r.mem_estimate_bytes > 10 << 20));
+    assert!(rows.iter().all(|r| r.outcome.status == Status::Skipped && r.outcome.reason.contains("memory guard")));
+    assert!(rows.iter().all(|r| r.measured.wall_s.is_none() && r.outcome.mem_estimate_bytes > 10 << 20));
     // AE grows with threads: with a limit between, Model 4 AE at 8 threads is skipped while DD runs.
-    let est_dd = memory::estimate_memory("taylor", 4, Strategy::DomainDecomposition, 8);
-    let est_ae = memory::estimate_memory("taylor", 4, Strategy::ArrayExpansion, 8);
+    let est_dd = memory::estimate_memory(mpm_spec::ScenarioKind::Taylor, 4, Strategy::DomainDecomposition, 8);
+    let est_ae = memory::estimate_memory(mpm_spec::ScenarioKind::Taylor, 4, Strategy::ArrayExpansion, 8);
     assert!(est_ae > est_dd);
     assert!(memory::memory_verdict(est_ae, None, Some(est_ae)).is_some());
     assert!(memory::memory_verdict(est_dd, None, Some(est_ae)).is_none());
@@ -287,18 +331,22 @@ fn oversubscribed_invalid_and_failed_rows_are_flagged() {
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), 6);
     for row in &rows {
-        assert_eq!(row.oversubscribed, row.threads > 2, "{}", row.run_id);
-        if row.threads == 4 {
+        assert_eq!(row.placement.oversubscribed, row.threads() > 2, "{}", row.id.run_id);
+        if row.threads() == 4 {
             // OpenMP close with more threads than places: consecutive threads share a place.
-            assert_eq!(row.requested_cpus, "0 0 1 1");
+            assert_eq!(row.placement.requested_cpus, [0, 0, 1, 1]);
         }
     }
-    let invalid: Vec<_> = rows.iter().filter(|r| r.status == Status::Invalid).collect();
+    let invalid: Vec<_> = rows.iter().filter(|r| r.outcome.status == Status::Invalid).collect();
     assert_eq!(invalid.len(), 1);
-    assert!(invalid[0].reason.contains("requested CPUs [0 1], observed [1 2]"), "{}", invalid[0].reason);
-    let failed: Vec<_> = rows.iter().filter(|r| r.status == Status::Failed).collect();
+    assert!(
+        invalid[0].outcome.reason.contains("requested CPUs [0 1], observed [1 2]"),
+        "{}",
+        invalid[0].outcome.reason
+    );
+    let failed: Vec<_> = rows.iter().filter(|r| r.outcome.status == Status::Failed).collect();
     assert_eq!(failed.len(), 1);
-    assert!(failed[0].reason.contains("exited with code 1"), "{}", failed[0].reason);
+    assert!(failed[0].outcome.reason.contains("exited with code 1"), "{}", failed[0].outcome.reason);
     assert_eq!(s.counts.oversubscribed, 2);
     // --retry-failed runs the two bad ones again (new attempt ids), nothing else.
     let mut r = MockRunner::default();
@@ -307,7 +355,7 @@ fn oversubscribed_invalid_and_failed_rows_are_flagged() {
     let s = runner::execute(&c, &laptop(), &mock_solvers(&c), &mut r, &o, &flag).unwrap();
     assert_eq!(s.counts.written, 2);
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
-    assert!(rows.iter().any(|r| r.run_id.ends_with("-a1")));
+    assert!(rows.iter().any(|r| r.id.run_id.ends_with("-a1")));
 }
 
 #[test]
@@ -317,28 +365,38 @@ fn pinning_none_passes_no_cpus() {
     let c = campaign("smoke", &ov);
     let mut r = MockRunner::default();
     let s = run_mock(&c, &laptop(), dir.path(), &mut r);
-    assert!(r.calls.iter().all(|c| c.cpus.is_none() && !c.args().contains(&"--cpus".to_string())));
+    assert!(r.calls.iter().all(|c| c.spec.cpus.is_none()));
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
-    assert!(rows.iter().all(|r| r.status == Status::Ok && r.requested_cpus.is_empty() && r.pin_policy == "none"));
+    assert!(rows
+        .iter()
+        .all(|r| r.outcome.status == Status::Ok && r.placement.requested_cpus.is_empty() && r.pin_label() == "none"));
 }
 
-/// Snapshot of the CSV header: changing it must be deliberate (bump SCHEMA_VERSION).
+/// Snapshot of the CSV header: changing it must be deliberate (bump SCHEMA_VERSION when old
+/// readers would misread it). The spec's columns come from `mpm_spec::RunSpec` itself.
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 5);
-    let want = "schema_version,campaign_id,run_id,timestamp,git_commit,git_dirty,machine_id,binary_sha256,seed,\
-order_index,scenario,model,particles,cells,nodes,mean_nodes,grid_mode,strategy,opt_level,threads,ranks,\
-threads_per_rank,launcher,pin_policy,requested_cpus,observed_cpus,rank_cpus,oversubscribed,rep,warmup_steps,\
-step_limit,end_time_s,steps,sim_time_s,end_reason,\
-dt_first_s,wall_s,process_wall_s,grid_stage_s,particle_stage_s,sub_grid_fit_s,sub_binning_s,sub_scatter_s,\
-sub_assembly_s,sub_grid_update_s,sub_gather_s,sub_remap_scatter_s,sub_remap_assembly_s,sub_stress_update_s,\
-steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,dd_work_imbalance,peak_rss_bytes,\
-peak_rss_sum_bytes,rank_particles,rank_busy_imbalance,migrated_particles,comm_s_per_step,comm_frac,\
-wait_s_per_step,wait_frac,comm_bytes_per_step,comm_messages_per_step,mem_estimate_bytes,exit_code,\
-kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
-failed_particles,host_load1_before,host_load1_after,host_others_running_before,host_others_running_after,\
-host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,\
-status,reason";
+    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 6);
+    let want = "schema_version,campaign_id,run_id,run_key,timestamp,git_commit,git_dirty,machine_id,binary_sha256,\
+seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,scenario.wall,\
+scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell,strategy,threads,\
+ranks,rank_layout,grid,physics.eos,physics.q.c1,physics.q.c2,physics.cfl,physics.energy_rise_limit,\
+budget.steps,budget.end_time_s,budget.warmup,split_wait,model,opt,pin,launcher,rep,requested_cpus,\
+observed_cpus,rank_cpus,oversubscribed,particles,cells,nodes,mean_nodes,steps,sim_time_s,end_reason,\
+dt_first_s,wall_s,grid_stage_s,particle_stage_s,substages.grid_fit,substages.binning,\
+substages.scatter,substages.assembly,substages.grid_update,substages.gather,substages.remap_scatter,\
+substages.remap_assembly,substages.stress_update,steady_steps,steady_wall_s,steady_grid_stage_s,\
+steady_particle_stage_s,steady_substages.grid_fit,steady_substages.binning,steady_substages.scatter,\
+steady_substages.assembly,steady_substages.grid_update,steady_substages.gather,\
+steady_substages.remap_scatter,steady_substages.remap_assembly,steady_substages.stress_update,\
+steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,\
+dd_work_imbalance,peak_rss_bytes,peak_rss_sum_bytes,rank_particles,rank_busy_imbalance,\
+migrated_particles,comm_s_per_step,comm_frac,wait_s_per_step,wait_frac,comm_bytes_per_step,\
+comm_messages_per_step,kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,\
+final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,failed_particles,host_load1_before,\
+host_load1_after,host_others_running_before,host_others_running_after,host_cpus_busy_before,\
+host_cpus_busy_after,host_steal_frac,calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,status,\
+reason,exit_code,process_wall_s,mem_estimate_bytes";
     assert_eq!(Row::header().join(","), want);
 }
 
@@ -508,31 +566,33 @@ fn end_to_end_smoke_campaign_with_the_real_solver() {
     let rows = read_rows(&d.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), c.expand().len());
     for r in &rows {
-        assert_eq!(r.status, Status::Ok, "{}: {}", r.run_id, r.reason);
-        assert_eq!(r.particles, Some(56_056));
-        assert_eq!(r.steps, r.step_limit, "{}", r.run_id);
-        assert_eq!(r.end_reason, "step_limit");
+        assert_eq!(r.outcome.status, Status::Ok, "{}: {}", r.id.run_id, r.outcome.reason);
+        assert_eq!(r.measured.particles, Some(56_056));
+        assert_eq!(r.measured.steps, r.run.spec.budget.steps, "{}", r.id.run_id);
+        assert_eq!(r.measured.end_reason, Some(EndReason::StepLimit));
         for (name, v) in [
-            ("wall_s", r.wall_s),
-            ("process_wall_s", r.process_wall_s),
-            ("grid_stage_s", r.grid_stage_s),
-            ("particle_stage_s", r.particle_stage_s),
-            ("sub_scatter_s", r.sub_scatter_s),
-            ("sub_stress_update_s", r.sub_stress_update_s),
-            ("steady_s_per_step", r.steady_s_per_step),
-            ("ns_per_particle_step", r.ns_per_particle_step),
-            ("kinetic_energy_j", r.kinetic_energy_j),
-            ("final_length_m", r.final_length_m),
-            ("face_diameter_m", r.face_diameter_m),
+            ("wall_s", r.measured.wall_s),
+            ("process_wall_s", r.outcome.process_wall_s),
+            ("grid_stage_s", r.measured.grid_stage_s),
+            ("particle_stage_s", r.measured.particle_stage_s),
+            ("substages.scatter", r.measured.substages.get(Substage::Scatter)),
+            ("substages.stress_update", r.measured.substages.get(Substage::StressUpdate)),
+            ("steady_grid_stage_s", r.measured.steady_grid_stage_s),
+            ("steady_particle_stage_s", r.measured.steady_particle_stage_s),
+            ("steady_s_per_step", r.measured.steady_s_per_step),
+            ("ns_per_particle_step", r.measured.ns_per_particle_step),
+            ("kinetic_energy_j", r.measured.kinetic_energy_j),
+            ("final_length_m", r.measured.final_length_m),
+            ("face_diameter_m", r.measured.face_diameter_m),
         ] {
-            assert!(v.is_some_and(|x| x.is_finite() && x >= 0.0), "{}: {name} = {v:?}", r.run_id);
+            assert!(v.is_some_and(|x| x.is_finite() && x >= 0.0), "{}: {name} = {v:?}", r.id.run_id);
         }
-        assert!(r.peak_rss_bytes.is_some_and(|b| b > 1 << 20));
-        assert!(!r.requested_cpus.is_empty() && r.requested_cpus == r.observed_cpus);
-        assert_eq!(r.binary_sha256.len(), 16);
-        assert_ne!(r.git_commit, "");
+        assert!(r.measured.peak_rss_bytes.is_some_and(|b| b > 1 << 20));
+        assert!(!r.placement.requested_cpus.is_empty() && r.placement.requested_cpus == r.placement.observed_cpus);
+        assert_eq!(r.id.binary_sha256.len(), 16);
+        assert_ne!(r.id.git_commit, "");
     }
-    let opts: HashSet<_> = rows.iter().map(|r| (r.opt_level.clone(), r.binary_sha256.clone())).collect();
+    let opts: HashSet<_> = rows.iter().map(|r| (r.opt(), r.id.binary_sha256.clone())).collect();
     assert_eq!(opts.len(), 2, "o3 and o0 are different binaries");
     for f in ["manifest.json", "topology.xml"] {
         assert!(d.join(f).is_file(), "{f}");
@@ -617,9 +677,10 @@ fn torn_last_line_is_moved_aside_and_the_campaign_completes() {
 /// (`$FAKE_FAIL` set) or runs for five minutes.
 const FAKE_SOLVER: &str = r#"#!/bin/sh
 while [ $# -gt 0 ]; do
-    if [ "$1" = --json ]; then json="$2"; fi
+    if [ "$1" = --spec ]; then spec="$2"; fi
     shift
 done
+json=$(sed -n 's/^json = "\(.*\)"$/\1/p' "$spec")
 : > "$(dirname "$json")/.$(basename "$json").tmp.$$"
 echo $$ > "$FAKE_PIDFILE.part" && mv "$FAKE_PIDFILE.part" "$FAKE_PIDFILE"
 if [ -n "$FAKE_FAIL" ]; then exit 3; fi
@@ -737,45 +798,52 @@ fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses()
     assert_eq!(r.calls.len(), c.expand().len());
     for call in &r.calls {
         let (program, args) = call.command_line();
+        assert_eq!(args[args.len() - 3..], ["run", "--spec", call.spec_path.to_str().unwrap()]);
         if call.spec.ranks == 1 {
             assert_eq!((program.as_str(), &call.launcher, &call.mask), ("mock", &None, &None));
-            assert!(args.contains(&"--cpus".to_string()));
-            assert!(!args.contains(&"--split-wait".to_string()), "mpm refuses --split-wait at one rank");
+            assert!(call.spec.cpus.is_some());
+            assert!(!call.spec.split_wait, "mpm refuses split_wait at one rank");
         } else {
             assert_eq!(program, "mpirun");
             assert_eq!(args[..4], ["--bind-to", "none", "-n", "2"]);
-            assert!(!args.contains(&"--cpus".to_string()), "every rank would take the same list");
-            assert!(args.contains(&"--split-wait".to_string()), "waiting measured apart from communication");
+            assert!(call.spec.cpus.is_none(), "every rank would take the same list");
+            assert!(call.spec.split_wait, "waiting measured apart from communication");
             assert_eq!(call.mask, Some(vec![0, 1]));
         }
     }
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), c.expand().len());
     for row in &rows {
-        assert_eq!(row.status, Status::Ok, "{}: {}", row.run_id, row.reason);
-        assert_eq!(row.threads, row.ranks * row.threads_per_rank, "threads counts every worker");
-        assert_eq!(row.oversubscribed, row.threads > 2, "{}", row.run_id);
-        if row.ranks == 2 {
-            assert_eq!(row.launcher, "mpirun --bind-to none -n 2");
-            assert_eq!(row.requested_cpus, "0 1");
-            assert_eq!(row.rank_cpus.split('|').count(), 2);
-            assert!(row.comm_bytes_per_step.is_some_and(|b| b > 0.0));
-            assert!(row.comm_frac.is_some_and(|f| f > 0.0 && f < 1.0));
-            assert!(row.wait_frac.is_some_and(|f| f > 0.0 && f < 1.0) && row.wait_s_per_step.is_some());
+        assert_eq!(row.outcome.status, Status::Ok, "{}: {}", row.id.run_id, row.outcome.reason);
+        assert_eq!(row.threads(), row.ranks() * row.threads_per_rank(), "threads counts every worker");
+        assert_eq!(row.placement.oversubscribed, row.threads() > 2, "{}", row.id.run_id);
+        if row.ranks() == 2 {
+            assert_eq!(row.run.launcher.as_deref(), Some("mpirun --bind-to none -n 2"));
+            assert_eq!(row.placement.requested_cpus, [0, 1]);
+            assert_eq!(row.placement.rank_cpus.len(), 2);
+            assert!(row.measured.comm_bytes_per_step.is_some_and(|b| b > 0.0));
+            assert!(row.measured.comm_frac.is_some_and(|f| f > 0.0 && f < 1.0));
+            assert!(
+                row.measured.wait_frac.is_some_and(|f| f > 0.0 && f < 1.0) && row.measured.wait_s_per_step.is_some()
+            );
             assert!(!row.comm_includes_wait());
-            assert!(row.peak_rss_sum_bytes.unwrap() > row.peak_rss_bytes.unwrap());
+            assert!(row.measured.peak_rss_sum_bytes.unwrap() > row.measured.peak_rss_bytes.unwrap());
         } else {
-            assert_eq!((row.launcher.as_str(), row.comm_bytes_per_step), ("", Some(0.0)));
-            assert_eq!((row.wait_s_per_step, row.wait_frac), (None, None), "nothing to wait for at one rank");
+            assert_eq!((row.run.launcher.as_deref(), row.measured.comm_bytes_per_step), (None, Some(0.0)));
+            assert_eq!(
+                (row.measured.wait_s_per_step, row.measured.wait_frac),
+                (None, None),
+                "nothing to wait for at one rank"
+            );
         }
     }
-    assert_eq!(s.counts.oversubscribed, rows.iter().filter(|r| r.ranks == 2 && r.threads_per_rank == 2).count());
+    assert_eq!(s.counts.oversubscribed, rows.iter().filter(|r| r.ranks() == 2 && r.threads_per_rank() == 2).count());
     // Resume: nothing new; another rank count is a new configuration.
     assert_eq!(run_mock(&c, &laptop(), dir.path(), &mut MockRunner::default()).counts.written, 0);
 
     let camp = load_campaign(&s.dir).unwrap();
-    assert!(camp.rows.iter().all(|r| r.ranks == 1) && !camp.rows.is_empty());
-    assert_eq!(camp.hybrid.len(), rows.iter().filter(|r| r.ranks == 2).count());
+    assert!(camp.rows.iter().all(|r| r.ranks() == 1) && !camp.rows.is_empty());
+    assert_eq!(camp.hybrid.len(), rows.iter().filter(|r| r.ranks() == 2).count());
     let an = Analysis::from_rows(&camp.rows, None, &StatsOptions::default());
     assert!(an.cells.keys().all(|k| k.threads <= 2), "no 2 x 2 cell among the one-process cells");
     let h = HybridAnalysis::from_rows(&camp.rows, &camp.hybrid, None, &StatsOptions::default());
@@ -800,7 +868,7 @@ fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses()
     copy_campaign(&s.dir, &cur);
     std::fs::remove_file(cur.join("runs.csv")).unwrap();
     let mut log = mpm_bench::campaign::record::CsvLog::open(&cur.join("runs.csv")).unwrap();
-    for r in rows.iter().filter(|r| r.ranks == 1) {
+    for r in rows.iter().filter(|r| r.ranks() == 1) {
         log.append(r).unwrap();
     }
     drop(log);
@@ -833,9 +901,13 @@ fn hybrid_launcher_failures_are_recorded() {
     let s = runner::execute(&c, &laptop(), &solvers, &mut r, &opts(dir.path()), &flag).unwrap();
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), 1);
-    assert_eq!(rows[0].status, Status::Failed);
-    assert!(rows[0].reason.contains("cannot start the launcher /nonexistent/mpirun"), "{}", rows[0].reason);
-    assert_eq!(rows[0].ranks, 2);
+    assert_eq!(rows[0].outcome.status, Status::Failed);
+    assert!(
+        rows[0].outcome.reason.contains("cannot start the launcher /nonexistent/mpirun"),
+        "{}",
+        rows[0].outcome.reason
+    );
+    assert_eq!(rows[0].ranks(), 2);
 }
 
 /// The real thing: a tiny hybrid campaign (Model 1, ranks 1,2 x threads 1,2, a few steps)
@@ -845,10 +917,8 @@ fn hybrid_launcher_failures_are_recorded() {
 /// (fig_hybrid) and the report's hybrid section with communication and waiting apart.
 #[test]
 fn end_to_end_hybrid_campaign_with_mpirun() {
-    if !mpm_cli::distributed::MPI_COMPILED {
-        eprintln!("skipped: mpm-cli is built without the `mpi` feature, so mpm cannot run over ranks");
-        return;
-    }
+    // No skip: CI has MPI (scripts/bootstrap.sh installs it), and the `mpm` this campaign
+    // builds has the `mpi` feature by default; without either the test fails, saying why.
     let has_mpirun = Command::new("mpirun").arg("--version").output().is_ok_and(|o| o.status.success());
     assert!(has_mpirun, "mpirun not found: install openmpi-bin (scripts/bootstrap.sh does)");
     let dir = tempfile::tempdir().unwrap();
@@ -881,30 +951,40 @@ fn end_to_end_hybrid_campaign_with_mpirun() {
     assert_eq!(rows.len(), 4);
     let pus = Machine::detect().unwrap().usable_pus().len();
     for r in &rows {
-        assert_eq!(r.status, Status::Ok, "{}: {}", r.run_id, r.reason);
-        assert_eq!(r.particles, Some(56_056));
-        assert_eq!(r.steps, Some(6));
-        assert_eq!(r.threads, r.ranks * r.threads_per_rank);
-        assert_eq!(r.oversubscribed, r.threads > pus, "{}", r.run_id);
-        assert!(r.final_length_m.is_some_and(|l| l > 0.0 && l.is_finite()));
-        if r.ranks == 2 {
-            assert!(r.comm_bytes_per_step.is_some_and(|b| b > 0.0), "{}: {:?}", r.run_id, r.comm_bytes_per_step);
-            assert!(r.comm_messages_per_step.is_some_and(|m| m > 0.0));
-            let (comm, wait) = (r.comm_frac.unwrap(), r.wait_frac.unwrap_or(f64::NAN));
-            assert!(comm > 0.0 && comm < 1.0 && (0.0..1.0).contains(&wait), "{}: comm {comm}, wait {wait}", r.run_id);
-            assert!(r.wait_s_per_step.is_some_and(|w| w >= 0.0));
-            let per_rank: Vec<u64> = r.rank_particles.split(' ').map(|p| p.parse().unwrap()).collect();
+        assert_eq!(r.outcome.status, Status::Ok, "{}: {}", r.id.run_id, r.outcome.reason);
+        assert_eq!(r.measured.particles, Some(56_056));
+        assert_eq!(r.measured.steps, Some(6));
+        assert_eq!(r.threads(), r.ranks() * r.threads_per_rank());
+        assert_eq!(r.placement.oversubscribed, r.threads() > pus, "{}", r.id.run_id);
+        assert!(r.measured.final_length_m.is_some_and(|l| l > 0.0 && l.is_finite()));
+        if r.ranks() == 2 {
+            assert!(
+                r.measured.comm_bytes_per_step.is_some_and(|b| b > 0.0),
+                "{}: {:?}",
+                r.id.run_id,
+                r.measured.comm_bytes_per_step
+            );
+            assert!(r.measured.comm_messages_per_step.is_some_and(|m| m > 0.0));
+            let (comm, wait) = (r.measured.comm_frac.unwrap(), r.measured.wait_frac.unwrap_or(f64::NAN));
+            assert!(
+                comm > 0.0 && comm < 1.0 && (0.0..1.0).contains(&wait),
+                "{}: comm {comm}, wait {wait}",
+                r.id.run_id
+            );
+            assert!(r.measured.wait_s_per_step.is_some_and(|w| w >= 0.0));
+            let per_rank = &r.measured.rank_particles;
             assert_eq!(per_rank.len(), 2);
             assert_eq!(per_rank.iter().sum::<u64>(), 56_056);
-            assert_eq!(r.rank_cpus.split('|').count(), 2);
-            assert!(r.peak_rss_sum_bytes > r.peak_rss_bytes);
-            assert!(r.launcher.starts_with("mpirun") && r.launcher.ends_with("-n 2"));
+            assert_eq!(r.placement.rank_cpus.len(), 2);
+            assert!(r.measured.peak_rss_sum_bytes > r.measured.peak_rss_bytes);
+            let launcher = r.run.launcher.as_deref().unwrap_or_default();
+            assert!(launcher.starts_with("mpirun") && launcher.ends_with("-n 2"), "{launcher}");
         } else {
-            assert_eq!((r.wait_s_per_step, r.wait_frac), (None, None), "{}", r.run_id);
+            assert_eq!((r.measured.wait_s_per_step, r.measured.wait_frac), (None, None), "{}", r.id.run_id);
         }
     }
     // The same physics either way: the final bar length agrees to 1e-9 across the layouts.
-    let lengths: Vec<f64> = rows.iter().filter_map(|r| r.final_length_m).collect();
+    let lengths: Vec<f64> = rows.iter().filter_map(|r| r.measured.final_length_m).collect();
     assert!(lengths.iter().all(|l| (l - lengths[0]).abs() <= 1e-9 * lengths[0]), "{lengths:?}");
     let man = mpm_bench::campaign::manifest::read(&Path::new(folder).join("manifest.json")).unwrap();
     let version = man.software.mpi_launcher.unwrap_or_default();

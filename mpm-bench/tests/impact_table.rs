@@ -1,10 +1,10 @@
 //! `mpm-bench impact-table`: the Markdown table of the impact runs from mock summaries.
 
 use mpm_bench::report::impact_table::{fill_template, load_runs, table, PLACEHOLDER};
-use mpm_cli::identity::Provenance;
-use mpm_cli::summary::{EnergyReport, Summary};
 use mpm_core::grid::Occupancy;
 use mpm_core::scenario::impact::HistorySample;
+use mpm_spec::identity::Provenance;
+use mpm_spec::summary::{EnergyReport, Summary};
 use std::path::Path;
 
 fn sample(time: f64) -> HistorySample {
@@ -24,7 +24,7 @@ fn sample(time: f64) -> HistorySample {
 /// A finished impact run's summary with every figure of the table set.
 fn mock(dx: f64, spacing: f64) -> Summary {
     Summary {
-        scenario: "impact".into(),
+        scenario: mpm_spec::ScenarioKind::Impact,
         particles: 847_888,
         steps: 273,
         sim_time: 30.6e-6,
@@ -129,7 +129,7 @@ fn template_gets_the_table_and_bad_input_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let e = load_runs(dir.path()).unwrap_err().to_string();
     assert!(e.contains("scripts/impact-runs.sh"), "{e}");
-    write(dir.path(), "taylor", &Summary { scenario: "taylor".into(), ..Summary::default() });
+    write(dir.path(), "taylor", &Summary { scenario: mpm_spec::ScenarioKind::Taylor, ..Summary::default() });
     let e = load_runs(dir.path()).unwrap_err().to_string();
     assert!(e.contains("not an impact"), "{e}");
 }

@@ -127,10 +127,19 @@ mod mpi_impl {
     }
 
     impl MpiCollectives {
-        /// The collectives of this process in `world`.
-        pub fn new(world: SimpleCommunicator) -> Self {
+        /// The collectives of this process in `world`. Refused unless MPI was started with
+        /// at least `MPI_THREAD_SERIALIZED`: the value is `Send` (the step calls MPI from a
+        /// pool worker), which is sound only at that level.
+        pub fn new(world: SimpleCommunicator) -> Result<Self, SimError> {
+            if mpi::environment::threading_support() < mpi::Threading::Serialized {
+                return Err(SimError::Config(
+                    "MPI was started without MPI_THREAD_SERIALIZED; the step calls MPI from a pool worker \
+                     (start it with mpi::initialize_with_threading(Threading::Serialized))"
+                        .into(),
+                ));
+            }
             let (rank, size) = (world.rank() as usize, world.size() as usize);
-            Self { world, rank, size, gathered: Vec::new(), scratch_f64: Vec::new(), scratch_u64: Vec::new() }
+            Ok(Self { world, rank, size, gathered: Vec::new(), scratch_f64: Vec::new(), scratch_u64: Vec::new() })
         }
 
         /// The communicator.
@@ -140,11 +149,12 @@ mod mpi_impl {
     }
 
     // SAFETY: the communicator handle is only used through `&mut self` (or `&self` of an
-    // owner borrowed mutably for the call), so by one thread at a time, and MPI runs with
-    // MPI_THREAD_SERIALIZED (checked by `MpiExchange::new`; `mpm` starts it so), which
-    // allows calls from any thread as long as they do not overlap. Covered by the
-    // equivalence tests (mpm-cli/tests/mpi.rs), where the step and the measurements call
-    // MPI from a pool worker.
+    // owner borrowed mutably for the call), so by one thread at a time, and MPI runs with at
+    // least MPI_THREAD_SERIALIZED (checked by `MpiCollectives::new`, the only way to make
+    // one, which `MpiExchange::new` goes through), which allows calls from any thread as
+    // long as they do not overlap. Guarded by `collectives_refuse_mpi_below_serialized`
+    // (the check) and the equivalence tests (mpm-cli/tests/mpi.rs), where the step and the
+    // measurements call MPI from a pool worker.
     unsafe impl Send for MpiCollectives {}
 
     impl Collectives for MpiCollectives {
@@ -238,11 +248,7 @@ mod mpi_impl {
         /// The exchange of this process in `world`, with rank boxes `boxes` (one per rank).
         pub fn new(world: SimpleCommunicator, boxes: RankBoxes) -> Result<Self, SimError> {
             let (rank, size) = (world.rank() as usize, world.size() as usize);
-            if mpi::environment::threading_support() < mpi::Threading::Serialized {
-                return Err(SimError::Config(
-                    "MPI was started without MPI_THREAD_SERIALIZED; the step calls MPI from a pool worker".into(),
-                ));
-            }
+            let collectives = MpiCollectives::new(world)?;
             if boxes.ranks() != size {
                 return Err(SimError::Config(format!(
                     "the rank layout {:?} has {} boxes but mpirun started {size} ranks; give a layout whose product is {size}",
@@ -253,7 +259,7 @@ mod mpi_impl {
             let adjacent = boxes.neighbours(rank);
             let n = adjacent.len();
             Ok(Self {
-                collectives: MpiCollectives::new(world),
+                collectives,
                 rank,
                 bounds: boxes.lattice_bounds(rank),
                 bounded: (0..3)
@@ -606,7 +612,19 @@ mod mpi_impl {
 
     #[cfg(test)]
     mod tests {
-        use super::Ids;
+        use super::{Ids, MpiCollectives};
+
+        /// MPI started single-threaded (in this test process, as a singleton): the
+        /// collectives, which are `Send`, cannot be made. The only test of this binary that
+        /// starts MPI (once per process).
+        #[test]
+        fn collectives_refuse_mpi_below_serialized() {
+            let (universe, provided) =
+                mpi::initialize_with_threading(mpi::Threading::Single).expect("MPI starts as a singleton");
+            assert_eq!(provided, mpi::Threading::Single, "this test needs MPI to provide the level asked");
+            let err = MpiCollectives::new(universe.world()).err().expect("refused below MPI_THREAD_SERIALIZED");
+            assert!(err.to_string().contains("MPI_THREAD_SERIALIZED"), "{err}");
+        }
 
         #[test]
         fn ids_stay_narrow_until_one_does_not_fit_and_keep_their_values() {

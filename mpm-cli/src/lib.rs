@@ -3,8 +3,9 @@
 //! The `mpm` program (`src/bin/mpm/`: one simulation from the command line) and what it
 //! shares with the benchmark harness `mpm-bench`:
 //!
-//! * [`summary`]: the JSON summary of a run, one serde type that `mpm` writes and the
-//!   harness reads back (the interface between the two programs);
+//! * [`summary`]: building the JSON summary of a run (the type, [`mpm_spec::Summary`], is
+//!   the interface between the two programs and lives in `mpm-spec` with the run spec);
+//! * [`memory`]: the memory available to a new process, and bytes for people;
 //! * [`pinning`]: the rayon pool of a run with worker `j` pinned to CPU `j`, the workers'
 //!   placement read back, and the one CPU-list parser;
 //! * [`vtk`]: VTU snapshots and a `.pvd` collection for ParaView;
@@ -21,6 +22,7 @@
 pub mod atomic;
 pub mod distributed;
 pub mod identity;
+pub mod memory;
 pub mod picture;
 pub mod pinning;
 pub mod summary;

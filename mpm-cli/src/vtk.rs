@@ -29,15 +29,8 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-/// How the arrays of a `.vtu` are stored.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
-pub enum Encoding {
-    /// Inline base64 binary (compact, exact).
-    #[default]
-    Binary,
-    /// Inline ASCII (readable; values printed in shortest round-trip form).
-    Ascii,
-}
+/// How the arrays of a `.vtu` are stored (the spec's `outputs.vtk.encoding`).
+pub use mpm_spec::spec::VtkEncoding as Encoding;
 
 /// A value type of a VTK `DataArray`.
 trait VtkScalar: Copy + Display {

@@ -1,8 +1,8 @@
 //! The `mpm` program through its real binary: help, Table 2 counts, the JSON summary's keys,
 //! strategies, pinning, oversubscription, bad input, VTU output, the impact and the plate.
 
-use mpm_cli::summary::Summary;
 use mpm_core::Strategy;
+use mpm_spec::Summary;
 use serde_json::Value;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -65,6 +65,7 @@ fn help_teaches_the_commands_and_every_flag() {
 
     let run = text(&mpm(&["run", "--help"]).stdout);
     assert!(run.contains("taylor"), "{run}");
+    assert!(run.contains("--spec <FILE>") && run.contains("mpm run --spec run.toml"), "{run}");
 
     let out = mpm(&["run", "taylor", "--help"]);
     assert!(out.status.success());
@@ -104,6 +105,8 @@ fn help_teaches_the_commands_and_every_flag() {
         "--rank-layout",
         "--split-wait",
         "--dump-state",
+        "--print-spec",
+        "--force",
         "--help",
         "--version",
     ];
@@ -159,6 +162,7 @@ fn table2_counts_of_model_4() {
 }
 
 const REQUIRED_KEYS: &[&str] = &[
+    "spec",
     "scenario",
     "model",
     "model_name",
@@ -259,9 +263,7 @@ fn json_has_exactly_the_golden_keys() {
     assert_eq!(keys(&v), want);
     assert!(out.stdout.is_empty(), "--quiet printed: {}", text(&out.stdout));
     let sub: Vec<&str> = v["substages"].as_object().unwrap().keys().map(String::as_str).collect();
-    let mut sorted = SUBSTAGES.to_vec();
-    sorted.sort_unstable();
-    assert_eq!(sub, sorted);
+    assert_eq!(sub, SUBSTAGES, "in execution order");
     assert_eq!(v["scenario"], "taylor");
     assert_eq!(v["strategy"], "serial");
     assert_eq!(u(&v, "threads"), 1);
@@ -347,6 +349,90 @@ fn summary_reads_back_as_the_typed_summary() {
     assert_eq!(s.strategy, Strategy::DomainDecomposition);
     assert_eq!(s.end_reason.name(), v["end_reason"]);
     assert_eq!(serde_json::to_value(&s).unwrap(), v);
+}
+
+/// A summary's `spec` re-runs the run: `mpm run --spec summary.json` gives every figure of
+/// the first run bit for bit (same strategy and threads), and echoes the same spec but for
+/// the summary's path. `--print-spec` prints the spec the flags make, which runs the same.
+#[test]
+fn a_summarys_spec_repeats_the_run_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = dir.path().join("a.json");
+    let args = ["run", "taylor", "--model", "1", "--steps", "15", "--strategy", "dd", "--threads", "2", "--quiet"];
+    let out = mpm(&[&args[..], &["--cfl", "0.4", "--q", "1.2,0.1", "--json", a.to_str().unwrap()]].concat());
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let b = dir.path().join("b.json");
+    let out = mpm(&["run", "--spec", a.to_str().unwrap(), "--json", b.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(out.stdout.is_empty(), "the spec's quiet applies");
+    let (va, vb): (Value, Value) = (
+        serde_json::from_str(&std::fs::read_to_string(&a).unwrap()).unwrap(),
+        serde_json::from_str(&std::fs::read_to_string(&b).unwrap()).unwrap(),
+    );
+    for k in [
+        "steps",
+        "sim_time",
+        "dt_first",
+        "dt_next",
+        "kinetic_energy",
+        "internal_energy",
+        "momentum",
+        "final_length_m",
+        "face_diameter_m",
+        "history",
+        "energy",
+        "cfl",
+        "bulk_viscosity",
+        "particles",
+        "dd_patch_particles",
+    ] {
+        assert_eq!(va[k], vb[k], "{k} differs");
+    }
+    assert_eq!(f(&va, "cfl"), 0.4);
+    let (mut sa, sb) = (va["spec"].clone(), vb["spec"].clone());
+    assert_eq!(sa["budget"]["warmup"], 1, "the resolved warm-up is echoed");
+    sa["outputs"]["json"] = sb["outputs"]["json"].clone();
+    assert_eq!(sa, sb);
+    // --print-spec: the TOML of the flags' spec, which runs the same as the flags.
+    let out = mpm(&[&args[..], &["--cfl", "0.4", "--q", "1.2,0.1", "--print-spec"]].concat());
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let toml = dir.path().join("run.toml");
+    std::fs::write(&toml, &out.stdout).unwrap();
+    let c = dir.path().join("c.json");
+    let out = mpm(&["run", "--spec", toml.to_str().unwrap(), "--json", c.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let vc: Value = serde_json::from_str(&std::fs::read_to_string(&c).unwrap()).unwrap();
+    assert_eq!(va["final_length_m"], vc["final_length_m"]);
+    assert_eq!(va["kinetic_energy"], vc["kinetic_energy"]);
+}
+
+/// A spec file with an unknown key, another version, an out-of-range value or a missing
+/// file is refused, naming what is wrong, and writes no summary.
+#[test]
+fn bad_spec_files_are_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = mpm(&["run", "taylor", "--model", "1", "--steps", "2", "--print-spec"]);
+    let good = text(&out.stdout);
+    let json = dir.path().join("never.json");
+    for (edit, says) in [
+        (good.replace("threads = 1", "threads = 1\nthreds = 2"), "threds"),
+        (good.replace("spec_version = 1", "spec_version = 9"), "spec_version 9"),
+        (good.replace("cfl = 0.5", "cfl = 2.0"), "--cfl"),
+        (good.replace("model = 1", "model = 7"), "--model"),
+        (good.replace("strategy = \"serial\"", "strategy = \"dd\"\ncpus = [0, 1]"), "--cpus"),
+    ] {
+        let f = dir.path().join("bad.toml");
+        std::fs::write(&f, edit).unwrap();
+        let out = mpm(&["run", "--spec", f.to_str().unwrap(), "--json", json.to_str().unwrap()]);
+        let err = text(&out.stderr);
+        assert!(!out.status.success() && err.contains(says), "{says}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(!json.exists());
+    }
+    let out = mpm(&["run", "--spec", dir.path().join("missing.toml").to_str().unwrap()]);
+    assert!(!out.status.success() && text(&out.stderr).contains("cannot read the spec file"));
+    let out = mpm(&["run"]);
+    assert!(!out.status.success() && text(&out.stderr).contains("--spec"), "{}", text(&out.stderr));
 }
 
 #[test]
@@ -451,6 +537,7 @@ fn several_ranks_without_a_launcher_or_without_mpi_is_a_clear_error() {
     let says = if cfg!(feature = "mpi") { "needs a launcher" } else { "MPI is not compiled into this mpm" };
     rejects(&["--model", "1", "--ranks", "2", "--steps", "0"], says);
     rejects(&["--model", "1", "--rank-layout", "2x1x1", "--steps", "0"], "needs several ranks");
+    rejects(&["--model", "1", "--split-wait", "--steps", "0"], "no other rank to wait for");
     rejects(&["--model", "1", "--rank-layout", "2x1", "--steps", "0"], "not a rank layout");
 }
 

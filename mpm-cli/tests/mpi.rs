@@ -14,10 +14,10 @@
 //! scripts/bootstrap.sh).
 #![cfg(feature = "mpi")]
 
-use mpm_cli::summary::Summary;
 use mpm_core::scenario::impact::{self, Impact};
 use mpm_core::scenario::taylor::{self, TaylorBar};
 use mpm_core::Setup;
+use mpm_spec::Summary;
 use std::path::Path;
 use std::process::Command;
 
@@ -192,7 +192,7 @@ fn close(a: f64, b: f64, tol: f64) -> bool {
 /// The scenario figures of a summary by name (Taylor bar or impact; `NaN` when absent).
 fn figures(s: &Summary) -> Vec<(&'static str, f64)> {
     let v = |x: Option<f64>| x.unwrap_or(f64::NAN);
-    match s.scenario.as_str() {
+    match s.scenario.name() {
         "taylor" => vec![
             ("initial_length_m", v(s.initial_length_m)),
             ("initial_face_diameter_m", v(s.initial_face_diameter_m)),

@@ -28,7 +28,7 @@ pub const KIN_WIDTH: usize = 6;
 pub const REMAP_WIDTH: usize = 3;
 
 /// How the grid follows the particles.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum GridMode {
     /// The scenario's grid, unchanged.

@@ -2,11 +2,13 @@
 //! stage (Eqs. 7-15), with finer sub-stages. Ten `Instant::now()` calls a step: cheap
 //! enough to leave on in every run.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
-/// One sub-stage of the MUSL step, in execution order.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// One sub-stage of the MUSL step, in execution order (which is also its order: `Ord`).
+/// Serialised by its [`Substage::name`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Substage {
     /// Re-fitting the adaptive grid and (DD) re-cutting the patches.
     GridFit,

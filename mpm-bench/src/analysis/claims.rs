@@ -392,10 +392,10 @@ fn sockets_used(m: &Machine, pin: &str, n: usize) -> Option<usize> {
 /// For each thread count, a policy that keeps its workers on one socket and one that uses
 /// two or more (`close` and `spread` preferred), among the rows' policies.
 fn socket_pairs(c: &Campaign, m: &Machine) -> Vec<(usize, String, String)> {
-    let mut labels: Vec<&str> =
-        c.rows.iter().map(|r| r.pin_policy.as_str()).collect::<BTreeSet<_>>().into_iter().collect();
-    labels.sort_by_key(|l| (*l != "close", *l != "spread"));
-    let threads: BTreeSet<usize> = c.rows.iter().map(|r| r.threads).filter(|&n| n > 1).collect();
+    let mut labels: Vec<String> =
+        c.rows.iter().map(crate::campaign::record::Row::pin_label).collect::<BTreeSet<_>>().into_iter().collect();
+    labels.sort_by_key(|l| (l != "close", l != "spread"));
+    let threads: BTreeSet<usize> = c.rows.iter().map(|r| r.threads()).filter(|&n| n > 1).collect();
     threads
         .into_iter()
         .filter_map(|n| {
@@ -633,8 +633,10 @@ mod c7 {
         let v: Vec<f64> = c
             .rows
             .iter()
-            .filter(|r| r.status == Status::Ok && r.model == model && r.strategy == s && r.threads == threads)
-            .filter_map(|r| r.dd_work_imbalance)
+            .filter(|r| {
+                r.outcome.status == Status::Ok && r.model() == model && r.strategy() == s && r.threads() == threads
+            })
+            .filter_map(|r| r.measured.dd_work_imbalance)
             .collect();
         (!v.is_empty()).then(|| median(&v))
     }

@@ -138,34 +138,34 @@ impl HybridAnalysis {
         an.notes.extend(note);
         let cells: BTreeSet<(u32, Strategy, &str)> = hybrid
             .iter()
-            .filter(|r| r.pin_policy == chosen)
-            .map(|r| (r.model, r.strategy, r.opt_level.as_str()))
+            .filter(|r| r.pin_label() == chosen)
+            .map(|r| (r.model(), r.strategy(), r.opt().as_str()))
             .collect();
         let mut samples: BTreeMap<HybridKey, Samples> = BTreeMap::new();
         for r in one.iter().chain(hybrid) {
-            if r.pin_policy != chosen || !cells.contains(&(r.model, r.strategy, r.opt_level.as_str())) {
+            if r.pin_label() != chosen || !cells.contains(&(r.model(), r.strategy(), r.opt().as_str())) {
                 continue;
             }
             let key = HybridKey {
-                model: r.model,
-                strategy: r.strategy,
-                opt_level: r.opt_level.clone(),
-                ranks: r.ranks.max(1),
-                threads: r.per_rank_threads(),
+                model: r.model(),
+                strategy: r.strategy(),
+                opt_level: r.opt().to_string(),
+                ranks: r.ranks().max(1),
+                threads: r.threads_per_rank(),
             };
             let s = samples.entry(key).or_default();
-            s.oversubscribed |= r.oversubscribed;
-            let Some(t) = r.steady_s_per_step.filter(|_| r.status == Status::Ok) else { continue };
+            s.oversubscribed |= r.placement.oversubscribed;
+            let Some(t) = r.measured.steady_s_per_step.filter(|_| r.outcome.status == Status::Ok) else { continue };
             s.time.push(t);
-            s.noisy |= r.host_noisy;
+            s.noisy |= r.host.host_noisy;
             if r.comm_includes_wait() {
-                s.comm_with_wait.extend(r.comm_frac);
+                s.comm_with_wait.extend(r.measured.comm_frac);
             } else {
-                s.comm_frac.extend(r.comm_frac);
+                s.comm_frac.extend(r.measured.comm_frac);
             }
-            s.wait_frac.extend(r.wait_frac);
-            s.bytes.extend(r.comm_bytes_per_step);
-            s.memory.extend(r.peak_rss_sum_bytes.or(r.peak_rss_bytes).map(|b| b as f64));
+            s.wait_frac.extend(r.measured.wait_frac);
+            s.bytes.extend(r.measured.comm_bytes_per_step);
+            s.memory.extend(r.measured.peak_rss_sum_bytes.or(r.measured.peak_rss_bytes).map(|b| b as f64));
         }
         let mut missing = BTreeSet::new();
         for (key, s) in &samples {

@@ -33,9 +33,9 @@ use crate::util::{median, now_rfc3339};
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use mpm_cli::pinning::{self, PinnedPool};
-use mpm_cli::summary::load_imbalance;
 use mpm_core::scenario::taylor::TaylorBar;
 use mpm_core::{SimConfig, Simulation, Strategy};
+use mpm_spec::summary::load_imbalance;
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -244,7 +244,8 @@ fn configurations(a: &PairedArgs, strategies: &[Strategy]) -> Result<(Vec<Config
         configs.push((s, 1));
         configs.push((s, a.threads));
     }
-    let need: u64 = configs.iter().map(|&(s, t)| estimate_memory("taylor", u32::from(a.model), s, t)).sum();
+    let need: u64 =
+        configs.iter().map(|&(s, t)| estimate_memory(mpm_spec::ScenarioKind::Taylor, u32::from(a.model), s, t)).sum();
     if let Some(avail) = available_memory() {
         if need > avail {
             bail!(

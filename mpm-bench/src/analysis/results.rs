@@ -31,7 +31,7 @@ impl Campaign {
         self.manifest
             .as_ref()
             .map(|m| m.campaign_id.clone())
-            .or_else(|| self.all_rows().next().map(|r| r.campaign_id.clone()).filter(|s| !s.is_empty()))
+            .or_else(|| self.all_rows().next().map(|r| r.id.campaign_id.clone()).filter(|s| !s.is_empty()))
             .unwrap_or_else(|| self.dir.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default())
     }
 
@@ -40,7 +40,7 @@ impl Campaign {
         self.manifest
             .as_ref()
             .map(|m| m.machine.fingerprint.clone())
-            .or_else(|| self.all_rows().map(|r| r.machine_id.clone()).find(|s| !s.is_empty()))
+            .or_else(|| self.all_rows().map(|r| r.id.machine_id.clone()).find(|s| !s.is_empty()))
             .unwrap_or_else(|| "unknown".into())
     }
 
@@ -48,10 +48,10 @@ impl Campaign {
     /// stderr how many were left out. Claims and regress use it; figures keep the rows and
     /// draw them grey.
     pub fn without_noisy(mut self, include_noisy: bool) -> Self {
-        let noisy = self.all_rows().filter(|r| r.host_noisy).count();
+        let noisy = self.all_rows().filter(|r| r.host.host_noisy).count();
         if noisy > 0 && !include_noisy {
-            self.rows.retain(|r| !r.host_noisy);
-            self.hybrid.retain(|r| !r.host_noisy);
+            self.rows.retain(|r| !r.host.host_noisy);
+            self.hybrid.retain(|r| !r.host.host_noisy);
             eprintln!(
                 "note: {}: left out {noisy} row(s) measured on a busy host (host_noisy; --include-noisy keeps them)",
                 self.dir.display()

@@ -89,14 +89,17 @@ impl Stage {
         }
     }
 
-    /// This stage's time per step of one row (seconds), if the row measured it.
+    /// This stage's steady-state time per step of one row (seconds, warm-up steps left
+    /// out), if the row measured it: rows written before CSV schema 6 have the whole run's
+    /// stage times only, and give none for the two stages.
     pub fn time_per_step(self, row: &Row) -> Option<f64> {
-        let steps = row.steps.filter(|&s| s > 0).map(|s| s as f64);
+        let m = &row.measured;
+        let steady = m.steady_steps.filter(|&s| s > 0).map(|s| s as f64);
         let t = match self {
-            Stage::Total => row.steady_s_per_step.or_else(|| Some(row.wall_s? / steps?)),
-            Stage::Grid => Some(row.grid_stage_s? / steps?),
-            Stage::Particle => Some(row.particle_stage_s? / steps?),
-        }?;
+            Stage::Total => m.steady_s_per_step?,
+            Stage::Grid => m.steady_grid_stage_s? / steady?,
+            Stage::Particle => m.steady_particle_stage_s? / steady?,
+        };
         (t.is_finite() && t > 0.0).then_some(t)
     }
 }
@@ -386,11 +389,11 @@ impl Cell {
     /// Add a row of this cell: its times, peak memory and flags when it is `ok` and timed
     /// (then `true`), else its status and reason.
     fn add(&mut self, r: &Row) -> bool {
-        self.oversubscribed |= r.oversubscribed;
-        self.mem_estimate = self.mem_estimate.max(r.mem_estimate_bytes);
-        self.particles = self.particles.or(r.particles);
-        if r.status != Status::Ok {
-            self.not_ok.push((r.status, r.reason.clone()));
+        self.oversubscribed |= r.placement.oversubscribed;
+        self.mem_estimate = self.mem_estimate.max(r.outcome.mem_estimate_bytes);
+        self.particles = self.particles.or(r.measured.particles);
+        if r.outcome.status != Status::Ok {
+            self.not_ok.push((r.outcome.status, r.outcome.reason.clone()));
             return false;
         }
         let Some(total) = Stage::Total.time_per_step(r) else {
@@ -398,13 +401,13 @@ impl Cell {
             return false;
         };
         self.times[0].push(total);
-        self.noisy += usize::from(r.host_noisy);
+        self.noisy += usize::from(r.host.host_noisy);
         for (i, st) in [Stage::Grid, Stage::Particle].into_iter().enumerate() {
             if let Some(t) = st.time_per_step(r) {
                 self.times[i + 1].push(t);
             }
         }
-        if let Some(b) = r.peak_rss_bytes {
+        if let Some(b) = r.measured.peak_rss_bytes {
             self.peak_rss.push(b as f64);
         }
         true
@@ -451,7 +454,7 @@ impl Point {
 /// The pinning policy to analyse among `rows`: `pin`, else the first of close, spread, none,
 /// else the first label; with a note when the rows use several.
 pub fn choose_pin<'r>(rows: impl Iterator<Item = &'r Row>, pin: Option<&str>) -> (String, Option<String>) {
-    let pins: BTreeSet<&str> = rows.map(|r| r.pin_policy.as_str()).collect();
+    let pins: BTreeSet<String> = rows.map(Row::pin_label).collect();
     let chosen = match pin {
         Some(p) => p.to_string(),
         None => ["close", "spread", "none"]
@@ -465,7 +468,7 @@ pub fn choose_pin<'r>(rows: impl Iterator<Item = &'r Row>, pin: Option<&str>) ->
         format!(
             "the rows use {} pinning policies ({}); only '{chosen}' is analysed",
             pins.len(),
-            pins.iter().copied().collect::<Vec<_>>().join(", ")
+            pins.iter().cloned().collect::<Vec<_>>().join(", ")
         )
     });
     (chosen, note)
@@ -494,7 +497,7 @@ impl Analysis {
         an.choose_pin(rows, pin);
         an.note_machines(rows);
         let pin = an.pin_policy.clone();
-        an.add_rows(rows.iter().filter(|r| r.pin_policy == pin));
+        an.add_rows(rows.iter().filter(|r| r.pin_label() == pin));
         an.estimate_points(opts);
         an
     }
@@ -508,7 +511,7 @@ impl Analysis {
 
     /// The machines the rows come from, with a note when there are several.
     fn note_machines(&mut self, rows: &[Row]) {
-        let ids: BTreeSet<&str> = rows.iter().map(|r| r.machine_id.as_str()).filter(|s| !s.is_empty()).collect();
+        let ids: BTreeSet<&str> = rows.iter().map(|r| r.id.machine_id.as_str()).filter(|s| !s.is_empty()).collect();
         self.machine_ids = ids.into_iter().map(str::to_string).collect();
         if self.machine_ids.len() > 1 {
             self.notes.push(format!(
@@ -524,10 +527,10 @@ impl Analysis {
     fn add_rows<'r>(&mut self, rows: impl Iterator<Item = &'r Row>) {
         let mut nodes: BTreeMap<CellKey, Vec<f64>> = BTreeMap::new();
         for r in rows {
-            let key = CellKey::new(r.model, r.strategy, &r.opt_level, r.threads);
+            let key = CellKey::new(r.model(), r.strategy(), r.opt().as_str(), r.threads());
             let cell = self.cells.entry(key.clone()).or_default();
             if cell.add(r) {
-                if let Some(n) = r.mean_nodes.or(r.nodes.map(|n| n as f64)) {
+                if let Some(n) = r.measured.mean_nodes.or(r.measured.nodes.map(|n| n as f64)) {
                     nodes.entry(key).or_default().push(n);
                 }
             }

@@ -2,19 +2,27 @@
 //! campaign, its expansion into runs, and the seeded, interleaved run order.
 //!
 //! Expansion: every combination of the preset's models x ranks x threads x strategies x
-//! optimisation levels x repetitions x pinning policies becomes a [`RunSpec`] with the step
-//! budget of its (model, optimisation level) cell; the `serial` strategy only pairs with
-//! one thread (per rank). `threads` is per rank; a run occupies ranks x threads workers. Order: repetition by repetition, each repetition's configurations shuffled by
+//! optimisation levels x repetitions x pinning policies becomes a [`PlannedRun`]: the
+//! solver's [`RunSpec`] (scenario, strategy, threads, ranks, grid, physics, the step budget
+//! of its (model, optimisation level) cell) with the harness's optimisation level, pinning
+//! policy, launcher and repetition. Every planned spec is checked as the solver checks it
+//! (a warm-up not shorter than the steps is an error here too); the `serial` strategy only
+//! pairs with one thread (per rank). `threads` is per rank; a run occupies ranks x threads workers. Order: repetition by repetition, each repetition's configurations shuffled by
 //! a seeded Fisher-Yates (SplitMix64, stable across versions), so machine drift spreads over
 //! every cell instead of biasing one.
 
 use super::launcher::Launcher;
+use super::memory::impact_variant;
 use super::preset::{parse_size, BudgetOverride, BudgetSpec, OptLevel, Preset};
+use super::record::RunKey;
 use crate::machine::placement::{PinPolicy, Places};
 use crate::util::SplitMix64;
 use anyhow::{anyhow, bail, Context, Result};
-use mpm_core::Strategy;
-use serde::Serialize;
+use mpm_core::{GridMode, Strategy};
+use mpm_spec::scenario::{ImpactSpec, TaylorSpec};
+use mpm_spec::spec::{hex_sha256, Budget, Outputs};
+use mpm_spec::{RunSpec, Scenario, ScenarioKind};
+use serde::{Deserialize, Serialize};
 use std::time::Duration;
 
 /// Models of the Taylor bar benchmark.
@@ -48,7 +56,7 @@ pub struct Overrides {
     /// `--warmup`.
     pub warmup: Option<u64>,
     /// `--grid`.
-    pub grid: Option<String>,
+    pub grid: Option<GridMode>,
     /// `--mem-limit` in bytes.
     pub mem_limit: Option<u64>,
     /// `--seed` (order only: not part of the campaign id).
@@ -114,8 +122,8 @@ impl Overrides {
         if let Some(w) = self.warmup {
             parts.push(format!("w{w}"));
         }
-        if let Some(g) = &self.grid {
-            parts.push(g.clone());
+        if let Some(g) = self.grid {
+            parts.push(g.name().to_string());
         }
         if let Some(m) = self.mem_limit {
             parts.push(format!("mem{}M", m >> 20));
@@ -124,75 +132,89 @@ impl Overrides {
     }
 }
 
-/// The step budget of one run: exactly one of the two limits is set.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct RunBudget {
-    /// Stop after this many steps.
-    pub step_limit: Option<u64>,
-    /// Stop at this simulated time (s).
-    pub end_time: Option<f64>,
-    /// Warm-up steps.
-    pub warmup: u64,
-}
-
-/// One run of the matrix.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct RunSpec {
-    /// Scenario: `taylor` (models 1-4 = Table 2) or `impact` (models 1-4 = the paper's
-    /// variants, see [`super::memory::impact_variant`]).
-    pub scenario: String,
-    /// Model.
+/// One run of the matrix: the solver's spec and what the harness adds to it. Its
+/// serialisation is the run's configuration columns in the CSV (the spec flattened).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PlannedRun {
+    /// What the solver runs (no CPUs and no outputs: those are the run's own, added when it
+    /// starts).
+    #[serde(flatten)]
+    pub spec: RunSpec,
+    /// The matrix's model number: Taylor Model 1-4, or the impact's variant 1-4 (see
+    /// [`impact_variant`]).
     pub model: u32,
-    /// Strategy.
-    pub strategy: Strategy,
-    /// Optimisation level.
+    /// Optimisation level of the solver binary.
     pub opt: OptLevel,
-    /// Threads per rank (the solver's `--threads`).
-    pub threads: usize,
-    /// MPI ranks (1: one process, started directly).
-    pub ranks: usize,
     /// Pinning policy.
     pub pin: PinPolicy,
+    /// With several ranks: the launcher command (expanded); absent at one rank.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub launcher: Option<String>,
     /// Repetition index.
     pub rep: u32,
-    /// `fixed` / `adaptive`.
-    pub grid: String,
-    /// Budget.
-    pub budget: RunBudget,
 }
 
-impl RunSpec {
+impl PlannedRun {
+    /// Taylor bar Model `model` with `strategy` on `threads` threads (one process), built by
+    /// `opt`, `steps` steps without warm-up, pinned `close`, repetition 0; every other setting
+    /// the solver's default. For tools and tests that need a run without a preset.
+    pub fn taylor(model: u32, strategy: Strategy, opt: OptLevel, threads: usize, steps: u64) -> Self {
+        let mut spec = RunSpec::new(Scenario::Taylor(TaylorSpec::model(u8::try_from(model).unwrap_or(0))))
+            .expect("the Taylor bar's defaults are valid");
+        spec.strategy = strategy;
+        spec.threads = threads;
+        spec.budget = Budget { steps: Some(steps), end_time_s: None, warmup: Some(0) };
+        Self { spec, model, opt, pin: PinPolicy::CLOSE, launcher: None, rep: 0 }
+    }
+
     /// Short human description: `Model4 ae o0 8 thr pin close rep 0`, with several ranks
     /// `Model3 dd o3 2 ranks x 2 thr pin close rep 0`.
     pub fn describe(&self) -> String {
-        let kind = if self.scenario == "impact" { "Impact" } else { "Model" };
-        let ranks = if self.ranks > 1 { format!("{} ranks x ", self.ranks) } else { String::new() };
+        let kind = if self.spec.scenario.kind() == ScenarioKind::Impact { "Impact" } else { "Model" };
+        let ranks = if self.spec.ranks > 1 { format!("{} ranks x ", self.spec.ranks) } else { String::new() };
         format!(
             "{kind}{} {} {} {ranks}{} thr pin {} rep {}",
-            self.model, self.strategy, self.opt, self.threads, self.pin, self.rep
+            self.model, self.spec.strategy, self.opt, self.spec.threads, self.pin, self.rep
         )
     }
 
     /// Workers of the whole run: ranks x threads per rank (what oversubscription counts).
     pub fn total_threads(&self) -> usize {
-        self.ranks * self.threads
+        self.spec.total_workers()
     }
 
-    /// Resume key (see [`super::record::run_key`]).
-    pub fn key(&self) -> super::record::RunKey {
-        super::record::run_key(
-            self.model,
-            self.strategy,
-            self.opt.as_str(),
-            self.ranks,
-            self.threads,
-            &self.pin.label(),
-            self.rep,
-            &self.grid,
-            self.budget.warmup,
-            self.budget.step_limit,
-            self.budget.end_time,
-        )
+    /// Resume key: the first 16 hex digits of the SHA-256 of the canonical JSON of
+    /// everything that makes the run (the solver's spec without CPUs and outputs, the
+    /// optimisation level, pinning policy, launcher and model), and the repetition. Any
+    /// change of scenario, physics, budget, launcher, or a solver option added later, makes
+    /// another run.
+    pub fn key(&self) -> RunKey {
+        let mut canonical = self.clone();
+        canonical.rep = 0;
+        canonical.spec.cpus = None;
+        canonical.spec.outputs = Outputs::default();
+        let text = serde_json::to_string(&canonical).expect("a planned run serialises");
+        RunKey(format!("{}-r{}", &hex_sha256(text.as_bytes())[..16], self.rep))
+    }
+
+    /// A readable label of the configuration for run ids: `m1-dd-o3-t2-close`, with ranks
+    /// `m1-dd-o3-t2-ranks2-close`.
+    pub fn label(&self) -> String {
+        let ranks = if self.spec.ranks > 1 { format!("-ranks{}", self.spec.ranks) } else { String::new() };
+        let pin: String =
+            self.pin.label().chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '.' }).collect();
+        format!("m{}-{}-{}-t{}{ranks}-{pin}", self.model, self.spec.strategy, self.opt, self.spec.threads)
+    }
+
+    /// The step budget's words for people: `20 steps (w2)`, `to 4e-5 s (w2)`.
+    pub fn budget_label(&self) -> String {
+        let b = &self.spec.budget;
+        let w = b.warmup.unwrap_or(0);
+        match (b.steps, b.end_time_s) {
+            (Some(n), _) => format!("{n} steps (w{w})"),
+            (None, Some(t)) => format!("to {t:e} s (w{w})"),
+            _ => "unbounded".into(),
+        }
     }
 }
 
@@ -210,7 +232,7 @@ pub struct Campaign {
     /// Overrides slug (empty when none).
     pub overrides: String,
     /// Scenario.
-    pub scenario: String,
+    pub scenario: ScenarioKind,
     /// Models.
     pub models: Vec<u32>,
     /// Threads per rank.
@@ -228,7 +250,7 @@ pub struct Campaign {
     /// Pinning policies.
     pub pins: Vec<PinPolicy>,
     /// Grid mode.
-    pub grid: String,
+    pub grid: GridMode,
     /// Seed of the run order.
     pub seed: u64,
     /// Memory limit for the guard (bytes), if set.
@@ -260,7 +282,7 @@ impl Campaign {
             preset_name: preset.name.clone(),
             preset_source: source,
             overrides: slug,
-            scenario: preset.scenario.clone(),
+            scenario: preset.scenario,
             models: overrides.models.clone().unwrap_or_else(|| preset.models.clone()),
             threads: overrides.threads.clone().unwrap_or_else(|| preset.threads.clone()),
             ranks: overrides.ranks.clone().unwrap_or_else(|| preset.ranks.clone()),
@@ -269,7 +291,7 @@ impl Campaign {
             opts: overrides.opt.clone().unwrap_or_else(|| preset.opt.clone()),
             reps: overrides.reps.unwrap_or(preset.reps),
             pins: overrides.pin.clone().unwrap_or_else(|| preset_pins(&preset, overrides.places)),
-            grid: overrides.grid.clone().unwrap_or_else(|| preset.grid.clone()),
+            grid: overrides.grid.unwrap_or(preset.grid),
             seed: overrides.seed.unwrap_or(preset.seed),
             mem_limit: None,
             timeout: None,
@@ -287,6 +309,14 @@ impl Campaign {
             None => None,
         };
         check_budget(&c.budget)?;
+        for opt in &c.opts {
+            if !opt.has_profile() {
+                bail!("optimisation level {opt} has no Cargo profile of its own: use o3 or o0");
+            }
+        }
+        for run in c.try_expand()? {
+            run.spec.check().with_context(|| format!("the preset's run {}", run.describe()))?;
+        }
         Ok(c)
     }
 
@@ -319,21 +349,19 @@ impl Campaign {
         if self.reps == 0 {
             bail!("repetitions must be at least 1");
         }
-        let grid: mpm_core::GridMode =
-            self.grid.parse().map_err(|e: String| anyhow::anyhow!("{e} (the preset's `grid` or --grid)"))?;
-        if grid == mpm_core::GridMode::Sparse && self.ranks.iter().any(|&r| r > 1) {
+        if self.grid == GridMode::Sparse && self.ranks.iter().any(|&r| r > 1) {
             bail!(
                 "the sparse grid runs in one process only: use grid = \"adaptive\" for a campaign over several ranks"
             );
         }
-        if self.scenario != "taylor" && self.scenario != "impact" {
-            bail!("unknown scenario '{}' (the campaign harness runs: taylor, impact)", self.scenario);
+        if self.scenario == ScenarioKind::Plate {
+            bail!("the campaign harness runs the taylor and impact scenarios; run the plate with `mpm run plate`");
         }
         Ok(())
     }
 
     /// Budget of one (model, opt) cell: the most specific matching override wins.
-    pub fn budget_for(&self, model: u32, opt: OptLevel) -> RunBudget {
+    pub fn budget_for(&self, model: u32, opt: OptLevel) -> Budget {
         let mut step_limit = self.budget.steps;
         let mut end_time = self.budget.end_time;
         let mut warmup = self.budget.warmup;
@@ -358,15 +386,43 @@ impl Campaign {
                 warmup = w;
             }
         }
-        // Warm-up must leave at least one steady step when the step count is known.
-        if let Some(n) = step_limit {
-            warmup = warmup.min(n.saturating_sub(1));
-        }
-        RunBudget { step_limit, end_time, warmup }
+        Budget { steps: step_limit, end_time_s: end_time, warmup: Some(warmup) }
+    }
+
+    /// The scenario of model `model` (Taylor Model 1-4, or the impact's variant 1-4).
+    fn scenario_of(&self, model: u32) -> Result<Scenario> {
+        Ok(match self.scenario {
+            ScenarioKind::Taylor => Scenario::Taylor(TaylorSpec::model(u8::try_from(model)?)),
+            ScenarioKind::Impact => {
+                let (spacing_m, cell_m) =
+                    impact_variant(model).ok_or_else(|| anyhow!("unknown impact model {model}"))?;
+                Scenario::Impact(ImpactSpec { spacing_m, cell_m, ..ImpactSpec::default() })
+            }
+            ScenarioKind::Plate => bail!("the campaign harness does not run the plate"),
+        })
+    }
+
+    /// The solver's spec of one cell of the matrix.
+    fn spec_of(&self, model: u32, opt: OptLevel, strategy: Strategy, ranks: usize, threads: usize) -> Result<RunSpec> {
+        let mut spec = RunSpec::new(self.scenario_of(model)?).map_err(|e| anyhow!("{e}"))?;
+        spec.strategy = strategy;
+        spec.threads = threads;
+        spec.ranks = ranks;
+        spec.grid = self.grid;
+        self.preset.physics.apply(&mut spec.physics);
+        spec.budget = self.budget_for(model, opt);
+        // Each rank's waiting for the others apart from its communication (the row's wait_*
+        // and comm_* columns); the solver refuses it at one rank.
+        spec.split_wait = ranks > 1;
+        Ok(spec)
     }
 
     /// Every run of the matrix, in declaration order.
-    pub fn expand(&self) -> Vec<RunSpec> {
+    pub fn expand(&self) -> Vec<PlannedRun> {
+        self.try_expand().expect("a resolved campaign expands")
+    }
+
+    fn try_expand(&self) -> Result<Vec<PlannedRun>> {
         let mut out = Vec::new();
         for rep in 0..self.reps {
             for &model in &self.models {
@@ -377,18 +433,16 @@ impl Campaign {
                                 if strategy.check_threads(threads).is_err() {
                                     continue;
                                 }
+                                let spec = self.spec_of(model, opt, strategy, ranks, threads)?;
+                                let launcher = (ranks > 1).then(|| self.launcher.expand(ranks, threads).join(" "));
                                 for pin in &self.pins {
-                                    out.push(RunSpec {
-                                        scenario: self.scenario.clone(),
+                                    out.push(PlannedRun {
+                                        spec: spec.clone(),
                                         model,
-                                        strategy,
                                         opt,
-                                        threads,
-                                        ranks,
                                         pin: pin.clone(),
+                                        launcher: launcher.clone(),
                                         rep,
-                                        grid: self.grid.clone(),
-                                        budget: self.budget_for(model, opt),
                                     });
                                 }
                             }
@@ -397,16 +451,16 @@ impl Campaign {
                 }
             }
         }
-        out
+        Ok(out)
     }
 
     /// The run order: repetition by repetition, each shuffled with `seed`.
-    pub fn ordered(&self, seed: u64) -> Vec<RunSpec> {
+    pub fn ordered(&self, seed: u64) -> Vec<PlannedRun> {
         let all = self.expand();
         let mut rng = SplitMix64(seed);
         let mut out = Vec::with_capacity(all.len());
         for rep in 0..self.reps {
-            let mut block: Vec<RunSpec> = all.iter().filter(|r| r.rep == rep).cloned().collect();
+            let mut block: Vec<PlannedRun> = all.iter().filter(|r| r.rep == rep).cloned().collect();
             rng.shuffle(&mut block);
             out.extend(block);
         }
@@ -461,7 +515,7 @@ mod tests {
         let c = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
         assert_eq!(c.models, vec![1, 2, 3, 4]);
         assert_eq!(c.threads, vec![1, 2, 4, 6, 8]);
-        assert_eq!(c.budget_for(4, OptLevel::O0).end_time, Some(4e-5));
+        assert_eq!(c.budget_for(4, OptLevel::O0).end_time_s, Some(4e-5));
     }
 
     /// The paper preset pins as the paper did: OpenMP close over cores, so on two quad-core
@@ -488,38 +542,39 @@ mod tests {
         assert_eq!(p.ranks, vec![1]);
         assert_eq!(p.launcher, None);
         let c = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
-        assert!(c.expand().iter().all(|r| r.ranks == 1 && r.total_threads() == r.threads));
+        assert!(c.expand().iter().all(|r| r.spec.ranks == 1 && r.total_threads() == r.spec.threads));
         let (p, _) = load_preset("hybrid", None).unwrap();
         let c = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
         assert_eq!(c.ranks, vec![1, 2]);
         let runs = c.expand();
         for (ranks, threads) in [(1, 1), (1, 2), (2, 1), (2, 2)] {
-            assert!(runs.iter().any(|r| r.ranks == ranks && r.threads == threads), "{ranks}x{threads}");
+            assert!(runs.iter().any(|r| r.spec.ranks == ranks && r.spec.threads == threads), "{ranks}x{threads}");
         }
-        let keys: std::collections::HashSet<_> = runs.iter().map(RunSpec::key).collect();
+        let keys: std::collections::HashSet<_> = runs.iter().map(PlannedRun::key).collect();
         assert_eq!(keys.len(), runs.len());
         assert_eq!(
-            runs.iter().find(|r| r.ranks == 2 && r.threads == 2).unwrap().describe(),
+            runs.iter().find(|r| r.spec.ranks == 2 && r.spec.threads == 2).unwrap().describe(),
             "Model1 dd o3 2 ranks x 2 thr pin close rep 0"
         );
         // --ranks replaces the preset's and names the campaign; zero ranks is refused.
         let (p, _) = load_preset("smoke", None).unwrap();
         let ov = Overrides { ranks: Some(vec![2]), ..Overrides::default() };
         let c = Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap();
-        assert!(c.expand().iter().all(|r| r.ranks == 2));
+        assert!(c.expand().iter().all(|r| r.spec.ranks == 2));
         assert!(c.id.contains("ranks2"), "{}", c.id);
         let ov = Overrides { ranks: Some(vec![0, 1]), ..Overrides::default() };
         let err = Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap_err().to_string();
         assert!(err.contains("rank counts must be at least 1"), "{err}");
         // The sparse grid is one process's; an unknown grid names the known ones.
-        let ov = Overrides { grid: Some("sparse".into()), ..Overrides::default() };
-        assert_eq!(Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap().grid, "sparse");
-        let ov = Overrides { grid: Some("sparse".into()), ranks: Some(vec![1, 2]), ..Overrides::default() };
+        let ov = Overrides { grid: Some(GridMode::Sparse), ..Overrides::default() };
+        assert_eq!(Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap().grid, GridMode::Sparse);
+        let ov = Overrides { grid: Some(GridMode::Sparse), ranks: Some(vec![1, 2]), ..Overrides::default() };
         let err = Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap_err().to_string();
         assert!(err.contains("one process only"), "{err}");
-        let ov = Overrides { grid: Some("dense".into()), ..Overrides::default() };
-        let err = Campaign::resolve(p, "builtin".into(), &ov).unwrap_err().to_string();
-        assert!(err.contains("'fixed', 'adaptive' or 'sparse'"), "{err}");
+        let text = include_str!("../../../configs/smoke.toml").replace("grid = \"fixed\"", "grid = \"dense\"");
+        let err = format!("{:#}", crate::campaign::preset::parse_preset(&text).unwrap_err());
+        assert!(err.contains("dense") && err.contains("`fixed`, `adaptive`, `sparse`"), "{err}");
+        drop(p);
     }
 
     /// The preset's `ranks` and `launcher` keys; `--launcher` wins over the preset and is

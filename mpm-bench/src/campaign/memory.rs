@@ -8,6 +8,7 @@
 use crate::machine::topology::human_bytes;
 use mpm_core::scenario::size::{ModelSize, IMPACT_MODELS};
 use mpm_core::Strategy;
+use mpm_spec::ScenarioKind;
 
 /// The impact scenario's campaign models: `(particle spacing, cell size)` in metres of
 /// model `m` (1-4, see [`IMPACT_MODELS`]).
@@ -18,8 +19,8 @@ pub fn impact_variant(m: u32) -> Option<(f64, f64)> {
 /// Size of `model` of `scenario` (`taylor`: Models 1-4 of Table 2; `impact`: the
 /// [`impact_variant`]s, nodes of the adaptive grid around the debris cloud, an upper
 /// estimate).
-pub fn scenario_size(scenario: &str, m: u32) -> Option<ModelSize> {
-    if scenario == "impact" {
+pub fn scenario_size(scenario: ScenarioKind, m: u32) -> Option<ModelSize> {
+    if scenario == ScenarioKind::Impact {
         impact_variant(m).map(|(spacing, cell)| ModelSize::impact(spacing, cell))
     } else {
         ModelSize::taylor(u8::try_from(m).ok()?)
@@ -28,7 +29,7 @@ pub fn scenario_size(scenario: &str, m: u32) -> Option<ModelSize> {
 
 /// Estimated peak memory of a run of `model` of `scenario`, bytes (the process baseline for
 /// an unknown model).
-pub fn estimate_memory(scenario: &str, model: u32, strategy: Strategy, threads: usize) -> u64 {
+pub fn estimate_memory(scenario: ScenarioKind, model: u32, strategy: Strategy, threads: usize) -> u64 {
     scenario_size(scenario, model).unwrap_or_default().memory_bytes(strategy, threads)
 }
 
@@ -36,35 +37,16 @@ pub fn estimate_memory(scenario: &str, model: u32, strategy: Strategy, threads: 
 /// buffers, a second copy of the program's code and heap set-up.
 pub const RANK_OVERHEAD_BYTES: u64 = 64 << 20;
 
-/// Estimated memory, summed over the ranks, of a run split over `ranks` ranks of `threads`
-/// threads each: the one-process model (split between the ranks, their overlaps small; no
+/// Estimated memory, summed over the ranks, of the run `spec` (`ranks` ranks of `threads`
+/// threads each): the one-process model (split between the ranks, their overlaps small; no
 /// rank gathers the particles, the figures are measured across the ranks) and
-/// [`RANK_OVERHEAD_BYTES`] per extra rank. At one rank, [`estimate_memory`].
-pub fn estimate_ranks_memory(scenario: &str, model: u32, strategy: Strategy, threads: usize, ranks: usize) -> u64 {
-    let one = estimate_memory(scenario, model, strategy, threads);
-    one + (ranks.max(1) as u64 - 1) * RANK_OVERHEAD_BYTES
+/// [`RANK_OVERHEAD_BYTES`] per extra rank.
+pub fn estimate_run_memory(spec: &mpm_spec::RunSpec) -> u64 {
+    let one = spec.scenario.size().memory_bytes(spec.strategy, spec.threads);
+    one + (spec.ranks.max(1) as u64 - 1) * RANK_OVERHEAD_BYTES
 }
 
-/// Memory available to a new process now, bytes: `MemAvailable`, capped by a cgroup v2
-/// `memory.max` when one is set.
-pub fn available_memory() -> Option<u64> {
-    let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let avail = meminfo
-        .lines()
-        .find(|l| l.starts_with("MemAvailable:"))
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|v| v.parse::<u64>().ok())?
-        * 1024;
-    let cg = std::fs::read_to_string("/sys/fs/cgroup/memory.max").ok().and_then(|s| s.trim().parse::<u64>().ok());
-    let used = std::fs::read_to_string("/sys/fs/cgroup/memory.current")
-        .ok()
-        .and_then(|s| s.trim().parse::<u64>().ok())
-        .unwrap_or(0);
-    Some(match cg {
-        Some(max) => avail.min(max.saturating_sub(used)),
-        None => avail,
-    })
-}
+pub use mpm_cli::memory::available_memory;
 
 /// Fraction of the available memory a run may use.
 pub const MEMORY_HEADROOM: f64 = 0.9;
@@ -96,14 +78,14 @@ mod tests {
 
     #[test]
     fn memory_estimates_grow_with_ae_threads_only() {
-        let ae1 = estimate_memory("taylor", 4, Strategy::ArrayExpansion, 1);
-        let ae8 = estimate_memory("taylor", 4, Strategy::ArrayExpansion, 8);
-        let dd1 = estimate_memory("taylor", 4, Strategy::DomainDecomposition, 1);
-        let dd8 = estimate_memory("taylor", 4, Strategy::DomainDecomposition, 8);
+        let ae1 = estimate_memory(ScenarioKind::Taylor, 4, Strategy::ArrayExpansion, 1);
+        let ae8 = estimate_memory(ScenarioKind::Taylor, 4, Strategy::ArrayExpansion, 8);
+        let dd1 = estimate_memory(ScenarioKind::Taylor, 4, Strategy::DomainDecomposition, 1);
+        let dd8 = estimate_memory(ScenarioKind::Taylor, 4, Strategy::DomainDecomposition, 8);
         assert_eq!(ae8 - ae1, 7 * (80 * 8_302_185 + BYTES_PER_THREAD));
         assert_eq!(dd8 - dd1, 7 * BYTES_PER_THREAD);
-        assert_eq!(scenario_size("impact", 1).map(|s| s.particles), Some(847_888));
-        assert_eq!(scenario_size("taylor", 5), None);
+        assert_eq!(scenario_size(ScenarioKind::Impact, 1).map(|s| s.particles), Some(847_888));
+        assert_eq!(scenario_size(ScenarioKind::Taylor, 5), None);
         // The paper's 8 GB machine: Model 4 AE at 8 threads does not fit, DD does.
         assert!(memory_verdict(ae8, Some(8 << 30), None).is_some());
         assert!(memory_verdict(dd8, Some(8 << 30), None).is_none());

@@ -8,11 +8,15 @@
 //! * [`launcher`]: the MPI launcher template of runs with several ranks;
 //! * [`runner`]: the loop over the runs, with resume and Ctrl-C;
 //! * [`watch`]: the host's load and calibration around each run (`host_noisy`);
-//! * [`record`]: the CSV row; [`manifest`]: the machine and software of a campaign.
+//! * [`record`]: the CSV row, made of typed parts, its columns derived by [`columns`];
+//!   [`legacy`]: rows of CSV schemas 1-5; [`manifest`]: the machine and software of a
+//!   campaign.
 //!
 //! It uses the machine layer ([`crate::machine`]) and nothing of analysis or report.
 
+pub mod columns;
 pub mod launcher;
+pub mod legacy;
 pub mod manifest;
 pub mod matrix;
 pub mod memory;

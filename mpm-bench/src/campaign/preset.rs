@@ -19,10 +19,16 @@
 //! reps = 1
 //! pin = "close"            # OpenMP binding (alias key: bind); a list ["close", "spread"]; a CPU list "0,1"
 //! places = "cores"         # OpenMP places: threads, cores, ll_caches, numa_domains, sockets
-//! grid = "fixed"           # or "adaptive"
+//! grid = "fixed"           # or "adaptive", "sparse"
 //! seed = 2009              # run-order shuffle
 //! # mem_limit = "8GiB"     # pretend the machine has this much memory (memory guard)
 //! # timeout = "30m"        # per run
+//!
+//! [physics]                # optional: every absent key is the solver's default
+//! eos = "hugoniot"         # or "paper-printed"
+//! q = { c1 = 1.5, c2 = 0.06 }
+//! cfl = 0.5
+//! energy_rise_limit = 0.05 # or "off"
 //!
 //! [budget]
 //! steps = 20               # or: end_time = 4e-5 (seconds)
@@ -40,11 +46,11 @@
 use super::launcher::Launcher;
 use crate::machine::placement::{PinPolicy, Places};
 use anyhow::{anyhow, bail, Context, Result};
-use mpm_core::Strategy;
+use mpm_core::{BulkViscosity, GridMode, MgForm, Strategy};
+use mpm_spec::spec::{Physics, RiseLimit};
+use mpm_spec::ScenarioKind;
 use serde::{Deserialize, Serialize};
-use std::fmt;
 use std::path::{Path, PathBuf};
-use std::str::FromStr;
 
 /// Presets shipped with the harness (embedded; `configs/<name>.toml` in the workspace wins
 /// when present, so edits there apply without rebuilding).
@@ -57,39 +63,37 @@ pub const BUILTIN_PRESETS: [(&str, &str); 6] = [
     ("hybrid", include_str!("../../../configs/hybrid.toml")),
 ];
 
-/// Optimisation level = Cargo profile of the solver binary.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum OptLevel {
-    /// `opt-level = 3` (profile `o3`).
-    O3,
-    /// `opt-level = 0`, debug assertions and overflow checks off (profile `o0`).
-    O0,
+/// Optimisation level = Cargo profile of the solver binary (`o3`, `o0`).
+pub use mpm_spec::OptLevel;
+
+/// Physics options of every run of a preset (each absent one: the solver's default).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PhysicsPreset {
+    /// Form of the Mie-Grüneisen EOS (`hugoniot`, `paper-printed`).
+    pub eos: Option<MgForm>,
+    /// Artificial bulk viscosity `{ c1 = 1.5, c2 = 0.06 }`.
+    pub q: Option<BulkViscosity>,
+    /// CFL number.
+    pub cfl: Option<f64>,
+    /// Energy-rise limit: a fraction, or `"off"`.
+    pub energy_rise_limit: Option<RiseLimit>,
 }
 
-impl OptLevel {
-    /// Profile name (`o3` / `o0`).
-    pub fn as_str(self) -> &'static str {
-        match self {
-            OptLevel::O3 => "o3",
-            OptLevel::O0 => "o0",
+impl PhysicsPreset {
+    /// `physics` with these options applied.
+    pub fn apply(&self, physics: &mut Physics) {
+        if let Some(e) = self.eos {
+            physics.eos = e;
         }
-    }
-}
-
-impl fmt::Display for OptLevel {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl FromStr for OptLevel {
-    type Err = anyhow::Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "o3" | "3" => Ok(OptLevel::O3),
-            "o0" | "0" | "none" | "noopt" => Ok(OptLevel::O0),
-            _ => bail!("unknown optimisation level '{s}' (known: o3, o0)"),
+        if let Some(q) = self.q {
+            physics.q = q;
+        }
+        if let Some(c) = self.cfl {
+            physics.cfl = c;
+        }
+        if let Some(l) = self.energy_rise_limit {
+            physics.energy_rise_limit = l;
         }
     }
 }
@@ -155,9 +159,9 @@ pub struct Preset {
     /// What the preset is for.
     #[serde(default)]
     pub description: String,
-    /// Scenario passed to `mpm run` (`taylor`).
-    #[serde(default = "default_scenario")]
-    pub scenario: String,
+    /// Scenario of every run (`taylor`, or `impact` with the impact variants as models).
+    #[serde(default)]
+    pub scenario: ScenarioKind,
     /// Models.
     pub models: Vec<u32>,
     /// Thread counts (per rank).
@@ -186,9 +190,12 @@ pub struct Preset {
     /// own `@places`).
     #[serde(default)]
     pub places: Option<Places>,
-    /// `fixed` or `adaptive`.
-    #[serde(default = "default_grid")]
-    pub grid: String,
+    /// `fixed`, `adaptive` or `sparse`.
+    #[serde(default)]
+    pub grid: GridMode,
+    /// Physics options of every run (default: the solver's).
+    #[serde(default)]
+    pub physics: PhysicsPreset,
     /// Seed of the run-order shuffle.
     #[serde(default)]
     pub seed: u64,
@@ -200,9 +207,6 @@ pub struct Preset {
     pub budget: BudgetSpec,
 }
 
-fn default_scenario() -> String {
-    "taylor".into()
-}
 fn one() -> u32 {
     1
 }
@@ -211,9 +215,6 @@ fn one_rank() -> Vec<usize> {
 }
 fn default_pin() -> OneOrMany<PinPolicy> {
     OneOrMany::One(PinPolicy::CLOSE)
-}
-fn default_grid() -> String {
-    "fixed".into()
 }
 
 /// Find and parse a preset: a path to a TOML file, or a built-in name.

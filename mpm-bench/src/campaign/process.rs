@@ -1,9 +1,10 @@
-//! One run as a child process: the request (the `mpm run` arguments), what came back, and
-//! the runners: [`ProcessRunner`] spawns `mpm run ... --json FILE --quiet` as a fresh
-//! process (clean memory figure, no state carried over), or with several ranks
-//! `<launcher> mpm run ...` (see [`super::launcher`]) with the CPU set of the run as the
-//! launcher's affinity mask, in a process group of its own so that a timeout or Ctrl-C stops
-//! every rank; [`MockRunner`] fakes it in microseconds for tests.
+//! One run as a child process: the request (the run's spec file), what came back, and the
+//! runners: [`ProcessRunner`] writes the run's [`mpm_spec::RunSpec`] to a file and spawns
+//! `mpm run --spec FILE` as a fresh process (clean memory figure, no state carried over), or
+//! with several ranks `<launcher> mpm run --spec FILE` (see [`super::launcher`]) with the CPU
+//! set of the run as the launcher's affinity mask, in a process group of its own so that a
+//! timeout or Ctrl-C stops every rank; [`MockRunner`] fakes it in microseconds for tests.
+//! The harness never composes solver flags: everything the solver needs is in the spec.
 //!
 //! A child dies with the harness (Linux parent-death signal, set between fork and exec), and
 //! the temporary summary file of a child killed mid-run (timeout, Ctrl-C, SIGTERM) is removed
@@ -11,12 +12,11 @@
 //! ([`remove_stale_temp_files`]).
 
 use super::launcher::Launcher;
-use super::matrix::RunSpec;
-use super::memory::{estimate_memory, impact_variant, scenario_size};
+use super::matrix::PlannedRun;
 use super::preset::OptLevel;
-use mpm_cli::summary::{EndReason, Substages, Summary};
-use mpm_core::scenario::size::ModelSize;
-use mpm_core::Strategy;
+use mpm_core::{Strategy, Substage};
+use mpm_spec::summary::{EndReason, RankReport, StageSeconds, Summary};
+use mpm_spec::RunSpec;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -27,16 +27,17 @@ use std::time::{Duration, Instant};
 /// Everything one run needs.
 #[derive(Clone, Debug)]
 pub struct RunRequest {
-    /// The run.
+    /// The run as planned.
+    pub planned: PlannedRun,
+    /// What the solver runs: the planned spec with this run's CPUs (`None` not pinned, and
+    /// always `None` with several ranks: see `mask`) and outputs (the JSON summary at
+    /// `json_path`, quiet).
     pub spec: RunSpec,
-    /// Scenario name (`taylor`).
-    pub scenario: String,
+    /// Where the spec is written for the solver to read.
+    pub spec_path: PathBuf,
     /// Solver binary.
     pub binary: PathBuf,
-    /// CPU of each worker (`--cpus`); `None` = not pinned, and always `None` with several
-    /// ranks (every rank would take the same list): see `mask`.
-    pub cpus: Option<Vec<usize>>,
-    /// Several ranks: the launcher's words (program first), `mpm run ...` follows.
+    /// Several ranks: the launcher's words (program first), `mpm run --spec FILE` follows.
     pub launcher: Option<Vec<String>>,
     /// Several ranks, pinned: the launcher's affinity mask (the CPU set of all ranks'
     /// workers, ascending), inherited by the ranks, which slice it by rank.
@@ -48,41 +49,32 @@ pub struct RunRequest {
 }
 
 impl RunRequest {
-    /// Arguments of `mpm` for this run (with several ranks `--split-wait`, at one rank not).
-    pub fn args(&self) -> Vec<String> {
-        let s = &self.spec;
-        let mut a: Vec<String> = vec!["run".into(), self.scenario.clone()];
-        match impact_variant(s.model).filter(|_| self.scenario == "impact") {
-            Some((spacing, cell)) => {
-                a.extend(["--spacing".into(), format!("{spacing:e}"), "--cell".into(), format!("{cell:e}")])
-            }
-            None => a.extend(["--model".into(), s.model.to_string()]),
+    /// The request of `planned` on `cpus`, its files at `json_path` (the summary) and
+    /// `spec_path`.
+    pub fn new(planned: &PlannedRun, cpus: Option<Vec<usize>>, json_path: PathBuf, spec_path: PathBuf) -> Self {
+        let mut spec = planned.spec.clone();
+        spec.cpus = cpus;
+        spec.outputs.json = Some(json_path.clone());
+        spec.outputs.quiet = true;
+        Self {
+            planned: planned.clone(),
+            spec,
+            spec_path,
+            binary: PathBuf::new(),
+            launcher: None,
+            mask: None,
+            json_path,
+            timeout: None,
         }
-        a.extend(["--strategy".into(), s.strategy.to_string(), "--threads".into(), s.threads.to_string()]);
-        if let Some(c) = &self.cpus {
-            a.push("--cpus".into());
-            a.push(c.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(","));
-        }
-        if let Some(n) = s.budget.step_limit {
-            a.push("--steps".into());
-            a.push(n.to_string());
-        }
-        if let Some(t) = s.budget.end_time {
-            a.push("--end-time".into());
-            a.push(format!("{t:e}"));
-        }
-        a.extend(["--grid".into(), s.grid.clone(), "--warmup".into(), s.budget.warmup.to_string()]);
-        if s.ranks > 1 {
-            // Each rank's waiting for the others apart from its communication (the row's
-            // wait_* and comm_* columns); mpm refuses the flag at one rank.
-            a.push("--split-wait".into());
-        }
-        a.extend(["--json".into(), self.json_path.display().to_string(), "--quiet".into()]);
-        a
     }
 
-    /// The program and its arguments: `mpm run ...`, or the launcher's words, then the
-    /// solver binary and `run ...`.
+    /// Arguments of `mpm`: the spec file, nothing else.
+    pub fn args(&self) -> Vec<String> {
+        vec!["run".into(), "--spec".into(), self.spec_path.display().to_string()]
+    }
+
+    /// The program and its arguments: `mpm run --spec FILE`, or the launcher's words, then
+    /// the solver binary and `run --spec FILE`.
     pub fn command_line(&self) -> (String, Vec<String>) {
         let binary = self.binary.display().to_string();
         match self.launcher.as_deref() {
@@ -94,6 +86,12 @@ impl RunRequest {
             }
             _ => (binary, self.args()),
         }
+    }
+
+    /// Write the spec file (TOML) for the solver.
+    pub fn write_spec(&self) -> std::io::Result<()> {
+        mpm_cli::atomic::write_atomic(&self.spec_path, self.spec.to_toml().as_bytes())
+            .map_err(|e| std::io::Error::other(format!("{e:#}")))
     }
 }
 
@@ -242,6 +240,12 @@ impl Runner for ProcessRunner {
     fn run(&mut self, req: &RunRequest) -> RunOutput {
         let start = Instant::now();
         let _ = std::fs::remove_file(&req.json_path);
+        if let Err(e) = req.write_spec() {
+            return RunOutput {
+                error: Some(format!("cannot write the run's spec {}: {e}", req.spec_path.display())),
+                ..RunOutput::default()
+            };
+        }
         let (program, args) = req.command_line();
         let mut cmd = Command::new(&program);
         cmd.args(args).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::piped());
@@ -383,7 +387,7 @@ impl Runner for MockRunner {
                 return RunOutput { interrupted: true, error: Some("interrupted".into()), ..RunOutput::default() };
             }
         }
-        let desc = req.spec.describe();
+        let desc = req.planned.describe();
         if self.fail_when.as_ref().is_some_and(|f| desc.contains(f.as_str())) {
             return RunOutput {
                 exit_code: Some(1),
@@ -392,17 +396,18 @@ impl Runner for MockRunner {
                 ..RunOutput::default()
             };
         }
-        // As mpm: `--split-wait` needs several ranks, and reports each rank's waiting.
-        let split_wait = req.args().iter().any(|a| a == "--split-wait");
-        if split_wait && req.spec.ranks < 2 {
+        // As mpm: the spec is checked (`split_wait` needs several ranks, ...), and with
+        // `split_wait` every rank reports its waiting.
+        if let Err(e) = req.spec.check() {
             return RunOutput {
-                exit_code: Some(2),
-                stderr_tail: "error: --split-wait measures waiting between ranks and needs several".into(),
+                exit_code: Some(1),
+                stderr_tail: format!("error: {e}"),
                 process_wall_s: 0.01,
                 ..RunOutput::default()
             };
         }
-        let requested = req.cpus.clone().unwrap_or_default();
+        let split_wait = req.spec.split_wait;
+        let requested = req.spec.cpus.clone().unwrap_or_default();
         let wrong = self.wrong_cpus_when.as_ref().is_some_and(|f| desc.contains(f.as_str()));
         let observed: Vec<usize> = if wrong { requested.iter().map(|c| c + 1).collect() } else { requested.clone() };
         let mut summary = mock_summary(req, requested, observed);
@@ -425,7 +430,7 @@ impl Runner for MockRunner {
 /// the mask as `mpm` places them (shared and flagged when the mask is too small), the
 /// particles split evenly, a halo of 1 % of the particles' 80 bytes each way per step; with
 /// `split_wait` each rank's waiting (the later ranks wait less).
-fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool, split_wait: bool) -> Vec<mpm_cli::summary::RankReport> {
+fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool, split_wait: bool) -> Vec<RankReport> {
     let (ranks, threads) = (req.spec.ranks, req.spec.threads);
     let mask = req.mask.clone().unwrap_or_default();
     let fits = mask.len() >= ranks * threads;
@@ -437,7 +442,7 @@ fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool, split_wait: bool) -> V
                 (0..threads).map(|j| mask[(r * threads + j) % mask.len()] + usize::from(wrong)).collect()
             };
             let halo = (s.particles as u64 / 100) * 80 * s.steps;
-            mpm_cli::summary::RankReport {
+            RankReport {
                 rank: r,
                 cpus,
                 oversubscribed: !fits,
@@ -465,44 +470,60 @@ fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool, split_wait: bool) -> V
 /// optimisation level; the CPUs as given.
 fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -> Summary {
     let s = &req.spec;
-    let size = scenario_size(&s.scenario, s.model).unwrap_or(ModelSize { particles: 1000, nodes: 1000 });
-    let steps = s.budget.step_limit.unwrap_or(100);
+    let size = s.scenario.size();
+    let steps = s.budget.steps.unwrap_or(100);
+    let warmup = s.budget.warmup.unwrap_or(0).min(steps);
     let speed = match s.strategy {
         Strategy::DomainDecomposition | Strategy::DdBalanced => 0.9,
         Strategy::Serial | Strategy::ArrayExpansion => 0.8,
-    } * (s.total_threads().min(2) as f64);
-    let per_step = size.particles as f64 * 50e-9 * if s.opt == OptLevel::O0 { 8.0 } else { 1.0 } / speed;
+    } * (s.total_workers().min(2) as f64);
+    let per_step = size.particles as f64 * 50e-9 * if req.planned.opt == OptLevel::O0 { 8.0 } else { 1.0 } / speed;
     let wall = per_step * steps as f64;
-    let substages =
-        [("scatter", 0.3), ("assembly", 0.1), ("grid_update", 0.05), ("gather", 0.2), ("stress_update", 0.35)]
+    let steady = per_step * (steps - warmup) as f64;
+    let split = |total: f64| {
+        StageSeconds(
+            [
+                (Substage::Scatter, 0.3),
+                (Substage::Assembly, 0.1),
+                (Substage::GridUpdate, 0.05),
+                (Substage::Gather, 0.2),
+                (Substage::StressUpdate, 0.35),
+            ]
             .into_iter()
-            .map(|(k, f)| (k.to_string(), wall * f))
-            .collect();
+            .map(|(k, f)| (k, total * f))
+            .collect(),
+        )
+    };
     Summary {
-        scenario: req.scenario.clone(),
-        model: u8::try_from(s.model).unwrap_or(u8::MAX),
+        spec: Some(s.clone()),
+        scenario: s.scenario.kind(),
+        model: s.scenario.model(),
         strategy: s.strategy,
         threads: s.threads,
-        opt_level: s.opt.to_string(),
-        grid_mode: s.grid.clone(),
-        eos: "mie-gruneisen".into(),
+        opt_level: req.planned.opt,
+        grid_mode: s.grid,
         particles: size.particles as usize,
         cells: (size.nodes / 2) as usize,
         nodes: size.nodes as usize,
         mean_nodes: size.nodes as f64,
         steps,
-        warmup_steps: s.budget.warmup,
+        warmup_steps: warmup,
+        steady_steps: steps - warmup,
         dt_first: 1e-8,
         sim_time: steps as f64 * 1e-8,
         end_reason: EndReason::StepLimit,
         wall_s: wall,
         grid_stage_s: wall * 0.45,
         particle_stage_s: wall * 0.55,
-        substages: Substages(substages),
+        substages: split(wall),
+        steady_wall_s: steady,
+        steady_grid_stage_s: steady * 0.45,
+        steady_particle_stage_s: steady * 0.55,
+        steady_substages: split(steady),
         ns_per_particle_step: Some(per_step * 1e9 / size.particles as f64),
         particle_steps_per_s: Some(size.particles as f64 / per_step),
         steady_s_per_step: Some(per_step),
-        peak_rss_bytes: Some(estimate_memory(&s.scenario, s.model, s.strategy, s.threads)),
+        peak_rss_bytes: Some(size.memory_bytes(s.strategy, s.threads)),
         requested_cpus: requested,
         observed_cpus: observed,
         kinetic_energy_initial: 1000.0,
@@ -518,55 +539,31 @@ fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::campaign::matrix::RunBudget;
     use crate::machine::placement::PinPolicy;
+    use mpm_spec::scenario::TaylorSpec;
+    use mpm_spec::Scenario;
 
+    /// The solver gets one argument, the spec file; the spec holds the run's CPUs and its
+    /// summary's path. Several ranks: the launcher's words, then the binary and the same.
     #[test]
-    fn request_args() {
-        let spec = RunSpec {
-            scenario: "taylor".into(),
-            model: 2,
-            strategy: Strategy::DomainDecomposition,
-            opt: OptLevel::O3,
-            threads: 2,
-            ranks: 1,
-            pin: PinPolicy::CLOSE,
-            rep: 0,
-            grid: "fixed".into(),
-            budget: RunBudget { step_limit: Some(5), end_time: None, warmup: 1 },
-        };
-        let req = RunRequest {
-            spec,
-            scenario: "taylor".into(),
-            binary: "mpm".into(),
-            cpus: Some(vec![0, 1]),
-            launcher: None,
-            mask: None,
-            json_path: "x.json".into(),
-            timeout: None,
-        };
-        let a = req.args().join(" ");
-        // One rank: no --split-wait (mpm refuses it without several ranks).
-        let want = "run taylor --model 2 --strategy dd --threads 2 --cpus 0,1 --steps 5 --grid fixed --warmup 1 --json x.json --quiet";
-        assert_eq!(a, want);
+    fn the_request_is_a_spec_file() {
+        let mut spec = RunSpec::new(Scenario::Taylor(TaylorSpec::model(2))).unwrap();
+        spec.strategy = Strategy::DomainDecomposition;
+        spec.threads = 2;
+        spec.budget.steps = Some(5);
+        let planned = PlannedRun { spec, model: 2, opt: OptLevel::O3, pin: PinPolicy::CLOSE, launcher: None, rep: 0 };
+        let mut req = RunRequest::new(&planned, Some(vec![0, 1]), "x.json".into(), "x.toml".into());
+        req.binary = "mpm".into();
+        assert_eq!(req.args().join(" "), "run --spec x.toml");
         assert_eq!(req.command_line(), ("mpm".to_string(), req.args()));
-        // Several ranks: the launcher's words, then the binary, then the same arguments
-        // without --cpus (each rank pins inside the launcher's mask), with --split-wait (the
-        // waiting for other ranks apart from the communication).
+        assert_eq!(req.spec.cpus, Some(vec![0, 1]));
+        assert_eq!(req.spec.outputs.json, Some(PathBuf::from("x.json")));
+        assert!(req.spec.outputs.quiet);
+        assert_eq!(RunSpec { cpus: None, ..req.spec.clone() }.key(), planned.spec.key(), "the planned computation");
         let launcher = crate::campaign::launcher::Launcher::parse("mpirun --bind-to none -n {ranks}").unwrap();
-        let hybrid = RunRequest {
-            spec: RunSpec { ranks: 2, ..req.spec.clone() },
-            cpus: None,
-            launcher: Some(launcher.expand(2, 2)),
-            mask: Some(vec![0, 1, 2, 3]),
-            ..req
-        };
+        let hybrid = RunRequest { launcher: Some(launcher.expand(2, 2)), mask: Some(vec![0, 1, 2, 3]), ..req };
         let (program, args) = hybrid.command_line();
         assert_eq!(program, "mpirun");
-        assert_eq!(
-            args.join(" "),
-            "--bind-to none -n 2 mpm run taylor --model 2 --strategy dd --threads 2 --steps 5 --grid fixed \
-             --warmup 1 --split-wait --json x.json --quiet"
-        );
+        assert_eq!(args.join(" "), "--bind-to none -n 2 mpm run --spec x.toml");
     }
 }

@@ -1,8 +1,18 @@
-//! One CSV row per run: [`Row`] is the single source of the header.
+//! One CSV row per run: [`Row`], made of typed parts, is the single source of the columns.
+//!
+//! A row is the run as planned ([`PlannedRun`]: the solver's [`mpm_spec::RunSpec`] flattened,
+//! with the harness's optimisation level, pinning policy, launcher and repetition), where
+//! its workers went ([`Placement`]), what the solver measured ([`Measured`], built from its
+//! summary in one place, [`Measured::of`]), the host around it ([`HostColumns`]) and how it
+//! ended ([`Outcome`]). The columns are derived from these types ([`super::columns`]): a new
+//! solver option or measurement is a new column without any code here. The resume key
+//! (`run_key`) is the planned run's hash ([`PlannedRun::key`]), written by the harness from
+//! its plan, never re-derived from what the solver wrote back.
 //!
 //! Rows are appended and flushed (and synced) right after each run, so an interrupted
-//! campaign keeps every finished run. Reading back ([`read_rows`]) checks the header first and
-//! names any missing column.
+//! campaign keeps every finished run. Reading back ([`read_rows`]) checks the header first:
+//! files of CSV schemas 1-5 are read with their own row type and converted
+//! ([`super::legacy`]).
 //!
 //! A torn last line (power loss, disk full, a kill in the middle of a write: no trailing
 //! newline, or fewer fields than the header) is found before the file is parsed
@@ -10,64 +20,31 @@
 //! the complete rows; the campaign runner ([`repair_torn_tail`], also in [`CsvLog::open`])
 //! moves the torn bytes to `runs.csv.torn-<time>`, says so, and redoes that run.
 //!
-//! Units are SI (seconds, bytes, joules, metres). Lists of CPUs are written space-separated
-//! (`"0 1"`). Empty cells mean "not measured" (for example every measurement of a skipped row).
+//! Units are SI (seconds, bytes, joules, metres). Lists are written space-separated
+//! (`"0 1"`), lists of lists `|`-separated. Empty cells mean "not measured" (for example
+//! every measurement of a skipped row).
 
+use super::columns::Layout;
+use super::matrix::PlannedRun;
 use crate::machine::load::{HostReading, Probe};
 use anyhow::{bail, Context, Result};
-use mpm_core::Strategy;
+use mpm_core::scenario::size::IMPACT_MODELS;
+use mpm_core::{GridMode, Strategy, Substage};
+use mpm_spec::scenario::{ImpactSpec, PlateSpec, TaylorSpec};
+use mpm_spec::summary::{load_imbalance, EndReason, StageSeconds, Summary};
+use mpm_spec::{OptLevel, RunSpec, Scenario, ScenarioKind};
 use serde::{Deserialize, Serialize};
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
-/// Version of the row layout; bump it whenever a column is added, removed or renamed.
-/// Schema 3 added the host's load and calibration (`host_*`, `calib_*`, `host_noisy`) and
-/// the work imbalance of DD's cuts (`dd_work_imbalance`). Schema 4 added MPI ranks
-/// (`ranks`, `threads_per_rank`, `launcher`, `rank_*`, `comm_*`, `migrated_particles`,
-/// `peak_rss_sum_bytes`); `threads` became the run's total worker count (ranks x threads
-/// per rank, equal to the old meaning at one rank). Schema 5 runs every row over several
-/// ranks with `mpm run --split-wait` and records the waiting for other ranks apart
-/// (`wait_s_per_step`, `wait_frac`); `comm_*` seconds are then the communication alone
-/// (in schema-4 rows they include the waiting, and the `wait_*` columns read as empty).
-pub const SCHEMA_VERSION: u32 = 5;
-
-/// Columns added since schema 1; older files lack them and still read (as empty / false;
-/// `ranks` as 1 and `threads_per_rank` as `threads`).
-const ADDED_SINCE_V1: [&str; 28] = [
-    // schema 2
-    "worker_busy_s",
-    "load_imbalance",
-    // schema 3
-    "host_load1_before",
-    "host_load1_after",
-    "host_others_running_before",
-    "host_others_running_after",
-    "host_cpus_busy_before",
-    "host_cpus_busy_after",
-    "host_steal_frac",
-    "calib_spin_ratio",
-    "calib_copy_ratio",
-    "host_noisy",
-    "host_noise",
-    "dd_work_imbalance",
-    // schema 4
-    "ranks",
-    "threads_per_rank",
-    "launcher",
-    "rank_cpus",
-    "rank_particles",
-    "rank_busy_imbalance",
-    "migrated_particles",
-    "comm_s_per_step",
-    "comm_frac",
-    "comm_bytes_per_step",
-    "comm_messages_per_step",
-    "peak_rss_sum_bytes",
-    // schema 5
-    "wait_s_per_step",
-    "wait_frac",
-];
+/// Version of the row layout; bump it whenever the columns change in a way old readers
+/// would misread. Schemas 1-5 were flat rows (see [`super::legacy`]); schema 6 is the
+/// planned run's spec flattened (`scenario.kind`, `physics.cfl`, `budget.steps`, ...), the
+/// resume key `run_key`, lists as lists, sub-stages by the solver's names
+/// (`substages.scatter`), and the steady-state stage times (`steady_*`).
+pub const SCHEMA_VERSION: u32 = 6;
 
 /// Outcome of one run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -96,16 +73,19 @@ impl Status {
     }
 }
 
-/// One run of the campaign (one CSV row). Field order is column order.
+/// What identifies a row: campaign, run, provenance.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Row {
-    // ---- identity ----
+#[serde(default)]
+pub struct RowId {
     /// [`SCHEMA_VERSION`] of the writer.
     pub schema_version: u32,
     /// Campaign id (folder name).
     pub campaign_id: String,
-    /// Unique id of the run within the campaign: configuration key plus attempt number.
+    /// Unique id of the run within the campaign: a readable label, the resume key and the
+    /// attempt number.
     pub run_id: String,
+    /// The resume key: the hash of the planned run and its repetition ([`PlannedRun::key`]).
+    pub run_key: String,
     /// Time the run ended (RFC 3339, UTC).
     pub timestamp: String,
     /// Git commit of the harness' workspace (`unknown` outside a repository).
@@ -120,98 +100,70 @@ pub struct Row {
     pub seed: u64,
     /// Position of the run in that session's order (0-based).
     pub order_index: usize,
+}
 
-    // ---- configuration ----
-    /// Scenario (`taylor`).
-    pub scenario: String,
-    /// Model number (1-4).
-    pub model: u32,
+/// Where the run's workers were asked to go and where they were seen.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Placement {
+    /// CPU requested for each worker (empty when not pinned). With several ranks: the CPU
+    /// set handed to the launcher as its affinity mask, ascending; rank r's workers are
+    /// asked to take its r-th slice of `threads` CPUs.
+    #[serde(default)]
+    pub requested_cpus: Vec<usize>,
+    /// CPU each worker observed itself on; with several ranks every rank's workers, rank by
+    /// rank.
+    #[serde(default)]
+    pub observed_cpus: Vec<usize>,
+    /// With several ranks: each rank's observed CPUs.
+    #[serde(default)]
+    pub rank_cpus: Vec<Vec<usize>>,
+    /// More workers than usable cores (time sharing: not a scaling point), as planned or as
+    /// the solver found.
+    pub oversubscribed: bool,
+}
+
+/// What the solver measured, from its JSON summary ([`Measured::of`]). Empty for a run
+/// that did not finish.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Measured {
     /// Particles.
     pub particles: Option<u64>,
     /// Grid cells (initial grid).
     pub cells: Option<u64>,
     /// Grid nodes (initial grid).
     pub nodes: Option<u64>,
-    /// Mean number of grid nodes over the steps (differs from `nodes` on the adaptive grid).
+    /// Mean number of stored grid nodes over the steps.
     pub mean_nodes: Option<f64>,
-    /// `fixed` or `adaptive`.
-    pub grid_mode: String,
-    /// `serial`, `ae` (array expansion) or `dd` (domain decomposition).
-    pub strategy: Strategy,
-    /// `o3` or `o0` (the Cargo profile of the solver binary).
-    pub opt_level: String,
-    /// Worker threads of the whole run: ranks x threads per rank (at one rank, the process's
-    /// threads). Oversubscription and the host-noise rule count these against the cores.
-    pub threads: usize,
-    /// MPI ranks (1: one process started directly). Since schema 4.
-    #[serde(default = "one")]
-    pub ranks: usize,
-    /// Worker threads of each rank (the solver's `--threads`). Since schema 4 (read as
-    /// `threads` from older files).
-    #[serde(default)]
-    pub threads_per_rank: usize,
-    /// The launcher command of a run with several ranks (empty at one rank). Since schema 4.
-    #[serde(default)]
-    pub launcher: String,
-    /// Pinning policy label (`close`, `spread`, `none`, or a CPU list).
-    pub pin_policy: String,
-    /// CPU requested for each worker (space-separated; empty when not pinned). With several
-    /// ranks: the CPU set handed to the launcher as its affinity mask, ascending; rank r's
-    /// workers are asked to take its r-th slice of `threads_per_rank` CPUs.
-    pub requested_cpus: String,
-    /// CPU each worker observed itself on (space-separated); with several ranks every
-    /// rank's workers, rank by rank.
-    pub observed_cpus: String,
-    /// With several ranks: each rank's observed CPUs, ranks separated by `|` (`"0|1"`).
-    /// Since schema 4.
-    #[serde(default)]
-    pub rank_cpus: String,
-    /// More threads than usable cores (time sharing: not a scaling point).
-    pub oversubscribed: bool,
-    /// Repetition index (0-based).
-    pub rep: u32,
-    /// Warm-up steps excluded from the steady-state figure.
-    pub warmup_steps: u64,
-    /// Step limit of the run, if it had one.
-    pub step_limit: Option<u64>,
-    /// Simulated end time of the run, if it had one (s).
-    pub end_time_s: Option<f64>,
     /// Steps taken.
     pub steps: Option<u64>,
     /// Simulated time reached (s).
     pub sim_time_s: Option<f64>,
     /// Why the run stopped: `end_time` or `step_limit`.
-    pub end_reason: String,
+    pub end_reason: Option<EndReason>,
     /// First time step (s).
     pub dt_first_s: Option<f64>,
-
-    // ---- measurements ----
-    /// Solver's wall time of the time loop (s).
+    /// Solver's wall time of the time loop, warm-up included (s).
     pub wall_s: Option<f64>,
-    /// Wall time of the child process as the harness saw it, set-up included (s).
-    pub process_wall_s: Option<f64>,
-    /// Grid-node stage (paper Eqs. 1-6), s.
+    /// Grid-node stage (paper Eqs. 1-6), all steps (s).
     pub grid_stage_s: Option<f64>,
-    /// Particle stage (paper Eqs. 7-15), s.
+    /// Particle stage (paper Eqs. 7-15), all steps (s).
     pub particle_stage_s: Option<f64>,
-    /// Sub-stage: adaptive grid re-fit / DD re-cut (s).
-    pub sub_grid_fit_s: Option<f64>,
-    /// Sub-stage: DD particle binning (s).
-    pub sub_binning_s: Option<f64>,
-    /// Sub-stage: P2G scatter of mass, momentum, force (s).
-    pub sub_scatter_s: Option<f64>,
-    /// Sub-stage: assembly of per-thread copies / sub-grids (s).
-    pub sub_assembly_s: Option<f64>,
-    /// Sub-stage: nodal update and boundary conditions (s).
-    pub sub_grid_update_s: Option<f64>,
-    /// Sub-stage: G2P gather of nodal accelerations (s).
-    pub sub_gather_s: Option<f64>,
-    /// Sub-stage: MUSL re-map scatter (s).
-    pub sub_remap_scatter_s: Option<f64>,
-    /// Sub-stage: MUSL re-map assembly (s).
-    pub sub_remap_assembly_s: Option<f64>,
-    /// Sub-stage: positions, strains, stress update (s).
-    pub sub_stress_update_s: Option<f64>,
+    /// Seconds per sub-stage, all steps.
+    #[serde(default)]
+    pub substages: StageSeconds,
+    /// Steps after the warm-up (the steady state).
+    pub steady_steps: Option<u64>,
+    /// Wall time of the steps after the warm-up (s).
+    pub steady_wall_s: Option<f64>,
+    /// Grid-node stage after the warm-up (s); empty in rows before schema 6.
+    pub steady_grid_stage_s: Option<f64>,
+    /// Particle stage after the warm-up (s); empty in rows before schema 6.
+    pub steady_particle_stage_s: Option<f64>,
+    /// Seconds per sub-stage after the warm-up; empty in rows before schema 6.
+    #[serde(default)]
+    pub steady_substages: StageSeconds,
     /// Steady-state wall time per step, warm-up excluded (s).
     pub steady_s_per_step: Option<f64>,
     /// Wall time per particle per step (ns).
@@ -219,76 +171,43 @@ pub struct Row {
     /// Particle-steps per second.
     pub particle_steps_per_s: Option<f64>,
     /// Steady-state busy seconds of each worker in its shares of the parallel phases
-    /// (space-separated, worker order; empty for the serial strategy). Since schema 2.
+    /// (worker order; empty for the serial strategy).
     #[serde(default)]
-    pub worker_busy_s: String,
+    pub worker_busy_s: Vec<f64>,
     /// Largest worker busy time over the mean (1 = balanced; well above 1 on a
-    /// non-oversubscribed run: a worker's CPU was slowed from outside the run). Since schema 2.
-    #[serde(default)]
+    /// non-oversubscribed run: a worker's CPU was slowed from outside the run).
     pub load_imbalance: Option<f64>,
     /// DD and balanced DD: the most particles in a patch over the mean per patch, averaged
-    /// over the run's steps (the summary's `dd_patch_particles.imbalance_mean`; a property
-    /// of the cuts, not of the machine). Since schema 3.
-    #[serde(default)]
+    /// over the run's steps (a property of the cuts, not of the machine).
     pub dd_work_imbalance: Option<f64>,
     /// Peak resident memory of the solver process (VmHWM read by the solver at its exit),
-    /// bytes; with several ranks rank 0's (rows of solvers before the figures were measured
-    /// across the ranks include rank 0's gathering every particle).
+    /// bytes; with several ranks rank 0's.
     pub peak_rss_bytes: Option<u64>,
-    /// Peak resident memory summed over the ranks (each rank's VmHWM at its exit; in rows of
-    /// older solvers at the end of its time steps); equal to `peak_rss_bytes` at one rank.
-    /// Since schema 4.
-    #[serde(default)]
+    /// Peak resident memory summed over the ranks; equal to `peak_rss_bytes` at one rank.
     pub peak_rss_sum_bytes: Option<u64>,
-    /// With several ranks: each rank's particles at the end (space-separated, rank order).
-    /// Since schema 4.
+    /// With several ranks: each rank's particles at the end (rank order).
     #[serde(default)]
-    pub rank_particles: String,
-    /// With several ranks: the largest rank busy time over the mean (1 = balanced). Since
-    /// schema 4.
-    #[serde(default)]
+    pub rank_particles: Vec<u64>,
+    /// With several ranks: the largest rank busy time over the mean (1 = balanced).
     pub rank_busy_imbalance: Option<f64>,
     /// With several ranks: particles that moved to another rank over the run, all ranks.
-    /// Since schema 4.
-    #[serde(default)]
     pub migrated_particles: Option<u64>,
-    /// With several ranks: seconds in the exchange per step (packing, messages, reductions),
-    /// of the rank that spent the most (the maximum over ranks), over all steps taken
-    /// (warm-up included). 0 at one rank. Since schema 5 the communication alone (the runs
-    /// use `--split-wait`, and the waiting is in `wait_s_per_step`); in schema-4 rows, whose
-    /// `wait_s_per_step` is empty, it includes waiting for the other ranks. Since schema 4.
-    #[serde(default)]
+    /// With several ranks: seconds in the exchange per step of the rank that spent the most,
+    /// over all steps taken; the communication alone (the waiting is `wait_s_per_step`;
+    /// in schema-4 rows it includes the waiting). 0 at one rank.
     pub comm_s_per_step: Option<f64>,
-    /// That rank's exchange seconds over the run's wall time (with or without the waiting,
-    /// as `comm_s_per_step`). Since schema 4.
-    #[serde(default)]
+    /// That rank's exchange seconds over the run's wall time.
     pub comm_frac: Option<f64>,
-    /// With several ranks: seconds per step spent waiting for other ranks at the barrier in
-    /// front of each exchange operation (`mpm run --split-wait`, the ranks'
-    /// `exchange.wait_seconds`), of the rank that waited the most (the maximum over ranks,
-    /// like `comm_s_per_step`, taken on its own: the two may come from different ranks), over
-    /// all steps taken. Load imbalance or a CPU taken by another process, not the cost of
-    /// the exchange. Empty at one rank (no other rank to wait for), when a rank did not
-    /// report it, and in rows before schema 5 (not measured). Since schema 5.
-    #[serde(default)]
+    /// With several ranks: seconds per step waiting for other ranks at the barrier in front
+    /// of each exchange operation (`--split-wait`), of the rank that waited the most. Empty
+    /// at one rank, when a rank did not report it, and in rows before schema 5.
     pub wait_s_per_step: Option<f64>,
-    /// That rank's waiting over the run's wall time. Since schema 5.
-    #[serde(default)]
+    /// That rank's waiting over the run's wall time.
     pub wait_frac: Option<f64>,
     /// Bytes sent per step, summed over the ranks: halo sums, migration and reductions.
-    /// Since schema 4.
-    #[serde(default)]
     pub comm_bytes_per_step: Option<f64>,
     /// Messages (point-to-point and collective calls) per step, summed over the ranks.
-    /// Since schema 4.
-    #[serde(default)]
     pub comm_messages_per_step: Option<f64>,
-    /// The memory guard's estimate for this run, bytes.
-    pub mem_estimate_bytes: u64,
-    /// Exit code of the solver process (empty when it did not run or died by a signal).
-    pub exit_code: Option<i32>,
-
-    // ---- physics checksums ----
     /// Initial kinetic energy (J).
     pub kinetic_energy_initial_j: Option<f64>,
     /// Final kinetic energy (J).
@@ -307,35 +226,107 @@ pub struct Row {
     pub cloud_width_m: Option<f64>,
     /// Failed particles at the end.
     pub failed_particles: Option<u64>,
+}
 
-    // ---- host load (since schema 3; see `machine::load` for the rule) ----
+impl Measured {
+    /// Everything a row records of a summary, in one place: counts, times (whole run and
+    /// steady state), balance, memory, the exchange of runs over several ranks (the rank
+    /// that spent the most on each figure, bytes and messages of all ranks, per step), and
+    /// the physics checksums.
+    pub fn of(s: &Summary) -> Self {
+        let mut m = Measured {
+            particles: Some(s.particles as u64),
+            cells: Some(s.cells as u64),
+            nodes: Some(s.nodes as u64),
+            mean_nodes: Some(s.mean_nodes),
+            steps: Some(s.steps),
+            sim_time_s: Some(s.sim_time),
+            end_reason: Some(s.end_reason),
+            dt_first_s: Some(s.dt_first),
+            wall_s: Some(s.wall_s),
+            grid_stage_s: Some(s.grid_stage_s),
+            particle_stage_s: Some(s.particle_stage_s),
+            substages: s.substages.clone(),
+            steady_steps: Some(s.steady_steps),
+            steady_wall_s: Some(s.steady_wall_s),
+            steady_grid_stage_s: Some(s.steady_grid_stage_s),
+            steady_particle_stage_s: Some(s.steady_particle_stage_s),
+            steady_substages: s.steady_substages.clone(),
+            steady_s_per_step: s.steady_s_per_step,
+            ns_per_particle_step: s.ns_per_particle_step,
+            particle_steps_per_s: s.particle_steps_per_s,
+            worker_busy_s: s.worker_busy_s.clone().unwrap_or_default(),
+            load_imbalance: s.load_imbalance,
+            dd_work_imbalance: s.dd_patch_particles.map(|p| p.imbalance_mean),
+            peak_rss_bytes: s.peak_rss_bytes,
+            peak_rss_sum_bytes: s.peak_rss_bytes,
+            comm_s_per_step: Some(0.0),
+            comm_frac: Some(0.0),
+            comm_bytes_per_step: Some(0.0),
+            comm_messages_per_step: Some(0.0),
+            kinetic_energy_initial_j: Some(s.kinetic_energy_initial),
+            kinetic_energy_j: Some(s.kinetic_energy),
+            internal_energy_j: Some(s.internal_energy),
+            initial_length_m: s.initial_length_m,
+            final_length_m: s.final_length_m,
+            face_diameter_m: s.face_diameter_m,
+            cloud_front_m: s.cloud_front_m,
+            cloud_width_m: s.cloud_width_m,
+            failed_particles: Some(s.failed_particles as u64),
+            ..Measured::default()
+        };
+        if let Some(ranks) = s.ranks.as_deref().filter(|r| !r.is_empty()) {
+            m.rank_particles = ranks.iter().map(|r| r.particles as u64).collect();
+            m.rank_busy_imbalance = load_imbalance(&ranks.iter().map(|r| r.busy_s).collect::<Vec<_>>());
+            m.migrated_particles = Some(ranks.iter().map(|r| r.migrated).sum());
+            m.peak_rss_sum_bytes = ranks.iter().map(|r| r.peak_rss_bytes).sum();
+            let steps = s.steps.max(1) as f64;
+            let comm_max = ranks.iter().map(|r| r.exchange.seconds).fold(0.0, f64::max);
+            m.comm_s_per_step = Some(comm_max / steps);
+            m.comm_frac = (s.wall_s > 0.0).then(|| comm_max / s.wall_s);
+            // The waiting (--split-wait) aggregates as the communication: its own maximum
+            // over ranks; not measured unless every rank reports it.
+            let wait_max =
+                ranks.iter().map(|r| r.exchange.wait_seconds).try_fold(0.0, |m, w| w.map(|w| f64::max(m, w)));
+            m.wait_s_per_step = wait_max.map(|w| w / steps);
+            m.wait_frac = wait_max.filter(|_| s.wall_s > 0.0).map(|w| w / s.wall_s);
+            let bytes: u64 = ranks
+                .iter()
+                .map(|r| r.exchange.halo_bytes + r.exchange.migration_bytes + r.exchange.reduction_bytes)
+                .sum();
+            let messages: u64 = ranks
+                .iter()
+                .map(|r| r.exchange.halo_messages + r.exchange.migration_messages + r.exchange.reductions)
+                .sum();
+            m.comm_bytes_per_step = Some(bytes as f64 / steps);
+            m.comm_messages_per_step = Some(messages as f64 / steps);
+        }
+        m
+    }
+}
+
+/// The host around the run (since schema 3; see `machine::load` for the rule).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct HostColumns {
     /// 1-minute load average just before the run.
-    #[serde(default)]
     pub host_load1_before: Option<f64>,
     /// 1-minute load average just after the run.
-    #[serde(default)]
     pub host_load1_after: Option<f64>,
     /// Other runnable tasks in a quiet window just before the run (median of samples).
-    #[serde(default)]
     pub host_others_running_before: Option<u32>,
     /// Other runnable tasks in a quiet window just after the run.
-    #[serde(default)]
     pub host_others_running_after: Option<u32>,
     /// Busy fraction of the run's CPUs (all CPUs when not pinned) with other work in the
     /// window before the run.
-    #[serde(default)]
     pub host_cpus_busy_before: Option<f64>,
     /// The same in the window after the run.
-    #[serde(default)]
     pub host_cpus_busy_after: Option<f64>,
     /// Fraction of the CPU time stolen by the hypervisor during the run.
-    #[serde(default)]
     pub host_steal_frac: Option<f64>,
     /// The spin calibration last taken before the run over the session start's.
-    #[serde(default)]
     pub calib_spin_ratio: Option<f64>,
     /// The memory-copy calibration over the session start's.
-    #[serde(default)]
     pub calib_copy_ratio: Option<f64>,
     /// The host was busy around the run: left out of claims and regress unless
     /// `--include-noisy`, grey in figures.
@@ -344,44 +335,11 @@ pub struct Row {
     /// Why the row is `host_noisy` (empty when it is not).
     #[serde(default)]
     pub host_noise: String,
-
-    // ---- status ----
-    /// `ok`, `skipped`, `failed` or `invalid`.
-    pub status: Status,
-    /// Why a row is not `ok` (empty when it is).
-    pub reason: String,
 }
 
-fn one() -> usize {
-    1
-}
-
-impl Row {
-    /// Whether the run was split over several MPI ranks (kept out of the one-process
-    /// analyses: figures 7-14, claims, regress).
-    pub fn is_hybrid(&self) -> bool {
-        self.ranks > 1
-    }
-
-    /// Whether this row's exchange seconds (`comm_*`) include waiting for the other ranks:
-    /// a run over several ranks without the waiting measured apart (rows before schema 5,
-    /// or a rank that did not report it).
-    pub fn comm_includes_wait(&self) -> bool {
-        self.is_hybrid() && self.wait_s_per_step.is_none()
-    }
-
-    /// Threads of each rank: `threads_per_rank`, or `threads` for rows written before
-    /// schema 4 (one process).
-    pub fn per_rank_threads(&self) -> usize {
-        if self.threads_per_rank == 0 {
-            self.threads / self.ranks.max(1)
-        } else {
-            self.threads_per_rank
-        }
-    }
-
-    /// The host reading this row records.
-    pub fn host_reading(&self) -> HostReading {
+impl HostColumns {
+    /// The host reading these columns record.
+    pub fn reading(&self) -> HostReading {
         let probe = |load1, others_running, cpus_busy| Probe { load1, others_running, cpus_busy };
         HostReading {
             before: probe(self.host_load1_before, self.host_others_running_before, self.host_cpus_busy_before),
@@ -392,21 +350,59 @@ impl Row {
         }
     }
 
-    /// Record `h` and flag the row by the `host_noisy` rule for a host of `pus` usable PUs.
-    pub fn set_host(&mut self, h: &HostReading, pus: usize) {
-        self.host_load1_before = h.before.load1;
-        self.host_load1_after = h.after.load1;
-        self.host_others_running_before = h.before.others_running;
-        self.host_others_running_after = h.after.others_running;
-        self.host_cpus_busy_before = h.before.cpus_busy;
-        self.host_cpus_busy_after = h.after.cpus_busy;
-        self.host_steal_frac = h.steal;
-        self.calib_spin_ratio = h.spin_ratio;
-        self.calib_copy_ratio = h.copy_ratio;
-        let why = h.noise(self.threads, pus);
-        self.host_noisy = why.is_some();
-        self.host_noise = why.unwrap_or_default();
+    /// Record `h` and flag the row by the `host_noisy` rule for a run of `workers` workers
+    /// on a host of `pus` usable PUs.
+    pub fn of(h: &HostReading, workers: usize, pus: usize) -> Self {
+        let why = h.noise(workers, pus);
+        Self {
+            host_load1_before: h.before.load1,
+            host_load1_after: h.after.load1,
+            host_others_running_before: h.before.others_running,
+            host_others_running_after: h.after.others_running,
+            host_cpus_busy_before: h.before.cpus_busy,
+            host_cpus_busy_after: h.after.cpus_busy,
+            host_steal_frac: h.steal,
+            calib_spin_ratio: h.spin_ratio,
+            calib_copy_ratio: h.copy_ratio,
+            host_noisy: why.is_some(),
+            host_noise: why.unwrap_or_default(),
+        }
     }
+}
+
+/// How the run ended, as the harness saw it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Outcome {
+    /// `ok`, `skipped`, `failed` or `invalid`.
+    pub status: Status,
+    /// Why a row is not `ok` (empty when it is).
+    #[serde(default)]
+    pub reason: String,
+    /// Exit code of the solver process (empty when it did not run or died by a signal).
+    pub exit_code: Option<i32>,
+    /// Wall time of the child process as the harness saw it, set-up included (s).
+    pub process_wall_s: Option<f64>,
+    /// The memory guard's estimate for this run, bytes.
+    #[serde(default)]
+    pub mem_estimate_bytes: u64,
+}
+
+/// One run of the campaign (one CSV row). Each part is a group of columns.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Row {
+    /// Campaign, run and provenance.
+    pub id: RowId,
+    /// The run as planned: the solver's spec flattened, with the harness's settings.
+    pub run: PlannedRun,
+    /// Requested and observed CPUs.
+    pub placement: Placement,
+    /// What the solver measured.
+    pub measured: Measured,
+    /// The host around the run.
+    pub host: HostColumns,
+    /// Status and the process.
+    pub outcome: Outcome,
 }
 
 /// What identifies a configuration for resuming: two rows with the same key ran the same
@@ -415,67 +411,214 @@ impl Row {
 pub struct RunKey(pub String);
 
 impl Row {
+    /// A row of `run` with nothing recorded yet.
+    pub fn planned(run: PlannedRun) -> Self {
+        Self {
+            id: RowId { schema_version: SCHEMA_VERSION, run_key: run.key().0, ..RowId::default() },
+            run,
+            placement: Placement::default(),
+            measured: Measured::default(),
+            host: HostColumns::default(),
+            outcome: Outcome::default(),
+        }
+    }
+
+    /// The columns of a row: its parts flattened, the planned run's `outputs` and `cpus`
+    /// left out (the solver's outputs are the harness's business; the CPUs are
+    /// `requested_cpus`).
+    pub fn layout() -> &'static Layout {
+        static LAYOUT: OnceLock<Layout> = OnceLock::new();
+        LAYOUT.get_or_init(|| {
+            Layout::of(&Row::templates(), &[&["outputs"], &["cpus"]]).expect("the row's template has every column")
+        })
+    }
+
     /// The CSV header, in column order.
     pub fn header() -> Vec<String> {
-        let mut w = csv::WriterBuilder::new().has_headers(true).from_writer(Vec::new());
-        w.serialize(Row::default()).expect("a default row serialises");
-        let bytes = w.into_inner().expect("in-memory writer");
-        let mut r = csv::ReaderBuilder::new().has_headers(true).from_reader(bytes.as_slice());
-        r.headers().expect("header line").iter().map(str::to_string).collect()
+        Self::layout().header()
     }
 
-    /// Resume key of this row's configuration.
+    /// Rows with every optional part present, one per scenario (whose parameters differ):
+    /// the columns' names and types.
+    fn templates() -> Vec<Row> {
+        let scenarios = [
+            Scenario::Taylor(TaylorSpec::model(1)),
+            Scenario::Impact(ImpactSpec::default()),
+            Scenario::Plate(PlateSpec::default()),
+        ];
+        scenarios
+            .into_iter()
+            .map(|scenario| {
+                let mut spec = RunSpec::new(scenario).expect("the default scenarios build");
+                spec.rank_layout = Some([1, 1, 1]);
+                spec.budget.steps = Some(1);
+                spec.budget.warmup = Some(0);
+                let run = PlannedRun {
+                    spec,
+                    model: 1,
+                    opt: OptLevel::O3,
+                    pin: crate::machine::placement::PinPolicy::CLOSE,
+                    launcher: Some("mpirun".into()),
+                    rep: 0,
+                };
+                let all = StageSeconds(Substage::ALL.iter().map(|&s| (s, 0.0)).collect());
+                Row {
+                    placement: Placement {
+                        requested_cpus: vec![0],
+                        observed_cpus: vec![0],
+                        rank_cpus: vec![vec![0]],
+                        oversubscribed: false,
+                    },
+                    measured: Measured {
+                        particles: Some(0),
+                        cells: Some(0),
+                        nodes: Some(0),
+                        mean_nodes: Some(0.0),
+                        steps: Some(0),
+                        sim_time_s: Some(0.0),
+                        end_reason: Some(EndReason::StepLimit),
+                        dt_first_s: Some(0.0),
+                        wall_s: Some(0.0),
+                        grid_stage_s: Some(0.0),
+                        particle_stage_s: Some(0.0),
+                        substages: all.clone(),
+                        steady_steps: Some(0),
+                        steady_wall_s: Some(0.0),
+                        steady_grid_stage_s: Some(0.0),
+                        steady_particle_stage_s: Some(0.0),
+                        steady_substages: all,
+                        steady_s_per_step: Some(0.0),
+                        ns_per_particle_step: Some(0.0),
+                        particle_steps_per_s: Some(0.0),
+                        worker_busy_s: vec![0.0],
+                        load_imbalance: Some(0.0),
+                        dd_work_imbalance: Some(0.0),
+                        peak_rss_bytes: Some(0),
+                        peak_rss_sum_bytes: Some(0),
+                        rank_particles: vec![0],
+                        rank_busy_imbalance: Some(0.0),
+                        migrated_particles: Some(0),
+                        comm_s_per_step: Some(0.0),
+                        comm_frac: Some(0.0),
+                        wait_s_per_step: Some(0.0),
+                        wait_frac: Some(0.0),
+                        comm_bytes_per_step: Some(0.0),
+                        comm_messages_per_step: Some(0.0),
+                        kinetic_energy_initial_j: Some(0.0),
+                        kinetic_energy_j: Some(0.0),
+                        internal_energy_j: Some(0.0),
+                        initial_length_m: Some(0.0),
+                        final_length_m: Some(0.0),
+                        face_diameter_m: Some(0.0),
+                        cloud_front_m: Some(0.0),
+                        cloud_width_m: Some(0.0),
+                        failed_particles: Some(0),
+                    },
+                    host: HostColumns {
+                        host_load1_before: Some(0.0),
+                        host_load1_after: Some(0.0),
+                        host_others_running_before: Some(0),
+                        host_others_running_after: Some(0),
+                        host_cpus_busy_before: Some(0.0),
+                        host_cpus_busy_after: Some(0.0),
+                        host_steal_frac: Some(0.0),
+                        calib_spin_ratio: Some(0.0),
+                        calib_copy_ratio: Some(0.0),
+                        host_noisy: false,
+                        host_noise: String::new(),
+                    },
+                    outcome: Outcome {
+                        status: Status::Ok,
+                        reason: String::new(),
+                        exit_code: Some(0),
+                        process_wall_s: Some(0.0),
+                        mem_estimate_bytes: 0,
+                    },
+                    ..Row::planned(run)
+                }
+            })
+            .collect()
+    }
+
+    /// Resume key of this row's configuration (the planned run's, written by the harness).
     pub fn key(&self) -> RunKey {
-        run_key(
-            self.model,
-            self.strategy,
-            &self.opt_level,
-            self.ranks.max(1),
-            self.per_rank_threads(),
-            &self.pin_policy,
-            self.rep,
-            &self.grid_mode,
-            self.warmup_steps,
-            self.step_limit,
-            self.end_time_s,
-        )
+        RunKey(self.id.run_key.clone())
+    }
+
+    /// The matrix's model number (Taylor Model 1-4, impact variant 1-4).
+    pub fn model(&self) -> u32 {
+        self.run.model
+    }
+
+    /// The scenario.
+    pub fn scenario(&self) -> ScenarioKind {
+        self.run.spec.scenario.kind()
+    }
+
+    /// The strategy.
+    pub fn strategy(&self) -> Strategy {
+        self.run.spec.strategy
+    }
+
+    /// The optimisation level of the solver binary.
+    pub fn opt(&self) -> OptLevel {
+        self.run.opt
+    }
+
+    /// Worker threads of the whole run: ranks x threads per rank (at one rank, the
+    /// process's threads). Oversubscription and the host-noise rule count these.
+    pub fn threads(&self) -> usize {
+        self.run.spec.total_workers()
+    }
+
+    /// Worker threads of each rank (the solver's `threads`).
+    pub fn threads_per_rank(&self) -> usize {
+        self.run.spec.threads
+    }
+
+    /// MPI ranks (1: one process).
+    pub fn ranks(&self) -> usize {
+        self.run.spec.ranks
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> GridMode {
+        self.run.spec.grid
+    }
+
+    /// The pinning policy's label (`close`, `spread`, `none`, a CPU list).
+    pub fn pin_label(&self) -> String {
+        self.run.pin.label()
+    }
+
+    /// Whether the run was split over several MPI ranks (kept out of the one-process
+    /// analyses: figures 7-14, claims, regress).
+    pub fn is_hybrid(&self) -> bool {
+        self.ranks() > 1
+    }
+
+    /// Whether this row's exchange seconds (`comm_*`) include waiting for the other ranks:
+    /// a run over several ranks without the waiting measured apart (rows before schema 5,
+    /// or a rank that did not report it).
+    pub fn comm_includes_wait(&self) -> bool {
+        self.is_hybrid() && self.measured.wait_s_per_step.is_none()
+    }
+
+    /// Record the host reading `h` and flag the row by the `host_noisy` rule for a host of
+    /// `pus` usable PUs (every worker of the run counted).
+    pub fn set_host(&mut self, h: &HostReading, pus: usize) {
+        self.host = HostColumns::of(h, self.threads(), pus);
+    }
+
+    /// The row's cells, in column order.
+    pub fn record(&self) -> Result<Vec<String>> {
+        Self::layout().record(self)
     }
 }
 
-/// Build a resume key from the configuration fields (`threads` per rank). One rank keeps the
-/// key of schema 3 (`...-t2-...`); several add the rank count (`...-t2-ranks2-...`).
-#[allow(clippy::too_many_arguments)]
-pub fn run_key(
-    model: u32,
-    strategy: Strategy,
-    opt: &str,
-    ranks: usize,
-    threads: usize,
-    pin: &str,
-    rep: u32,
-    grid: &str,
-    warmup: u64,
-    step_limit: Option<u64>,
-    end_time: Option<f64>,
-) -> RunKey {
-    let budget = match (step_limit, end_time) {
-        (Some(n), Some(t)) => format!("n{n}+t{t:e}"),
-        (Some(n), None) => format!("n{n}"),
-        (None, Some(t)) => format!("t{t:e}"),
-        (None, None) => "unbounded".into(),
-    };
-    let ranks = if ranks > 1 { format!("-ranks{ranks}") } else { String::new() };
-    RunKey(format!("m{model}-{strategy}-{opt}-t{threads}{ranks}-{pin}-{grid}-w{warmup}-{budget}-r{rep}"))
-}
-
-/// Space-separated CPU list for a CSV cell.
-pub fn cpus_cell(cpus: &[usize]) -> String {
-    cpus.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(" ")
-}
-
-/// Parse a CSV CPU cell back.
-pub fn parse_cpus_cell(s: &str) -> Vec<usize> {
-    s.split_whitespace().filter_map(|t| t.parse().ok()).collect()
+/// The impact variant number of `spacing` and `cell` (1-4), if it is one.
+pub fn impact_model_of(spacing: f64, cell: f64) -> Option<u32> {
+    IMPACT_MODELS.iter().position(|&(h, c)| h == spacing && c == cell).map(|i| i as u32 + 1)
 }
 
 /// Length in bytes of the complete part of a results CSV: the header and every record that
@@ -501,8 +644,8 @@ pub fn complete_len(bytes: &[u8]) -> usize {
     }
 }
 
-/// Read every row of a results CSV, checking the header first. A torn last line is left
-/// out with a warning (the file is not changed).
+/// Read every row of a results CSV, checking the header first (files of schemas 1-5 are
+/// converted). A torn last line is left out with a warning (the file is not changed).
 pub fn read_rows(path: &Path) -> Result<Vec<Row>> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot open {}", path.display()))?;
     let good = complete_len(&bytes);
@@ -540,32 +683,38 @@ pub fn repair_torn_tail(path: &Path) -> Result<Option<PathBuf>> {
     Ok(Some(aside))
 }
 
-/// Parse the rows of a CSV's complete part, checking the header first.
-fn parse_rows(bytes: &[u8], path: &Path) -> Result<Vec<Row>> {
+/// The header of a CSV's complete part.
+fn file_header(bytes: &[u8], path: &Path) -> Result<Vec<String>> {
     let mut r = csv::ReaderBuilder::new().has_headers(true).from_reader(bytes);
-    let have: Vec<String> = r
-        .headers()
+    Ok(r.headers()
         .with_context(|| format!("cannot read the header of {}", path.display()))?
         .iter()
         .map(str::to_string)
-        .collect();
+        .collect())
+}
+
+/// Parse the rows of a CSV's complete part, checking the header first: this schema's
+/// columns (in any order, a subset read as absent), or a schema 1-5 file.
+fn parse_rows(bytes: &[u8], path: &Path) -> Result<Vec<Row>> {
+    let have = file_header(bytes, path)?;
+    if !have.iter().any(|c| c == "run_key") {
+        return super::legacy::parse_legacy(bytes, path);
+    }
     let want = Row::header();
-    let missing: Vec<&str> = want
-        .iter()
-        .filter(|c| !have.contains(c) && !ADDED_SINCE_V1.contains(&c.as_str()))
-        .map(String::as_str)
-        .collect();
-    if !missing.is_empty() {
+    if let Some(extra) = have.iter().find(|c| !want.contains(c)) {
         bail!(
-            "{} is missing column(s) {} (this harness writes schema version {SCHEMA_VERSION}); \
-             it was written by another version: move it aside or run with --fresh",
-            path.display(),
-            missing.join(", ")
+            "{} has the column `{extra}`, which this harness (CSV schema {SCHEMA_VERSION}) does not know: it was \
+             written by a newer version; read it with that one, or move it aside",
+            path.display()
         );
     }
+    let mut r = csv::ReaderBuilder::new().has_headers(true).from_reader(bytes);
     let mut rows = Vec::new();
-    for (i, rec) in r.deserialize::<Row>().enumerate() {
-        rows.push(rec.with_context(|| format!("{}: bad row {}", path.display(), i + 2))?);
+    for (i, rec) in r.records().enumerate() {
+        let rec = rec.with_context(|| format!("{}: bad row {}", path.display(), i + 2))?;
+        let row: Row =
+            Row::layout().parse(&have, &rec).with_context(|| format!("{}: bad row {}", path.display(), i + 2))?;
+        rows.push(row);
     }
     Ok(rows)
 }
@@ -601,9 +750,7 @@ impl CsvLog {
             // Validate every row, then demand this schema's exact header: rows appended
             // under another header would be misread.
             parse_rows(&text, path)?;
-            let have: Vec<String> =
-                csv::Reader::from_reader(text.as_slice()).headers()?.iter().map(str::to_string).collect();
-            if have != Row::header() {
+            if file_header(&text, path)? != Row::header() {
                 bail!(
                     "{} was written by another version of the harness (its columns differ from schema version \
                      {SCHEMA_VERSION}); new rows cannot be appended to it: move it aside, write to another \
@@ -618,7 +765,7 @@ impl CsvLog {
     /// Append one row and make it durable.
     pub fn append(&mut self, row: &Row) -> Result<()> {
         let mut w = csv::WriterBuilder::new().has_headers(false).from_writer(Vec::new());
-        w.serialize(row)?;
+        w.write_record(row.record()?)?;
         let bytes = w.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
         self.file.write_all(&bytes).with_context(|| format!("cannot append to {}", self.path.display()))?;
         self.file.flush()?;
@@ -635,36 +782,54 @@ impl CsvLog {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::campaign::legacy::{legacy_header, LegacyRow, ADDED_SINCE_V1};
+
+    /// A planned Taylor run of `model`, `threads` threads, DD, o3, 10 steps.
+    fn row(model: u32, threads: usize) -> Row {
+        Row::planned(PlannedRun::taylor(model, Strategy::DomainDecomposition, OptLevel::O3, threads, 10))
+    }
 
     #[test]
-    fn header_is_complete_and_round_trips() {
+    fn header_is_complete_and_rows_round_trip_bit_for_bit() {
         let h = Row::header();
-        for col in ["campaign_id", "requested_cpus", "observed_cpus", "oversubscribed", "status", "reason"] {
+        for col in [
+            "run_key",
+            "scenario.kind",
+            "physics.cfl",
+            "budget.steps",
+            "requested_cpus",
+            "substages.scatter",
+            "steady_grid_stage_s",
+            "status",
+        ] {
             assert!(h.iter().any(|c| c == col), "{col}");
         }
+        assert!(!h.iter().any(|c| c.starts_with("outputs") || c == "cpus"), "outputs and cpus are not columns");
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("runs.csv");
         let mut log = CsvLog::open(&p).unwrap();
-        let row = Row {
-            schema_version: SCHEMA_VERSION,
-            model: 2,
-            threads: 4,
-            requested_cpus: cpus_cell(&[0, 1, 0, 1]),
-            status: Status::Skipped,
-            reason: "memory, guard".into(),
-            wall_s: Some(1.5),
-            ..Row::default()
-        };
-        log.append(&row).unwrap();
+        let mut r = row(2, 4);
+        r.run.spec.physics.cfl = 0.1 + 0.2;
+        r.run.spec.rank_layout = Some([2, 1, 1]);
+        r.placement.requested_cpus = vec![0, 1, 0, 1];
+        r.placement.rank_cpus = vec![vec![0, 1], vec![2, 3]];
+        r.measured.wall_s = Some(1.0 / 3.0);
+        r.measured.substages = StageSeconds([(Substage::Scatter, 0.25)].into_iter().collect());
+        r.measured.end_reason = Some(EndReason::EndTime);
+        r.outcome.status = Status::Skipped;
+        r.outcome.reason = "memory, guard".into();
+        log.append(&r).unwrap();
+        let mut impact = r.clone();
+        impact.run.spec.scenario = Scenario::Impact(ImpactSpec::default());
+        log.append(&impact).unwrap();
         drop(log);
         let rows = read_rows(&p).unwrap();
-        assert_eq!(rows, vec![row.clone()]);
-        assert_eq!(parse_cpus_cell(&rows[0].requested_cpus), vec![0, 1, 0, 1]);
+        assert_eq!(rows, vec![r, impact]);
         // A torn last line is moved aside on reopen.
         std::fs::OpenOptions::new().append(true).open(&p).unwrap().write_all(b"1,abc,").unwrap();
         let mut log = CsvLog::open(&p).unwrap();
-        log.append(&row).unwrap();
-        assert_eq!(read_rows(&p).unwrap().len(), 2);
+        log.append(&row(1, 1)).unwrap();
+        assert_eq!(read_rows(&p).unwrap().len(), 3);
         let aside: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
             .flatten()
@@ -680,10 +845,9 @@ mod tests {
     fn torn_tails_are_found_read_around_and_moved_aside() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("runs.csv");
-        let row = Row { schema_version: SCHEMA_VERSION, model: 1, threads: 2, wall_s: Some(0.5), ..Row::default() };
         let mut log = CsvLog::open(&p).unwrap();
-        log.append(&row).unwrap();
-        log.append(&Row { model: 2, ..row.clone() }).unwrap();
+        log.append(&row(1, 2)).unwrap();
+        log.append(&row(2, 2)).unwrap();
         drop(log);
         let good = std::fs::read(&p).unwrap();
         assert_eq!(complete_len(&good), good.len());
@@ -704,25 +868,42 @@ mod tests {
     }
 
     #[test]
-    fn missing_columns_are_named() {
+    fn missing_and_unknown_columns_are_named() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("runs.csv");
         std::fs::write(&p, "schema_version,campaign_id\n1,x\n").unwrap();
         let err = format!("{:#}", read_rows(&p).unwrap_err());
         assert!(err.contains("missing column"), "{err}");
         assert!(err.contains("observed_cpus"), "{err}");
+        std::fs::write(&p, "schema_version,run_key,from_the_future\n6,k,1\n").unwrap();
+        let err = format!("{:#}", read_rows(&p).unwrap_err());
+        assert!(err.contains("from_the_future") && err.contains("newer version"), "{err}");
     }
 
-    /// The committed reference campaign (schema 2) still reads, every row quiet and one
-    /// process (its threads per rank are its threads, its keys those of schema 3).
+    /// The resume key is the planned run's: the same plan gives the same key; any change
+    /// of scenario, physics, budget, launcher or repetition another.
     #[test]
-    fn committed_schema_2_campaign_reads() {
-        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results/d02fbfc20d44/quick/runs.csv");
-        let rows = read_rows(&p).unwrap();
-        assert_eq!(rows.len(), 80);
-        assert!(rows.iter().all(|r| r.schema_version == 2 && !r.host_noisy && r.host_steal_frac.is_none()));
-        assert!(rows.iter().all(|r| r.ranks == 1 && !r.is_hybrid() && r.per_rank_threads() == r.threads));
-        assert!(rows.iter().all(|r| r.run_id.starts_with(&r.key().0)), "resume keys of one rank are unchanged");
+    fn keys_follow_the_whole_plan() {
+        let a = row(1, 2);
+        assert_eq!(a.key(), row(1, 2).key());
+        let mut b = a.clone();
+        b.run.spec.scenario = Scenario::Impact(ImpactSpec::default());
+        let mut c = a.clone();
+        c.run.spec.physics.q.c1 = 1.0;
+        let mut d = a.clone();
+        d.run.spec.budget.warmup = Some(1);
+        let mut e = a.clone();
+        e.run.launcher = Some("srun".into());
+        let mut f = a.clone();
+        f.run.rep = 1;
+        let keys: std::collections::HashSet<_> =
+            [&a, &b, &c, &d, &e, &f].into_iter().map(|r| Row::planned(r.run.clone()).key()).collect();
+        assert_eq!(keys.len(), 6);
+        // CPUs and outputs are the run's own, not the plan's.
+        let mut g = a.clone();
+        g.run.spec.cpus = Some(vec![0, 1]);
+        g.run.spec.outputs.json = Some("x.json".into());
+        assert_eq!(Row::planned(g.run).key(), a.key());
     }
 
     /// The host-noise rule counts every worker of the run (ranks x threads per rank) against
@@ -734,61 +915,22 @@ mod tests {
             after: Probe { load1: None, others_running: Some(0), cpus_busy: Some(0.0) },
             ..HostReading::default()
         };
-        let mut one = Row { threads: 1, ranks: 1, threads_per_rank: 1, ..Row::default() };
+        let mut one = row(1, 1);
         one.set_host(&reading, 2);
-        assert!(!one.host_noisy, "{}", one.host_noise);
-        let mut two = Row { threads: 2, ranks: 2, threads_per_rank: 1, ..Row::default() };
+        assert!(!one.host.host_noisy, "{}", one.host.host_noise);
+        let mut two = row(1, 1);
+        two.run.spec.ranks = 2;
         two.set_host(&reading, 2);
-        assert!(two.host_noisy && two.host_noise.contains("0 free CPU"), "{}", two.host_noise);
+        assert!(two.host.host_noisy && two.host.host_noise.contains("0 free CPU"), "{}", two.host.host_noise);
     }
 
-    /// Resume keys tell ranks apart; one rank keeps the key of schema 3.
-    #[test]
-    fn keys_include_ranks() {
-        let one = Row { model: 1, threads: 2, ranks: 1, threads_per_rank: 2, ..Row::default() };
-        let two = Row { threads: 4, ranks: 2, ..one.clone() };
-        let two_by_one = Row { threads: 2, ranks: 2, threads_per_rank: 1, ..one.clone() };
-        assert_ne!(one.key(), two.key());
-        assert_ne!(two.key(), two_by_one.key());
-        assert_ne!(one.key(), two_by_one.key(), "same total workers, different configuration");
-        assert!(one.key().0.contains("-t2-") && !one.key().0.contains("ranks"), "{}", one.key().0);
-        assert!(two.key().0.contains("-t2-ranks2-"), "{}", two.key().0);
-        // A schema-3 row (no threads_per_rank column: 0) keys as its threads.
-        let old = Row { threads_per_rank: 0, ranks: 1, ..one.clone() };
-        assert_eq!(old.key(), one.key());
-    }
-
-    /// A schema-1 file (without the load-imbalance columns) still reads: its rows get
-    /// empty values there and everything else intact. Appending to it is refused.
-    #[test]
-    fn schema_1_files_still_read() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("runs.csv");
-        // Read back from a file without the column, `ranks` is 1 (one process).
-        let row = Row {
-            schema_version: 1,
-            campaign_id: "old".into(),
-            model: 2,
-            ranks: 1,
-            wall_s: Some(1.5),
-            ..Row::default()
-        };
-        // Without the columns added since schema 1.
-        let old = csv_without(&row, &ADDED_SINCE_V1);
-        assert!(!old.lines().next().unwrap().contains("load_imbalance"));
-        std::fs::write(&p, old).unwrap();
-        let rows = read_rows(&p).unwrap();
-        assert_eq!(rows, vec![row]);
-        assert!(CsvLog::open(&p).is_err(), "appending schema-5 rows to a schema-1 file must be refused");
-    }
-
-    /// `row` as a CSV file (header and one line) without the columns `drop` (none of the
-    /// row's cells may hold a comma).
-    fn csv_without(row: &Row, drop: &[&str]) -> String {
+    /// `row` as a legacy CSV file (header and one line) without the columns `drop` (none of
+    /// the row's cells may hold a comma).
+    fn legacy_csv_without(row: &LegacyRow, drop: &[&str]) -> String {
         let mut w = csv::Writer::from_writer(Vec::new());
         w.serialize(row).unwrap();
         let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
-        let header = Row::header();
+        let header = legacy_header();
         let idx: Vec<usize> = drop.iter().map(|c| header.iter().position(|h| h == c).unwrap()).collect();
         let keep = |line: &str| {
             line.split(',').enumerate().filter(|(i, _)| !idx.contains(i)).map(|(_, c)| c).collect::<Vec<_>>().join(",")
@@ -796,51 +938,93 @@ mod tests {
         text.lines().map(|l| keep(l) + "\n").collect()
     }
 
-    /// A row over two ranks with the waiting measured apart: schema 5's `wait_*` columns
-    /// round-trip. The same row in a schema-4 file (no `wait_*` columns) reads with them
-    /// empty, its exchange seconds flagged as including the waiting, and the file is not
-    /// appended to (its header is not this schema's).
+    /// A schema-1 file (without the columns added since) still reads: its row converted,
+    /// one process, the rest intact. Appending to it is refused.
     #[test]
-    fn wait_columns_round_trip_and_are_empty_in_schema_4_files() {
+    fn schema_1_files_still_read() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("runs.csv");
-        let row = Row {
-            schema_version: SCHEMA_VERSION,
+        let old = LegacyRow {
+            schema_version: 1,
+            campaign_id: "old".into(),
+            model: 2,
+            strategy: Strategy::ArrayExpansion,
+            opt_level: "o0".into(),
+            threads: 2,
+            pin_policy: "close".into(),
+            grid_mode: "fixed".into(),
+            step_limit: Some(20),
+            warmup_steps: 2,
+            sub_scatter_s: Some(0.5),
+            wall_s: Some(1.5),
+            ..LegacyRow::default()
+        };
+        std::fs::write(&p, legacy_csv_without(&old, &ADDED_SINCE_V1)).unwrap();
+        let rows = read_rows(&p).unwrap();
+        assert_eq!(rows.len(), 1);
+        let r = &rows[0];
+        assert_eq!(
+            (r.id.schema_version, r.model(), r.strategy(), r.opt()),
+            (1, 2, Strategy::ArrayExpansion, OptLevel::O0)
+        );
+        assert_eq!((r.threads(), r.ranks(), r.run.spec.budget.steps), (2, 1, Some(20)));
+        assert_eq!(r.measured.wall_s, Some(1.5));
+        assert_eq!(r.measured.substages.get(Substage::Scatter), Some(0.5));
+        assert_eq!(r.measured.steady_grid_stage_s, None, "not recorded before schema 6");
+        assert!(CsvLog::open(&p).is_err(), "appending schema-6 rows to a schema-1 file must be refused");
+    }
+
+    /// The same row over two ranks in a schema-4 file (no `wait_*` columns) reads with them
+    /// empty and its exchange seconds flagged as including the waiting.
+    #[test]
+    fn schema_4_rows_have_no_waiting() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("runs.csv");
+        let old = LegacyRow {
+            schema_version: 4,
             model: 3,
+            strategy: Strategy::DomainDecomposition,
+            opt_level: "o3".into(),
+            pin_policy: "close".into(),
             threads: 2,
             ranks: 2,
             threads_per_rank: 1,
             launcher: "mpirun -n 2".into(),
-            comm_s_per_step: Some(0.004),
             comm_frac: Some(0.031),
-            wait_s_per_step: Some(0.008),
-            wait_frac: Some(0.062),
-            ..Row::default()
+            ..LegacyRow::default()
         };
-        let mut log = CsvLog::open(&p).unwrap();
-        log.append(&row).unwrap();
-        drop(log);
+        std::fs::write(&p, legacy_csv_without(&old, &["wait_s_per_step", "wait_frac"])).unwrap();
         let rows = read_rows(&p).unwrap();
-        assert_eq!(rows, vec![row.clone()]);
-        assert!(!rows[0].comm_includes_wait());
-        let four = Row { schema_version: 4, ..row };
-        std::fs::write(&p, csv_without(&four, &["wait_s_per_step", "wait_frac"])).unwrap();
-        let rows = read_rows(&p).unwrap();
-        assert_eq!(rows, vec![Row { wait_s_per_step: None, wait_frac: None, ..four }]);
-        assert!(rows[0].comm_includes_wait() && rows[0].comm_frac == Some(0.031));
-        assert!(CsvLog::open(&p).is_err(), "appending schema-5 rows to a schema-4 file must be refused");
+        let r = &rows[0];
+        assert_eq!((r.ranks(), r.threads_per_rank(), r.threads()), (2, 1, 2));
+        assert!(r.comm_includes_wait() && r.measured.comm_frac == Some(0.031));
+        assert!(!r.run.spec.split_wait, "schema 4 ran without it");
     }
 
-    /// The committed hybrid reference campaign (schema 4) still reads: no waiting measured,
-    /// so every row over two ranks has its exchange seconds flagged as including it.
+    /// Every campaign folder committed under results/ reads, whatever its schema: every
+    /// row converts, the one-process rows and the rows over ranks as they were recorded.
     #[test]
-    fn committed_schema_4_hybrid_campaign_reads() {
-        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results/5b9efbec6a3d/hybrid/runs.csv");
-        let rows = read_rows(&p).unwrap();
-        assert!(rows.iter().all(|r| r.schema_version == 4 && r.wait_s_per_step.is_none() && r.wait_frac.is_none()));
-        let two: Vec<&Row> = rows.iter().filter(|r| r.ranks == 2).collect();
-        assert!(!two.is_empty() && two.len() < rows.len());
-        assert!(two.iter().all(|r| r.comm_includes_wait() && r.comm_frac.is_some_and(|f| f > 0.0)));
-        assert!(rows.iter().filter(|r| r.ranks == 1).all(|r| !r.comm_includes_wait()));
+    fn every_committed_campaign_reads() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results");
+        let mut found = 0;
+        let mut stack = vec![root];
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).unwrap().flatten() {
+                let p = e.path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else if p.file_name().is_some_and(|n| n == "runs.csv") {
+                    let rows = read_rows(&p).unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
+                    assert!(!rows.is_empty(), "{}", p.display());
+                    assert!(rows.iter().all(|r| r.id.run_key.ends_with(&format!("-r{}", r.run.rep))));
+                    found += 1;
+                }
+            }
+        }
+        assert!(found >= 5, "found {found} campaigns");
+        let quick = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results/d02fbfc20d44/quick/runs.csv");
+        let rows = read_rows(&quick).unwrap();
+        assert_eq!(rows.len(), 80);
+        assert!(rows.iter().all(|r| r.id.schema_version == 2 && !r.host.host_noisy && r.ranks() == 1));
     }
 }

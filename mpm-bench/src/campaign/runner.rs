@@ -13,11 +13,11 @@
 
 use super::launcher;
 use super::manifest::{self, BinaryInfo, Manifest, Session};
-use super::matrix::{Campaign, RunSpec};
-use super::memory::{available_memory, estimate_ranks_memory, memory_verdict, scenario_size};
+use super::matrix::{Campaign, PlannedRun};
+use super::memory::{available_memory, estimate_run_memory, memory_verdict};
 use super::preset::OptLevel;
 use super::process::{remove_stale_temp_files, RunOutput, RunRequest, Runner};
-use super::record::{cpus_cell, read_rows, repair_torn_tail, CsvLog, Row, RunKey, Status, SCHEMA_VERSION};
+use super::record::{read_rows, repair_torn_tail, CsvLog, Measured, Row, RunKey, Status, SCHEMA_VERSION};
 use super::solver::{workspace_root, Solver};
 use super::watch::{HostWatch, WatchSettings};
 use crate::machine::fingerprint;
@@ -27,7 +27,7 @@ use crate::machine::topology::{format_cpu_list, human_bytes, Machine};
 use crate::util::now_rfc3339;
 use anyhow::{anyhow, bail, Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use mpm_cli::summary::{RankReport, Summary};
+use mpm_spec::Summary;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -123,10 +123,10 @@ impl ExecSummary {
 }
 
 /// Rough relative cost of a run, for the progress bar's ETA.
-fn cost(spec: &RunSpec) -> u64 {
-    let p = scenario_size(&spec.scenario, spec.model).map_or(1000, |s| s.particles);
-    let steps = spec.budget.step_limit.unwrap_or(300) + 3; // + set-up, in step equivalents
-    let f = if spec.opt == OptLevel::O0 { 6 } else { 1 };
+fn cost(run: &PlannedRun) -> u64 {
+    let p = run.spec.scenario.size().particles;
+    let steps = run.spec.budget.steps.unwrap_or(300) + 3; // + set-up, in step equivalents
+    let f = if run.opt == OptLevel::O0 { 6 } else { 1 };
     (p / 1000).max(1) * steps * f
 }
 
@@ -158,19 +158,19 @@ impl SessionIdentity {
     /// another machine or another solver binary. `None` when they match.
     pub fn foreign(&self, rows: &[Row], manifest: Option<&Manifest>) -> Option<String> {
         let machines =
-            rows.iter().map(|r| r.machine_id.as_str()).chain(manifest.map(|m| m.machine.fingerprint.as_str()));
+            rows.iter().map(|r| r.id.machine_id.as_str()).chain(manifest.map(|m| m.machine.fingerprint.as_str()));
         if let Some(other) = machines.filter(|f| !f.is_empty()).find(|f| *f != self.fingerprint) {
             return Some(format!(
                 "holds results of another machine (fingerprint {other}, this one {})",
                 self.fingerprint
             ));
         }
-        for r in rows.iter().filter(|r| !r.binary_sha256.is_empty()) {
-            if let Some((opt, here)) = self.binaries.iter().find(|(o, _)| *o == r.opt_level) {
-                if *here != r.binary_sha256 {
+        for r in rows.iter().filter(|r| !r.id.binary_sha256.is_empty()) {
+            if let Some((opt, here)) = self.binaries.iter().find(|(o, _)| *o == r.opt().as_str()) {
+                if *here != r.id.binary_sha256 {
                     return Some(format!(
                         "holds results of another {opt} solver binary (sha256 {}..., this one {here}...)",
-                        r.binary_sha256
+                        r.id.binary_sha256
                     ));
                 }
             }
@@ -236,7 +236,7 @@ fn refusal(dir: &Path, who: &SessionIdentity, opts: &ExecOptions) -> Result<Opti
         let mut r = csv::Reader::from_path(&csv).with_context(|| format!("cannot open {}", csv.display()))?;
         let header = r.headers().with_context(|| format!("cannot read the header of {}", csv.display()))?;
         if !header.iter().eq(Row::header().iter().map(String::as_str)) {
-            let v = rows.first().map_or_else(|| "another".into(), |r| r.schema_version.to_string());
+            let v = rows.first().map_or_else(|| "another".into(), |r| r.id.schema_version.to_string());
             return Ok(Some(format!("was written with CSV schema {v} (this harness writes {SCHEMA_VERSION})")));
         }
     }
@@ -253,7 +253,7 @@ struct Plan {
     csv_path: PathBuf,
     planned: usize,
     existing: Vec<Row>,
-    todo: Vec<(usize, RunSpec)>,
+    todo: Vec<(usize, PlannedRun)>,
 }
 
 impl Plan {
@@ -289,14 +289,14 @@ impl Plan {
         )?;
         for (i, r) in &self.todo {
             let pl = RunPlan::of(machine, r)?;
-            let est = estimate_ranks_memory(&r.scenario, r.model, r.strategy, r.threads, r.ranks);
+            let est = estimate_run_memory(&r.spec);
             let verdict = memory_verdict(est, available_memory(), campaign.mem_limit);
             writeln!(
                 out,
                 "{:>4}  {:<48} {:<12} cpus {:<16} mem {:>9}{}{}",
                 i,
                 r.describe(),
-                budget_label(r),
+                r.budget_label(),
                 if pl.requested().is_empty() { "-".to_string() } else { format_cpu_list(pl.requested()) },
                 human_bytes(est),
                 if pl.oversubscribed { "  oversubscribed" } else { "" },
@@ -336,7 +336,7 @@ impl Plan {
             .todo
             .iter()
             .filter(|(_, r)| RunPlan::of(machine, r).is_ok_and(|p| p.oversubscribed))
-            .map(|(_, r)| (r.ranks, r.threads))
+            .map(|(_, r)| (r.spec.ranks, r.spec.threads))
             .collect();
         over.sort_unstable();
         over.dedup();
@@ -442,7 +442,7 @@ struct CampaignProgress {
 }
 
 impl CampaignProgress {
-    fn new(todo: &[(usize, RunSpec)], show: bool) -> Self {
+    fn new(todo: &[(usize, PlannedRun)], show: bool) -> Self {
         let total_cost: u64 = todo.iter().map(|(_, r)| cost(r)).sum();
         let bar = if show && !todo.is_empty() {
             ProgressBar::with_draw_target(Some(total_cost), ProgressDrawTarget::stderr())
@@ -459,27 +459,28 @@ impl CampaignProgress {
     }
 
     /// Run `n` (0-based) starts.
-    fn start(&self, n: usize, spec: &RunSpec) {
+    fn start(&self, n: usize, spec: &PlannedRun) {
         self.bar.set_prefix(format!("run {}/{} ({} left)", n + 1, self.total, self.total - n));
         self.bar.set_message(spec.describe());
     }
 
     /// Run `n` ended with `row`: its line, and the bar moves on.
-    fn ended(&self, n: usize, spec: &RunSpec, row: &Row) {
+    fn ended(&self, n: usize, spec: &PlannedRun, row: &Row) {
         if self.show {
-            let line = format!(
-                "[{}/{}] {} : {}{}",
-                n + 1,
-                self.total,
-                spec.describe(),
-                row.status.as_str(),
-                match (row.status, row.wall_s) {
-                    (Status::Ok, Some(w)) =>
-                        format!(" ({w:.2} s solver, {:.1} s process)", row.process_wall_s.unwrap_or(0.0)),
-                    _ if !row.reason.is_empty() => format!(" ({})", row.reason),
-                    _ => String::new(),
-                }
-            ) + &if row.host_noisy { format!(" [host busy: {}]", row.host_noise) } else { String::new() };
+            let line =
+                format!(
+                    "[{}/{}] {} : {}{}",
+                    n + 1,
+                    self.total,
+                    spec.describe(),
+                    row.outcome.status.as_str(),
+                    match (row.outcome.status, row.measured.wall_s) {
+                        (Status::Ok, Some(w)) =>
+                            format!(" ({w:.2} s solver, {:.1} s process)", row.outcome.process_wall_s.unwrap_or(0.0)),
+                        _ if !row.outcome.reason.is_empty() => format!(" ({})", row.outcome.reason),
+                        _ => String::new(),
+                    }
+                ) + &if row.host.host_noisy { format!(" [host busy: {}]", row.host.host_noise) } else { String::new() };
             if self.bar.is_hidden() {
                 eprintln!("{line}");
             } else {
@@ -507,30 +508,30 @@ impl RunContext<'_> {
         runner: &mut dyn Runner,
         mut watch: Option<&mut HostWatch>,
         solver: &Solver,
-        spec: &RunSpec,
+        planned: &PlannedRun,
         order_index: usize,
         run_id: String,
     ) -> Result<Option<Row>> {
-        let plan = RunPlan::of(self.machine, spec)?;
-        let estimate = estimate_ranks_memory(&spec.scenario, spec.model, spec.strategy, spec.threads, spec.ranks);
-        let mut row = base_row(self.campaign, self.machine, &self.git, solver, spec, &plan);
-        row.order_index = order_index;
-        row.mem_estimate_bytes = estimate;
+        let plan = RunPlan::of(self.machine, planned)?;
+        let estimate = estimate_run_memory(&planned.spec);
+        let mut row = base_row(self.campaign, self.machine, &self.git, solver, planned, &plan);
+        row.id.order_index = order_index;
+        row.outcome.mem_estimate_bytes = estimate;
         if let Some(reason) = memory_verdict(estimate, available_memory(), self.campaign.mem_limit) {
-            row.status = Status::Skipped;
-            row.reason = reason;
+            row.outcome.status = Status::Skipped;
+            row.outcome.reason = reason;
         } else {
-            let launched = spec.ranks > 1;
-            let req = RunRequest {
-                spec: spec.clone(),
-                scenario: self.campaign.scenario.clone(),
-                binary: solver.path.clone(),
-                cpus: if launched { None } else { plan.cpus.clone() },
-                launcher: launched.then(|| self.campaign.launcher.expand(spec.ranks, spec.threads)),
-                mask: if launched { plan.cpus.clone() } else { None },
-                json_path: self.json_dir.join(format!("{run_id}.json")),
-                timeout: self.campaign.timeout,
-            };
+            let launched = planned.spec.ranks > 1;
+            let mut req = RunRequest::new(
+                planned,
+                if launched { None } else { plan.cpus.clone() },
+                self.json_dir.join(format!("{run_id}.json")),
+                self.json_dir.join(format!("{run_id}.spec.toml")),
+            );
+            req.binary = solver.path.clone();
+            req.launcher = launched.then(|| self.campaign.launcher.expand(planned.spec.ranks, planned.spec.threads));
+            req.mask = if launched { plan.cpus.clone() } else { None };
+            req.timeout = self.campaign.timeout;
             let probe_cpus = plan.cpus.clone().unwrap_or_default();
             let before = watch.as_deref_mut().map(|w| w.before_run(&probe_cpus));
             let out = runner.run(&req);
@@ -543,8 +544,8 @@ impl RunContext<'_> {
                 row.set_host(&w.after_run(&probe_cpus, b), self.machine.usable_pus().len());
             }
         }
-        row.run_id = run_id;
-        row.timestamp = now_rfc3339();
+        row.id.run_id = run_id;
+        row.id.timestamp = now_rfc3339();
         Ok(Some(row))
     }
 }
@@ -552,13 +553,13 @@ impl RunContext<'_> {
 /// Add a written row to the session's counts.
 fn count(counts: &mut manifest::SessionCounts, row: &Row) {
     counts.written += 1;
-    match row.status {
+    match row.outcome.status {
         Status::Ok => counts.ok += 1,
         Status::Skipped => counts.skipped += 1,
         Status::Failed => counts.failed += 1,
         Status::Invalid => counts.invalid += 1,
     }
-    if row.oversubscribed {
+    if row.placement.oversubscribed {
         counts.oversubscribed += 1;
     }
 }
@@ -591,7 +592,7 @@ pub fn execute(
         // Nothing to do: the folder, its manifest and topology stay as they are.
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
     }
-    if plan.todo.iter().any(|(_, spec)| spec.ranks > 1) {
+    if plan.todo.iter().any(|(_, run)| run.spec.ranks > 1) {
         if let Some(why) = runner.launcher_refusal(&campaign.launcher) {
             bail!("{why}");
         }
@@ -615,8 +616,9 @@ pub fn execute(
         progress.start(n, spec);
         let solver =
             *solver_of.get(&spec.opt).ok_or_else(|| anyhow!("no solver binary for optimisation level {}", spec.opt))?;
-        let attempt = attempts.entry(spec.key()).or_default();
-        let run_id = format!("{}-a{}", spec.key().0, *attempt);
+        let key = spec.key();
+        let attempt = attempts.entry(key.clone()).or_default();
+        let run_id = format!("{}-{}-a{}", spec.label(), key.0, *attempt);
         *attempt += 1;
         let Some(row) = ctx.run_one(runner, watch.as_mut(), solver, spec, *order_index, run_id)? else {
             counts.interrupted = true;
@@ -634,17 +636,9 @@ pub fn execute(
     Ok(ExecSummary { dir: plan.dir, counts, wall })
 }
 
-fn budget_label(r: &RunSpec) -> String {
-    match (r.budget.step_limit, r.budget.end_time) {
-        (Some(n), _) => format!("{n} steps (w{})", r.budget.warmup),
-        (None, Some(t)) => format!("to {t:e} s (w{})", r.budget.warmup),
-        _ => "unbounded".into(),
-    }
-}
-
 /// Keys of configurations that need no new run.
 fn done_keys(rows: &[Row], retry_failed: bool) -> HashSet<RunKey> {
-    rows.iter().filter(|r| !retry_failed || r.status == Status::Ok).map(Row::key).collect()
+    rows.iter().filter(|r| !retry_failed || r.outcome.status == Status::Ok).map(Row::key).collect()
 }
 
 /// Where a run's workers go: the policy's placement of ranks x threads workers.
@@ -659,10 +653,10 @@ pub struct RunPlan {
 }
 
 impl RunPlan {
-    /// The plan of `spec` on `machine`.
-    pub fn of(machine: &Machine, spec: &RunSpec) -> Result<Self> {
-        let placement = machine.place_ranks(&spec.pin, spec.ranks, spec.threads)?;
-        let cpus = (!matches!(spec.pin, PinPolicy::None)).then_some(placement.cpus);
+    /// The plan of `run` on `machine`.
+    pub fn of(machine: &Machine, run: &PlannedRun) -> Result<Self> {
+        let placement = machine.place_ranks(&run.pin, run.spec.ranks, run.spec.threads)?;
+        let cpus = (!matches!(run.pin, PinPolicy::None)).then_some(placement.cpus);
         Ok(Self { cpus, oversubscribed: placement.oversubscribed })
     }
 
@@ -677,78 +671,81 @@ fn base_row(
     machine: &Machine,
     git: &manifest::GitInfo,
     solver: &Solver,
-    spec: &RunSpec,
+    run: &PlannedRun,
     plan: &RunPlan,
 ) -> Row {
-    let size = scenario_size(&spec.scenario, spec.model);
-    Row {
-        schema_version: SCHEMA_VERSION,
-        campaign_id: campaign.id.clone(),
-        git_commit: git.commit.clone(),
-        git_dirty: git.dirty,
-        machine_id: fingerprint::fingerprint(machine),
-        binary_sha256: short_hash(&solver.sha256),
-        seed: campaign.seed,
-        scenario: campaign.scenario.clone(),
-        model: spec.model,
-        particles: size.map(|s| s.particles),
-        nodes: size.map(|s| s.nodes),
-        grid_mode: spec.grid.clone(),
-        strategy: spec.strategy,
-        opt_level: spec.opt.to_string(),
-        threads: spec.total_threads(),
-        ranks: spec.ranks,
-        threads_per_rank: spec.threads,
-        launcher: if spec.ranks > 1 {
-            campaign.launcher.expand(spec.ranks, spec.threads).join(" ")
-        } else {
-            String::new()
-        },
-        pin_policy: spec.pin.label(),
-        requested_cpus: cpus_cell(plan.requested()),
-        oversubscribed: plan.oversubscribed,
-        rep: spec.rep,
-        warmup_steps: spec.budget.warmup,
-        step_limit: spec.budget.step_limit,
-        end_time_s: spec.budget.end_time,
-        ..Row::default()
-    }
+    let mut row = Row::planned(run.clone());
+    row.id.campaign_id = campaign.id.clone();
+    row.id.git_commit = git.commit.clone();
+    row.id.git_dirty = git.dirty;
+    row.id.machine_id = fingerprint::fingerprint(machine);
+    row.id.binary_sha256 = short_hash(&solver.sha256);
+    row.id.seed = campaign.seed;
+    row.placement.requested_cpus = plan.requested().to_vec();
+    row.placement.oversubscribed = plan.oversubscribed;
+    row
 }
 
 /// Fill a row's measurements and status from a finished child process: failed when the
 /// process failed or left no readable summary, invalid when the summary contradicts the
-/// request, ok otherwise.
+/// request (another spec than the one asked, CPUs not as placed, non-finite figures), ok
+/// otherwise.
 fn fill_from_output(row: &mut Row, req: &RunRequest, out: &RunOutput) {
-    row.exit_code = out.exit_code;
-    row.process_wall_s = Some(out.process_wall_s);
+    let o = &mut row.outcome;
+    o.exit_code = out.exit_code;
+    o.process_wall_s = Some(out.process_wall_s);
     if out.exit_code != Some(0) || out.error.is_some() {
-        row.status = Status::Failed;
-        row.reason = process_failure(out);
+        o.status = Status::Failed;
+        o.reason = process_failure(out);
         if let Some(hint) = req.launcher.as_ref().and(launcher::failure_hint(&out.stderr_tail)) {
-            row.reason = format!("{hint}: {}", row.reason);
+            o.reason = format!("{hint}: {}", o.reason);
         }
         return;
     }
     let summary = match read_summary(&req.json_path) {
         Ok(s) => s,
         Err(reason) => {
-            row.status = Status::Failed;
-            row.reason = reason;
+            o.status = Status::Failed;
+            o.reason = reason;
             return;
         }
     };
-    copy_measurements(row, &summary);
-    let checked = if req.spec.ranks > 1 {
-        check_ranks(&summary, req.spec.ranks, req.spec.threads, req.mask.as_deref().unwrap_or_default())
+    row.measured = Measured::of(&summary);
+    let ranks = summary.ranks.as_deref().unwrap_or_default();
+    row.placement.observed_cpus = if ranks.is_empty() {
+        summary.observed_cpus.clone()
     } else {
-        check_summary(&summary, &req.cpus.clone().unwrap_or_default())
+        ranks.iter().flat_map(|r| r.cpus.iter().copied()).collect()
     };
-    match checked {
-        Ok(()) => row.status = Status::Ok,
-        Err(reason) => {
-            row.status = Status::Invalid;
-            row.reason = reason;
+    row.placement.rank_cpus = ranks.iter().map(|r| r.cpus.clone()).collect();
+    row.placement.oversubscribed |= summary.oversubscribed || ranks.iter().any(|r| r.oversubscribed);
+    let checked = check_spec(&summary, &req.spec).and_then(|()| {
+        if req.spec.ranks > 1 {
+            check_ranks(&summary, req.spec.ranks, req.spec.threads, req.mask.as_deref().unwrap_or_default())
+        } else {
+            check_summary(&summary, &req.spec.cpus.clone().unwrap_or_default())
         }
+    });
+    match checked {
+        Ok(()) => row.outcome.status = Status::Ok,
+        Err(reason) => {
+            row.outcome.status = Status::Invalid;
+            row.outcome.reason = reason;
+        }
+    }
+}
+
+/// Whether the solver ran the spec it was given: its summary echoes the spec it ran.
+fn check_spec(s: &Summary, asked: &mpm_spec::RunSpec) -> Result<(), String> {
+    match &s.spec {
+        Some(ran) if ran == asked => Ok(()),
+        Some(ran) => Err(format!(
+            "the solver ran another spec than the one asked (asked {}, ran {}): is the solver binary older than the \
+             harness?",
+            asked.canonical(),
+            ran.canonical()
+        )),
+        None => Err("the summary has no spec: the solver binary is older than the harness; rebuild it".into()),
     }
 }
 
@@ -769,91 +766,6 @@ fn process_failure(out: &RunOutput) -> String {
 fn read_summary(path: &Path) -> Result<Summary, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("solver exited 0 but wrote no JSON summary ({e})"))?;
     serde_json::from_str(&text).map_err(|e| format!("bad JSON summary: {e}"))
-}
-
-/// Copy a summary's configuration as run, counts and measurements into its row.
-fn copy_measurements(row: &mut Row, s: &Summary) {
-    row.scenario = s.scenario.clone();
-    row.particles = Some(s.particles as u64);
-    row.cells = Some(s.cells as u64);
-    row.nodes = Some(s.nodes as u64);
-    row.mean_nodes = Some(s.mean_nodes);
-    row.grid_mode = s.grid_mode.clone();
-    row.steps = Some(s.steps);
-    row.sim_time_s = Some(s.sim_time);
-    row.end_reason = s.end_reason.name().to_string();
-    row.dt_first_s = Some(s.dt_first);
-    row.wall_s = Some(s.wall_s);
-    row.grid_stage_s = Some(s.grid_stage_s);
-    row.particle_stage_s = Some(s.particle_stage_s);
-    let sub = |name| s.substages.get(name);
-    row.sub_grid_fit_s = sub("grid_fit");
-    row.sub_binning_s = sub("binning");
-    row.sub_scatter_s = sub("scatter");
-    row.sub_assembly_s = sub("assembly");
-    row.sub_grid_update_s = sub("grid_update");
-    row.sub_gather_s = sub("gather");
-    row.sub_remap_scatter_s = sub("remap_scatter");
-    row.sub_remap_assembly_s = sub("remap_assembly");
-    row.sub_stress_update_s = sub("stress_update");
-    row.steady_s_per_step = s.steady_s_per_step;
-    row.ns_per_particle_step = s.ns_per_particle_step;
-    row.particle_steps_per_s = s.particle_steps_per_s;
-    row.worker_busy_s = s
-        .worker_busy_s
-        .as_ref()
-        .map(|b| b.iter().map(|b| format!("{b:.6}")).collect::<Vec<_>>().join(" "))
-        .unwrap_or_default();
-    row.load_imbalance = s.load_imbalance;
-    row.dd_work_imbalance = s.dd_patch_particles.map(|p| p.imbalance_mean);
-    row.peak_rss_bytes = s.peak_rss_bytes;
-    row.kinetic_energy_initial_j = Some(s.kinetic_energy_initial);
-    row.kinetic_energy_j = Some(s.kinetic_energy);
-    row.internal_energy_j = Some(s.internal_energy);
-    row.initial_length_m = s.initial_length_m;
-    row.final_length_m = s.final_length_m;
-    row.face_diameter_m = s.face_diameter_m;
-    row.cloud_front_m = s.cloud_front_m;
-    row.cloud_width_m = s.cloud_width_m;
-    row.failed_particles = Some(s.failed_particles as u64);
-    row.oversubscribed |= s.oversubscribed;
-    row.observed_cpus = cpus_cell(&s.observed_cpus);
-    row.peak_rss_sum_bytes = s.peak_rss_bytes;
-    row.comm_s_per_step = Some(0.0);
-    row.comm_frac = Some(0.0);
-    row.comm_bytes_per_step = Some(0.0);
-    row.comm_messages_per_step = Some(0.0);
-    if let Some(ranks) = s.ranks.as_deref().filter(|r| !r.is_empty()) {
-        copy_ranks(row, s, ranks);
-    }
-}
-
-/// The `ranks` section of a summary (rank 0's report of every rank) into the row: every
-/// rank's CPUs, particles and memory, and the exchange per step: seconds and waiting of the
-/// rank with the most of each (maxima over ranks), bytes and messages of all ranks.
-fn copy_ranks(row: &mut Row, s: &Summary, ranks: &[RankReport]) {
-    row.oversubscribed |= ranks.iter().any(|r| r.oversubscribed);
-    row.observed_cpus = cpus_cell(&ranks.iter().flat_map(|r| r.cpus.iter().copied()).collect::<Vec<_>>());
-    row.rank_cpus = ranks.iter().map(|r| cpus_cell(&r.cpus)).collect::<Vec<_>>().join("|");
-    row.rank_particles = ranks.iter().map(|r| r.particles.to_string()).collect::<Vec<_>>().join(" ");
-    row.rank_busy_imbalance = mpm_cli::summary::load_imbalance(&ranks.iter().map(|r| r.busy_s).collect::<Vec<_>>());
-    row.migrated_particles = Some(ranks.iter().map(|r| r.migrated).sum());
-    row.peak_rss_sum_bytes = ranks.iter().map(|r| r.peak_rss_bytes).sum();
-    let steps = s.steps.max(1) as f64;
-    let comm_max = ranks.iter().map(|r| r.exchange.seconds).fold(0.0, f64::max);
-    row.comm_s_per_step = Some(comm_max / steps);
-    row.comm_frac = (s.wall_s > 0.0).then(|| comm_max / s.wall_s);
-    // The waiting (--split-wait) aggregates as the communication: its own maximum over
-    // ranks; not measured unless every rank reports it.
-    let wait_max = ranks.iter().map(|r| r.exchange.wait_seconds).try_fold(0.0, |m, w| w.map(|w| f64::max(m, w)));
-    row.wait_s_per_step = wait_max.map(|w| w / steps);
-    row.wait_frac = wait_max.filter(|_| s.wall_s > 0.0).map(|w| w / s.wall_s);
-    let bytes: u64 =
-        ranks.iter().map(|r| r.exchange.halo_bytes + r.exchange.migration_bytes + r.exchange.reduction_bytes).sum();
-    let messages: u64 =
-        ranks.iter().map(|r| r.exchange.halo_messages + r.exchange.migration_messages + r.exchange.reductions).sum();
-    row.comm_bytes_per_step = Some(bytes as f64 / steps);
-    row.comm_messages_per_step = Some(messages as f64 / steps);
 }
 
 /// Whether the summary of a run over `ranks` ranks of `threads` threads is a valid
@@ -880,14 +792,14 @@ fn check_ranks(s: &Summary, ranks: usize, threads: usize, mask: &[usize]) -> Res
         return Err(format!(
             "pinning not honoured: a rank ran on CPU {c}, outside the CPUs [{}] given to the launcher \
              (a launcher that binds ranks itself overrides them: use --bind-to none, or --bind none)",
-            cpus_cell(mask)
+            list(mask)
         ));
     }
     if mask.len() >= ranks * threads && observed != mask[..ranks * threads] {
         return Err(format!(
             "pinning not honoured: ranks should take consecutive slices of [{}], observed [{}]",
-            cpus_cell(mask),
-            cpus_cell(&observed)
+            list(mask),
+            list(&observed)
         ));
     }
     check_summary(s, &[])
@@ -900,15 +812,15 @@ fn check_summary(s: &Summary, requested: &[usize]) -> Result<(), String> {
     if !requested.is_empty() && s.requested_cpus != requested {
         return Err(format!(
             "solver reports requested CPUs [{}], harness asked for [{}]",
-            cpus_cell(&s.requested_cpus),
-            cpus_cell(requested)
+            list(&s.requested_cpus),
+            list(requested)
         ));
     }
     if !requested.is_empty() && s.observed_cpus != requested {
         return Err(format!(
             "pinning not honoured: requested CPUs [{}], observed [{}]",
-            cpus_cell(requested),
-            cpus_cell(&s.observed_cpus)
+            list(requested),
+            list(&s.observed_cpus)
         ));
     }
     if [s.kinetic_energy, s.internal_energy, s.wall_s].iter().any(|x| !x.is_finite()) {
@@ -917,25 +829,27 @@ fn check_summary(s: &Summary, requested: &[usize]) -> Result<(), String> {
     Ok(())
 }
 
+/// A CPU list for a message: `0 1 2`.
+fn list(cpus: &[usize]) -> String {
+    cpus.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(" ")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::campaign::matrix::RunBudget;
     use mpm_core::Strategy;
+    use mpm_spec::scenario::TaylorSpec;
+    use mpm_spec::summary::RankReport;
+    use mpm_spec::{RunSpec, Scenario};
 
-    fn spec(ranks: usize, threads: usize, pin: PinPolicy) -> RunSpec {
-        RunSpec {
-            scenario: "taylor".into(),
-            model: 1,
-            strategy: Strategy::DomainDecomposition,
-            opt: OptLevel::O3,
-            threads,
-            ranks,
-            pin,
-            rep: 0,
-            grid: "fixed".into(),
-            budget: RunBudget { step_limit: Some(5), end_time: None, warmup: 1 },
-        }
+    fn spec(ranks: usize, threads: usize, pin: PinPolicy) -> PlannedRun {
+        let mut spec = RunSpec::new(Scenario::Taylor(TaylorSpec::model(1))).unwrap();
+        spec.strategy = Strategy::DomainDecomposition;
+        spec.threads = threads;
+        spec.ranks = ranks;
+        spec.budget.steps = Some(5);
+        spec.budget.warmup = Some(1);
+        PlannedRun { spec, model: 1, opt: OptLevel::O3, pin, launcher: None, rep: 0 }
     }
 
     /// Oversubscription counts ranks x threads per rank against the usable PUs, and the
@@ -1007,34 +921,32 @@ mod tests {
             r.exchange.seconds = 0.1 * (i + 1) as f64;
         }
         s.ranks.as_mut().unwrap()[1].oversubscribed = true;
-        let mut row = Row { ranks: 2, ..Row::default() };
-        copy_measurements(&mut row, &s);
-        assert_eq!(row.observed_cpus, "0 1");
-        assert_eq!(row.rank_cpus, "0|1");
-        assert_eq!(row.rank_particles, "100 101");
-        assert_eq!(row.migrated_particles, Some(4));
-        assert_eq!(row.peak_rss_sum_bytes, Some(2000));
-        assert_eq!(row.comm_bytes_per_step, Some(200.0));
-        assert_eq!(row.comm_messages_per_step, Some(4.0));
-        assert!((row.comm_s_per_step.unwrap() - 0.02).abs() < 1e-15);
-        assert!((row.comm_frac.unwrap() - 0.1).abs() < 1e-15);
-        assert!((row.rank_busy_imbalance.unwrap() - 2.0 / 1.5).abs() < 1e-12);
-        assert!(row.oversubscribed, "a rank that shares its CPUs flags the row");
-        assert_eq!((row.wait_s_per_step, row.wait_frac), (None, None), "run without --split-wait");
+        let m = Measured::of(&s);
+        assert_eq!(m.rank_particles, [100, 101]);
+        assert_eq!(m.migrated_particles, Some(4));
+        assert_eq!(m.peak_rss_sum_bytes, Some(2000));
+        assert_eq!(m.comm_bytes_per_step, Some(200.0));
+        assert_eq!(m.comm_messages_per_step, Some(4.0));
+        assert!((m.comm_s_per_step.unwrap() - 0.02).abs() < 1e-15);
+        assert!((m.comm_frac.unwrap() - 0.1).abs() < 1e-15);
+        assert!((m.rank_busy_imbalance.unwrap() - 2.0 / 1.5).abs() < 1e-12);
+        assert_eq!((m.wait_s_per_step, m.wait_frac), (None, None), "run without --split-wait");
+        let mut row = Row::planned(spec(2, 1, PinPolicy::CLOSE));
+        row.measured = m;
         assert!(row.comm_includes_wait());
         // With --split-wait: the waiting of the rank that waited most (rank 0 here, while
         // rank 1 communicated most), apart from the communication.
         for (i, r) in s.ranks.as_mut().unwrap().iter_mut().enumerate() {
             r.exchange.wait_seconds = Some(0.3 - 0.1 * i as f64);
         }
-        copy_measurements(&mut row, &s);
-        assert!((row.wait_s_per_step.unwrap() - 0.03).abs() < 1e-15);
-        assert!((row.wait_frac.unwrap() - 0.15).abs() < 1e-15);
-        assert!((row.comm_frac.unwrap() - 0.1).abs() < 1e-15, "the communication is unchanged");
+        row.measured = Measured::of(&s);
+        assert!((row.measured.wait_s_per_step.unwrap() - 0.03).abs() < 1e-15);
+        assert!((row.measured.wait_frac.unwrap() - 0.15).abs() < 1e-15);
+        assert!((row.measured.comm_frac.unwrap() - 0.1).abs() < 1e-15, "the communication is unchanged");
         assert!(!row.comm_includes_wait());
         // A rank without it: not measured.
         s.ranks.as_mut().unwrap()[1].exchange.wait_seconds = None;
-        copy_measurements(&mut row, &s);
-        assert_eq!((row.wait_s_per_step, row.wait_frac), (None, None));
+        row.measured = Measured::of(&s);
+        assert_eq!((row.measured.wait_s_per_step, row.measured.wait_frac), (None, None));
     }
 }

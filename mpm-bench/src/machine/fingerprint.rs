@@ -57,7 +57,7 @@ pub struct MachineInfo {
 /// Stable fingerprint of a machine (12 hex digits): of `m` and, when `m` is this host, of
 /// its [`HostIdentity`].
 pub fn fingerprint(m: &Machine) -> String {
-    let identity = m.is_this_system.then(HostIdentity::read);
+    let identity = m.is_this_system.then(mpm_cli::identity::read_host);
     fingerprint_with(m, identity.as_ref())
 }
 
@@ -83,7 +83,7 @@ pub fn fingerprint_with(m: &Machine, identity: Option<&HostIdentity>) -> String 
 
 /// Machine part of the manifest for `m` (this host).
 pub fn machine_info(m: &Machine) -> MachineInfo {
-    let identity = m.is_this_system.then(HostIdentity::read);
+    let identity = m.is_this_system.then(mpm_cli::identity::read_host);
     MachineInfo {
         fingerprint: fingerprint_with(m, identity.as_ref()),
         cpu_model: m.cpu_model.clone(),

@@ -397,23 +397,7 @@ pub fn export_xml() -> Result<String> {
     Ok(xml.as_str().to_string())
 }
 
-/// `1.5 GiB` style.
-pub fn human_bytes(b: u64) -> String {
-    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
-    let mut v = b as f64;
-    let mut u = 0;
-    while v >= 1024.0 && u + 1 < UNITS.len() {
-        v /= 1024.0;
-        u += 1;
-    }
-    if u == 0 {
-        format!("{b} B")
-    } else if v >= 100.0 || v.fract() < 0.05 {
-        format!("{v:.0} {}", UNITS[u])
-    } else {
-        format!("{v:.1} {}", UNITS[u])
-    }
-}
+pub use mpm_cli::memory::human_bytes;
 
 #[cfg(test)]
 mod tests {

@@ -432,7 +432,7 @@ pub fn build(args: &ReportArgs) -> Result<Report> {
 
 /// Count of ok and not-ok rows of a campaign.
 pub(super) fn row_counts(c: &Campaign) -> String {
-    let ok = c.all_rows().filter(|r| r.status == Status::Ok).count();
+    let ok = c.all_rows().filter(|r| r.outcome.status == Status::Ok).count();
     format!("{ok} / {}", c.rows.len() + c.hybrid.len() - ok)
 }
 

@@ -10,8 +10,8 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use mpm_cli::atomic::write_atomic;
 use mpm_cli::group_digits;
-use mpm_cli::identity::Provenance;
-use mpm_cli::summary::{EnergyReport, Summary};
+use mpm_spec::identity::Provenance;
+use mpm_spec::summary::{EnergyReport, Summary};
 use std::path::{Path, PathBuf};
 
 /// The line of a template that the table replaces.
@@ -54,7 +54,7 @@ pub fn load_runs(dir: &Path) -> Result<Vec<ImpactRun>> {
         let text = std::fs::read_to_string(&file).with_context(|| format!("cannot read {}", file.display()))?;
         let summary: Summary = serde_json::from_str(&text)
             .with_context(|| format!("{} is not an mpm summary (rerun that impact)", file.display()))?;
-        if summary.scenario != "impact" {
+        if summary.scenario != mpm_spec::ScenarioKind::Impact {
             bail!("{} is a {} run, not an impact: remove it from {}", file.display(), summary.scenario, dir.display());
         }
         let name = path.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());

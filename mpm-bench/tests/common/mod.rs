@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 use mpm_bench::campaign::manifest::{self, GitInfo, Manifest, SoftwareInfo, MANIFEST_VERSION};
+use mpm_bench::campaign::matrix::PlannedRun;
 use mpm_bench::campaign::record::{CsvLog, Row, Status, SCHEMA_VERSION};
 use mpm_bench::machine::fingerprint;
 use mpm_bench::machine::topology::Machine;
@@ -122,43 +123,33 @@ pub fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
                             log.append(&failed_row(dir, &fp, m, strategy, opt, n, rep)).unwrap();
                             continue;
                         }
-                        let row = Row {
-                            schema_version: SCHEMA_VERSION,
-                            campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
-                            run_id: format!("m{m}-{strategy}-{opt}-t{n}-{}-r{rep}", c.pin),
-                            machine_id: fp.clone(),
-                            scenario: "taylor".into(),
-                            model: m,
-                            particles: Some(10_000 * m as u64),
-                            nodes: Some(5_000 * m as u64),
-                            mean_nodes: Some(5_000.0 * m as f64),
-                            grid_mode: "fixed".into(),
-                            strategy,
-                            opt_level: opt.into(),
-                            threads: n,
-                            pin_policy: c.pin.into(),
-                            oversubscribed: n > c.cores,
-                            rep,
-                            steps: if skip { None } else { Some(steps) },
-                            wall_s: (!skip).then_some((g + p) * steps as f64),
-                            grid_stage_s: (!skip).then_some(g * steps as f64),
-                            particle_stage_s: (!skip).then_some(p * steps as f64),
-                            steady_s_per_step: (!skip).then_some(g + p),
-                            peak_rss_bytes: (!skip).then_some((mem * 1.0) as u64),
-                            mem_estimate_bytes: if skip { 9_500_000_000 } else { mem as u64 },
-                            dd_work_imbalance: match strategy {
+                        let mut row = planned_row(dir, &fp, m, strategy, opt, n, rep, c.pin, steps);
+                        row.placement.oversubscribed = n > c.cores;
+                        row.outcome.mem_estimate_bytes = if skip { 9_500_000_000 } else { mem as u64 };
+                        if skip {
+                            row.outcome.status = Status::Skipped;
+                            row.outcome.reason = "memory guard: estimated 9.5 GiB exceeds the limit".into();
+                        } else {
+                            let t = &mut row.measured;
+                            t.particles = Some(10_000 * m as u64);
+                            t.nodes = Some(5_000 * m as u64);
+                            t.mean_nodes = Some(5_000.0 * m as f64);
+                            t.steps = Some(steps);
+                            t.steady_steps = Some(steps);
+                            t.wall_s = Some((g + p) * steps as f64);
+                            t.grid_stage_s = Some(g * steps as f64);
+                            t.particle_stage_s = Some(p * steps as f64);
+                            t.steady_wall_s = t.wall_s;
+                            t.steady_grid_stage_s = t.grid_stage_s;
+                            t.steady_particle_stage_s = t.particle_stage_s;
+                            t.steady_s_per_step = Some(g + p);
+                            t.peak_rss_bytes = Some(mem as u64);
+                            t.dd_work_imbalance = match strategy {
                                 DD => Some(1.0 + 0.05 * (n - 1) as f64),
                                 DDB => Some(1.0 + 0.002 * (n - 1) as f64),
                                 _ => None,
-                            },
-                            status: if skip { Status::Skipped } else { Status::Ok },
-                            reason: if skip {
-                                "memory guard: estimated 9.5 GB exceeds the limit".into()
-                            } else {
-                                String::new()
-                            },
-                            ..Row::default()
-                        };
+                            };
+                        }
                         log.append(&row).unwrap();
                     }
                 }
@@ -171,25 +162,36 @@ pub fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
     dir.to_path_buf()
 }
 
+/// The row of a planned Taylor run of a crafted campaign in `dir`, nothing measured yet.
+#[allow(clippy::too_many_arguments)]
+pub fn planned_row(
+    dir: &Path,
+    fp: &str,
+    model: u32,
+    strategy: Strategy,
+    opt: &str,
+    threads: usize,
+    rep: u32,
+    pin: &str,
+    steps: u64,
+) -> Row {
+    let mut run = PlannedRun::taylor(model, strategy, opt.parse().unwrap(), threads, steps);
+    run.rep = rep;
+    run.pin = pin.parse().unwrap();
+    let mut row = Row::planned(run);
+    row.id.campaign_id = dir.file_name().unwrap().to_string_lossy().into_owned();
+    row.id.run_id = format!("m{model}-{strategy}-{opt}-t{threads}-{pin}-r{rep}");
+    row.id.machine_id = fp.into();
+    assert_eq!(row.id.schema_version, SCHEMA_VERSION);
+    row
+}
+
 /// A repetition whose solver crashed.
 pub fn failed_row(dir: &Path, fp: &str, model: u32, strategy: Strategy, opt: &str, threads: usize, rep: u32) -> Row {
-    Row {
-        schema_version: SCHEMA_VERSION,
-        campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),
-        run_id: format!("m{model}-{strategy}-{opt}-t{threads}-r{rep}"),
-        machine_id: fp.into(),
-        scenario: "taylor".into(),
-        model,
-        grid_mode: "fixed".into(),
-        strategy,
-        opt_level: opt.into(),
-        threads,
-        pin_policy: "close".into(),
-        rep,
-        status: Status::Failed,
-        reason: "solver exited with status 101".into(),
-        ..Row::default()
-    }
+    let mut row = planned_row(dir, fp, model, strategy, opt, threads, rep, "close", 10);
+    row.outcome.status = Status::Failed;
+    row.outcome.reason = "solver exited with status 101".into();
+    row
 }
 
 /// The manifest of a crafted campaign on the hwloc synthetic topology `t` (16 GiB).

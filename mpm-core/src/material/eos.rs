@@ -29,10 +29,10 @@
 //! tangent at `mu_limit`, so a particle that overshoots in a shock sees a large but finite,
 //! increasing pressure.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Which form of the Mie-Grüneisen EOS to use (see the module docs).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
 pub enum MgForm {
     /// Hugoniot-referenced form, `p_H (1 - gamma0 eta / 2) + gamma0 E` (the default).

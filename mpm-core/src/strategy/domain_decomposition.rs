@@ -632,8 +632,20 @@ impl ScatterStrategy for DomainDecomposition {
         global: &mut [[f64; K]],
         subgrids: &[[f64; K]],
     ) {
-        // The row ranges below are disjoint only for the grid the patches were cut for.
+        // The row ranges below are disjoint, and inside `global`, only for the grid the
+        // patches were cut for, and only if every patch lies inside that grid (the cuts'
+        // invariant, checked here because the writes below rely on it).
         assert!(self.cut_for == Some(*geom), "DD assembly on a grid the patches were not cut for");
+        for p in &self.patches {
+            assert!(
+                (0..3).all(|d| p.cell_lo[d] + p.cells[d] <= geom.cells[d]),
+                "DD assembly: patch {:?} (cells {:?} from {:?}) reaches outside the grid of {:?} cells",
+                p.index,
+                p.cells,
+                p.cell_lo,
+                geom.cells
+            );
+        }
         if let NodeIndex::Blocks(grid) = index {
             assert_eq!(self.patch_blocks.len(), self.patches.len(), "DD assembly on a sparse grid before its blocks");
             return self.assemble_blocks(exec, grid, global, subgrids);
@@ -648,7 +660,8 @@ impl ScatterStrategy for DomainDecomposition {
                 for r in partition(rows, t, w) {
                     let (lj, lk) = (r % d[1], r / d[1]);
                     let g0 = geom.node_index(patch.cell_lo[0], patch.cell_lo[1] + lj, patch.cell_lo[2] + lk);
-                    // SAFETY: the patches were cut for `geom` (asserted above), so local row
+                    // SAFETY: the patches were cut for `geom` and lie inside it (both asserted
+                    // above), so local row
                     // (lj, lk) of this patch is the d[0] nodes of global row (lo_y + lj,
                     // lo_z + lk) from x = lo_x, inside that row: distinct local rows are
                     // disjoint global ranges. Workers take disjoint local rows (one
@@ -792,6 +805,20 @@ mod tests {
                 check_assembly(&dd, &geom, threads);
             }
         }
+    }
+
+    /// A patch that reaches outside the grid (a broken cut) stops the assembly before its
+    /// unchecked writes: its last row would run past the global array or into the next row.
+    #[test]
+    #[should_panic(expected = "reaches outside the grid")]
+    fn assembly_refuses_a_patch_outside_the_grid() {
+        let geom = GridGeom::fixed(&GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [4, 3, 2] });
+        let mut dd = DomainDecomposition::new(2);
+        dd.cut(&geom);
+        dd.patches[1].cells[0] += 1;
+        let buf = vec![[0.0; 2]; dd.subgrid_nodes() + 64];
+        let mut global = vec![[0.0; 2]; geom.num_nodes()];
+        in_region(2, |exec| dd.assemble(exec, &geom, &NodeIndex::of(&geom, None), &mut global, &buf));
     }
 
     /// Assemble a sub-grid buffer of distinct values into a NaN-filled global array and

@@ -1,8 +1,9 @@
 //! The summary of a run for people (stdout), unless `--quiet`.
 
-use mpm_cli::summary::{EndReason, Summary, OPT_LEVEL};
 use mpm_cli::vtk::SnapshotWriter;
 use mpm_cli::{group_digits, pinning};
+use mpm_spec::summary::{EndReason, WallContact};
+use mpm_spec::{ScenarioKind, Summary};
 use std::path::Path;
 
 /// Print the summary for people. A closed stdout (e.g. `| head`) must not panic: write
@@ -27,14 +28,15 @@ pub fn print_human(s: &Summary, json: Option<&Path>, snaps: Option<&SnapshotWrit
 
 /// The model and the solver as run: counts, grid, strategy, threads, pinning, build.
 fn configuration(s: &Summary) -> Vec<String> {
-    let what = if s.scenario == "taylor" { format!("Taylor bar Model {}", s.model) } else { s.model_name.clone() };
+    let what =
+        if s.scenario == ScenarioKind::Taylor { format!("Taylor bar Model {}", s.model) } else { s.model_name.clone() };
     let model = format!(
         "{what} at {} m/s: {} particles, {} cells, {} nodes ({} grid, dx = {:.4} mm)",
         s.velocity_m_s,
         group_digits(s.particles as u64),
         group_digits(s.cells as u64),
         group_digits(s.nodes as u64),
-        s.grid_mode,
+        s.grid_mode.name(),
         s.dx_m * 1e3
     );
     let cpus = if s.pinned {
@@ -48,15 +50,18 @@ fn configuration(s: &Summary) -> Vec<String> {
         String::new()
     };
     let solver = format!(
-        "solver: strategy {}, {} thread(s){}{}, {} build, {}, CFL {}, {} wall",
+        "solver: strategy {}, {} thread(s){}{}, {} build, {}, CFL {}{}",
         s.strategy,
         s.threads,
         cpus,
         if s.oversubscribed { " (oversubscribed)" } else { "" },
-        OPT_LEVEL,
-        s.eos,
+        s.opt_level,
+        s.eos.name(),
         s.cfl,
-        s.wall
+        match s.wall {
+            WallContact::None => String::new(),
+            w => format!(", {} wall", w.name()),
+        }
     );
     vec![model, solver]
 }
@@ -191,7 +196,7 @@ fn physics(s: &Summary) -> Vec<String> {
     ));
     if let Some(o) = s.final_occupancy {
         let stored = s.sparse_stored_nodes().map_or_else(String::new, |n| {
-            format!(" in its box, {} stored ({} grid)", group_digits(n as u64), s.grid_mode)
+            format!(" in its box, {} stored ({} grid)", group_digits(n as u64), s.grid_mode.name())
         });
         lines.push(format!(
             "final grid: {} nodes{stored}; particles in {} of its {} cells ({:.1} %) and in {} blocks of {}^3 cells",

@@ -1,8 +1,9 @@
 //! `mpm`: run one explicit MPM simulation and write its JSON summary (and, optionally, VTU
 //! snapshots). See `mpm run taylor --help`.
 //!
-//! A run in steps: [`cli`] parses the command line, [`scenario`] builds the model asked for,
-//! [`run`] checks the options, builds the pinned pool and the simulation and steps it
+//! A run in steps: [`cli`] parses the command line into a run spec (`mpm_spec::RunSpec`,
+//! or reads one with `--spec`), [`run`] checks it against the machine, builds the scenario,
+//! the pinned pool and the simulation and steps it
 //! ([`output`] writes snapshots and pictures on the way, [`progress`] shows a bar), then
 //! writes the summary; [`human`] prints it for people.
 
@@ -12,12 +13,11 @@ mod output;
 mod progress;
 mod ranks;
 mod run;
-mod scenario;
 
 use anyhow::Result;
 use clap::Parser;
-use cli::{Cli, Command, RunCmd, Scenario};
-use scenario::ScenarioRun;
+use cli::{Cli, Command, RunCmd};
+use run::Request;
 
 fn main() {
     let cli = Cli::parse();
@@ -34,11 +34,14 @@ fn main() {
 /// Run the command the user gave.
 fn dispatch(cli: Cli) -> Result<()> {
     let command_line: Vec<String> = std::env::args().collect();
-    let Command::Run(RunCmd { scenario }) = cli.command;
-    let run = match scenario {
-        Scenario::Taylor(args) => ScenarioRun::Taylor(args),
-        Scenario::Impact(args) => ScenarioRun::Impact(args),
-        Scenario::Plate(args) => ScenarioRun::Plate(args),
+    let Command::Run(RunCmd { scenario, spec, json, quiet, control }) = cli.command;
+    let (request, control) = match (scenario, spec) {
+        (Some(sc), _) => {
+            let control = sc.options().control;
+            (Request::Flags(Box::new(sc)), control)
+        }
+        (None, Some(path)) => (Request::File { path, json, quiet }, control),
+        (None, None) => anyhow::bail!("give a scenario (`mpm run taylor --model 1`) or a spec (`mpm run --spec FILE`)"),
     };
-    run::run_scenario(&run, command_line)
+    run::run(request, control, command_line)
 }

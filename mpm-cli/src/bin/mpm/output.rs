@@ -2,14 +2,13 @@
 //! run, written only when it succeeds), VTU snapshots and radiograph pictures, with the time
 //! spent writing them (left out of the run's wall time).
 
-use crate::scenario::ScenarioRun;
 use anyhow::{bail, Context, Result};
 use mpm_cli::atomic;
 use mpm_cli::picture::{write_history_plot, write_radiograph, RadiographNotes};
-use mpm_cli::summary::Summary;
 use mpm_cli::vtk::SnapshotWriter;
 use mpm_core::scenario::impact::{self, History, ImpactGeometry};
 use mpm_core::Simulation;
+use mpm_spec::{RunSpec, Summary};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -28,16 +27,18 @@ pub struct Outputs {
 impl Outputs {
     /// Check and reserve every output before the run: the JSON summary's file, the snapshot
     /// directory, the radiograph directory.
-    pub fn open(scenario: &ScenarioRun) -> Result<Self> {
-        let o = scenario.options();
+    pub fn open(spec: &RunSpec) -> Result<Self> {
+        let o = &spec.outputs;
         let json = o.json.as_deref().map(PendingFile::reserve).transpose()?;
-        let snapshots = o.vtk.as_deref().map(|d| SnapshotWriter::new(d, scenario.name(), o.vtk_format)).transpose()?;
-        let radiographs = scenario.radiograph().map(|(dir, every)| (dir.to_path_buf(), every));
+        let name = spec.scenario.kind().name();
+        let snapshots = o.vtk.as_ref().map(|v| SnapshotWriter::new(&v.dir, name, v.encoding)).transpose()?;
+        let radiographs = o.radiograph.as_ref().map(|r| (r.dir.clone(), r.every));
         if let Some((dir, _)) = &radiographs {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create the radiograph directory {}", dir.display()))?;
         }
-        Ok(Self { json, snapshots, every: o.every, radiographs, spent: Duration::ZERO })
+        let every = o.vtk.as_ref().map_or(1, |v| v.every);
+        Ok(Self { json, snapshots, every, radiographs, spent: Duration::ZERO })
     }
 
     /// No outputs (the ranks other than 0 of a run over several ranks).

@@ -4,27 +4,25 @@
 //! every particle in one place: the ranks stream their particles to rank 0, which places
 //! each record in the file's bytes at its global id).
 
-use crate::cli::RunOptions;
-use crate::scenario::{Prepared, ScenarioRun};
 use anyhow::{bail, Context, Result};
 use mpm_cli::distributed::{launcher_ranks, MPI_COMPILED};
 use mpm_cli::pinning;
-use mpm_cli::summary::RankReport;
 use mpm_core::scenario::Pick;
-use mpm_core::{Collectives, Exchange, Particles, Simulation, SingleProcess};
+use mpm_core::{Collectives, Exchange, MgForm, Particles, Simulation, SingleProcess};
+use mpm_spec::scenario::Prepared;
+use mpm_spec::summary::RankReport;
+use mpm_spec::Scenario;
 use std::path::Path;
 
-/// The ranks a run asks for: `--ranks` or the launcher's count; `None` for one process.
-/// A build without MPI refuses more than one.
-pub fn wanted(o: &RunOptions) -> Result<Option<usize>> {
+/// The ranks a run asks for (`requested`: `--ranks` or the spec's `ranks`; else the
+/// launcher's count); `None` for one process. A build without MPI refuses more than one,
+/// and a count that differs from what the launcher started is refused.
+pub fn wanted(requested: Option<usize>) -> Result<Option<usize>> {
     let launcher = launcher_ranks();
-    let want = o.ranks.map(|r| r as usize).or(launcher).filter(|&r| r > 1);
-    if want.is_none() && o.rank_layout.is_some_and(|l| l.iter().product::<usize>() > 1) {
-        bail!("--rank-layout needs several ranks: start the run with `mpirun -n R mpm run ...`");
+    if let (Some(1), Some(l)) = (requested, launcher.filter(|&l| l > 1)) {
+        bail!("the run asks for 1 rank but mpirun started {l}: give the same count to both (--ranks, or the spec's `ranks`)");
     }
-    if want.is_none() && o.split_wait {
-        bail!("--split-wait measures waiting between ranks and needs several: start the run with `mpirun -n R mpm run ...`");
-    }
+    let want = requested.or(launcher).filter(|&r| r > 1);
     match want {
         Some(r) if !MPI_COMPILED => bail!(
             "MPI is not compiled into this mpm, so it cannot run over {r} ranks; rebuild with the `mpi` feature \
@@ -96,8 +94,8 @@ pub struct Ranks {
 
 impl Ranks {
     /// Start MPI if the run asks for several ranks ([`wanted`]).
-    pub fn start(o: &RunOptions) -> Result<Self> {
-        let want = wanted(o)?;
+    pub fn start(requested: Option<usize>) -> Result<Self> {
+        let want = wanted(requested)?;
         #[cfg(feature = "mpi")]
         return Ok(Self { mpi: want.map(|_| with_mpi::Mpi::start()).transpose()?, single: SingleProcess });
         #[cfg(not(feature = "mpi"))]
@@ -133,23 +131,25 @@ impl Ranks {
     /// rank's box alone, numbered as in the whole set.
     pub fn build(
         &self,
-        scenario: &ScenarioRun,
+        scenario: &Scenario,
+        eos: MgForm,
         _layout: Option<[usize; 3]>,
         _split_wait: bool,
     ) -> Result<(Prepared, Option<Box<dyn Exchange>>)> {
+        let what = || format!("cannot set up the {}", scenario.describe());
         #[cfg(feature = "mpi")]
         if let Some(m) = &self.mpi {
-            let census = scenario.build(Pick::Where(&|_| false))?;
+            let census = scenario.build(eos, Pick::Where(&|_| false)).with_context(what)?;
             let part = census.setup.part.as_ref().context("a picked set-up describes the whole set")?;
             if part.total == 0 {
                 bail!("the scenario has no particles; check its size options");
             }
             let boxes = m.boxes(&census.setup.grid, (part.lo, part.hi), _layout)?;
             let rank = m.rank;
-            let prepared = scenario.build(Pick::Where(&|x| boxes.owner(x) == rank))?;
+            let prepared = scenario.build(eos, Pick::Where(&|x| boxes.owner(x) == rank)).with_context(what)?;
             return Ok((prepared, Some(m.exchange(boxes, _split_wait)?)));
         }
-        Ok((scenario.build(Pick::All)?, None))
+        Ok((scenario.build(eos, Pick::All).with_context(what)?, None))
     }
 
     /// This rank's CPUs for `threads` workers and whether ranks share CPUs ([`place`]).
@@ -246,7 +246,7 @@ mod with_mpi {
             };
             let world = universe.world();
             let (rank, size) = (world.rank() as usize, world.size() as usize);
-            Ok(Self { collectives: MpiCollectives::new(world), universe, rank, size })
+            Ok(Self { collectives: MpiCollectives::new(world)?, universe, rank, size })
         }
 
         /// The rank boxes of `layout` (default: the DD layout for the rank count) cut

@@ -3,19 +3,23 @@
 //! simulation, step it until the end time or step limit ([`step_loop`]), then build, write
 //! and print the summary.
 
-use crate::cli::GridArg;
+use crate::cli::Control;
 use crate::human::print_human;
 use crate::output::Outputs;
 use crate::progress::Progress;
 use crate::ranks::Ranks;
-use crate::scenario::{Prepared, ScenarioRun};
 use anyhow::{bail, Context, Result};
 use mpm_cli::pinning::{self, PinnedPool};
-use mpm_cli::summary::{EndReason, HistoryPoint, HistoryRecorder, RunContext, Summary, Timing};
+use mpm_cli::summary::{self, HistoryRecorder, RunContext, Timing};
 use mpm_core::scenario::impact::{self, CloudFigures, History, ImpactGeometry, DEFAULT_HISTORY_INTERVAL};
 use mpm_core::scenario::plate::{PlateGeometry, PlateResult, ShockTracker};
 use mpm_core::scenario::taylor::{self, TaylorFigures};
-use mpm_core::{Collectives, GridMode, SimConfig, Simulation, Strategy};
+use mpm_core::{Collectives, SimConfig, Simulation};
+use mpm_spec::scenario::Prepared;
+use mpm_spec::spec::Budget;
+use mpm_spec::summary::{EndReason, HistoryPoint, RankReport};
+use mpm_spec::RunSpec;
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
@@ -25,51 +29,36 @@ use std::time::Instant;
 #[error("interrupted at step {0} (Ctrl-C); no summary written")]
 pub struct Interrupted(u64);
 
-/// What the options ask for, checked before anything is built.
+/// Worker threads per core beyond which a run is refused: more is not a measurement, and
+/// `--threads 100000` would only bring the machine to its knees.
+pub const MAX_THREADS_PER_CORE: usize = 16;
+
+/// What the machine says about the spec, checked before anything is built.
 struct Plan {
-    strategy: Strategy,
-    threads: usize,
-    /// CPU of each worker, when pinned.
-    cpus: Option<Vec<usize>>,
-    step_limit: Option<u64>,
-    end_time: Option<f64>,
     available_cores: usize,
     /// More workers than cores, or than distinct pinned CPUs.
     oversubscribed: bool,
 }
 
 impl Plan {
-    /// Check the strategy against the thread count, the CPU list, the end time and the
-    /// warm-up; warn (once) when the run is oversubscribed.
-    fn check(scenario: &ScenarioRun) -> Result<Self> {
-        let o = scenario.options();
-        let strategy = o.strategy;
-        let threads = o.threads.unwrap_or(1);
-        strategy.check_threads(threads).map_err(anyhow::Error::msg)?;
-        let cpus = match &o.cpus {
-            Some(list) => {
-                let c = pinning::parse_cpu_list(list).context("invalid --cpus")?;
-                pinning::validate_cpus(&c, threads).context("invalid --cpus")?;
-                Some(c)
-            }
-            None => None,
-        };
-        let step_limit = o.steps;
-        let end_time = match (o.end_time, step_limit) {
-            (Some(t), _) => Some(t),
-            (None, None) => Some(scenario.default_end_time()?),
-            (None, Some(_)) => None,
-        };
-        if let (Some(w), Some(n)) = (o.warmup, step_limit) {
-            if n > 0 && w >= n {
-                bail!(
-                    "--warmup {w} leaves no steady-state steps of --steps {n}: use fewer warm-up steps (e.g. --warmup {})",
-                    n / 10
-                );
-            }
+    /// Check the spec against this machine: the CPU list, a thread count not far beyond the
+    /// cores, the memory estimate against the memory available (unless `force`); warn (once)
+    /// when the run is oversubscribed.
+    fn check(spec: &RunSpec, force: bool) -> Result<Self> {
+        let threads = spec.threads;
+        if let Some(c) = &spec.cpus {
+            pinning::validate_cpus(c, threads).context("invalid --cpus")?;
         }
         let available_cores = pinning::available_cores();
-        let distinct_cpus = cpus.as_ref().map(|c| {
+        let limit = MAX_THREADS_PER_CORE * available_cores.max(1);
+        if threads > limit {
+            bail!(
+                "--threads {threads} is more than {MAX_THREADS_PER_CORE} per core of the {available_cores} core(s) \
+                 here (at most {limit}): such a run measures nothing but time sharing; use at most {limit}"
+            );
+        }
+        check_memory(spec, force)?;
+        let distinct_cpus = spec.cpus.as_ref().map(|c| {
             let mut d = c.clone();
             d.sort_unstable();
             d.dedup();
@@ -79,30 +68,44 @@ impl Plan {
         if oversubscribed {
             warn_oversubscribed(threads, available_cores, distinct_cpus);
         }
-        Ok(Self { strategy, threads, cpus, step_limit, end_time, available_cores, oversubscribed })
+        Ok(Self { available_cores, oversubscribed })
     }
+}
 
-    /// Warm-up steps when `--warmup` is not given: a tenth of the expected steps, at most 5.
-    fn default_warmup(&self, sim: &Simulation) -> u64 {
-        let expected = match (self.step_limit, self.end_time) {
-            (Some(n), None) => n,
-            (Some(n), Some(t)) => n.min((t / sim.dt_first()).ceil() as u64),
-            (None, Some(t)) => (t / sim.dt_first()).ceil() as u64,
-            (None, None) => 0,
-        };
-        (expected / 10).min(5)
+/// Refuse a run whose estimated memory (per rank: its share of the model plus the MPI
+/// process's own) exceeds the memory available now, before anything is allocated; `force`
+/// tries anyway.
+fn check_memory(spec: &RunSpec, force: bool) -> Result<()> {
+    let whole = spec.scenario.size().memory_bytes(spec.strategy, spec.threads);
+    let estimate = if spec.ranks > 1 { whole / spec.ranks as u64 + RANK_OVERHEAD_BYTES } else { whole };
+    let Some(available) = mpm_cli::memory::available_memory() else { return Ok(()) };
+    if estimate > available && !force {
+        bail!(
+            "the run needs about {} ({}, {} with {} thread(s){}) but {} is available: use a smaller model \
+             (e.g. a coarser --spacing or larger --cell), fewer threads with ae, or --force to try anyway",
+            mpm_cli::memory::human_bytes(estimate),
+            spec.scenario.describe(),
+            spec.strategy,
+            spec.threads,
+            if spec.ranks > 1 { format!(", per rank of {}", spec.ranks) } else { String::new() },
+            mpm_cli::memory::human_bytes(available)
+        );
     }
+    Ok(())
+}
 
-    /// Why to stop before the next step, if it is time. The end time counts as reached
-    /// when less than a millionth of the first step remains (round-off).
-    fn reached(&self, sim: &Simulation) -> Option<EndReason> {
-        if let Some(end) = self.end_time {
-            if end - sim.time() <= 1e-6 * sim.dt_first() {
-                return Some(EndReason::EndTime);
-            }
+/// Memory of an MPI rank besides its share of the model: the MPI library, its buffers.
+const RANK_OVERHEAD_BYTES: u64 = 64 << 20;
+
+/// Why to stop before the next step, if it is time. The end time counts as reached when
+/// less than a millionth of the first step remains (round-off).
+fn reached(budget: &Budget, sim: &Simulation) -> Option<EndReason> {
+    if let Some(end) = budget.end_time_s {
+        if end - sim.time() <= 1e-6 * sim.dt_first() {
+            return Some(EndReason::EndTime);
         }
-        self.step_limit.is_some_and(|n| sim.steps() >= n).then_some(EndReason::StepLimit)
     }
+    budget.steps.is_some_and(|n| sim.steps() >= n).then_some(EndReason::StepLimit)
 }
 
 /// The oversubscription warning: timings of this run do not show parallel scaling.
@@ -119,8 +122,8 @@ fn warn_oversubscribed(threads: usize, available_cores: usize, distinct_cpus: Op
 
 /// The pool of the run, pinned as planned; a worker not where it was asked to be is a
 /// warning (and the summary says `pinning_verified = false`).
-fn start_pool(plan: &Plan) -> Result<PinnedPool> {
-    let pool = pinning::build_pool(plan.threads, plan.cpus.as_deref())?;
+fn start_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool> {
+    let pool = pinning::build_pool(threads, cpus)?;
     let mismatches = pool.mismatches();
     if !mismatches.is_empty() {
         eprintln!(
@@ -131,26 +134,19 @@ fn start_pool(plan: &Plan) -> Result<PinnedPool> {
     Ok(pool)
 }
 
-/// The simulation of a built scenario with the planned strategy, threads, grid and CFL.
+/// The simulation of a built scenario as the spec asks: strategy, threads, grid, physics.
 fn simulation(
-    scenario: &ScenarioRun,
-    plan: &Plan,
+    spec: &RunSpec,
     setup: mpm_core::Setup,
     exchange: Option<Box<dyn mpm_core::Exchange>>,
 ) -> Result<Simulation> {
-    let o = scenario.options();
     let config = SimConfig {
-        strategy: plan.strategy,
-        threads: plan.threads,
-        grid_mode: match o.grid {
-            Some(GridArg::Fixed) => GridMode::Fixed,
-            Some(GridArg::Adaptive) => GridMode::Adaptive,
-            Some(GridArg::Sparse) => GridMode::Sparse,
-            None => scenario.default_grid(exchange.as_ref().is_some_and(|e| e.ranks() > 1)),
-        },
-        cfl: scenario.cfl(),
-        bulk_viscosity: o.q,
-        energy_rise_limit: o.energy_rise_limit,
+        strategy: spec.strategy,
+        threads: spec.threads,
+        grid_mode: spec.grid,
+        cfl: spec.physics.cfl,
+        bulk_viscosity: spec.physics.q,
+        energy_rise_limit: spec.physics.energy_rise_limit.as_f64(),
         ..SimConfig::default()
     };
     match exchange {
@@ -160,13 +156,14 @@ fn simulation(
     .context("cannot set up the simulation")
 }
 
-/// With several ranks and no --cpus: pin this rank's workers inside the CPUs the launcher
-/// gave it ([`Ranks::rank_cpus`]); returns whether ranks share CPUs (flagged).
-fn place_rank(plan: &mut Plan, ranks: &Ranks) -> Result<bool> {
-    if ranks.size() == 1 || plan.cpus.is_some() {
-        return Ok(false);
+/// The CPUs of this process's workers: the spec's, or with several ranks and none given,
+/// a slice of the CPUs the launcher gave this rank ([`Ranks::rank_cpus`]); and whether ranks
+/// share CPUs (flagged).
+fn place_rank(spec: &RunSpec, plan: &mut Plan, ranks: &Ranks) -> Result<(Option<Vec<usize>>, bool)> {
+    if ranks.size() == 1 || spec.cpus.is_some() {
+        return Ok((spec.cpus.clone(), false));
     }
-    let (cpus, shared) = ranks.rank_cpus(plan.threads)?;
+    let (cpus, shared) = ranks.rank_cpus(spec.threads)?;
     if shared {
         eprintln!(
             "warning: oversubscribed: rank {} shares CPUs {cpus:?} with other ranks; timings of this run do not show parallel scaling",
@@ -174,18 +171,12 @@ fn place_rank(plan: &mut Plan, ranks: &Ranks) -> Result<bool> {
         );
         plan.oversubscribed = true;
     }
-    plan.cpus = Some(cpus);
-    Ok(shared)
+    Ok((Some(cpus), shared))
 }
 
 /// This rank's line of the summary's `ranks` section.
-fn rank_report(
-    sim: &Simulation,
-    pool: &PinnedPool,
-    ranks: &Ranks,
-    oversubscribed: bool,
-) -> mpm_cli::summary::RankReport {
-    mpm_cli::summary::RankReport {
+fn rank_report(sim: &Simulation, pool: &PinnedPool, ranks: &Ranks, oversubscribed: bool) -> RankReport {
+    RankReport {
         rank: ranks.rank(),
         cpus: pool.observed_cpus(),
         oversubscribed,
@@ -295,14 +286,12 @@ fn mark_warmup(timing: &mut Timing, sim: &Simulation, wall_s: f64) {
 
 /// What the stepping loop reads besides the simulation.
 struct LoopContext<'a> {
-    plan: &'a Plan,
+    spec: &'a RunSpec,
     pool: &'a PinnedPool,
     warmup: u64,
     interrupted: &'a AtomicBool,
     progress: Option<&'a Progress>,
     geometry: Option<&'a ImpactGeometry>,
-    /// The scenario, for the error message of a failed step.
-    describe: String,
 }
 
 /// Step until the end time or the step limit (or Ctrl-C, or a solver error). The whole
@@ -319,25 +308,26 @@ fn step_loop(
 ) -> Result<(EndReason, Timing)> {
     let mut timing = Timing { warmup_steps: ctx.warmup, ..Timing::default() };
     let mut warm_done = ctx.warmup == 0;
+    let budget = &ctx.spec.budget;
     let loop_start = Instant::now();
     let end_reason = ctx.pool.pool.install(|| -> Result<EndReason> {
         loop {
-            if let Some(reason) = ctx.plan.reached(sim) {
+            if let Some(reason) = reached(budget, sim) {
                 return Ok(reason);
             }
             if ctx.interrupted.load(Ordering::Relaxed) {
                 ctx.progress.inspect(|p| p.bar.abandon());
                 return Err(Interrupted(sim.steps()).into());
             }
-            let dt_max = ctx.plan.end_time.map_or(f64::INFINITY, |end| end - sim.time());
+            let dt_max = budget.end_time_s.map_or(f64::INFINITY, |end| end - sim.time());
             if let Err(e) = sim.step(&ctx.pool.pool, dt_max) {
                 ctx.progress.inspect(|p| p.bar.abandon());
                 return Err(anyhow::Error::new(e).context(format!(
                     "the simulation failed in the step starting at t = {:.6e} s ({}, strategy {}, {} thread(s)); no summary written",
                     sim.time(),
-                    ctx.describe,
-                    ctx.plan.strategy.name(),
-                    ctx.plan.threads
+                    ctx.spec.scenario.describe(),
+                    ctx.spec.strategy.name(),
+                    ctx.spec.threads
                 )));
             }
             record(history, sim);
@@ -361,26 +351,71 @@ fn step_loop(
     Ok((end_reason, timing))
 }
 
-/// `mpm run <scenario> ...`: the whole run.
-pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result<()> {
+/// Where a run's spec comes from.
+pub enum Request {
+    /// `mpm run <scenario> --flags`.
+    Flags(Box<crate::cli::Scenario>),
+    /// `mpm run --spec FILE [--json FILE] [--quiet]`.
+    File {
+        /// The spec file.
+        path: PathBuf,
+        /// `--json`, replacing the spec's `outputs.json`.
+        json: Option<PathBuf>,
+        /// `--quiet`.
+        quiet: bool,
+    },
+}
+
+impl Request {
+    /// The ranks asked for before MPI starts (the spec's, or `--ranks`), and the spec read
+    /// from its file.
+    fn before_start(&self) -> Result<(Option<usize>, Option<RunSpec>)> {
+        match self {
+            Request::Flags(sc) => Ok((sc.options().ranks.map(|r| r as usize), None)),
+            Request::File { path, json, quiet } => {
+                let mut spec = RunSpec::read(path)?;
+                if json.is_some() {
+                    spec.outputs.json.clone_from(json);
+                }
+                spec.outputs.quiet |= *quiet;
+                Ok((Some(spec.ranks), Some(spec)))
+            }
+        }
+    }
+}
+
+/// `mpm run ...`: the whole run, from its spec (read, or built from the flags on the
+/// launcher's rank count) to its summary.
+pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Result<()> {
     let started_unix_s =
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64());
-    let o = scenario.options();
-    let mut ranks = Ranks::start(o)?;
+    let (requested, from_file) = request.before_start()?;
+    let mut ranks = Ranks::start(requested)?;
     let lead = ranks.rank() == 0;
-    let mut plan = Plan::check(scenario)?;
-    let rank_oversubscribed = place_rank(&mut plan, &ranks)?;
-    if ranks.size() > 1 && (o.vtk.is_some() || scenario.radiograph().is_some()) {
-        bail!("--vtk and --radiograph are not available over several ranks yet: run them in one process");
+    let mut spec = match (from_file, &request) {
+        (Some(spec), _) => spec,
+        (None, Request::Flags(sc)) => sc.spec(ranks.size())?,
+        (None, Request::File { .. }) => unreachable!("a spec file is read before MPI starts"),
+    };
+    if control.print_spec {
+        if lead {
+            print!("{}", spec.to_toml());
+        }
+        return Ok(());
     }
-    let mut outputs = if lead { Outputs::open(scenario)? } else { Outputs::none() };
-    let pool = start_pool(&plan)?;
-    let (Prepared { setup, model, velocity, wall, taylor, impact, plate }, exchange) =
-        ranks.build(scenario, o.rank_layout, o.split_wait)?;
+    let mut plan = Plan::check(&spec, control.force)?;
+    let (cpus, rank_oversubscribed) = place_rank(&spec, &mut plan, &ranks)?;
+    let quiet = spec.outputs.quiet;
+    let mut outputs = if lead { Outputs::open(&spec)? } else { Outputs::none() };
+    let pool = start_pool(spec.threads, cpus.as_deref())?;
+    let (Prepared { setup, impact, plate }, exchange) =
+        ranks.build(&spec.scenario, spec.physics.eos, spec.rank_layout, spec.split_wait)?;
+    let taylor = matches!(spec.scenario, mpm_spec::Scenario::Taylor(_));
     let model_name = setup.model.clone();
-    let mut sim = simulation(scenario, &plan, setup, exchange)?;
+    let mut sim = simulation(&spec, setup, exchange)?;
     let (cells, nodes) = (sim.global_geom().num_cells(), sim.global_geom().num_nodes());
-    let warmup = o.warmup.unwrap_or_else(|| plan.default_warmup(&sim));
+    let warmup = spec.budget.warmup.unwrap_or_else(|| spec.default_warmup(sim.dt_first()));
+    spec.budget.warmup = Some(warmup);
     let interrupted = install_interrupt_handler();
 
     let mut history = HistoryRecorder::new();
@@ -389,25 +424,24 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
     let mut tracking = Tracking::new(impact, plate)?;
     tracking.observe(&sim, ranks.collectives())?;
     outputs.initial(&sim)?;
-    let progress = Progress::new(o.quiet || !lead, plan.end_time, plan.step_limit);
+    let progress = Progress::new(quiet || !lead, spec.budget.end_time_s, spec.budget.steps);
     let ctx = LoopContext {
-        plan: &plan,
+        spec: &spec,
         pool: &pool,
         warmup,
         interrupted: &interrupted,
         progress: progress.as_ref(),
         geometry: impact.as_ref(),
-        describe: scenario.describe(),
     };
     let (end_reason, mut timing) =
         step_loop(&ctx, &mut sim, &mut outputs, &mut history, &mut tracking, ranks.collectives())?;
     // The final figures, measured once: the summary's, and the history's last sample.
     let figures = FinalFigures::measure(&sim, taylor, &tracking, ranks.collectives())?;
     tracking.finish(&sim, &figures);
-    outputs.finish(&sim, impact.as_ref(), o.quiet)?;
+    outputs.finish(&sim, impact.as_ref(), quiet)?;
     let cloud_history = tracking.cloud.map(|(h, _)| h);
     if let Some(h) = &cloud_history {
-        outputs.history_plot(h, o.quiet)?;
+        outputs.history_plot(h, quiet)?;
     }
     timing.output_s = outputs.spent.as_secs_f64();
     if let Some(p) = &progress {
@@ -416,18 +450,13 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
 
     // Rank 0's summary, built before a state dump can release the grid's arrays.
     let summary = lead.then(|| {
-        Summary::build(
+        summary::build(
             &sim,
             RunContext {
-                scenario: scenario.name(),
-                model,
+                spec: &spec,
                 model_name,
-                velocity,
-                wall,
                 cells,
                 nodes,
-                end_time: plan.end_time,
-                step_limit: plan.step_limit,
                 end_reason,
                 timing: &timing,
                 pool: &pool,
@@ -444,7 +473,7 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
             },
         )
     });
-    if let Some(path) = &o.dump_state {
+    if let Some(path) = &spec.outputs.dump_state {
         ranks.dump_state(&mut sim, path)?;
     }
     // Every rank's peak memory, read after the last thing the run holds memory for.
@@ -456,8 +485,8 @@ pub fn run_scenario(scenario: &ScenarioRun, command_line: Vec<String>) -> Result
     summary.ranks = reports;
     summary.peak_rss_bytes = mpm_cli::summary::peak_rss_bytes();
     outputs.commit_json(&summary)?;
-    if !o.quiet {
-        print_human(&summary, o.json.as_deref(), outputs.snapshots());
+    if !quiet {
+        print_human(&summary, spec.outputs.json.as_deref(), outputs.snapshots());
     }
     Ok(())
 }

@@ -1,0 +1,368 @@
+//! The scenario of a run (Taylor bar, hypervelocity impact, plate impact) with its
+//! parameters, their defaults and checks, and how each is built into a solver set-up.
+
+use crate::SpecError;
+use mpm_core::scenario::impact::{self, ImpactGeometry};
+use mpm_core::scenario::plate::{self, PlateGeometry, PlateImpact};
+use mpm_core::scenario::size::ModelSize;
+use mpm_core::scenario::taylor::{self, TaylorBar};
+use mpm_core::scenario::Pick;
+use mpm_core::{GridMode, MgForm, SimError, WallKind, DEFAULT_CFL};
+use serde::{Deserialize, Serialize};
+
+/// The plate scenario's default CFL number: its shock speed is the measurement (a 3 km/s
+/// shock runs 3.15 % fast at CFL 0.5 and 2.66 % at 0.2).
+pub const PLATE_CFL: f64 = 0.2;
+
+/// Which problem a run solves.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ScenarioKind {
+    /// The Taylor bar (paper Section 3).
+    #[default]
+    Taylor,
+    /// The hypervelocity impact (paper Section 6).
+    Impact,
+    /// The one-dimensional plate impact (shock validation).
+    Plate,
+}
+
+impl ScenarioKind {
+    /// Every kind.
+    pub const ALL: [ScenarioKind; 3] = [ScenarioKind::Taylor, ScenarioKind::Impact, ScenarioKind::Plate];
+
+    /// Its name in JSON, CSV and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            ScenarioKind::Taylor => "taylor",
+            ScenarioKind::Impact => "impact",
+            ScenarioKind::Plate => "plate",
+        }
+    }
+}
+
+impl std::fmt::Display for ScenarioKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for ScenarioKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| format!("unknown scenario '{s}' (known: taylor, impact, plate)"))
+    }
+}
+
+/// Contact condition at a rigid wall.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Contact {
+    /// Only the normal velocity is stopped.
+    #[default]
+    Frictionless,
+    /// Every velocity component is stopped.
+    Sticking,
+}
+
+impl Contact {
+    /// Its name (`frictionless`, `sticking`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Contact::Frictionless => "frictionless",
+            Contact::Sticking => "sticking",
+        }
+    }
+}
+
+/// The Taylor bar: an OFHC copper cylinder hitting a rigid wall, as Model 1-4 of Table 2.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TaylorSpec {
+    /// Model 1-4.
+    pub model: u8,
+    /// Impact speed towards the wall (m/s).
+    pub velocity_m_s: f64,
+    /// Contact at the wall.
+    pub wall: Contact,
+}
+
+impl TaylorSpec {
+    /// Model `model` at the default speed with a frictionless wall.
+    pub fn model(model: u8) -> Self {
+        Self { model, velocity_m_s: taylor::DEFAULT_VELOCITY, wall: Contact::Frictionless }
+    }
+}
+
+/// The hypervelocity impact: a lead sphere on a lead plate.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImpactSpec {
+    /// Particle lattice spacing (m).
+    pub spacing_m: f64,
+    /// Grid cell size (m).
+    pub cell_m: f64,
+    /// Impact speed of the sphere (m/s).
+    pub velocity_m_s: f64,
+}
+
+impl Default for ImpactSpec {
+    /// The paper's small model with 2.12 mm cells at 6.58 km/s.
+    fn default() -> Self {
+        Self { spacing_m: impact::DEFAULT_SPACING, cell_m: impact::DEFAULT_CELL, velocity_m_s: impact::IMPACT_VELOCITY }
+    }
+}
+
+/// The plate impact: a lead slab onto a rigid wall in a laterally confined column.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlateSpec {
+    /// Impact speed towards the wall (m/s).
+    pub velocity_m_s: f64,
+    /// Slab length along z (m).
+    pub length_m: f64,
+    /// Grid cell size (m).
+    pub cell_m: f64,
+    /// Particles per cell along each axis (1-8).
+    pub particles_per_cell: u8,
+}
+
+impl Default for PlateSpec {
+    fn default() -> Self {
+        Self {
+            velocity_m_s: plate::DEFAULT_VELOCITY,
+            length_m: plate::DEFAULT_LENGTH,
+            cell_m: plate::DEFAULT_CELL,
+            particles_per_cell: plate::DEFAULT_PARTICLES_PER_CELL as u8,
+        }
+    }
+}
+
+/// The problem a run solves, with its parameters (`kind` names it in files).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum Scenario {
+    /// The Taylor bar.
+    Taylor(TaylorSpec),
+    /// The hypervelocity impact.
+    Impact(ImpactSpec),
+    /// The plate impact.
+    Plate(PlateSpec),
+}
+
+/// A scenario built and ready to run: the solver's set-up and what the measurements need.
+pub struct Prepared {
+    /// Particles, grid, material, walls.
+    pub setup: mpm_core::Setup,
+    /// The impact's geometry (its figures and history).
+    pub impact: Option<ImpactGeometry>,
+    /// The plate's geometry (its shock measurements).
+    pub plate: Option<PlateGeometry>,
+}
+
+impl Scenario {
+    /// Which scenario.
+    pub fn kind(&self) -> ScenarioKind {
+        match self {
+            Scenario::Taylor(_) => ScenarioKind::Taylor,
+            Scenario::Impact(_) => ScenarioKind::Impact,
+            Scenario::Plate(_) => ScenarioKind::Plate,
+        }
+    }
+
+    /// A few words for people: `Taylor bar Model 1`, `impact, spacing 0.53 mm, cell 2.12 mm`.
+    pub fn describe(&self) -> String {
+        match self {
+            Scenario::Taylor(t) => format!("Taylor bar Model {}", t.model),
+            Scenario::Impact(i) => format!("impact, spacing {} mm, cell {} mm", i.spacing_m * 1e3, i.cell_m * 1e3),
+            Scenario::Plate(p) => format!(
+                "plate impact at {} m/s, slab {} mm, cell {} mm",
+                p.velocity_m_s,
+                p.length_m * 1e3,
+                p.cell_m * 1e3
+            ),
+        }
+    }
+
+    /// The Taylor bar's model number (0 for the other scenarios).
+    pub fn model(&self) -> u8 {
+        match self {
+            Scenario::Taylor(t) => t.model,
+            Scenario::Impact(_) | Scenario::Plate(_) => 0,
+        }
+    }
+
+    /// Impact speed (m/s).
+    pub fn velocity(&self) -> f64 {
+        match self {
+            Scenario::Taylor(t) => t.velocity_m_s,
+            Scenario::Impact(i) => i.velocity_m_s,
+            Scenario::Plate(p) => p.velocity_m_s,
+        }
+    }
+
+    /// The end time without a budget: the paper's (Taylor bar 40 µs, impact 30.6 µs), or for
+    /// the plate when the shock has crossed [`plate::END_FRACTION`] of the slab.
+    pub fn default_end_time(&self) -> Result<f64, SpecError> {
+        Ok(match self {
+            Scenario::Taylor(_) => taylor::DEFAULT_END_TIME,
+            Scenario::Impact(_) => impact::DEFAULT_END_TIME,
+            Scenario::Plate(p) => {
+                self.check()?;
+                plate_of(p, MgForm::default()).setup().map_err(SpecError::Scenario)?.1.end_time()
+            }
+        })
+    }
+
+    /// The grid by default: the scenario's fixed grid for the Taylor bar and the plate; for
+    /// the impact the sparse grid in one process, the adaptive grid over several ranks.
+    pub fn default_grid(&self, ranks: usize) -> GridMode {
+        match self {
+            Scenario::Taylor(_) | Scenario::Plate(_) => GridMode::Fixed,
+            Scenario::Impact(_) if ranks > 1 => GridMode::Adaptive,
+            Scenario::Impact(_) => GridMode::Sparse,
+        }
+    }
+
+    /// The CFL number by default: 0.5, or [`PLATE_CFL`] for the plate.
+    pub fn default_cfl(&self) -> f64 {
+        match self {
+            Scenario::Plate(_) => PLATE_CFL,
+            Scenario::Taylor(_) | Scenario::Impact(_) => DEFAULT_CFL,
+        }
+    }
+
+    /// Particle and node counts for the memory estimate (the impact's nodes: the adaptive
+    /// grid around the debris cloud at the paper's comparison time, an upper estimate).
+    pub fn size(&self) -> ModelSize {
+        match self {
+            Scenario::Taylor(t) => ModelSize::taylor(t.model).unwrap_or_default(),
+            Scenario::Impact(i) => ModelSize::impact(i.spacing_m, i.cell_m),
+            Scenario::Plate(p) => {
+                let per_cell = u64::from(p.particles_per_cell).pow(3);
+                let cells_z = (p.length_m / p.cell_m).round().max(0.0) as u64;
+                let columns = (plate::COLUMN_CELLS as u64).pow(2);
+                // The grid runs to twice the slab's length (the slab moves onto the wall).
+                let nodes = (plate::COLUMN_CELLS as u64 + 1).pow(2) * (2 * cells_z + 1);
+                ModelSize { particles: per_cell * columns * cells_z, nodes }
+            }
+        }
+    }
+
+    /// Every check of the parameters, naming the key and the flag.
+    pub fn check(&self) -> Result<(), SpecError> {
+        let positive = |key: &'static str, flag: &'static str, v: f64, what: &str| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(SpecError::Invalid { key, flag, why: format!("{what} must be a finite number > 0, got {v}") })
+            }
+        };
+        let speed = |key: &'static str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(SpecError::Invalid {
+                    key,
+                    flag: "--velocity",
+                    why: format!("the impact speed must be a finite number of m/s >= 0 (towards the wall), got {v}"),
+                })
+            }
+        };
+        match self {
+            Scenario::Taylor(t) => {
+                if !(1..=4).contains(&t.model) {
+                    return Err(SpecError::Invalid {
+                        key: "scenario.model",
+                        flag: "--model",
+                        why: format!("the Taylor bar has Models 1-4 (Table 2), got {}", t.model),
+                    });
+                }
+                speed("scenario.velocity_m_s", t.velocity_m_s)
+            }
+            Scenario::Impact(i) => {
+                positive("scenario.spacing_m", "--spacing", i.spacing_m, "the particle spacing (m)")?;
+                positive("scenario.cell_m", "--cell", i.cell_m, "the cell size (m)")?;
+                speed("scenario.velocity_m_s", i.velocity_m_s)
+            }
+            Scenario::Plate(p) => {
+                positive("scenario.velocity_m_s", "--velocity", p.velocity_m_s, "the plate's impact speed (m/s)")?;
+                positive("scenario.length_m", "--length", p.length_m, "the slab length (m)")?;
+                positive("scenario.cell_m", "--cell", p.cell_m, "the cell size (m)")?;
+                if !(1..=8).contains(&p.particles_per_cell) {
+                    return Err(SpecError::Invalid {
+                        key: "scenario.particles_per_cell",
+                        flag: "--particles-per-cell",
+                        why: format!("give 1 to 8 particles per cell and axis, got {}", p.particles_per_cell),
+                    });
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Build the scenario with the Mie-Grüneisen form `eos`, keeping the particles `pick`
+    /// asks for (all of them, or one rank's).
+    pub fn build(&self, eos: MgForm, pick: Pick<'_>) -> Result<Prepared, SimError> {
+        match self {
+            Scenario::Taylor(t) => {
+                let bar = TaylorBar {
+                    model: t.model,
+                    velocity: t.velocity_m_s,
+                    eos,
+                    wall: match t.wall {
+                        Contact::Frictionless => WallKind::Slip,
+                        Contact::Sticking => WallKind::Stick,
+                    },
+                };
+                Ok(Prepared { setup: bar.setup_picked(pick)?, impact: None, plate: None })
+            }
+            Scenario::Impact(i) => {
+                let imp = impact::Impact { spacing: i.spacing_m, cell: i.cell_m, velocity: i.velocity_m_s, eos };
+                let (setup, geometry) = imp.setup_picked(pick)?;
+                Ok(Prepared { setup, impact: Some(geometry), plate: None })
+            }
+            Scenario::Plate(p) => {
+                let (setup, geometry) = plate_of(p, eos).setup_picked(pick)?;
+                Ok(Prepared { setup, impact: None, plate: Some(geometry) })
+            }
+        }
+    }
+}
+
+fn plate_of(p: &PlateSpec, eos: MgForm) -> PlateImpact {
+    PlateImpact {
+        velocity: p.velocity_m_s,
+        length: p.length_m,
+        cell: p.cell_m,
+        particles_per_cell: usize::from(p.particles_per_cell),
+        eos,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mpm_core::scenario::Pick;
+
+    /// The memory estimate's plate size is the built plate's.
+    #[test]
+    fn plate_size_counts_the_built_particles() {
+        let s = Scenario::Plate(PlateSpec { length_m: 40e-3, cell_m: 1e-3, ..PlateSpec::default() });
+        let built = s.build(MgForm::Hugoniot, Pick::All).unwrap();
+        assert_eq!(s.size().particles, built.setup.particles.len() as u64);
+        assert!(s.size().nodes > 0);
+    }
+
+    #[test]
+    fn bad_parameters_name_their_flag() {
+        let s = Scenario::Impact(ImpactSpec { cell_m: -1.0, ..ImpactSpec::default() });
+        let err = s.check().unwrap_err().to_string();
+        assert!(err.contains("--cell") && err.contains("-1"), "{err}");
+        let s = Scenario::Taylor(TaylorSpec::model(5));
+        assert!(s.check().unwrap_err().to_string().contains("--model"));
+    }
+}

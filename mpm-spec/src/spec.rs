@@ -1,0 +1,600 @@
+//! [`RunSpec`]: one run of `mpm`, resolved and typed.
+//!
+//! Every way of asking for a run reaches this one value: `mpm run <scenario> --flags` builds
+//! it from the command line (defaults filled in [`RunSpec::new`], the flags applied on top),
+//! `mpm run --spec FILE` reads it from a TOML or JSON file, and the harness writes one file
+//! per run. [`RunSpec::check`] is the one place its values are validated, and every summary
+//! echoes the spec it ran under the key `spec`, so a summary's `spec` re-runs the run.
+//!
+//! Names are part of the interface (spec files, summaries, the harness's CSV columns):
+//! scenario parameters carry their SI unit (`velocity_m_s`, `cell_m`), enums serialise by
+//! their short names (`dd`, `sparse`, `hugoniot`).
+
+use crate::scenario::Scenario;
+use crate::SpecError;
+use mpm_core::{BulkViscosity, GridMode, MgForm, Strategy, DEFAULT_ENERGY_RISE_LIMIT};
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+
+/// Layout version of [`RunSpec`]; a spec file of another version is refused by name.
+pub const SPEC_VERSION: u32 = 1;
+
+/// One run of `mpm`: what to simulate, how to split the work, how long, and what to write.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunSpec {
+    /// [`SPEC_VERSION`] of the writer.
+    pub spec_version: u32,
+    /// The problem and its parameters.
+    pub scenario: Scenario,
+    /// How the nodal scatter is made race-free.
+    pub strategy: Strategy,
+    /// Worker threads of each process (rank).
+    pub threads: usize,
+    /// MPI ranks the run is split over (1: one process).
+    #[serde(default = "one")]
+    pub ranks: usize,
+    /// With several ranks: boxes per axis (their product the rank count); absent: the DD
+    /// patch layout for that count.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rank_layout: Option<[usize; 3]>,
+    /// The CPU of each worker (one per thread); absent: not pinned (with several ranks:
+    /// each rank pins inside the mask its launcher gave it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpus: Option<Vec<usize>>,
+    /// The background grid.
+    pub grid: GridMode,
+    /// Material model and numerics.
+    pub physics: Physics,
+    /// When to stop and which steps are warm-up.
+    pub budget: Budget,
+    /// With several ranks: wait at a barrier before each exchange operation and report that
+    /// time apart from the communication.
+    #[serde(default)]
+    pub split_wait: bool,
+    /// What to write besides the run itself. Not part of [`RunSpec::key`].
+    #[serde(default)]
+    pub outputs: Outputs,
+}
+
+fn one() -> usize {
+    1
+}
+
+/// The material model and the numerics of a run.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Physics {
+    /// Form of the Mie-Grüneisen equation of state.
+    pub eos: MgForm,
+    /// Artificial bulk viscosity coefficients (`0, 0`: off).
+    pub q: BulkViscosity,
+    /// CFL number in (0, 1].
+    pub cfl: f64,
+    /// A rise of the total energy above this fraction of its initial value stops the run.
+    pub energy_rise_limit: RiseLimit,
+}
+
+/// The energy-rise check: off, or the fraction that stops a run (serialised as `"off"` or
+/// the number, since JSON has no infinity).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RiseLimit {
+    /// No check.
+    Off,
+    /// Stop when the total energy rises more than this fraction (> 0).
+    Fraction(f64),
+}
+
+impl RiseLimit {
+    /// As the solver's `f64` (infinite when off).
+    pub fn as_f64(self) -> f64 {
+        match self {
+            RiseLimit::Off => f64::INFINITY,
+            RiseLimit::Fraction(f) => f,
+        }
+    }
+
+    /// From the solver's `f64` (infinite: off).
+    pub fn from_f64(f: f64) -> Self {
+        if f == f64::INFINITY {
+            RiseLimit::Off
+        } else {
+            RiseLimit::Fraction(f)
+        }
+    }
+}
+
+impl Serialize for RiseLimit {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            RiseLimit::Off => s.serialize_str("off"),
+            RiseLimit::Fraction(f) => s.serialize_f64(*f),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for RiseLimit {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Number(f64),
+            Word(String),
+        }
+        match Raw::deserialize(d)? {
+            Raw::Number(f) => Ok(RiseLimit::Fraction(f)),
+            Raw::Word(w) if w == "off" || w == "inf" => Ok(RiseLimit::Off),
+            Raw::Word(w) => Err(serde::de::Error::custom(format!(
+                "energy_rise_limit must be a fraction > 0 or \"off\", got \"{w}\""
+            ))),
+        }
+    }
+}
+
+impl Default for Physics {
+    /// The default EOS and viscosity, CFL 0.5, the default energy-rise limit.
+    fn default() -> Self {
+        Self {
+            eos: MgForm::default(),
+            q: BulkViscosity::default(),
+            cfl: mpm_core::DEFAULT_CFL,
+            energy_rise_limit: RiseLimit::Fraction(DEFAULT_ENERGY_RISE_LIMIT),
+        }
+    }
+}
+
+/// When a run stops, and which of its first steps are left out of the steady state.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Budget {
+    /// Stop after this many steps (0: build, summarise, do not step).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steps: Option<u64>,
+    /// Stop at this simulated time (s); the last step is shortened to land on it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub end_time_s: Option<f64>,
+    /// Leading steps timed but left out of the steady-state figures; absent: a tenth of the
+    /// expected steps, at most 5 (the summary's spec holds the number used).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warmup: Option<u64>,
+}
+
+/// Array encoding of VTU snapshots.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum VtkEncoding {
+    /// Inline base64 binary (compact, exact).
+    #[default]
+    Binary,
+    /// Inline ASCII (readable; values printed in shortest round-trip form).
+    Ascii,
+}
+
+/// VTU snapshots of the particles.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VtkOutput {
+    /// Folder of the snapshots and their `.pvd` collection (created if needed).
+    pub dir: PathBuf,
+    /// A snapshot every this many steps (plus the initial and the final state).
+    pub every: u64,
+    /// Array encoding.
+    #[serde(default)]
+    pub encoding: VtkEncoding,
+}
+
+/// Radiograph-style pictures of the impact's debris cloud.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RadiographOutput {
+    /// Folder of the pictures (created if needed).
+    pub dir: PathBuf,
+    /// Also a picture every this many steps (absent: only at the end).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub every: Option<u64>,
+}
+
+/// What a run writes besides its state: the JSON summary, snapshots, pictures, the final
+/// particle state. Outputs do not change what is computed, so they are not part of
+/// [`RunSpec::key`].
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Outputs {
+    /// The JSON summary (written atomically, only when the run succeeds).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub json: Option<PathBuf>,
+    /// No progress bar and no human summary.
+    #[serde(default)]
+    pub quiet: bool,
+    /// VTU snapshots.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vtk: Option<VtkOutput>,
+    /// Radiograph-style pictures (impact only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radiograph: Option<RadiographOutput>,
+    /// The final particle state, sorted by particle id (binary; see `mpm run --help`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dump_state: Option<PathBuf>,
+}
+
+/// The file format of a spec.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SpecFormat {
+    /// TOML.
+    Toml,
+    /// JSON.
+    Json,
+}
+
+impl SpecFormat {
+    /// By the file's extension: `.json` is JSON, anything else TOML.
+    pub fn of_path(path: &Path) -> Self {
+        match path.extension().and_then(|e| e.to_str()) {
+            Some(e) if e.eq_ignore_ascii_case("json") => SpecFormat::Json,
+            _ => SpecFormat::Toml,
+        }
+    }
+}
+
+impl RunSpec {
+    /// The run of `scenario` with every default: serial on 1 thread in one process, not
+    /// pinned, the scenario's grid and CFL number, the default EOS, viscosity and energy
+    /// check, the scenario's end time, no outputs.
+    pub fn new(scenario: Scenario) -> Result<Self, SpecError> {
+        let end_time = scenario.default_end_time()?;
+        Ok(Self {
+            spec_version: SPEC_VERSION,
+            grid: scenario.default_grid(1),
+            physics: Physics { cfl: scenario.default_cfl(), ..Physics::default() },
+            scenario,
+            strategy: Strategy::Serial,
+            threads: 1,
+            ranks: 1,
+            rank_layout: None,
+            cpus: None,
+            budget: Budget { steps: None, end_time_s: Some(end_time), warmup: None },
+            split_wait: false,
+            outputs: Outputs::default(),
+        })
+    }
+
+    /// Read a spec from `text` in `format`, refusing unknown keys and other spec versions,
+    /// and check it.
+    pub fn parse(text: &str, format: SpecFormat) -> Result<Self, SpecError> {
+        let version = match format {
+            SpecFormat::Toml => toml::from_str::<toml::Table>(text)
+                .map_err(|e| SpecError::Parse(e.to_string()))?
+                .get("spec_version")
+                .and_then(toml::Value::as_integer),
+            SpecFormat::Json => serde_json::from_str::<serde_json::Value>(text)
+                .map_err(|e| SpecError::Parse(e.to_string()))?
+                .get("spec_version")
+                .and_then(serde_json::Value::as_i64),
+        };
+        match version {
+            Some(v) if v == i64::from(SPEC_VERSION) => {}
+            Some(v) => return Err(SpecError::Version(v)),
+            None => return Err(SpecError::Parse("missing key `spec_version`".into())),
+        }
+        let spec: RunSpec = match format {
+            SpecFormat::Toml => toml::from_str(text).map_err(|e| SpecError::Parse(e.to_string()))?,
+            SpecFormat::Json => serde_json::from_str(text).map_err(|e| SpecError::Parse(e.to_string()))?,
+        };
+        spec.check()?;
+        Ok(spec)
+    }
+
+    /// Read and check the spec file at `path` (TOML, or JSON by its extension). A JSON
+    /// summary is accepted too: its `spec` is taken.
+    pub fn read(path: &Path) -> Result<Self, SpecError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| SpecError::Io(format!("cannot read the spec file {}: {e}", path.display())))?;
+        let format = SpecFormat::of_path(path);
+        if format == SpecFormat::Json {
+            if let Ok(serde_json::Value::Object(m)) = serde_json::from_str::<serde_json::Value>(&text) {
+                if let Some(inner) = m.get("spec").filter(|_| !m.contains_key("spec_version")) {
+                    return Self::parse(&inner.to_string(), SpecFormat::Json);
+                }
+            }
+        }
+        Self::parse(&text, format)
+    }
+
+    /// As TOML text (what `mpm run ... --print-spec` prints).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a run spec serialises to TOML")
+    }
+
+    /// As pretty JSON text.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("a run spec serialises to JSON")
+    }
+
+    /// The spec without its outputs, as canonical JSON (keys in declaration order, numbers
+    /// in shortest round-trip form): equal for two specs exactly when they compute the same.
+    pub fn canonical(&self) -> String {
+        let compute = RunSpec { outputs: Outputs::default(), ..self.clone() };
+        serde_json::to_string(&compute).expect("a run spec serialises to JSON")
+    }
+
+    /// SHA-256 of [`RunSpec::canonical`], hex: what identifies the computation.
+    pub fn key(&self) -> String {
+        hex_sha256(self.canonical().as_bytes())
+    }
+
+    /// Workers of the whole run: ranks x threads per rank.
+    pub fn total_workers(&self) -> usize {
+        self.ranks * self.threads
+    }
+
+    /// Warm-up steps when the spec gives none: a tenth of the steps expected with first
+    /// step `dt_first`, at most 5.
+    pub fn default_warmup(&self, dt_first: f64) -> u64 {
+        let by_time = |t: f64| (t / dt_first).ceil() as u64;
+        let expected = match (self.budget.steps, self.budget.end_time_s) {
+            (Some(n), None) => n,
+            (Some(n), Some(t)) => n.min(by_time(t)),
+            (None, Some(t)) => by_time(t),
+            (None, None) => 0,
+        };
+        (expected / 10).min(5)
+    }
+
+    /// Every check of the spec that needs no machine: ranges, the strategy against the
+    /// threads, the CPU list, the budget, the grid and outputs against the ranks. The error
+    /// names the spec key and the `mpm run` flag.
+    pub fn check(&self) -> Result<(), SpecError> {
+        let bad = |key: &'static str, flag: &'static str, why: String| Err(SpecError::Invalid { key, flag, why });
+        if self.spec_version != SPEC_VERSION {
+            return Err(SpecError::Version(i64::from(self.spec_version)));
+        }
+        self.scenario.check()?;
+        if self.threads == 0 {
+            return bad("threads", "--threads", "the thread count must be at least 1, got 0".into());
+        }
+        if let Err(e) = self.strategy.check_threads(self.threads) {
+            return bad("strategy", "--strategy", e);
+        }
+        if self.ranks == 0 {
+            return bad("ranks", "--ranks", "the rank count must be at least 1, got 0".into());
+        }
+        if let Some(l) = self.rank_layout {
+            if self.ranks == 1 && l.iter().product::<usize>() > 1 {
+                return bad(
+                    "rank_layout",
+                    "--rank-layout",
+                    "a layout of several boxes needs several ranks: start the run with `mpirun -n R mpm run ...`"
+                        .into(),
+                );
+            }
+            if l.contains(&0) || l.iter().product::<usize>() != self.ranks {
+                return bad(
+                    "rank_layout",
+                    "--rank-layout",
+                    format!(
+                        "the layout {}x{}x{} does not make {} rank(s): give positive counts whose product is the rank count",
+                        l[0], l[1], l[2], self.ranks
+                    ),
+                );
+            }
+        }
+        if let Some(cpus) = &self.cpus {
+            if cpus.len() != self.threads {
+                return bad(
+                    "cpus",
+                    "--cpus",
+                    format!(
+                        "{} CPU(s) given for {} thread(s): give exactly one CPU per worker thread",
+                        cpus.len(),
+                        self.threads
+                    ),
+                );
+            }
+        }
+        if self.grid == GridMode::Sparse && self.ranks > 1 {
+            return bad(
+                "grid",
+                "--grid",
+                "the sparse grid runs in one process only: use the adaptive grid over several ranks".into(),
+            );
+        }
+        if self.split_wait && self.ranks == 1 {
+            return bad(
+                "split_wait",
+                "--split-wait",
+                "there is no other rank to wait for in one process: use it with several ranks".into(),
+            );
+        }
+        self.check_physics()?;
+        self.check_budget()?;
+        self.check_outputs()
+    }
+
+    fn check_physics(&self) -> Result<(), SpecError> {
+        let p = &self.physics;
+        if !(p.cfl > 0.0 && p.cfl <= 1.0) {
+            return Err(SpecError::Invalid {
+                key: "physics.cfl",
+                flag: "--cfl",
+                why: format!("the CFL number must be in (0, 1], got {}", p.cfl),
+            });
+        }
+        if let Err(e) = p.q.validate() {
+            return Err(SpecError::Invalid { key: "physics.q", flag: "--q", why: e.to_string() });
+        }
+        if let RiseLimit::Fraction(f) = p.energy_rise_limit {
+            if !(f > 0.0 && f.is_finite()) {
+                return Err(SpecError::Invalid {
+                    key: "physics.energy_rise_limit",
+                    flag: "--energy-rise-limit",
+                    why: format!("the energy rise limit must be a fraction > 0 (or off), got {f}"),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    fn check_budget(&self) -> Result<(), SpecError> {
+        let b = &self.budget;
+        if b.steps.is_none() && b.end_time_s.is_none() {
+            return Err(SpecError::Invalid {
+                key: "budget",
+                flag: "--steps / --end-time",
+                why: "the run has no end: give a step limit, an end time or both".into(),
+            });
+        }
+        if let Some(t) = b.end_time_s {
+            if !(t.is_finite() && t > 0.0) {
+                return Err(SpecError::Invalid {
+                    key: "budget.end_time_s",
+                    flag: "--end-time",
+                    why: format!("the end time must be a positive number of seconds (e.g. 40e-6), got {t}"),
+                });
+            }
+        }
+        if let (Some(w), Some(n)) = (b.warmup, b.steps) {
+            if n > 0 && w >= n {
+                return Err(SpecError::Invalid {
+                    key: "budget.warmup",
+                    flag: "--warmup",
+                    why: format!("{w} warm-up step(s) leave no steady-state steps of {n}: use fewer (e.g. {})", n / 10),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    fn check_outputs(&self) -> Result<(), SpecError> {
+        let o = &self.outputs;
+        if o.vtk.as_ref().is_some_and(|v| v.every == 0) {
+            return Err(SpecError::Invalid {
+                key: "outputs.vtk.every",
+                flag: "--every",
+                why: "a snapshot every 0 steps: give at least 1".into(),
+            });
+        }
+        if let Some(r) = &o.radiograph {
+            if !matches!(self.scenario, Scenario::Impact(_)) {
+                return Err(SpecError::Invalid {
+                    key: "outputs.radiograph",
+                    flag: "--radiograph",
+                    why: "radiographs are drawn of the impact's debris cloud only".into(),
+                });
+            }
+            if r.every == Some(0) {
+                return Err(SpecError::Invalid {
+                    key: "outputs.radiograph.every",
+                    flag: "--radiograph-every",
+                    why: "a picture every 0 steps: give at least 1".into(),
+                });
+            }
+        }
+        if self.ranks > 1 && (o.vtk.is_some() || o.radiograph.is_some()) {
+            return Err(SpecError::Invalid {
+                key: "outputs",
+                flag: "--vtk / --radiograph",
+                why: "snapshots and radiographs are not available over several ranks yet: run them in one process"
+                    .into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Lower-case hex SHA-256 of `bytes`.
+pub fn hex_sha256(bytes: &[u8]) -> String {
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenario::{Contact, ImpactSpec, PlateSpec, TaylorSpec};
+
+    fn taylor(model: u8) -> RunSpec {
+        RunSpec::new(Scenario::Taylor(TaylorSpec::model(model))).unwrap()
+    }
+
+    #[test]
+    fn defaults_are_the_scenarios() {
+        let t = taylor(1);
+        assert_eq!((t.grid, t.physics.cfl, t.budget.end_time_s), (GridMode::Fixed, 0.5, Some(40e-6)));
+        let i = RunSpec::new(Scenario::Impact(ImpactSpec::default())).unwrap();
+        assert_eq!((i.grid, i.budget.end_time_s), (GridMode::Sparse, Some(30.6e-6)));
+        let p = RunSpec::new(Scenario::Plate(PlateSpec::default())).unwrap();
+        assert_eq!(p.physics.cfl, 0.2);
+        assert!(p.budget.end_time_s.unwrap() > 0.0);
+        for s in [t, i, p] {
+            s.check().unwrap();
+        }
+    }
+
+    /// TOML and JSON round trips are exact (floats included), and the key ignores outputs
+    /// but nothing else.
+    #[test]
+    fn round_trips_and_keys() {
+        let mut s = taylor(2);
+        s.strategy = Strategy::DomainDecomposition;
+        s.threads = 2;
+        s.cpus = Some(vec![0, 1]);
+        s.physics.q = BulkViscosity { c1: 1.25, c2: 0.1 };
+        s.physics.energy_rise_limit = RiseLimit::Off;
+        s.budget = Budget { steps: Some(30), end_time_s: Some(1.0e-5 / 3.0), warmup: Some(3) };
+        s.outputs.json = Some("x.json".into());
+        assert_eq!(RunSpec::parse(&s.to_toml(), SpecFormat::Toml).unwrap(), s);
+        assert_eq!(RunSpec::parse(&s.to_json(), SpecFormat::Json).unwrap(), s);
+        let no_out = RunSpec { outputs: Outputs::default(), ..s.clone() };
+        assert_eq!(no_out.key(), s.key());
+        let other = RunSpec {
+            scenario: Scenario::Taylor(TaylorSpec { wall: Contact::Sticking, ..TaylorSpec::model(2) }),
+            ..s.clone()
+        };
+        assert_ne!(other.key(), s.key());
+        let other = RunSpec { physics: Physics { cfl: 0.4, ..s.physics }, ..s.clone() };
+        assert_ne!(other.key(), s.key());
+    }
+
+    #[test]
+    fn unknown_keys_and_versions_are_refused_by_name() {
+        let text = taylor(1).to_toml();
+        let err = RunSpec::parse(&text.replace("threads = 1", "threads = 1\nthreds = 2"), SpecFormat::Toml)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("threds"), "{err}");
+        let err = RunSpec::parse(&text.replace("spec_version = 1", "spec_version = 7"), SpecFormat::Toml)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("version 7"), "{err}");
+    }
+
+    #[test]
+    fn checks_name_the_key_and_the_flag() {
+        let cases: Vec<(RunSpec, &str)> = vec![
+            (RunSpec { threads: 2, ..taylor(1) }, "--strategy"),
+            (RunSpec { threads: 0, ..taylor(1) }, "--threads"),
+            (RunSpec { cpus: Some(vec![0, 1]), ..taylor(1) }, "--cpus"),
+            (RunSpec { physics: Physics { cfl: 1.5, ..Physics::default() }, ..taylor(1) }, "--cfl"),
+            (RunSpec { budget: Budget { steps: Some(5), end_time_s: None, warmup: Some(5) }, ..taylor(1) }, "--warmup"),
+            (RunSpec { budget: Budget::default(), ..taylor(1) }, "--steps / --end-time"),
+            (RunSpec { grid: GridMode::Sparse, ranks: 2, ..taylor(1) }, "--grid"),
+            (RunSpec { rank_layout: Some([2, 2, 1]), ranks: 2, ..taylor(1) }, "--rank-layout"),
+            (RunSpec { split_wait: true, ..taylor(1) }, "--split-wait"),
+        ];
+        for (spec, flag) in cases {
+            let err = spec.check().unwrap_err().to_string();
+            assert!(err.contains(flag), "{flag}: {err}");
+        }
+    }
+
+    #[test]
+    fn a_summary_file_is_read_through_its_spec() {
+        let s = taylor(3);
+        let dir = std::env::temp_dir().join(format!("mpm-spec-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("summary.json");
+        std::fs::write(&path, format!("{{\"scenario\": \"taylor\", \"spec\": {}}}", s.to_json())).unwrap();
+        assert_eq!(RunSpec::read(&path).unwrap(), s);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}
