@@ -1,10 +1,14 @@
 #!/usr/bin/env bash
 # The reproduce command: install what is missing, build the solver at both optimisation
-# levels, run the quick campaign (every model, both strategies, both optimisation levels,
-# threads 1/2/4/6/8, with step limits: about 20 minutes on 2 cores), then regenerate the
-# paper's Figures 7-14 and check its claims from this machine's results.
+# levels, measure the memory-bandwidth ceiling, run the quick campaign (every model, both
+# strategies, both optimisation levels, threads 1/2/4/6/8, with step limits; the campaign
+# prints its estimated duration when it starts), then draw the paper's Figures 7-14, check its
+# claims and write the report, all from this machine's results.
 #
-# Results go to results/local/<machine-fingerprint>/<campaign>/ (not tracked by git). The
+# Everything goes to results/local/<machine-fingerprint>/<campaign>/ (not tracked by git):
+# the figures to its figures/, the claims to claims.md, the report to report/, the bandwidth
+# to bandwidth.json. The work tree stays clean: paper-figures/ holds the figures of the
+# committed reference campaign and is only rewritten by scripts/paper-figures.sh. The
 # committed reference campaigns under results/<fingerprint>/ are never written: they are
 # elsewhere, and marked "reference" in their manifest, which `mpm-bench run` refuses as a
 # resume target. Re-running on the same machine with the same solver binaries resumes the
@@ -47,8 +51,11 @@ fi
 # Record paths relative to the repository in the generated READMEs.
 campaign=$(realpath --relative-to=. "$campaign")
 
-step "figures 7-14 and the memory figure -> paper-figures/"
-target/o3/mpm-bench figures --results "$campaign" --out paper-figures
+step "memory-bandwidth ceiling (STREAM triad) -> $campaign/bandwidth.json"
+target/o3/mpm-bench bandwidth --threads 1,2 --out "$campaign/bandwidth.json"
+
+step "figures 7-14, the memory figure and points.csv -> $campaign/figures/"
+target/o3/mpm-bench figures --results "$campaign" --out "$campaign/figures"
 
 step "the paper's claims C1-C6 on this machine"
 target/o3/mpm-bench claims --results "$campaign" --markdown "$campaign/claims.md"
@@ -56,5 +63,5 @@ target/o3/mpm-bench claims --results "$campaign" --markdown "$campaign/claims.md
 step "the campaign's report: one page to open first"
 target/o3/mpm-bench report --results "$campaign" --out "$campaign/report" >/dev/null
 
-step "done: results in $campaign, figures in paper-figures/; open the report:"
+step "done: results, figures, claims and report in $campaign; open the report:"
 echo "$campaign/report/index.html"

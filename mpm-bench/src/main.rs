@@ -255,9 +255,18 @@ struct RunArgs {
     /// Print the runs that would run (CPUs, memory estimate, skips) and exit.
     #[arg(long)]
     dry_run: bool,
-    /// Run again configurations that only have failed, invalid or skipped rows.
+    /// Also run again configurations the memory guard skipped. (Failed and invalid runs are
+    /// always run again on resume: a failure is not a result.)
     #[arg(long)]
     retry_failed: bool,
+    /// Exit 0 even when a run of this invocation failed, timed out or was invalid (by
+    /// default such a campaign exits 1, so a CI job sees it).
+    #[arg(long)]
+    allow_failures: bool,
+    /// When another `mpm-bench run` writes into the same campaign folder, wait for it to
+    /// finish (by default this run refuses, naming the other's pid).
+    #[arg(long)]
+    wait: bool,
     /// Move an existing runs.csv aside and start the campaign over.
     #[arg(long)]
     fresh: bool,
@@ -282,7 +291,12 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Cmd::Topology(a) => cmd_topology(a),
-        Cmd::Run(a) => cmd_run(*a),
+        // run: 0 done, 1 a run failed (or an error while running), 2 bad input, 130
+        // interrupted.
+        Cmd::Run(a) => match cmd_run(*a) {
+            Ok(code) => std::process::exit(code),
+            Err(e) => Err(e),
+        },
         Cmd::Figures(a) => figures::run(a),
         Cmd::Claims(a) => claims::run(a),
         // regress: 0 pass, 1 regression, 2 error or incomparable (a CI gate must tell a
@@ -422,20 +436,33 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
     })
 }
 
-fn cmd_run(a: RunArgs) -> Result<()> {
-    let ov = overrides(&a)?;
+/// Print a bad-input error and exit 2 (a CI job tells a broken invocation from a failed run).
+fn bad_input(e: anyhow::Error) -> ! {
+    eprintln!("error: {e:#}");
+    std::process::exit(2);
+}
+
+/// `mpm-bench run`; the exit code: 0, or 1 when a run of this invocation failed, timed out
+/// or was invalid (unless `--allow-failures`), or 130 when interrupted. Bad input (the
+/// preset, the overrides, a pinning policy this machine cannot honour) exits 2 at once.
+fn cmd_run(a: RunArgs) -> Result<i32> {
+    let ov = overrides(&a).unwrap_or_else(|e| bad_input(e));
     let ws = solver::workspace_root();
-    let (preset, source) = preset::load_preset(&a.preset, ws.as_deref())?;
-    let campaign = Campaign::resolve(preset, source, &ov)?;
+    let (preset, source) = preset::load_preset(&a.preset, ws.as_deref()).unwrap_or_else(|e| bad_input(e));
+    let campaign = Campaign::resolve(preset, source, &ov).unwrap_or_else(|e| bad_input(e));
     let machine = Machine::detect()?;
     for p in &campaign.pins {
-        machine.check_policy(p).with_context(|| format!("bad --bind {p}"))?;
+        if let Err(e) = machine.check_policy(p) {
+            bad_input(e.context(format!("bad --bind {p}")));
+        }
     }
     let interrupted = runner::install_interrupt_handler();
     let opts = ExecOptions {
         out_root: a.out.clone(),
         dry_run: a.dry_run,
         retry_failed: a.retry_failed,
+        wait_lock: a.wait,
+        eta: !a.quiet && !a.mock && !a.dry_run,
         fresh: a.fresh,
         resume_foreign: a.resume_foreign,
         watch: Some(WatchSettings::default()),
@@ -478,9 +505,17 @@ fn cmd_run(a: RunArgs) -> Result<()> {
         println!("campaign folder: {}", dir.display());
     }
     if summary.counts.interrupted {
-        std::process::exit(130);
+        return Ok(130);
     }
-    Ok(())
+    let bad = summary.counts.failed + summary.counts.invalid;
+    if bad > 0 && !a.dry_run {
+        eprintln!(
+            "{bad} run(s) of this invocation failed or were invalid (reasons in runs.csv): exit status 1{}",
+            if a.allow_failures { ", overridden by --allow-failures" } else { "; resuming runs them again" }
+        );
+        return Ok(if a.allow_failures { 0 } else { 1 });
+    }
+    Ok(0)
 }
 
 /// `mpm-bench imbalance`: predict, print the table, write the CSV and the figure.

@@ -4,6 +4,7 @@
 use mpm_bench::analysis::claims::{self, Verdict};
 use mpm_bench::analysis::regress::{self, Outcome, RegressArgs};
 use mpm_bench::analysis::results::load_campaign;
+use mpm_bench::analysis::select::RowFilter;
 use mpm_bench::analysis::stats::{Analysis, CellKey, Stage, StatsOptions};
 use mpm_bench::campaign::record::{read_rows, CsvLog, Row, Status};
 use mpm_bench::machine::bandwidth;
@@ -14,7 +15,7 @@ mod common;
 use common::*;
 
 fn analysis(dir: &Path) -> Analysis {
-    load_campaign(dir).unwrap().analyse(None)
+    load_campaign(dir, &RowFilter::analysis(false)).unwrap().analyse(None)
 }
 
 #[test]
@@ -74,7 +75,7 @@ fn figures_are_written_as_png_and_svg() {
     let results = tmp.path().join("results");
     write_campaign(&results.join("fp").join("camp"), &Craft { cores: 2, ..Craft::default() });
     let out = tmp.path().join("figs");
-    figures::run(FiguresArgs { results: results.clone(), out: out.clone(), pin: None }).unwrap();
+    figures::run(FiguresArgs { results: results.clone(), out: out.clone(), pin: None, include_noisy: false }).unwrap();
     for stem in ["fig07", "fig08", "fig09", "fig10", "fig11", "fig12", "fig13", "fig14", "fig_memory"] {
         let png = std::fs::read(out.join(format!("{stem}.png"))).unwrap();
         assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "{stem}.png");
@@ -92,22 +93,29 @@ fn figures_are_written_as_png_and_svg() {
 #[test]
 fn figures_report_clear_errors() {
     let tmp = tempfile::tempdir().unwrap();
-    let err = figures::run(FiguresArgs { results: tmp.path().join("nope"), out: tmp.path().join("o"), pin: None })
-        .unwrap_err();
+    let err = figures::run(FiguresArgs {
+        results: tmp.path().join("nope"),
+        out: tmp.path().join("o"),
+        pin: None,
+        include_noisy: false,
+    })
+    .unwrap_err();
     assert!(format!("{err:#}").contains("does not exist"), "{err:#}");
     let empty = tmp.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();
-    let err = figures::run(FiguresArgs { results: empty, out: tmp.path().join("o"), pin: None }).unwrap_err();
+    let err = figures::run(FiguresArgs { results: empty, out: tmp.path().join("o"), pin: None, include_noisy: false })
+        .unwrap_err();
     assert!(format!("{err:#}").contains("no runs.csv"), "{err:#}");
     let bad = tmp.path().join("bad");
     std::fs::create_dir_all(&bad).unwrap();
     std::fs::write(bad.join("runs.csv"), "model,threads\n1,1\n").unwrap();
-    let err = figures::run(FiguresArgs { results: bad, out: tmp.path().join("o"), pin: None }).unwrap_err();
+    let err = figures::run(FiguresArgs { results: bad, out: tmp.path().join("o"), pin: None, include_noisy: false })
+        .unwrap_err();
     assert!(format!("{err:#}").contains("missing column"), "{err:#}");
 }
 
 fn verdicts(dir: &Path) -> Vec<(String, Verdict)> {
-    let c = load_campaign(dir).unwrap();
+    let c = load_campaign(dir, &RowFilter::analysis(false)).unwrap();
     let an = c.analyse(None);
     claims::evaluate(&c, &an).into_iter().map(|r| (r.id.to_string(), r.verdict)).collect()
 }
@@ -128,7 +136,7 @@ fn claims_on_a_crafted_two_socket_machine() {
     for (id, verdict) in &v {
         assert_eq!(*verdict, Verdict::Holds, "{id}: {v:?}");
     }
-    let c = load_campaign(&dir).unwrap();
+    let c = load_campaign(&dir, &RowFilter::analysis(false)).unwrap();
     let res = claims::evaluate(&c, &c.analyse(None));
     let md = claims::markdown(&res, "##");
     assert!(md.contains("| C5 |") && md.contains("**holds**"));
@@ -181,7 +189,7 @@ fn each_claim_holds_fails_and_cannot_tell() {
     ];
     for (k, (claim, craft, want)) in cases.into_iter().enumerate() {
         let dir = write_campaign(&tmp.path().join(format!("c{k}")), &craft);
-        let c = load_campaign(&dir).unwrap();
+        let c = load_campaign(&dir, &RowFilter::analysis(false)).unwrap();
         let r = &claims::evaluate(&c, &c.analyse(None))[claim];
         assert_eq!(r.verdict, want, "case {k}: {} {}: {:?}", r.id, r.reason, r.evidence);
     }
@@ -192,7 +200,7 @@ fn holds_needs_a_majority_and_intervals() {
     let tmp = tempfile::tempdir().unwrap();
     // O0 only a little better: AE's comparisons support C4, DD's are within the noise.
     let dir = write_campaign(&tmp.path().join("a"), &Craft { o0_loss: 0.5, ..Craft::default() });
-    let c = load_campaign(&dir).unwrap();
+    let c = load_campaign(&dir, &RowFilter::analysis(false)).unwrap();
     let c4 = &claims::evaluate(&c, &c.analyse(None))[3];
     assert_eq!(c4.verdict, Verdict::CannotTell, "{c4:?}");
     assert!(c4.reason.contains("no majority"), "{}", c4.reason);
@@ -205,7 +213,7 @@ fn holds_needs_a_majority_and_intervals() {
     let once = Craft { reps: 1, noise: vec![1.0], ..Craft::default() };
     let dir = write_campaign(&tmp.path().join("d"), &once);
     write_campaign(&dir, &Craft { pin: "spread", per_socket: 1, ..once });
-    let c = load_campaign(&dir).unwrap();
+    let c = load_campaign(&dir, &RowFilter::analysis(false)).unwrap();
     let res = claims::evaluate(&c, &c.analyse(None));
     for r in &res[..5] {
         assert!(r.indicative && r.verdict_label().ends_with("(indicative)"), "{r:?}");
@@ -289,8 +297,9 @@ fn regress_passes_against_itself_and_fails_on_a_20_percent_efficiency_drop() {
     assert!((eff.ratio.value - 0.8).abs() < 1e-9, "{:?}", eff.ratio);
 }
 
-/// Rows measured on a busy host (`host_noisy`) are left out of regress and claims unless
-/// `--include-noisy`, and their points are grey in the figures.
+/// Rows measured on a busy host (`host_noisy`) are left out of regress, claims and figures
+/// unless `--include-noisy` (then their points are grey in the figures), and the campaign
+/// says what it left out.
 #[test]
 fn noisy_rows_are_excluded_unless_asked_and_grey_in_figures() {
     let tmp = tempfile::tempdir().unwrap();
@@ -331,14 +340,20 @@ fn noisy_rows_are_excluded_unless_asked_and_grey_in_figures() {
     let slow: Vec<_> = r.checks.iter().filter(|c| c.current_reps > c.baseline_reps).collect();
     assert!(!slow.is_empty(), "with --include-noisy the slow rows count: {}", r.reason);
     assert!(slow.iter().any(|c| c.worse_by > 0.5), "the slow rows move the medians: {}", r.reason);
-    let quiet = load_campaign(&cur).unwrap().without_noisy(false);
-    assert_eq!(quiet.rows.len(), load_campaign(&base).unwrap().rows.len());
-    assert_eq!(load_campaign(&cur).unwrap().without_noisy(true).rows.len(), quiet.rows.len() + extra.len());
-    // Figures keep every row; the noisy cells' points are grey, the others not.
-    let an = analysis(&cur);
+    let quiet = load_campaign(&cur, &RowFilter::analysis(false)).unwrap();
+    assert_eq!(quiet.rows.len(), load_campaign(&base, &RowFilter::analysis(false)).unwrap().rows.len());
+    assert_eq!(quiet.left_out.iter().map(|l| l.rows).sum::<usize>(), extra.len(), "{:?}", quiet.left_out);
+    assert!(quiet.left_out.iter().all(|l| l.reason.contains("busy host")), "{:?}", quiet.left_out);
+    let all = load_campaign(&cur, &RowFilter::analysis(true)).unwrap();
+    assert_eq!(all.rows.len(), quiet.rows.len() + extra.len());
+    // Figures by the same rule: without the noisy rows no point is grey; with them the
+    // noisy cells' points are grey, the others not.
     let spec = figures::PAPER_FIGURES.iter().find(|f| f.number == 8).unwrap();
-    let pts: Vec<_> =
-        figures::paper_panels(&an, spec).into_iter().flat_map(|p| p.lines).flat_map(|l| l.points).collect();
+    let points = |c: &mpm_bench::analysis::results::Campaign| -> Vec<_> {
+        figures::paper_panels(&c.analyse(None), spec).into_iter().flat_map(|p| p.lines).flat_map(|l| l.points).collect()
+    };
+    assert!(points(&quiet).iter().all(|p| !p.grey));
+    let pts = points(&all);
     assert!(pts.iter().any(|p| p.grey) && pts.iter().any(|p| !p.grey));
     assert!(pts.iter().all(|p| p.grey == (p.x > 1.0)), "grey exactly where noisy rows are");
 }
@@ -527,4 +542,110 @@ fn every_committed_campaign_loads_in_every_analysis_command() {
         assert_eq!(code, Some(0), "report of {dir}: {err}");
         assert!(rep.join("index.html").is_file());
     }
+}
+
+/// The stage panels use the steady-state stage times: a 1-thread run whose one warm-up step
+/// took most of its particle stage (as Model 4's set-up step did) gives that stage a speedup
+/// within the 2 cores, where the whole-run times gave 5.5; a speedup above the cores (here
+/// one forced by a slow base run's steady times) is flagged on the point, crossed out in the
+/// figure and listed in points.csv; rows without steady stage times give no stage point,
+/// and the analysis says so.
+#[test]
+fn stage_speedups_are_steady_state_and_impossible_ones_flagged() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("m4");
+    std::fs::create_dir_all(&dir).unwrap();
+    let fp = fingerprint(Some("pack:1 core:2 pu:1"));
+    let mut log = mpm_bench::campaign::record::CsvLog::open(&dir.join("runs.csv")).unwrap();
+    // Model 4, DD, 3 steps with 1 warm-up; per steady step 2.0 s grid + 3.0 s particle at one
+    // thread, half that at two (pinned to CPUs 0 and 1); the 1-thread warm-up step spent
+    // 21 s in the particle stage. Model 3: a base run 6x slow in its steady state.
+    for (model, threads, grid, particle, warm_particle) in
+        [(4, 1, 2.0, 3.0, 21.0), (4, 2, 1.0, 1.5, 1.5), (3, 1, 6.0, 6.0, 6.0), (3, 2, 0.5, 0.5, 0.5)]
+    {
+        for rep in 0..3 {
+            let mut r = planned_row(&dir, &fp, model, DD, "o3", threads, rep, "close", 3);
+            r.run.spec.budget.warmup = Some(1);
+            r.placement.requested_cpus = (0..threads).collect();
+            r.outcome.status = Status::Ok;
+            let m = &mut r.measured;
+            (m.steps, m.steady_steps) = (Some(3), Some(2));
+            m.grid_stage_s = Some(3.0 * grid);
+            m.particle_stage_s = Some(2.0 * particle + warm_particle);
+            m.steady_grid_stage_s = Some(2.0 * grid);
+            m.steady_particle_stage_s = Some(2.0 * particle);
+            m.steady_s_per_step = Some(grid + particle);
+            m.wall_s = Some(3.0 * (grid + particle) + warm_particle);
+            log.append(&r).unwrap();
+        }
+    }
+    drop(log);
+    let c = load_campaign(&dir, &RowFilter::analysis(false)).unwrap();
+    let an = c.analyse(None);
+    let p4 = an.point(4, DD, "o3", 2, Stage::Particle).unwrap();
+    let s4 = p4.speedup.unwrap().value;
+    assert!((s4 - 2.0).abs() < 1e-9 && p4.flags.is_empty(), "Model 4 particle stage: {s4}, {:?}", p4.flags);
+    let p3 = an.point(3, DD, "o3", 2, Stage::Total).unwrap();
+    assert!(p3.speedup.unwrap().value > 11.0 && !p3.flags.is_empty(), "{p3:?}");
+    assert!(p3.flags[0].contains("above the 2 core(s)"), "{:?}", p3.flags);
+    assert!(!p3.is_real_parallel(), "a flagged point is no evidence of scaling");
+    let out = tmp.path().join("figs");
+    figures::run(FiguresArgs { results: dir.clone(), out: out.clone(), pin: None, include_noisy: false }).unwrap();
+    let mut rdr = csv::Reader::from_path(out.join("points.csv")).unwrap();
+    let rows: Vec<std::collections::HashMap<String, String>> = rdr.deserialize().map(Result::unwrap).collect();
+    let get = |fig: &str, panel: &str, model: &str| {
+        rows.iter()
+            .find(|r| r["figure"] == fig && r["panel"] == panel && r["model"] == model && r["threads"] == "2")
+            .unwrap_or_else(|| panic!("{fig} {panel} Model{model}"))
+            .clone()
+    };
+    let pt = get("fig11", "particle", "4");
+    assert_eq!((pt["value"].parse::<f64>().unwrap(), pt["flags"].as_str()), (2.0, ""));
+    assert!(get("fig11", "total", "3")["flags"].contains("above the 2 core(s)"));
+    assert!(std::fs::read_to_string(out.join("README.md")).unwrap().contains("flagged"));
+    // The same rows without steady stage times (written before schema 6): no stage point.
+    let rows: Vec<_> = mpm_bench::campaign::record::read_rows(&dir.join("runs.csv"))
+        .unwrap()
+        .into_iter()
+        .map(|mut r| {
+            r.measured.steady_grid_stage_s = None;
+            r.measured.steady_particle_stage_s = None;
+            r
+        })
+        .collect();
+    let an = mpm_bench::analysis::stats::Analysis::from_rows(&rows, None, &Default::default());
+    assert!(an.point(4, DD, "o3", 2, Stage::Particle).is_none());
+    assert!(an.point(4, DD, "o3", 2, Stage::Total).is_some());
+    assert!(an.notes.iter().any(|n| n.contains("no steady-state stage times")), "{:?}", an.notes);
+}
+
+/// Cells of different step budgets (a quick campaign against a smoke one) are refused, exit
+/// 2, naming the keys that differ, whatever the times say; the same budget compares.
+#[test]
+fn regress_refuses_campaigns_of_different_budgets() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = write_campaign(&tmp.path().join("base"), &Craft::default());
+    let other = tmp.path().join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::copy(base.join("manifest.json"), other.join("manifest.json")).unwrap();
+    let mut log = CsvLog::open(&other.join("runs.csv")).unwrap();
+    for mut r in read_rows(&base.join("runs.csv")).unwrap() {
+        r.run.spec.budget.steps = Some(100);
+        r.run.spec.budget.warmup = Some(5);
+        log.append(&r).unwrap();
+    }
+    drop(log);
+    let r = regress::evaluate(&regress_args(&base, &other)).unwrap();
+    assert_eq!(r.exit_code(), 2, "{}", r.reason);
+    assert!(
+        r.reason.contains("budget.steps 100 instead of 10") && r.reason.contains("budget.warmup 5 instead of 0"),
+        "{}",
+        r.reason
+    );
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_mpm-bench"))
+        .args(["regress", "--baseline", base.to_str().unwrap(), "--current", other.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert_eq!(regress::evaluate(&regress_args(&base, &base)).unwrap().exit_code(), 0);
 }

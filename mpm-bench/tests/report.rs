@@ -5,6 +5,7 @@
 mod common;
 use common::*;
 use mpm_bench::analysis::results::load_campaign;
+use mpm_bench::analysis::select::RowFilter;
 use mpm_bench::report::comparison::{self as report, ReportArgs};
 use scraper::{Html, Selector};
 use std::path::{Path, PathBuf};
@@ -31,7 +32,7 @@ fn two_campaigns(root: &Path) -> (PathBuf, PathBuf) {
 fn write_report(root: &Path) -> (PathBuf, report::Report) {
     let (a, b) = two_campaigns(root);
     let out = root.join("rep");
-    let args = ReportArgs { dirs: vec![a, b], out: out.clone(), pin: None };
+    let args = ReportArgs { dirs: vec![a, b], out: out.clone(), pin: None, include_noisy: false };
     report::run(args.clone()).unwrap();
     (out, report::build(&args).unwrap())
 }
@@ -94,7 +95,8 @@ fn the_page_parses_and_has_its_sections_tables_and_inline_figures() {
 fn one_campaign_is_described_without_a_comparison() {
     let tmp = tempfile::tempdir().unwrap();
     let a = write_campaign(&tmp.path().join("a"), &Craft::default());
-    let r = report::build(&ReportArgs { dirs: vec![a], out: tmp.path().join("r"), pin: None }).unwrap();
+    let r = report::build(&ReportArgs { dirs: vec![a], out: tmp.path().join("r"), pin: None, include_noisy: false })
+        .unwrap();
     assert!(r.comparisons.is_empty());
     assert!(r.page.sections.iter().all(|s| s.id != "headline"));
     assert!(r.page.sections.iter().any(|s| s.id == "machines"));
@@ -104,7 +106,7 @@ fn one_campaign_is_described_without_a_comparison() {
 fn normalised_markdown(root: &Path, out: &Path) -> String {
     let mut md = std::fs::read_to_string(out.join("report.md")).unwrap();
     for (name, tag) in [("a", "<FP-A>"), ("b", "<FP-B>")] {
-        md = md.replace(&load_campaign(&root.join(name)).unwrap().fingerprint(), tag);
+        md = md.replace(&load_campaign(&root.join(name), &RowFilter::analysis(false)).unwrap().fingerprint(), tag);
     }
     md.replace(&root.display().to_string(), "<TMP>")
 }
@@ -122,4 +124,100 @@ fn markdown_matches_the_golden_snapshot() {
     }
     let want = std::fs::read_to_string(&golden).expect("tests/golden/report.md: run with UPDATE_GOLDEN=1 once");
     assert!(md == want, "report.md differs from {}: rerun with UPDATE_GOLDEN=1 and review the diff", golden.display());
+}
+
+/// The claims on the page are `mpm-bench claims`'s, on a campaign with busy-host rows that
+/// would change them: both leave those rows out by the same rule (and say so), and with
+/// --include-noisy both keep them; verdict for verdict, C1 to C7.
+#[test]
+fn report_and_claims_agree_on_a_campaign_with_noisy_rows() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = write_campaign(&tmp.path().join("c"), &Craft::default());
+    // Every parallel DD repetition again, five times slower, on a busy host: with them DD no
+    // longer scales better than AE (C1).
+    let csv = dir.join("runs.csv");
+    let extra: Vec<_> = mpm_bench::campaign::record::read_rows(&csv)
+        .unwrap()
+        .into_iter()
+        .filter(|r| {
+            r.threads() > 1 && r.strategy() == DD && r.outcome.status == mpm_bench::campaign::record::Status::Ok
+        })
+        .flat_map(|r| {
+            (10..16).map(move |rep| {
+                let mut b = r.clone();
+                b.run.rep = rep;
+                let m = &mut b.measured;
+                for t in [&mut m.steady_s_per_step, &mut m.steady_grid_stage_s, &mut m.steady_particle_stage_s] {
+                    *t = t.map(|t| 5.0 * t);
+                }
+                b.host.host_noisy = true;
+                b.host.host_noise = "its CPUs 80 % busy with other work before the run".into();
+                b
+            })
+        })
+        .collect();
+    let mut log = mpm_bench::campaign::record::CsvLog::open(&csv).unwrap();
+    for r in &extra {
+        log.append(r).unwrap();
+    }
+    let bench = |args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_mpm-bench")).args(args).output().unwrap();
+        assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let verdicts = |md: &str, first_col: usize| -> Vec<(String, String)> {
+        md.lines()
+            .filter_map(|l| {
+                let cells: Vec<&str> = l.split('|').map(str::trim).collect();
+                let id = cells.get(1)?;
+                (id.len() == 2 && id.starts_with('C'))
+                    .then(|| (id.to_string(), cells.get(first_col).unwrap_or(&"").trim_matches('*').to_string()))
+            })
+            .collect()
+    };
+    let mut seen = Vec::new();
+    for noisy in [false, true] {
+        let flag: &[&str] = if noisy { &["--include-noisy"] } else { &[] };
+        let d = dir.to_str().unwrap();
+        let md = tmp.path().join(format!("claims-{noisy}.md"));
+        let err = bench(&[&["claims", "--results", d, "--markdown", md.to_str().unwrap()], flag].concat());
+        assert_eq!(err.contains("row(s) measured on a busy host"), !noisy, "{err}");
+        let out = tmp.path().join(format!("rep-{noisy}"));
+        bench(&[&["report", "--results", d, "--out", out.to_str().unwrap()], flag].concat());
+        let claims = verdicts(&std::fs::read_to_string(&md).unwrap(), 3);
+        let page = std::fs::read_to_string(out.join("report.md")).unwrap();
+        let section = page.split("Claims on ").nth(1).expect("the page's claims table");
+        let on_page = verdicts(section, 2);
+        assert_eq!(claims.len(), 7, "{claims:?}");
+        assert_eq!(on_page, claims, "the page's claims are not claims'");
+        assert_eq!(page.contains(&format!("left out {} row(s) measured on a busy host", extra.len())), !noisy);
+        seen.push(claims);
+    }
+    assert_ne!(seen[0], seen[1], "the noisy rows were meant to change a verdict");
+}
+
+/// A comparison of sets made by different software says so in its title and headline: the
+/// ratios mix machine and software.
+#[test]
+fn the_headline_says_when_the_software_differs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = two_campaigns(tmp.path());
+    let args =
+        ReportArgs { dirs: vec![a.clone(), b.clone()], out: tmp.path().join("r"), pin: None, include_noisy: false };
+    let same = report::build(&args).unwrap();
+    assert!(same.page.title.starts_with("Hardware comparison"), "{}", same.page.title);
+    assert!(same.comparisons[0].software_differs.is_none());
+    let csv = b.join("runs.csv");
+    let rows = mpm_bench::campaign::record::read_rows(&csv).unwrap();
+    std::fs::remove_file(&csv).unwrap();
+    let mut log = mpm_bench::campaign::record::CsvLog::open(&csv).unwrap();
+    for mut r in rows {
+        (r.id.git_commit, r.id.git_dirty) = ("0123456789abcdef".into(), true);
+        log.append(&r).unwrap();
+    }
+    drop(log);
+    let differs = report::build(&args).unwrap();
+    assert!(differs.page.title.starts_with("Machines and software differ"), "{}", differs.page.title);
+    let why = differs.comparisons[0].software_differs.clone().unwrap();
+    assert!(why.contains("0123456789ab-dirty"), "{why}");
 }

@@ -561,6 +561,28 @@ fn bad_input_is_a_clear_error() {
     rejects(&["--model", "1", "--q", "-1,0"], "finite number >= 0");
     rejects(&["--model", "1", "--energy-rise-limit", "0"], "energy rise limit");
     rejects(&["--model", "1", "--eos", "ideal-gas"], "invalid value 'ideal-gas'");
+    // Negative numbers reach the range checks, not clap's "unexpected argument".
+    rejects(&["--model", "1", "--threads", "-1"], "the thread count must be at least 1");
+    rejects(&["--model", "1", "--steps", "-5"], "-5 is negative");
+    rejects(&["--model", "-1"], "-1 is not in 1..=4");
+    rejects(&["--model", "1", "--cfl", "-0.5"], "invalid physics.cfl (--cfl)");
+    rejects(&["--model", "1", "--strategy", "dd", "--threads", "100000"], "more than 16 per core");
+}
+
+/// Before it allocates, mpm estimates the run's memory and refuses one beyond the memory
+/// available, saying both, and what to change; negative sizes get the range check.
+#[test]
+fn runs_that_cannot_fit_or_have_negative_sizes_are_refused_before_allocating() {
+    let start = std::time::Instant::now();
+    let out = mpm(&["run", "impact", "--spacing", "0.05e-3", "--steps", "1", "--quiet"]);
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("the run needs about") && err.contains("is available") && err.contains("--force"), "{err}");
+    assert!(!err.contains("memory allocation") && !err.contains("panicked"), "{err}");
+    assert!(start.elapsed().as_secs_f64() < 5.0, "refused before building anything");
+    let out = mpm(&["run", "impact", "--cell", "-1", "--steps", "1"]);
+    let err = text(&out.stderr);
+    assert!(!out.status.success() && err.contains("invalid scenario.cell_m (--cell)") && err.contains("-1"), "{err}");
 }
 
 /// `--eos paper` is the printed form, `--eos lsdyna` the Hugoniot form; `--q 0,0` turns the

@@ -23,6 +23,7 @@
 //!   the claim is about a stage or about optimisation.
 
 use super::results::{load_campaign, Campaign};
+use super::select::RowFilter;
 use super::stats::{compare, parallel_strategies, tag, Analysis, CellKey, Compare, Estimate, Stage, StatsOptions};
 use crate::campaign::record::Status;
 use crate::machine::placement::PinPolicy;
@@ -537,7 +538,7 @@ fn c6(c: &Campaign, o: &StatsOptions) -> ClaimResult {
 }
 
 fn gb(b: f64) -> String {
-    format!("{:.2} GB", b / 1e9)
+    format!("{:.2} GiB", b / (1u64 << 30) as f64)
 }
 
 /// Evaluate C1-C7 on a campaign.
@@ -584,7 +585,8 @@ pub fn markdown(results: &[ClaimResult], heading: &str) -> String {
 
 /// `mpm-bench claims`.
 pub fn run(args: ClaimsArgs) -> Result<()> {
-    let c = load_campaign(&args.results)?.without_noisy(args.include_noisy);
+    let c = load_campaign(&args.results, &RowFilter::analysis(args.include_noisy))?;
+    c.note_left_out("claims");
     c.note_hybrid_left_out("claims");
     let an = c.analyse(args.pin.as_deref());
     let res = evaluate(&c, &an);

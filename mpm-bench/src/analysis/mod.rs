@@ -18,5 +18,6 @@ pub mod paired;
 pub mod ratio;
 pub mod regress;
 pub mod results;
+pub mod select;
 pub mod stats;
 pub mod traffic;

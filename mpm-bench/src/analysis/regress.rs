@@ -30,6 +30,7 @@
 //! (`--json FILE`) is written whenever both campaigns could be read.
 
 use super::results::{load_campaign, Campaign};
+use super::select::{configuration_differences, RowFilter};
 use super::stats::{bootstrap_test, holm, Analysis, Cell, CellKey, Estimate, Stage, StatsOptions, Tails};
 use crate::campaign::record::Status;
 use crate::util::median;
@@ -374,10 +375,13 @@ pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
         bail!("--tolerance {} is out of range: give a fraction such as 0.05 for 5 %", args.tolerance);
     }
     let stages: Vec<Stage> = args.stages.iter().map(|s| Stage::parse(s)).collect::<Result<_>>()?;
-    let base = load_campaign(&args.baseline).context("reading --baseline")?.without_noisy(args.include_noisy);
-    let cur = load_campaign(&args.current).context("reading --current")?.without_noisy(args.include_noisy);
-    base.note_hybrid_left_out("regress");
-    cur.note_hybrid_left_out("regress");
+    let filter = RowFilter::analysis(args.include_noisy);
+    let base = load_campaign(&args.baseline, &filter).context("reading --baseline")?;
+    let cur = load_campaign(&args.current, &filter).context("reading --current")?;
+    for c in [&base, &cur] {
+        c.note_left_out("regress");
+        c.note_hybrid_left_out("regress");
+    }
     let (bs, cs) = (side(&base), side(&cur));
     let mut report = RegressReport {
         verdict: "incomparable".into(),
@@ -404,6 +408,15 @@ pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
             return Ok(report);
         }
         report.forced = true;
+    }
+    let differ = configuration_differences(&base.configurations, &cur.configurations);
+    if !differ.is_empty() {
+        report.reason = format!(
+            "the campaigns ran different configurations, so their times do not compare: {} (current instead of \
+             baseline); compare campaigns of the same preset and overrides",
+            differ.join("; ")
+        );
+        return Ok(report);
     }
     let ba = base.analyse(args.pin.as_deref());
     let ca = cur.analyse(args.pin.as_deref());
@@ -485,16 +498,26 @@ fn check_line(c: &Check) -> String {
     };
     let what = if c.unit == "s" { "time/step" } else { "efficiency" };
     let p = c.p_worse_holm.or(c.p_worse).zip(c.p_better_holm.or(c.p_better));
+    let change = 100.0 * c.worse_by.abs();
+    let words = match (c.unit == "s", c.worse_by > 0.0) {
+        (true, true) => format!("{change:.1} % slower"),
+        (true, false) => format!("{change:.1} % faster"),
+        (false, true) => format!("{change:.1} % less efficient"),
+        (false, false) => format!("{change:.1} % more efficient"),
+    };
+    let ratio = if c.ratio.lo == c.ratio.hi {
+        format!("{:.3}", c.ratio.value)
+    } else {
+        format!("{:.3} [{:.3}, {:.3}]", c.ratio.value, c.ratio.lo, c.ratio.hi)
+    };
     format!(
-        "  {tag:<10} {:<20} {:<8} {what:<10} baseline {} (n={}) current {} (n={}) ratio {} x ({:+.1} % worse){}{}",
+        "  {tag:<10} {:<20} {:<8} {what:<10} baseline {} (n={}) current {} (n={}) ratio {ratio} x ({words}){}{}",
         c.cell.to_string(),
         c.stage.name(),
         with_unit(c.baseline, c.unit),
         c.baseline_reps,
         with_unit(c.current, c.unit),
         c.current_reps,
-        c.ratio.show(3),
-        100.0 * c.worse_by,
         p.map_or(String::new(), |(w, b)| format!(", p worse {w:.3} better {b:.3}")),
         if c.gated { "" } else { " (oversubscribed: not gated)" }
     )

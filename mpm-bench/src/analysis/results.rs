@@ -1,6 +1,7 @@
 //! Campaign folders on disk: finding them under a results tree and reading one (its
 //! `runs.csv`, `manifest.json` and `bandwidth.json`) for the analysis commands.
 
+use super::select::{select, Configurations, LeftOut, RowFilter};
 use super::stats::{Analysis, StatsOptions};
 use crate::campaign::manifest::{self, Manifest};
 use crate::campaign::record::{read_rows, Row};
@@ -23,6 +24,11 @@ pub struct Campaign {
     pub manifest: Option<Manifest>,
     /// `bandwidth.json`, when present and readable.
     pub bandwidth: Option<BandwidthReport>,
+    /// Rows the selection rule left out, and why ([`super::select`]).
+    pub left_out: Vec<LeftOut>,
+    /// The configuration (scenario, grid, physics, budget) of each model and optimisation
+    /// level's rows.
+    pub configurations: Configurations,
 }
 
 impl Campaign {
@@ -44,20 +50,12 @@ impl Campaign {
             .unwrap_or_else(|| "unknown".into())
     }
 
-    /// The campaign without its `host_noisy` rows (unless `include_noisy`), saying on
-    /// stderr how many were left out. Claims and regress use it; figures keep the rows and
-    /// draw them grey.
-    pub fn without_noisy(mut self, include_noisy: bool) -> Self {
-        let noisy = self.all_rows().filter(|r| r.host.host_noisy).count();
-        if noisy > 0 && !include_noisy {
-            self.rows.retain(|r| !r.host.host_noisy);
-            self.hybrid.retain(|r| !r.host.host_noisy);
-            eprintln!(
-                "note: {}: left out {noisy} row(s) measured on a busy host (host_noisy; --include-noisy keeps them)",
-                self.dir.display()
-            );
+    /// Say on stderr what the selection rule left out of `what` (figures, claims, regress,
+    /// report) and why.
+    pub fn note_left_out(&self, what: &str) {
+        for l in &self.left_out {
+            eprintln!("note: {}: {what} leaves out {}", self.dir.display(), l.describe());
         }
-        self
     }
 
     /// Say on stderr that `what` (claims, regress) leaves out the rows over several ranks,
@@ -155,10 +153,12 @@ pub fn resolve_campaign(dir: &Path) -> Result<PathBuf> {
     }
 }
 
-/// Read the campaign `dir` names (see [`resolve_campaign`]): rows, manifest, bandwidth.
-pub fn load_campaign(dir: &Path) -> Result<Campaign> {
+/// Read the campaign `dir` names (see [`resolve_campaign`]): rows, manifest, bandwidth; the
+/// rows an analysis uses by the one rule of [`super::select`] with `filter`, and what it left
+/// out.
+pub fn load_campaign(dir: &Path, filter: &RowFilter) -> Result<Campaign> {
     let dir = resolve_campaign(dir)?;
-    let rows = read_rows(&dir.join("runs.csv"))?;
+    let (rows, left_out, configurations) = select(read_rows(&dir.join("runs.csv"))?, filter);
     let mpath = dir.join("manifest.json");
     let manifest = if mpath.is_file() {
         match manifest::read(&mpath) {
@@ -184,5 +184,5 @@ pub fn load_campaign(dir: &Path) -> Result<Campaign> {
         None
     };
     let (rows, hybrid) = Campaign::split(rows);
-    Ok(Campaign { dir, rows, hybrid, manifest, bandwidth })
+    Ok(Campaign { dir, rows, hybrid, manifest, bandwidth, left_out, configurations })
 }

@@ -354,6 +354,25 @@ impl fmt::Display for CellKey {
     }
 }
 
+/// How far a speedup may exceed the cores a run had before it is flagged: 20 % for
+/// superlinear cache effects (a model whose working set fits the caches of T cores and not
+/// of one). Above that the figure is not scaling but a measurement error (a warm-up counted
+/// in one run and not the other, a slowed base run): flagged on the point, in points.csv
+/// and in the tables, never drawn as plain data.
+pub const SUPERLINEAR_MARGIN: f64 = 1.2;
+
+/// The cores a run had: its distinct pinned CPUs, else its workers.
+pub fn cores_of(r: &Row) -> usize {
+    let mut c = r.placement.requested_cpus.clone();
+    c.sort_unstable();
+    c.dedup();
+    if c.is_empty() {
+        r.threads()
+    } else {
+        c.len()
+    }
+}
+
 /// The raw measurements of one cell.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Cell {
@@ -371,6 +390,10 @@ pub struct Cell {
     pub mem_estimate: u64,
     /// Particles of the model (from any row).
     pub particles: Option<u64>,
+    /// The most cores any measured repetition had ([`cores_of`]).
+    pub cores: usize,
+    /// Measured repetitions without steady-state stage times (rows before CSV schema 6).
+    pub no_steady_stages: usize,
     /// Mean grid nodes over the steps (median over `ok` rows).
     pub mean_nodes: Option<f64>,
 }
@@ -402,6 +425,8 @@ impl Cell {
         };
         self.times[0].push(total);
         self.noisy += usize::from(r.host.host_noisy);
+        self.cores = self.cores.max(cores_of(r));
+        self.no_steady_stages += usize::from(r.measured.steady_grid_stage_s.is_none());
         for (i, st) in [Stage::Grid, Stage::Particle].into_iter().enumerate() {
             if let Some(t) = st.time_per_step(r) {
                 self.times[i + 1].push(t);
@@ -442,12 +467,16 @@ pub struct Point {
     pub oversubscribed: bool,
     /// Some repetition of the cell or of its base was measured on a busy host.
     pub noisy: bool,
+    /// Why the point is not plain data (a speedup above the cores the run had, beyond
+    /// [`SUPERLINEAR_MARGIN`]); empty when it is.
+    pub flags: Vec<String>,
 }
 
 impl Point {
-    /// A point that is evidence of scaling: more than one thread, not oversubscribed.
+    /// A point that is evidence of scaling: more than one thread, not oversubscribed, not
+    /// flagged.
     pub fn is_real_parallel(&self) -> bool {
-        self.key.threads > 1 && !self.oversubscribed
+        self.key.threads > 1 && !self.oversubscribed && self.flags.is_empty()
     }
 }
 
@@ -560,6 +589,22 @@ impl Analysis {
             }
         }
         self.points.extend(points);
+        let old: usize = self.cells.values().map(|c| c.no_steady_stages).sum();
+        if old > 0 {
+            self.notes.push(format!(
+                "{old} measured row(s) have no steady-state stage times (CSV schema before 6: their stage \
+                 seconds include the warm-up): their grid-node and particle stage points are left out"
+            ));
+        }
+        let flagged = self.points.iter().filter(|p| !p.flags.is_empty()).count();
+        if flagged > 0 {
+            self.notes.push(format!(
+                "{flagged} point(s) flagged: a speedup above the cores the run had (more than {:.0} % beyond, more \
+                 than cache effects explain); drawn with a cross, listed with the reason in points.csv, never \
+                 counted as scaling",
+                (SUPERLINEAR_MARGIN - 1.0) * 100.0
+            ));
+        }
         if !missing_base.is_empty() {
             self.notes.push(format!(
                 "no one-thread run (ok) for {}: no speedup there",
@@ -594,7 +639,29 @@ impl Analysis {
             None => (None, None),
         };
         let efficiency = speedup.map(|s| s.scale(1.0 / key.threads as f64));
-        Point { key: key.clone(), stage, time, base, speedup, efficiency, oversubscribed: cell.oversubscribed, noisy }
+        let cores = cell.cores.max(1);
+        let flags = speedup
+            .filter(|s| s.value > SUPERLINEAR_MARGIN * cores as f64)
+            .map(|s| {
+                format!(
+                    "speedup {:.2} above the {cores} core(s) the run had (more than the {:.0} % cache effects allow)",
+                    s.value,
+                    (SUPERLINEAR_MARGIN - 1.0) * 100.0
+                )
+            })
+            .into_iter()
+            .collect();
+        Point {
+            key: key.clone(),
+            stage,
+            time,
+            base,
+            speedup,
+            efficiency,
+            oversubscribed: cell.oversubscribed,
+            noisy,
+            flags,
+        }
     }
 
     /// The point of a cell and stage.

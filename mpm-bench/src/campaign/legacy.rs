@@ -473,15 +473,9 @@ impl LegacyRow {
     }
 }
 
-/// Read the rows of a schema 1-5 CSV's complete part (`bytes`), checking its header.
-pub fn parse_legacy(bytes: &[u8], path: &std::path::Path) -> Result<Vec<Row>> {
-    let mut r = csv::ReaderBuilder::new().has_headers(true).from_reader(bytes);
-    let have: Vec<String> = r
-        .headers()
-        .with_context(|| format!("cannot read the header of {}", path.display()))?
-        .iter()
-        .map(str::to_string)
-        .collect();
+/// Check the header `have` of a schema 1-5 CSV (`path`, for the message): every column of
+/// schema 5 but those added since schema 1.
+pub fn check_legacy_header(have: &[String], path: &std::path::Path) -> Result<()> {
     let want = legacy_header();
     let missing: Vec<&str> = want
         .iter()
@@ -496,12 +490,13 @@ pub fn parse_legacy(bytes: &[u8], path: &std::path::Path) -> Result<Vec<Row>> {
             missing.join(", ")
         );
     }
-    let mut rows = Vec::new();
-    for (i, rec) in r.deserialize::<LegacyRow>().enumerate() {
-        let old = rec.with_context(|| format!("{}: bad row {}", path.display(), i + 2))?;
-        rows.push(old.into_row().with_context(|| format!("{}: row {}", path.display(), i + 2))?);
-    }
-    Ok(rows)
+    Ok(())
+}
+
+/// Today's row of one schema 1-5 record under `headers`.
+pub fn parse_legacy_record(headers: &csv::StringRecord, rec: &csv::StringRecord) -> Result<Row> {
+    let old: LegacyRow = rec.deserialize(Some(headers)).map_err(|e| anyhow!("{e}"))?;
+    old.into_row()
 }
 
 /// The header of the last legacy schema (5), in column order.

@@ -305,7 +305,13 @@ impl Campaign {
             (None, None) => None,
         };
         c.timeout = match &c.preset.timeout {
-            Some(t) => Some(humantime::parse_duration(t).map_err(|e| anyhow!("preset timeout '{t}': {e}"))?),
+            Some(t) => {
+                let d = humantime::parse_duration(t).map_err(|e| anyhow!("preset timeout '{t}': {e}"))?;
+                if d.is_zero() {
+                    bail!("preset timeout '{t}' would stop every run at once: give a positive duration (e.g. \"30m\")");
+                }
+                Some(d)
+            }
             None => None,
         };
         check_budget(&c.budget)?;

@@ -17,6 +17,7 @@
 pub mod columns;
 pub mod launcher;
 pub mod legacy;
+pub mod lock;
 pub mod manifest;
 pub mod matrix;
 pub mod memory;

@@ -243,9 +243,24 @@ pub fn load_preset(name_or_path: &str, workspace: Option<&Path>) -> Result<(Pres
     Ok((parse_preset(builtin).context("bad built-in preset")?, "builtin".into()))
 }
 
-/// Parse preset TOML.
+/// Parse preset TOML. A list left open is reported by the TOML parser at the line after
+/// it; the message then also names the line that opened it.
 pub fn parse_preset(text: &str) -> Result<Preset> {
-    toml::from_str(text).map_err(|e| anyhow!("{e}"))
+    toml::from_str(text).map_err(|e| {
+        let msg = e.to_string();
+        match (msg.contains("expected `]`"), e.span()) {
+            (true, Some(span)) => {
+                let before = &text[..span.start.min(text.len())];
+                let open =
+                    before.lines().enumerate().filter(|(_, l)| l.matches('[').count() > l.matches(']').count()).last();
+                match open {
+                    Some((i, l)) => anyhow!("{msg}(the list opened on line {}, `{}`, is not closed)", i + 1, l.trim()),
+                    None => anyhow!("{msg}"),
+                }
+            }
+            _ => anyhow!("{msg}"),
+        }
+    })
 }
 
 /// Parse a size such as `8GiB`, `8G`, `512M`, `1000000` (bytes).
@@ -301,5 +316,14 @@ mod tests {
         assert_eq!(parse_seconds("4e-5").unwrap(), 4e-5);
         assert!((parse_seconds("40us").unwrap() - 4e-5).abs() < 1e-15);
         assert!(parse_seconds("-1").is_err());
+    }
+
+    /// A list left open: the parser stops on the next line; the message names the line
+    /// that opened it.
+    #[test]
+    fn an_open_list_is_named_by_its_line() {
+        let text = "name = \"x\"\nmodels = [1]\nthreads = [1, 2\nstrategies = [\"dd\"]\n";
+        let err = parse_preset(text).unwrap_err().to_string();
+        assert!(err.contains("line 3, `threads = [1, 2`, is not closed"), "{err}");
     }
 }

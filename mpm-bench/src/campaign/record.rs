@@ -644,8 +644,29 @@ pub fn complete_len(bytes: &[u8]) -> usize {
     }
 }
 
+/// A line of a results CSV that is not a row (a stray write, a hand edit, a line of another
+/// program): set aside like a torn line, its run redone on resume.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Garbage {
+    /// Line number in the file (1 = the header).
+    pub line: u64,
+    /// Why it is not a row.
+    pub why: String,
+    /// Its bytes, newline included.
+    pub bytes: Vec<u8>,
+}
+
+/// The rows of a CSV's complete part and its garbage lines.
+struct Parsed {
+    rows: Vec<Row>,
+    garbage: Vec<Garbage>,
+    /// Byte ranges of the header and of every good record, in order.
+    good: Vec<std::ops::Range<usize>>,
+}
+
 /// Read every row of a results CSV, checking the header first (files of schemas 1-5 are
-/// converted). A torn last line is left out with a warning (the file is not changed).
+/// converted). A torn last line and garbage lines are left out with a warning (the file is
+/// not changed; resuming the campaign moves them aside and redoes their runs).
 pub fn read_rows(path: &Path) -> Result<Vec<Row>> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot open {}", path.display()))?;
     let good = complete_len(&bytes);
@@ -657,7 +678,44 @@ pub fn read_rows(path: &Path) -> Result<Vec<Row>> {
             bytes.len() - good
         );
     }
-    parse_rows(&bytes[..good], path)
+    let parsed = parse_rows(&bytes[..good], path)?;
+    warn_garbage(path, &parsed.garbage, "resuming the campaign moves them aside and redoes their runs");
+    Ok(parsed.rows)
+}
+
+fn warn_garbage(path: &Path, garbage: &[Garbage], then: &str) {
+    if garbage.is_empty() {
+        return;
+    }
+    let lines: Vec<String> = garbage.iter().map(|g| format!("line {}: {}", g.line, g.why)).collect();
+    eprintln!(
+        "warning: {} has {} line(s) that are not rows, left out ({then}): {}",
+        path.display(),
+        garbage.len(),
+        lines.join("; ")
+    );
+}
+
+/// Move garbage lines of `path` (lines that are not rows of its schema) to
+/// `<name>.garbage-<UTC time>` beside it and rewrite the file with its rows only; say so on
+/// stderr. Returns the new file, if any. Call after [`repair_torn_tail`].
+pub fn repair_garbage(path: &Path) -> Result<Option<PathBuf>> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let good = complete_len(&bytes);
+    let parsed = parse_rows(&bytes[..good], path)?;
+    if parsed.garbage.is_empty() {
+        return Ok(None);
+    }
+    let stamp: String = crate::util::now_rfc3339().chars().filter(|c| c.is_ascii_alphanumeric()).collect();
+    let name = path.file_name().map_or_else(|| "runs.csv".into(), |n| n.to_string_lossy().into_owned());
+    let aside = path.with_file_name(format!("{name}.garbage-{stamp}"));
+    let set_aside: Vec<u8> = parsed.garbage.iter().flat_map(|g| g.bytes.iter().copied()).collect();
+    mpm_cli::atomic::write_atomic(&aside, &set_aside)?;
+    let mut kept: Vec<u8> = parsed.good.iter().flat_map(|r| bytes[r.clone()].iter().copied()).collect();
+    kept.extend_from_slice(&bytes[good..]);
+    mpm_cli::atomic::write_atomic(path, &kept)?;
+    warn_garbage(path, &parsed.garbage, &format!("moved to {}; their runs will be redone", aside.display()));
+    Ok(Some(aside))
 }
 
 /// Move a torn tail of `path` (see [`complete_len`]) to `<name>.torn-<UTC time>` beside it
@@ -694,29 +752,63 @@ fn file_header(bytes: &[u8], path: &Path) -> Result<Vec<String>> {
 }
 
 /// Parse the rows of a CSV's complete part, checking the header first: this schema's
-/// columns (in any order, a subset read as absent), or a schema 1-5 file.
-fn parse_rows(bytes: &[u8], path: &Path) -> Result<Vec<Row>> {
+/// columns (in any order, a subset read as absent), or a schema 1-5 file. A record with
+/// another number of fields than the header, or whose cells are not a row, is garbage.
+fn parse_rows(bytes: &[u8], path: &Path) -> Result<Parsed> {
     let have = file_header(bytes, path)?;
-    if !have.iter().any(|c| c == "run_key") {
-        return super::legacy::parse_legacy(bytes, path);
+    let legacy = !have.iter().any(|c| c == "run_key");
+    if legacy {
+        super::legacy::check_legacy_header(&have, path)?;
+    } else {
+        let want = Row::header();
+        if let Some(extra) = have.iter().find(|c| !want.contains(c)) {
+            bail!(
+                "{} has the column `{extra}`, which this harness (CSV schema {SCHEMA_VERSION}) does not know: it \
+                 was written by a newer version; read it with that one, or move it aside",
+                path.display()
+            );
+        }
     }
-    let want = Row::header();
-    if let Some(extra) = have.iter().find(|c| !want.contains(c)) {
-        bail!(
-            "{} has the column `{extra}`, which this harness (CSV schema {SCHEMA_VERSION}) does not know: it was \
-             written by a newer version; read it with that one, or move it aside",
-            path.display()
-        );
+    let mut r = csv::ReaderBuilder::new().has_headers(true).flexible(true).from_reader(bytes);
+    let headers = r.headers().with_context(|| format!("cannot read the header of {}", path.display()))?.clone();
+    let mut parsed = Parsed { rows: Vec::new(), garbage: Vec::new(), good: Vec::new() };
+    let mut records: Vec<(usize, u64, Result<csv::StringRecord, String>)> = Vec::new();
+    let mut rec = csv::StringRecord::new();
+    loop {
+        let start = r.position().byte() as usize;
+        let line = r.position().line();
+        match r.read_record(&mut rec) {
+            Ok(true) => records.push((start, line, Ok(rec.clone()))),
+            Ok(false) => break,
+            Err(e) => {
+                records.push((start, line, Err(e.to_string())));
+                break;
+            }
+        }
     }
-    let mut r = csv::ReaderBuilder::new().has_headers(true).from_reader(bytes);
-    let mut rows = Vec::new();
-    for (i, rec) in r.records().enumerate() {
-        let rec = rec.with_context(|| format!("{}: bad row {}", path.display(), i + 2))?;
-        let row: Row =
-            Row::layout().parse(&have, &rec).with_context(|| format!("{}: bad row {}", path.display(), i + 2))?;
-        rows.push(row);
+    let header_end = records.first().map_or(bytes.len(), |(s, _, _)| *s);
+    parsed.good.push(0..header_end);
+    for (i, (start, line, rec)) in records.iter().enumerate() {
+        let end = records.get(i + 1).map_or(bytes.len(), |(s, _, _)| *s);
+        let row = rec.as_ref().map_err(String::clone).and_then(|rec| {
+            if rec.len() != headers.len() {
+                return Err(format!("{} fields, the header has {}", rec.len(), headers.len()));
+            }
+            if legacy {
+                super::legacy::parse_legacy_record(&headers, rec).map_err(|e| format!("{e:#}"))
+            } else {
+                Row::layout().parse::<Row>(&have, rec).map_err(|e| format!("{e:#}"))
+            }
+        });
+        match row {
+            Ok(row) => {
+                parsed.rows.push(row);
+                parsed.good.push(*start..end);
+            }
+            Err(why) => parsed.garbage.push(Garbage { line: *line, why, bytes: bytes[*start..end].to_vec() }),
+        }
     }
-    Ok(rows)
+    Ok(parsed)
 }
 
 /// An append-only CSV log: header written once, every row flushed and synced.
@@ -727,10 +819,13 @@ pub struct CsvLog {
 
 impl CsvLog {
     /// Open (creating if needed) `path` for appending. An existing file must carry this
-    /// harness' header; a torn last line is moved aside first ([`repair_torn_tail`]).
+    /// harness' header; a torn last line and garbage lines are moved aside first
+    /// ([`repair_torn_tail`], [`repair_garbage`]).
     pub fn open(path: &Path) -> Result<Self> {
         if path.is_file() {
             repair_torn_tail(path)?;
+            // Rewrites the file (by a rename): before the handle below is opened.
+            repair_garbage(path)?;
         }
         let mut file = OpenOptions::new()
             .read(true)
@@ -747,9 +842,8 @@ impl CsvLog {
             file.write_all(&bytes).with_context(|| format!("cannot write {}", path.display()))?;
             file.sync_data().ok();
         } else {
-            // Validate every row, then demand this schema's exact header: rows appended
-            // under another header would be misread.
-            parse_rows(&text, path)?;
+            // Demand this schema's exact header: rows appended under another header would be
+            // misread.
             if file_header(&text, path)? != Row::header() {
                 bail!(
                     "{} was written by another version of the harness (its columns differ from schema version \

@@ -12,12 +12,15 @@
 //!   recorded; every finished run is already in the CSV, so the campaign resumes later.
 
 use super::launcher;
+use super::lock::FolderLock;
 use super::manifest::{self, BinaryInfo, Manifest, Session};
 use super::matrix::{Campaign, PlannedRun};
 use super::memory::{available_memory, estimate_run_memory, memory_verdict};
 use super::preset::OptLevel;
 use super::process::{remove_stale_temp_files, RunOutput, RunRequest, Runner};
-use super::record::{read_rows, repair_torn_tail, CsvLog, Measured, Row, RunKey, Status, SCHEMA_VERSION};
+use super::record::{
+    read_rows, repair_garbage, repair_torn_tail, CsvLog, Measured, Row, RunKey, Status, SCHEMA_VERSION,
+};
 use super::solver::{workspace_root, Solver};
 use super::watch::{HostWatch, WatchSettings};
 use crate::machine::fingerprint;
@@ -76,8 +79,14 @@ pub struct ExecOptions {
     pub out_root: PathBuf,
     /// Print the plan only.
     pub dry_run: bool,
-    /// Run again configurations whose rows are all failed/invalid/skipped.
+    /// Also run again configurations whose rows are all `skipped` (by the memory guard);
+    /// failed and invalid runs are always run again (a failure is not a result).
     pub retry_failed: bool,
+    /// When another process runs a campaign into the same folder: wait for it (else refuse).
+    pub wait_lock: bool,
+    /// Before the runs, time a short calibration run per optimisation level and print the
+    /// campaign's estimated duration ([`estimate_duration`]).
+    pub eta: bool,
     /// Move an existing `runs.csv` aside and start over.
     pub fresh: bool,
     /// No progress bar, no per-run lines (errors and the summary still print).
@@ -249,6 +258,8 @@ fn refusal(dir: &Path, who: &SessionIdentity, opts: &ExecOptions) -> Result<Opti
 /// The runs of one invocation: the campaign folder, the rows already there and the runs
 /// still to do (with their position in the seeded order).
 struct Plan {
+    /// This process's hold on the folder (none for a dry run): no other campaign writes it.
+    _lock: Option<FolderLock>,
     dir: PathBuf,
     csv_path: PathBuf,
     planned: usize,
@@ -262,16 +273,19 @@ impl Plan {
     /// `--retry-failed`).
     fn of(campaign: &Campaign, machine: &Machine, solvers: &[Solver], opts: &ExecOptions) -> Result<Self> {
         let dir = choose_folder(campaign, machine, &SessionIdentity::of(machine, solvers), opts)?;
+        // The lock before the rows are read: what this session skips, it skips for good.
+        let lock = (!opts.dry_run).then(|| FolderLock::acquire(&dir, opts.wait_lock)).transpose()?;
         let csv_path = dir.join("runs.csv");
         let order = campaign.ordered(campaign.seed);
         if csv_path.is_file() && !opts.fresh && !opts.dry_run {
             repair_torn_tail(&csv_path)?;
+            repair_garbage(&csv_path)?;
         }
         let existing = if csv_path.is_file() && !opts.fresh { read_rows(&csv_path)? } else { Vec::new() };
         let done = done_keys(&existing, opts.retry_failed);
         let planned = order.len();
         let todo = order.into_iter().enumerate().filter(|(_, r)| !done.contains(&r.key())).collect();
-        Ok(Self { dir, csv_path, planned, existing, todo })
+        Ok(Self { _lock: lock, dir, csv_path, planned, existing, todo })
     }
 
     /// `--dry-run`: every run to do with its CPUs, memory estimate and the guard's verdict.
@@ -550,6 +564,76 @@ impl RunContext<'_> {
     }
 }
 
+/// The campaign's duration, estimated from one short calibration run per optimisation level
+/// (Taylor Model 1, serial, 20 steps, 2 of them warm-up: a few seconds): each run costs its
+/// set-up (the calibration's, in proportion to the particles) and its steps x particles x the
+/// calibration's time per particle-step, over the cores it uses (at 80 % efficiency; an
+/// oversubscribed run gets no more than the cores). End-time budgets take their step count
+/// from the calibration's time step scaled with the Taylor model's cell size; the impact's
+/// steps are not estimated.
+pub fn estimate_duration(
+    runner: &mut dyn Runner,
+    solvers: &[Solver],
+    todo: &[(usize, PlannedRun)],
+    json_dir: &Path,
+    cores: usize,
+) -> Result<String> {
+    use std::collections::BTreeMap;
+    let mut calib: BTreeMap<OptLevel, (f64, f64, f64)> = BTreeMap::new(); // ns per ps, setup s per particle, dt
+    for opt in todo.iter().map(|(_, r)| r.opt).collect::<std::collections::BTreeSet<_>>() {
+        let solver = solvers.iter().find(|s| s.opt == opt).ok_or_else(|| anyhow!("no {opt} solver"))?;
+        let mut run = PlannedRun::taylor(1, mpm_core::Strategy::Serial, opt, 1, 20);
+        run.spec.budget.warmup = Some(2);
+        let mut req = RunRequest::new(
+            &run,
+            None,
+            json_dir.join(format!("calibration-{opt}.json")),
+            json_dir.join(format!("calibration-{opt}.spec.toml")),
+        );
+        req.binary = solver.path.clone();
+        req.timeout = Some(Duration::from_secs(300));
+        let out = runner.run(&req);
+        let summary = read_summary(&req.json_path);
+        let _ = std::fs::remove_file(&req.json_path);
+        let _ = std::fs::remove_file(&req.spec_path);
+        let s = summary.map_err(|e| anyhow!("the {opt} calibration run: {e}"))?;
+        let ns = s.ns_per_particle_step.ok_or_else(|| anyhow!("the {opt} calibration run has no steady steps"))?;
+        let setup = (out.process_wall_s - s.wall_s).max(0.0) / s.particles.max(1) as f64;
+        calib.insert(opt, (ns, setup, s.dt_first));
+    }
+    let mut total = 0.0;
+    let mut unknown = 0;
+    for (_, r) in todo {
+        let (ns, setup, dt1) = calib[&r.opt];
+        let size = r.spec.scenario.size();
+        let p = size.particles as f64;
+        let steps = match (r.spec.budget.steps, r.spec.budget.end_time_s, r.spec.scenario) {
+            (Some(n), _, _) => n as f64,
+            (None, Some(t), mpm_spec::Scenario::Taylor(tb)) => {
+                let nz = [48.0, 72.0, 132.0, 264.0][usize::from(tb.model.clamp(1, 4)) - 1];
+                t / (dt1 * 48.0 / nz)
+            }
+            _ => {
+                unknown += 1;
+                continue;
+            }
+        };
+        let workers = r.total_threads();
+        let speed = if workers > 1 { 0.8 * workers.min(cores) as f64 } else { 1.0 };
+        total += p * setup + steps * p * ns * 1e-9 / speed;
+    }
+    let rates: Vec<String> =
+        calib.iter().map(|(o, (ns, _, _))| format!("{ns:.0} ns per particle-step at {o}")).collect();
+    Ok(format!(
+        "estimated duration: about {} for {} run(s){} (from a calibration run of Taylor Model 1, 20 serial steps: {}; \
+         a run costs its steps x particles at that rate over its cores, plus its set-up)",
+        humantime::format_duration(Duration::from_secs(total.round() as u64)),
+        todo.len() - unknown,
+        if unknown > 0 { format!(", {unknown} more not estimated (impact end times)") } else { String::new() },
+        rates.join(", ")
+    ))
+}
+
 /// Add a written row to the session's counts.
 fn count(counts: &mut manifest::SessionCounts, row: &Row) {
     counts.written += 1;
@@ -601,6 +685,12 @@ pub fn execute(
     let mut watch = opts.watch.map(|w| HostWatch::start(w, machine.usable_pus().len()));
     let calibration = watch.as_ref().map(HostWatch::calibration);
     let mut manifest = ManifestLog::start(campaign, machine, solvers, opts, &plan.dir, counts, calibration)?;
+    if opts.eta {
+        match estimate_duration(runner, solvers, &plan.todo, &json_dir, machine.usable_pus().len()) {
+            Ok(eta) => eprintln!("{eta}"),
+            Err(e) => eprintln!("note: no duration estimate: {e:#}"),
+        }
+    }
     let progress = CampaignProgress::new(&plan.todo, !opts.quiet);
     let solver_of: HashMap<OptLevel, &Solver> = solvers.iter().map(|s| (s.opt, s)).collect();
     let mut attempts: HashMap<RunKey, usize> = HashMap::new();
@@ -636,9 +726,14 @@ pub fn execute(
     Ok(ExecSummary { dir: plan.dir, counts, wall })
 }
 
-/// Keys of configurations that need no new run.
-fn done_keys(rows: &[Row], retry_failed: bool) -> HashSet<RunKey> {
-    rows.iter().filter(|r| !retry_failed || r.outcome.status == Status::Ok).map(Row::key).collect()
+/// Keys of configurations that need no new run: those with an `ok` row, and those the
+/// memory guard skipped (unless `retry_skipped`). A failed or invalid run is not a result:
+/// it is run again.
+fn done_keys(rows: &[Row], retry_skipped: bool) -> HashSet<RunKey> {
+    rows.iter()
+        .filter(|r| r.outcome.status == Status::Ok || (r.outcome.status == Status::Skipped && !retry_skipped))
+        .map(Row::key)
+        .collect()
 }
 
 /// Where a run's workers go: the policy's placement of ranks x threads workers.

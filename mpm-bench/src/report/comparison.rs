@@ -17,6 +17,7 @@ use crate::analysis::claims::{self, ClaimResult};
 use crate::analysis::hybrid::HybridAnalysis;
 use crate::analysis::ratio::{self, Comparison};
 use crate::analysis::results::{load_campaign, Campaign};
+use crate::analysis::select::RowFilter;
 use crate::analysis::stats::{self, parallel_strategies, tag, Analysis, Compare, Estimate, Stage, StatsOptions};
 use crate::campaign::record::Status;
 use anyhow::{bail, Context, Result};
@@ -42,6 +43,10 @@ pub struct ReportArgs {
     /// Pinning policy to analyse when a campaign has several (default: close, else the first).
     #[arg(long)]
     pub pin: Option<String>,
+    /// Keep rows measured on a busy host (host_noisy); left out by default, as by figures,
+    /// claims and regress, so the page's claims are `mpm-bench claims`'s.
+    #[arg(long)]
+    pub include_noisy: bool,
 }
 
 /// One campaign with its analysis and claims.
@@ -60,9 +65,41 @@ pub struct Versus {
     pub a: String,
     /// Label of the compared set.
     pub b: String,
+    /// What differs in the software that made the two sets (commits, dirty trees, solver
+    /// binaries), in words; `None` when only the machines differ.
+    pub software_differs: Option<String>,
     /// The ratios, headlines and cells left out.
     #[serde(flatten)]
     pub comparison: Comparison,
+}
+
+/// The software a set's rows were made with: commits (`-dirty` marked) and solver binaries.
+fn software(set: &Set) -> (std::collections::BTreeSet<String>, std::collections::BTreeSet<String>) {
+    let rows = set.campaign.all_rows();
+    let mut commits = std::collections::BTreeSet::new();
+    let mut bins = std::collections::BTreeSet::new();
+    for r in rows {
+        let short: String = r.id.git_commit.chars().take(12).collect();
+        commits.insert(if r.id.git_dirty { format!("{short}-dirty") } else { short });
+        bins.insert(format!("{} {}", r.opt(), r.id.binary_sha256));
+    }
+    (commits, bins)
+}
+
+/// Whether two sets were made by different software, in words.
+fn software_difference(a: &Set, b: &Set) -> Option<String> {
+    let ((ca, ba), (cb, bb)) = (software(a), software(b));
+    let list = |s: &std::collections::BTreeSet<String>| s.iter().cloned().collect::<Vec<_>>().join(", ");
+    let mut why = Vec::new();
+    if ca != cb {
+        why.push(format!("A was built from commit {}, B from {}", list(&ca), list(&cb)));
+    } else if ca.iter().any(|c| c.ends_with("-dirty")) {
+        why.push(format!("both from the uncommitted tree {}, which may differ", list(&ca)));
+    }
+    if ba != bb {
+        why.push(format!("the solver binaries differ (A: {}; B: {})", list(&ba), list(&bb)));
+    }
+    (!why.is_empty()).then(|| why.join("; "))
 }
 
 /// The report: the page and the comparisons it states.
@@ -90,7 +127,9 @@ fn load_sets(args: &ReportArgs) -> Result<Vec<Set>> {
     }
     let mut sets = Vec::new();
     for d in &args.dirs {
-        let c = load_campaign(d).with_context(|| format!("reading results {}", d.display()))?;
+        let c = load_campaign(d, &RowFilter::analysis(args.include_noisy))
+            .with_context(|| format!("reading results {}", d.display()))?;
+        c.note_left_out("report");
         let an = c.analyse(args.pin.as_deref());
         let hybrid = HybridAnalysis::from_rows(&c.rows, &c.hybrid, Some(&an.pin_policy), &StatsOptions::default());
         let cl = claims::evaluate(&c, &an);
@@ -115,6 +154,7 @@ fn sources(args: &ReportArgs, sets: &[Set]) -> Section {
     for (i, set) in sets.iter().enumerate() {
         let role = if i == 0 && sets.len() > 1 { "A (baseline)".to_string() } else { format!("set {}", i + 1) };
         items.push(format!("{role}: {} from {}", set.label, set.campaign.dir.display()));
+        items.extend(set.campaign.left_out.iter().map(|l| format!("{}: left out {}", set.label, l.describe())));
         items.extend(set.analysis.notes.iter().map(|n| format!("{}: note: {n}", set.label)));
     }
     let mut blocks = vec![Block::Para(cmd), Block::List(items)];
@@ -153,6 +193,13 @@ fn comparison_sections(sets: &[Set], cmps: &[Versus]) -> Vec<Section> {
     )];
     let (mut ratios, mut left) = (Vec::new(), Vec::new());
     for v in cmps {
+        if let Some(why) = &v.software_differs {
+            head.push(Block::Para(format!(
+                "Machines and software differ between A = {} and B = {}: {why}. The ratios below mix the two \
+                 effects; to compare hardware alone, run the same commit on both.",
+                v.a, v.b
+            )));
+        }
         let rows = v.comparison.headlines.iter().map(|h| {
             vec![
                 format!("Model{}", h.model),
@@ -401,11 +448,15 @@ pub fn build(args: &ReportArgs) -> Result<Report> {
         .map(|b| Versus {
             a: sets[0].label.clone(),
             b: b.label.clone(),
+            software_differs: software_difference(&sets[0], b),
             comparison: ratio::compare(&sets[0].analysis, &b.analysis, &opts),
         })
         .collect();
-    let title = if sets.len() > 1 {
-        format!("Hardware comparison: {}", sets.iter().map(|s| s.label.as_str()).collect::<Vec<_>>().join(" vs "))
+    let names = sets.iter().map(|s| s.label.as_str()).collect::<Vec<_>>().join(" vs ");
+    let title = if comparisons.iter().any(|v| v.software_differs.is_some()) {
+        format!("Machines and software differ: {names}")
+    } else if sets.len() > 1 {
+        format!("Hardware comparison: {names}")
     } else {
         format!("Hardware report: {}", sets[0].label)
     };

@@ -19,6 +19,7 @@
 use super::plot::{write_png_svg, Line, Panel, PlotPoint};
 use crate::analysis::hybrid::HybridAnalysis;
 use crate::analysis::results::{load_campaign, Campaign};
+use crate::analysis::select::RowFilter;
 use crate::analysis::stats::{parallel_strategies, tag, Analysis, CellKey, Point, Stage, StatsOptions};
 use anyhow::{Context, Result};
 use mpm_core::Strategy;
@@ -45,6 +46,10 @@ pub struct FiguresArgs {
     /// Pinning policy to plot when the campaign has several (default: close, else the first).
     #[arg(long)]
     pub pin: Option<String>,
+    /// Keep rows measured on a busy host (host_noisy), drawn grey; left out by default, as
+    /// by claims, regress and report.
+    #[arg(long)]
+    pub include_noisy: bool,
 }
 
 /// Speedup or efficiency.
@@ -122,7 +127,124 @@ fn plot_point(p: &Point, metric: Metric) -> Option<PlotPoint> {
         Metric::Speedup => p.speedup?,
         Metric::Efficiency => p.efficiency?,
     };
-    Some(PlotPoint { x: p.key.threads as f64, y: e.value, lo: e.lo, hi: e.hi, hollow: p.oversubscribed, grey: p.noisy })
+    Some(PlotPoint {
+        x: p.key.threads as f64,
+        y: e.value,
+        lo: e.lo,
+        hi: e.hi,
+        hollow: p.oversubscribed,
+        grey: p.noisy,
+        flagged: !p.flags.is_empty(),
+    })
+}
+
+/// One point a figure draws: a row of `points.csv`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct FigurePoint {
+    /// File stem: `fig07` .. `fig14`, `fig_memory`.
+    pub figure: String,
+    /// Panel: `total`, `grid`, `particle` (Figures 7-14) or `Model<n>` (memory).
+    pub panel: String,
+    /// Model number.
+    pub model: u32,
+    /// Strategy.
+    pub strategy: Strategy,
+    /// Optimisation level.
+    pub opt: String,
+    /// Threads.
+    pub threads: usize,
+    /// `speedup`, `efficiency` or `peak_memory_bytes`.
+    pub metric: String,
+    /// The value drawn (median; a ratio of medians for speedup and efficiency).
+    pub value: f64,
+    /// Its 95 % interval (equal to `value` with one repetition).
+    pub lo: f64,
+    /// Its 95 % interval.
+    pub hi: f64,
+    /// Repetitions behind it.
+    pub reps: usize,
+    /// Drawn hollow: more threads than cores.
+    pub oversubscribed: bool,
+    /// Drawn grey: measured on a busy host.
+    pub noisy: bool,
+    /// Why it is crossed out (empty: plain data).
+    pub flags: String,
+}
+
+/// Every point Figures 7-14 and the memory figure draw, in figure order.
+pub fn figure_points(an: &Analysis) -> Vec<FigurePoint> {
+    let mut out = Vec::new();
+    for spec in &PAPER_FIGURES {
+        for stage in Stage::ALL {
+            for m in an.models() {
+                for p in an.series(m, spec.strategy, spec.opt_level, stage) {
+                    let e = match spec.metric {
+                        Metric::Speedup => p.speedup,
+                        Metric::Efficiency => p.efficiency,
+                    };
+                    let Some(e) = e else { continue };
+                    out.push(FigurePoint {
+                        figure: spec.stem(),
+                        panel: stage.name().to_string(),
+                        model: m,
+                        strategy: spec.strategy,
+                        opt: spec.opt_level.to_string(),
+                        threads: p.key.threads,
+                        metric: match spec.metric {
+                            Metric::Speedup => "speedup",
+                            Metric::Efficiency => "efficiency",
+                        }
+                        .into(),
+                        value: e.value,
+                        lo: e.lo,
+                        hi: e.hi,
+                        reps: e.reps,
+                        oversubscribed: p.oversubscribed,
+                        noisy: p.noisy,
+                        flags: p.flags.join("; "),
+                    });
+                }
+            }
+        }
+    }
+    let o = StatsOptions::default();
+    for m in an.models() {
+        for strategy in parallel_strategies() {
+            for opt in ["o3", "o0"] {
+                for n in an.thread_counts() {
+                    let key = CellKey::new(m, strategy, opt, n);
+                    let (Some(cell), Some(e)) = (an.cells.get(&key), an.memory(&key, &o)) else { continue };
+                    out.push(FigurePoint {
+                        figure: "fig_memory".into(),
+                        panel: format!("Model{m}"),
+                        model: m,
+                        strategy,
+                        opt: opt.into(),
+                        threads: n,
+                        metric: "peak_memory_bytes".into(),
+                        value: e.value,
+                        lo: e.lo,
+                        hi: e.hi,
+                        reps: e.reps,
+                        oversubscribed: cell.oversubscribed,
+                        noisy: cell.noisy > 0,
+                        flags: String::new(),
+                    });
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Write `points` as CSV to `path`.
+fn write_points(path: &Path, points: &[FigurePoint]) -> Result<()> {
+    let mut w = csv::Writer::from_writer(Vec::new());
+    for p in points {
+        w.serialize(p)?;
+    }
+    let bytes = w.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
+    mpm_cli::atomic::write_atomic(path, &bytes).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// The three panels of one of Figures 7-14.
@@ -208,7 +330,10 @@ pub fn footnotes(c: &Campaign, an: &Analysis) -> Vec<String> {
     ]
 }
 
-/// Peak memory (GB) of model `m`, `strat`, `opt` by thread count, and the thread counts
+/// Bytes per GiB.
+const GIB: f64 = (1u64 << 30) as f64;
+
+/// Peak memory (GiB) of model `m`, `strat`, `opt` by thread count, and the thread counts
 /// whose runs were skipped or failed.
 fn memory_points(an: &Analysis, m: u32, strat: Strategy, opt: &str) -> (Vec<PlotPoint>, Vec<String>) {
     let o = StatsOptions::default();
@@ -220,11 +345,12 @@ fn memory_points(an: &Analysis, m: u32, strat: Strategy, opt: &str) -> (Vec<Plot
         match an.memory(&key, &o) {
             Some(e) => pts.push(PlotPoint {
                 x: n as f64,
-                y: e.value / 1e9,
-                lo: e.lo / 1e9,
-                hi: e.hi / 1e9,
+                y: e.value / GIB,
+                lo: e.lo / GIB,
+                hi: e.hi / GIB,
                 hollow: cell.oversubscribed,
                 grey: cell.noisy > 0,
+                flagged: false,
             }),
             None if !cell.not_ok.is_empty() => skipped.push(n.to_string()),
             None => {}
@@ -233,7 +359,7 @@ fn memory_points(an: &Analysis, m: u32, strat: Strategy, opt: &str) -> (Vec<Plot
     (pts, skipped)
 }
 
-/// The memory panel of model `m`: AE and DD (solid O3, dashed O0), in MB for small models.
+/// The memory panel of model `m`: AE and DD (solid O3, dashed O0), in MiB for small models.
 fn memory_panel(an: &Analysis, m: u32, x_max: f64) -> Panel {
     let mut lines = Vec::new();
     let mut notes = Vec::new();
@@ -268,8 +394,8 @@ fn memory_panel(an: &Analysis, m: u32, x_max: f64) -> Panel {
             });
         }
     }
-    // GB, or MB for small models.
-    let (unit, k) = if top < 1.0 { ("MB", 1e3) } else { ("GB", 1.0) };
+    // GiB, or MiB for small models.
+    let (unit, k) = if top < 1.0 { ("MiB", 1024.0) } else { ("GiB", 1.0) };
     for l in &mut lines {
         for p in &mut l.points {
             (p.y, p.lo, p.hi) = (p.y * k, p.lo * k, p.hi * k);
@@ -350,6 +476,9 @@ pub fn write_all(c: &Campaign, an: &Analysis, out: &Path, command: &str) -> Resu
             &notes,
         )?);
     }
+    let points = out.join("points.csv");
+    write_points(&points, &figure_points(an))?;
+    files.push(points);
     let readme = out.join("README.md");
     std::fs::write(&readme, readme_text(c, an, &hybrid, command))
         .with_context(|| format!("cannot write {}", readme.display()))?;
@@ -382,6 +511,10 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
         let _ = writeln!(s, "| {}.png / .svg | {} |", spec.stem(), spec.title());
     }
     let _ = writeln!(s, "| fig_memory.png / .svg | Peak memory vs threads, AE vs DD, per model (claims C2, C6) |");
+    let _ = writeln!(
+        s,
+        "| points.csv | every point of these figures: figure, panel, model, strategy, opt level, threads, metric, value, interval, repetitions, flags |"
+    );
     if !hybrid.points.is_empty() {
         let _ = writeln!(
             s,
@@ -423,7 +556,8 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
 
 /// `mpm-bench figures`.
 pub fn run(args: FiguresArgs) -> Result<()> {
-    let c = load_campaign(&args.results)?;
+    let c = load_campaign(&args.results, &RowFilter::analysis(args.include_noisy))?;
+    c.note_left_out("figures");
     let an = c.analyse(args.pin.as_deref());
     if an.points.is_empty() {
         eprintln!("warning: campaign {} has no ok run: the figures will be empty", c.dir.display());

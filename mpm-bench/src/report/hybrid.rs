@@ -89,7 +89,15 @@ fn panel(h: &HybridAnalysis, model: u32, strategy: Strategy, opt: &str, metric: 
                 .into_iter()
                 .filter_map(|p| {
                     let (y, lo, hi) = value(p, metric)?;
-                    Some(PlotPoint { x: p.cores() as f64, y, lo, hi, hollow: p.oversubscribed, grey: p.noisy })
+                    Some(PlotPoint {
+                        x: p.cores() as f64,
+                        y,
+                        lo,
+                        hi,
+                        hollow: p.oversubscribed,
+                        grey: p.noisy,
+                        flagged: false,
+                    })
                 })
                 .collect(),
         })
@@ -182,7 +190,7 @@ pub fn table(h: &HybridAnalysis) -> (Vec<String>, Vec<Vec<String>>) {
                     (_, Some(f)) => format!("{:.1} %", 100.0 * f),
                     (_, None) => "not measured".into(),
                 },
-                p.comm_bytes_per_step.map_or("-".into(), |b| format!("{:.2} MB", b / 1e6)),
+                p.comm_bytes_per_step.map_or("-".into(), |b| format!("{:.2} MiB", b / 1048576.0)),
                 p.memory_sum_bytes.map_or("-".into(), |b| format!("{:.0} MiB", b / (1u64 << 20) as f64)),
                 p.reps.to_string(),
             ]

@@ -27,6 +27,7 @@ fn line(r: &ImbalanceReport, label: &str, i: usize, pick: fn(&ImbalanceRow) -> (
                 hi: max,
                 hollow: false,
                 grey: false,
+                flagged: false,
             }
         })
         .collect();

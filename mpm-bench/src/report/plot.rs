@@ -42,7 +42,13 @@ pub struct PlotPoint {
     pub hollow: bool,
     /// Drawn grey (measured on a busy host, `host_noisy`).
     pub grey: bool,
+    /// Crossed out in red: flagged (e.g. a speedup above the cores the run had), not plain
+    /// data.
+    pub flagged: bool,
 }
+
+/// Colour of the cross over a flagged point.
+pub const FLAG_RED: RGBColor = RGBColor(220, 0, 0);
 
 /// Colour of the markers of points measured on a busy host.
 pub const NOISY_GREY: RGBColor = RGBColor(150, 150, 150);
@@ -117,6 +123,14 @@ fn draw_marker<DB: DrawingBackend>(
                 chart.draw_series(std::iter::once(EmptyElement::at(at) + Polygon::new(pts, style))).map_err(pe)?
             }
         };
+    }
+    if p.flagged {
+        let style = ShapeStyle { color: FLAG_RED.to_rgba(), filled: false, stroke_width: 3 };
+        for (d0, d1) in [((-9, -9), (9, 9)), ((-9, 9), (9, -9))] {
+            chart
+                .draw_series(std::iter::once(EmptyElement::at(at) + PathElement::new(vec![d0, d1], style)))
+                .map_err(pe)?;
+        }
     }
     Ok(())
 }
@@ -258,6 +272,9 @@ fn draw_legend<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panels: &[Pane
     }
     if panels.iter().any(|p| p.lines.iter().any(|l| l.points.iter().any(|q| q.grey))) {
         items.push(("grey marker: measured on a busy host (host_noisy)".into(), None, false));
+    }
+    if panels.iter().any(|p| p.lines.iter().any(|l| l.points.iter().any(|q| q.flagged))) {
+        items.push(("red cross: flagged, not data (speedup above the cores; see points.csv)".into(), None, false));
     }
     let widths: Vec<i32> = items
         .iter()

@@ -63,7 +63,15 @@ fn panel(sets: &[Set], m: u32, strategy: Strategy, opt: &str, metric: Metric) ->
                 .filter_map(|p| {
                     let parts = set.analysis.cells.get(&p.key).and_then(|c| c.particles);
                     let (y, lo, hi) = metric.of(p, parts)?;
-                    Some(PlotPoint { x: p.key.threads as f64, y, lo, hi, hollow: p.oversubscribed, grey: p.noisy })
+                    Some(PlotPoint {
+                        x: p.key.threads as f64,
+                        y,
+                        lo,
+                        hi,
+                        hollow: p.oversubscribed,
+                        grey: p.noisy,
+                        flagged: !p.flags.is_empty(),
+                    })
                 })
                 .collect(),
         })

@@ -128,7 +128,7 @@ fn ranks(s: &Summary) -> Vec<String> {
             let e = &r.exchange;
             let per_step = |x: u64| x as f64 / r.steps.max(1) as f64;
             format!(
-                "rank {}: CPUs {:?}{}, {} particles ({} sent away), {}, exchange {:.3} s{}, peak RSS {}; per step {:.3} MB halo in {:.0} messages, {:.0} migration messages",
+                "rank {}: CPUs {:?}{}, {} particles ({} sent away), {}, exchange {:.3} s{}, peak RSS {}; per step {:.3} MiB halo in {:.0} messages, {:.0} migration messages",
                 r.rank,
                 r.cpus,
                 if r.oversubscribed { " (shared: oversubscribed)" } else { "" },
@@ -138,7 +138,7 @@ fn ranks(s: &Summary) -> Vec<String> {
                 e.seconds,
                 e.wait_seconds.map_or(String::new(), |w| format!(" (+ {w:.3} s waiting for other ranks)")),
                 r.peak_rss_bytes.map_or("unknown".to_string(), |b| format!("{:.1} MiB", b as f64 / 1048576.0)),
-                per_step(e.halo_bytes) / 1e6,
+                per_step(e.halo_bytes) / 1048576.0,
                 per_step(e.halo_messages),
                 per_step(e.migration_messages),
             )
