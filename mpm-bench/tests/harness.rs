@@ -390,14 +390,21 @@ substages.remap_assembly,substages.stress_update,steady_steps,steady_wall_s,stea
 steady_particle_stage_s,steady_substages.grid_fit,steady_substages.binning,steady_substages.scatter,\
 steady_substages.assembly,steady_substages.grid_update,steady_substages.gather,\
 steady_substages.remap_scatter,steady_substages.remap_assembly,steady_substages.stress_update,\
-steady_s_per_step,ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,\
-dd_work_imbalance,peak_rss_bytes,peak_rss_sum_bytes,rank_particles,rank_busy_imbalance,\
-migrated_particles,comm_s_per_step,comm_frac,wait_s_per_step,wait_frac,comm_bytes_per_step,\
-comm_messages_per_step,kinetic_energy_initial_j,kinetic_energy_j,internal_energy_j,initial_length_m,\
-final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,failed_particles,host_load1_before,\
-host_load1_after,host_others_running_before,host_others_running_after,host_cpus_busy_before,\
-host_cpus_busy_after,host_steal_frac,calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,status,\
-reason,exit_code,process_wall_s,mem_estimate_bytes";
+simd_level,roofline.grid_fit.gb_per_s,roofline.grid_fit.gflop_per_s,roofline.binning.gb_per_s,\
+roofline.binning.gflop_per_s,roofline.scatter.gb_per_s,roofline.scatter.gflop_per_s,\
+roofline.assembly.gb_per_s,roofline.assembly.gflop_per_s,roofline.grid_update.gb_per_s,\
+roofline.grid_update.gflop_per_s,roofline.gather.gb_per_s,roofline.gather.gflop_per_s,\
+roofline.remap_scatter.gb_per_s,roofline.remap_scatter.gflop_per_s,roofline.remap_assembly.gb_per_s,\
+roofline.remap_assembly.gflop_per_s,roofline.stress_update.gb_per_s,\
+roofline.stress_update.gflop_per_s,steady_s_per_step,ns_per_particle_step,particle_steps_per_s,\
+worker_busy_s,load_imbalance,dd_work_imbalance,peak_rss_bytes,peak_rss_sum_bytes,rank_particles,\
+rank_busy_imbalance,migrated_particles,comm_s_per_step,comm_frac,wait_s_per_step,wait_frac,\
+comm_bytes_per_step,comm_messages_per_step,kinetic_energy_initial_j,kinetic_energy_j,\
+internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
+failed_particles,host_load1_before,host_load1_after,host_others_running_before,\
+host_others_running_after,host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,\
+calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,status,reason,exit_code,process_wall_s,\
+mem_estimate_bytes";
     assert_eq!(Row::header().join(","), want);
 }
 

@@ -12,8 +12,8 @@ use mpm_core::scenario::plate::{PlateGeometry, PlateResult};
 use mpm_core::scenario::taylor::TaylorFigures;
 use mpm_core::{Simulation, StageTimes};
 use mpm_spec::summary::{
-    load_imbalance, EndReason, EnergyReport, EosKind, HistoryPoint, PatchCounts, StageSeconds, Summary, WallContact,
-    LENGTH_CONVENTION, PLATE_CONFIGURATION,
+    load_imbalance, EndReason, EnergyReport, EosKind, HistoryPoint, PatchCounts, StageRoofline, StageSeconds, Summary,
+    WallContact, LENGTH_CONVENTION, PLATE_CONFIGURATION,
 };
 use mpm_spec::{OptLevel, RunSpec};
 
@@ -249,6 +249,24 @@ fn fill_timing(s: &mut Summary, sim: &Simulation, t: &Timing) {
     s.steady_grid_stage_s = steady_times.grid_stage();
     s.steady_particle_stage_s = steady_times.particle_stage();
     s.steady_substages = StageSeconds::from_times(&steady_times);
+    s.simd_level = Some(sim.simd_level());
+    s.roofline = (steady_steps > 0).then(|| {
+        let nodes = sim.mean_nodes();
+        mpm_core::roofline::achieved(&steady_times, particles as u64, nodes, steady_steps)
+            .iter()
+            .zip(mpm_core::Substage::ALL)
+            .map(|(a, st)| {
+                let r = StageRoofline {
+                    bytes_per_particle_step: a.bytes_per_particle_step,
+                    flops_per_particle_step: a.flops_per_particle_step,
+                    ns_per_particle_step: a.ns_per_particle_step,
+                    gb_per_s: a.gb_per_s,
+                    gflop_per_s: a.gflop_per_s,
+                };
+                (st, r)
+            })
+            .collect()
+    });
     s.steady_s_per_step = (steady_steps > 0).then(|| steady_wall / steady_steps as f64);
     s.ns_per_particle_step = ns;
     s.particle_steps_per_s = rate;

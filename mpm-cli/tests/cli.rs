@@ -163,6 +163,8 @@ fn table2_counts_of_model_4() {
 
 const REQUIRED_KEYS: &[&str] = &[
     "spec",
+    "roofline",
+    "simd_level",
     "scenario",
     "model",
     "model_name",
@@ -460,7 +462,7 @@ fn dd_on_two_pinned_workers_reports_their_cpus_and_stage_times() {
     assert_eq!(v["dd_layout"], serde_json::json!([2, 1, 1]));
     assert!(f(&v, "grid_stage_s") > 0.0);
     assert!(f(&v, "particle_stage_s") > 0.0);
-    for s in ["binning", "scatter", "assembly", "gather", "stress_update"] {
+    for s in ["binning", "scatter", "assembly", "remap_scatter", "stress_update"] {
         assert!(v["substages"][s].as_f64().unwrap() > 0.0, "{s}");
     }
     // Both workers worked in the steady steps, and no more than the steady wall time.

@@ -1,6 +1,7 @@
 //! Criterion micro-benchmarks of the solver's kernels on the Taylor bar:
 #![allow(missing_docs)] // criterion_group! generates undocumented items
-//! P2G scatter, G2P gather, stress update (serial, Model 1), and the parallel strategies'
+//! P2G scatter, the gather fused with the re-map scatter, stress update (serial, Model 1,
+//! at the widest SIMD level of the CPU), and the parallel strategies'
 //! own work: AE assembly, DD binning and DD assembly (Model 2, 2 threads). The parallel
 //! kernels run as phases of one parallel region of a `Team`, as in the solver's step.
 //!
@@ -36,15 +37,19 @@ fn serial_kernels(c: &mut Criterion) {
     g.sample_size(20);
 
     let index = NodeIndex::of(&geom, None);
-    let mut out = vec![[0.0; 7]; geom.num_nodes()];
-    g.bench_function("p2g_scatter", |b| {
-        b.iter(|| serial::scatter(&index, n, &mut out, &|p| transfer::p2g(&geom, &particles, [0.0; 3], p)))
-    });
+    let mut out = vec![[0.0; 8]; geom.num_nodes()];
+    let simd = mpm_core::SimdLevel::detected();
+    let p2g = transfer::P2g::<false> { geom: &geom, particles: &particles, body_force: [0.0; 3], simd };
+    g.bench_function("p2g_scatter", |b| b.iter(|| serial::scatter(&index, n, &mut out, black_box(&p2g))));
 
     let kin = sim.nodes().kin.clone();
     let mut v = particles.v.clone();
-    g.bench_function("g2p_gather", |b| {
-        b.iter(|| transfer::gather(&Exec::serial(), &geom, &index, black_box(&kin), &particles.x, &mut v, 0.0))
+    let mut remap = vec![[0.0; 4]; geom.num_nodes()];
+    g.bench_function("gather_remap_scatter", |b| {
+        b.iter(|| {
+            let (x, m) = (&particles.x, &particles.mass);
+            transfer::gather_remap_serial(&geom, &index, black_box(&kin), x, m, &mut v, 0.0, &mut remap)
+        })
     });
 
     let consts = *sim.point_consts();
@@ -53,7 +58,20 @@ fn serial_kernels(c: &mut Criterion) {
     g.bench_function("stress_update", |b| {
         b.iter_batched_ref(
             || particles.clone(),
-            |p| transfer::update(&Exec::serial(), &geom, &index, sim.nodes(), p, &consts, &eos, 1e-9, &mut partials),
+            |p| {
+                transfer::update(
+                    &Exec::serial(),
+                    &geom,
+                    &index,
+                    sim.nodes(),
+                    p,
+                    &consts,
+                    &eos,
+                    1e-9,
+                    &mut partials,
+                    mpm_core::SimdLevel::detected(),
+                )
+            },
             BatchSize::LargeInput,
         )
     });
@@ -84,8 +102,8 @@ fn strategy_kernels(c: &mut Criterion) {
     let mut g = c.benchmark_group("model2-2threads");
     g.sample_size(20);
 
-    let copies = vec![[1.0; 7]; threads * nn];
-    let mut global = vec![[0.0; 7]; nn];
+    let copies = vec![[1.0; 8]; threads * nn];
+    let mut global = vec![[0.0; 8]; nn];
     g.throughput(Throughput::Elements(nn as u64));
     g.bench_function("ae_assembly", |b| {
         b.iter_custom(|iters| {
@@ -99,7 +117,7 @@ fn strategy_kernels(c: &mut Criterion) {
         b.iter_custom(|iters| in_region(&team, &pool, iters, |exec| dd.prepare(exec, &geom, None, black_box(&x))))
     });
 
-    let subgrids = vec![[1.0; 7]; dd.subgrid_nodes()];
+    let subgrids = vec![[1.0; 8]; dd.subgrid_nodes()];
     g.throughput(Throughput::Elements(nn as u64));
     g.bench_function("dd_assembly", |b| {
         b.iter_custom(|iters| {

@@ -15,17 +15,19 @@
 //! the capacity, so steady-state steps do not allocate.
 
 use crate::blocks::BlockMap;
+use crate::capacity_bytes;
 use crate::math::Vec3;
 use crate::shape::{self, Shape};
-use crate::{capacity_bytes, resize_with_headroom};
 use serde::{Deserialize, Serialize};
 
-/// Values per node of the P2G scatter (Eqs. 1-5): mass, momentum (3), force (3).
-pub const P2G_WIDTH: usize = 7;
+/// Values per node of the P2G scatter (Eqs. 1-5): mass, momentum (3), force (3), and one
+/// unused value that makes the record 64 bytes, one cache line ([`Records`]).
+pub const P2G_WIDTH: usize = 8;
 /// Values per node after the grid update (Eq. 6): velocity (3), acceleration (3).
 pub const KIN_WIDTH: usize = 6;
-/// Values per node of the MUSL re-map (Eq. 11): momentum (3), turned into velocity.
-pub const REMAP_WIDTH: usize = 3;
+/// Values per node of the MUSL re-map (Eq. 11): momentum (3), turned into velocity, and one
+/// unused value, so that a record is one 4-lane vector (32 bytes, half a cache line).
+pub const REMAP_WIDTH: usize = 4;
 
 /// How the grid follows the particles.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
@@ -261,6 +263,24 @@ impl<'a> CellNodes<'a> {
     }
 }
 
+/// The records of the 8 nodes `idx` in `data`, with one bounds check for the 8 (on the
+/// largest index: each index is at most that, so the compiler drops the other 7).
+#[inline(always)]
+pub fn records<'a, T, const K: usize>(data: &'a [[T; K]], idx: &[usize; 8]) -> [&'a [T; K]; 8] {
+    let top = idx.iter().fold(0, |m, &i| m.max(i));
+    let data = &data[..=top];
+    [
+        &data[idx[0]],
+        &data[idx[1]],
+        &data[idx[2]],
+        &data[idx[3]],
+        &data[idx[4]],
+        &data[idx[5]],
+        &data[idx[6]],
+        &data[idx[7]],
+    ]
+}
+
 /// What a wall does to the nodes on it (paper Eq. 6: momentum and force are zeroed).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -369,31 +389,102 @@ impl WallLayers {
     }
 }
 
+/// Node records of `K` values, the array starting on a 64-byte boundary (a cache line), so
+/// that an 8-value record (the P2G record) is exactly one cache line and never two. Reads
+/// and writes as a slice of records (`Deref`). The storage is a `Vec<f64>` with up to 7
+/// values of slack in front, viewed in whole records (`bytemuck::cast_slice`, checked):
+/// no unsafe code here.
+#[derive(Clone, Debug, Default)]
+pub struct Records<const K: usize> {
+    buf: Vec<f64>,
+    /// Values of slack before the first record (where the 64-byte boundary is).
+    off: usize,
+    len: usize,
+}
+
+impl<const K: usize> Records<K> {
+    /// `n` zeroed records.
+    pub fn zeroed(n: usize) -> Self {
+        let mut r = Self::default();
+        r.resize(n);
+        r
+    }
+
+    /// Resize to `n` records (new ones zero), keeping the values of the first ones. When the
+    /// storage must grow, its capacity becomes `n` plus an eighth, not the doubling of
+    /// `Vec::resize`: the node arrays of a growing debris cloud grow step after step, and
+    /// doubling would leave up to half of their memory unused (the large impact model's
+    /// budget is 3 GiB). They never shrink, so steady-state steps do not allocate.
+    pub fn resize(&mut self, n: usize) {
+        const SLACK: usize = 7;
+        if n == 0 {
+            // Nothing to hold (the serial strategy's scatter buffers): no allocation.
+            self.len = 0;
+            return;
+        }
+        if n * K + SLACK > self.buf.capacity() {
+            let want = (n + n / 8) * K + SLACK;
+            let mut buf = Vec::with_capacity(want);
+            buf.resize(want, 0.0);
+            let off = buf.as_ptr().align_offset(64).min(SLACK);
+            let keep = self.len.min(n) * K;
+            buf[off..off + keep].copy_from_slice(&self.buf[self.off..self.off + keep]);
+            (self.buf, self.off) = (buf, off);
+        } else if n > self.len {
+            let end = self.off + n * K;
+            if self.buf.len() < end {
+                self.buf.resize(end, 0.0);
+            }
+            self.buf[self.off + self.len * K..end].fill(0.0);
+        }
+        self.len = n;
+    }
+
+    /// Bytes held (by capacity).
+    pub fn bytes(&self) -> usize {
+        capacity_bytes(&self.buf)
+    }
+}
+
+impl<const K: usize> std::ops::Deref for Records<K> {
+    type Target = [[f64; K]];
+    fn deref(&self) -> &[[f64; K]] {
+        bytemuck::cast_slice(&self.buf[self.off..self.off + self.len * K])
+    }
+}
+
+impl<const K: usize> std::ops::DerefMut for Records<K> {
+    fn deref_mut(&mut self) -> &mut [[f64; K]] {
+        bytemuck::cast_slice_mut(&mut self.buf[self.off..self.off + self.len * K])
+    }
+}
+
 /// Nodal arrays of the global grid.
 #[derive(Clone, Debug, Default)]
 pub struct NodeArrays {
-    /// `[m, p_x, p_y, p_z, f_x, f_y, f_z]` per node: the scatter of Eqs. 1-5.
-    pub p2g: Vec<[f64; P2G_WIDTH]>,
+    /// `[m, p_x, p_y, p_z, f_x, f_y, f_z, 0]` per node: the scatter of Eqs. 1-5, one cache
+    /// line per node.
+    pub p2g: Records<P2G_WIDTH>,
     /// `[v_x, v_y, v_z, a_x, a_y, a_z]` per node after Eq. 6: `v = p(k+1)/m`, `a = f/m`.
     /// After the re-map ([`crate::transfer::remap_velocity`]) the last three hold the
     /// mid-step velocity `(v_i(k) + v_i(k+1)) / 2` instead of `a`.
-    pub kin: Vec<[f64; KIN_WIDTH]>,
-    /// Re-mapped momentum of Eq. 11, turned into the re-mapped velocity in place.
-    pub remap: Vec<[f64; REMAP_WIDTH]>,
+    pub kin: Records<KIN_WIDTH>,
+    /// Re-mapped momentum of Eq. 11, turned into the re-mapped velocity in place (`[p, 0]`).
+    pub remap: Records<REMAP_WIDTH>,
 }
 
 impl NodeArrays {
     /// Resize to `n` nodes, growing capacity only when needed (by an eighth more than
     /// needed).
     pub fn resize(&mut self, n: usize) {
-        resize_with_headroom(&mut self.p2g, n, [0.0; P2G_WIDTH]);
-        resize_with_headroom(&mut self.kin, n, [0.0; KIN_WIDTH]);
-        resize_with_headroom(&mut self.remap, n, [0.0; REMAP_WIDTH]);
+        self.p2g.resize(n);
+        self.kin.resize(n);
+        self.remap.resize(n);
     }
 
     /// Bytes held (by capacity).
     pub fn bytes(&self) -> usize {
-        capacity_bytes(&self.p2g) + capacity_bytes(&self.kin) + capacity_bytes(&self.remap)
+        self.p2g.bytes() + self.kin.bytes() + self.remap.bytes()
     }
 }
 
@@ -468,6 +559,30 @@ mod tests {
         let o = Occupancy::of(&g, &x);
         assert_eq!(o, Occupancy { cells: 2000, occupied_cells: 4, occupied_blocks: 3, block_cells: 8 });
         assert_eq!(Occupancy::of(&g, &[]).occupied_cells, 0);
+    }
+
+    /// Records start on a cache line at every size, keep their values when the storage
+    /// grows, grow by an eighth, and reuse the storage when they shrink and grow again.
+    #[test]
+    fn records_are_cache_line_aligned_and_keep_their_values() {
+        let mut r = Records::<8>::default();
+        for n in [1usize, 3, 17, 100, 1000, 5000, 20_000] {
+            let before: Vec<[f64; 8]> = r.to_vec();
+            r.resize(n);
+            assert_eq!(r.len(), n);
+            assert_eq!(r.as_ptr() as usize % 64, 0, "{n} records");
+            assert_eq!(&r[..before.len()], &before[..], "values kept growing to {n}");
+            assert!(r[before.len()..].iter().all(|v| *v == [0.0; 8]), "new records are zero");
+            for (i, v) in r.iter_mut().enumerate() {
+                v[i % 8] = i as f64 + 0.5;
+            }
+            assert!(r.bytes() <= (n + n / 8) * 64 + 56, "{n}: {} bytes", r.bytes());
+        }
+        let (ptr, bytes) = (r.as_ptr(), r.bytes());
+        r.resize(10);
+        r.resize(20_000);
+        assert_eq!((r.as_ptr(), r.bytes()), (ptr, bytes), "shrinking and regrowing reallocates nothing");
+        assert!(r[10..].iter().all(|v| *v == [0.0; 8]), "regrown records are zero");
     }
 
     #[test]

@@ -48,8 +48,10 @@ pub mod material;
 pub mod math;
 pub mod parallel;
 pub mod particles;
+pub mod roofline;
 pub mod scenario;
 pub mod shape;
+pub mod simd;
 pub mod solver;
 pub mod strategy;
 pub mod timers;
@@ -61,20 +63,10 @@ pub use grid::{GridGeom, GridMode, GridSpec, NodeIndex, Wall, WallKind};
 pub use material::{BulkViscosity, Material, MgForm};
 pub use particles::Particles;
 pub use scenario::Setup;
+pub use simd::SimdLevel;
 pub use solver::{Diagnostics, SimConfig, Simulation, DEFAULT_CFL, DEFAULT_ENERGY_RISE_LIMIT};
 pub use strategy::{MemoryModel, Strategy};
 pub use timers::{StageTimes, Substage};
-
-/// Resize `v` to `n` elements (new ones `value`). When it must grow, its capacity becomes
-/// `n` plus an eighth, not the doubling of `Vec::resize`: the node arrays of a growing
-/// debris cloud grow step after step, and doubling would leave up to half of their memory
-/// unused (the large impact model's budget is 3 GiB).
-pub(crate) fn resize_with_headroom<T: Clone>(v: &mut Vec<T>, n: usize, value: T) {
-    if n > v.capacity() {
-        v.reserve_exact(n + n / 8 - v.len());
-    }
-    v.resize(n, value);
-}
 
 /// Bytes held by `v`'s allocation (its capacity, not its length).
 pub(crate) fn capacity_bytes<T>(v: &Vec<T>) -> usize {

@@ -4,6 +4,8 @@
 //! Voigt order `[xx, yy, zz, yz, zx, xy]`, which is also the order of the stress columns in
 //! every output of this workspace.
 
+use crate::simd::Real;
+
 /// A 3-vector in SI units.
 pub type Vec3 = [f64; 3];
 
@@ -16,29 +18,29 @@ pub fn norm(a: Vec3) -> f64 {
     (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
 }
 
-/// Trace of a symmetric tensor.
+/// Trace of a symmetric tensor (of one particle, `f64`, or of a block, [`crate::simd::F4`]).
 #[inline(always)]
-pub fn trace(s: &Sym) -> f64 {
+pub fn trace<R: Real>(s: &[R; 6]) -> R {
     s[0] + s[1] + s[2]
 }
 
 /// Deviatoric part `s - tr(s)/3 I`.
 #[inline(always)]
-pub fn deviator(s: &Sym) -> Sym {
-    let m = trace(s) / 3.0;
+pub fn deviator<R: Real>(s: &[R; 6]) -> [R; 6] {
+    let m = trace(s) / R::splat(3.0);
     [s[0] - m, s[1] - m, s[2] - m, s[3], s[4], s[5]]
 }
 
 /// Double contraction `a : b` of two symmetric tensors.
 #[inline(always)]
-pub fn ddot(a: &Sym, b: &Sym) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + 2.0 * (a[3] * b[3] + a[4] * b[4] + a[5] * b[5])
+pub fn ddot<R: Real>(a: &[R; 6], b: &[R; 6]) -> R {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + R::splat(2.0) * (a[3] * b[3] + a[4] * b[4] + a[5] * b[5])
 }
 
 /// Von Mises equivalent `sqrt(3/2 s:s)` of a deviatoric tensor `s`.
 #[inline(always)]
-pub fn von_mises(dev: &Sym) -> f64 {
-    (1.5 * ddot(dev, dev)).sqrt()
+pub fn von_mises<R: Real>(dev: &[R; 6]) -> R {
+    (R::splat(1.5) * ddot(dev, dev)).sqrt()
 }
 
 /// `sigma . t` for a symmetric `sigma` (traction on the plane with normal `t`).
@@ -56,7 +58,7 @@ pub fn sym_mul_vec(s: &Sym, t: Vec3) -> Vec3 {
 ///
 /// The result is symmetric; it is returned in Voigt order.
 #[inline(always)]
-pub fn jaumann(s: &Sym, w: Vec3) -> Sym {
+pub fn jaumann<R: Real>(s: &[R; 6], w: [R; 3]) -> [R; 6] {
     let (wyz, wzx, wxy) = (w[0], w[1], w[2]);
     // Full matrices: W = [[0, wxy, -wzx], [-wxy, 0, wyz], [wzx, -wyz, 0]]
     // S = [[sxx, sxy, szx], [sxy, syy, syz], [szx, syz, szz]]
@@ -72,7 +74,8 @@ pub fn jaumann(s: &Sym, w: Vec3) -> Sym {
     let m21 = wzx * sxy - wyz * syy;
     let m22 = wzx * szx - wyz * syz;
     // W S - S W = M + M^T (since S W = -(W S)^T for antisymmetric W)
-    [2.0 * m00, 2.0 * m11, 2.0 * m22, m12 + m21, m20 + m02, m01 + m10]
+    let two = R::splat(2.0);
+    [two * m00, two * m11, two * m22, m12 + m21, m20 + m02, m01 + m10]
 }
 
 #[cfg(test)]

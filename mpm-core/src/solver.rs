@@ -24,15 +24,18 @@ use crate::blocks::BlockMap;
 use crate::energy::{EnergyBalance, Partial};
 use crate::error::SimError;
 use crate::exchange::{reduce_partial, Exchange, SingleProcess};
-use crate::grid::{GridGeom, GridMode, GridSpec, NodeArrays, NodeIndex, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH};
+use crate::grid::{
+    GridGeom, GridMode, GridSpec, NodeArrays, NodeIndex, Records, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH,
+};
 use crate::material::{BulkViscosity, Eos, Material, PointConsts};
 use crate::math::{norm, Vec3};
 use crate::parallel::{Exec, RegionError, Team};
 use crate::particles::Particles;
 use crate::scenario::Setup;
+use crate::simd::SimdLevel;
 use crate::strategy::{DomainDecomposition, Engine, Strategy};
 use crate::timers::{Lap, StageTimes, Substage};
-use crate::{capacity_bytes, transfer};
+use crate::transfer;
 use rayon::ThreadPool;
 use serde::Serialize;
 use std::sync::Arc;
@@ -71,6 +74,9 @@ pub struct SimConfig {
     pub bulk_viscosity: BulkViscosity,
     /// Largest adaptive grid allowed (nodes).
     pub max_nodes: usize,
+    /// The instruction-set level of the particle kernels ([`crate::simd`]); `None` (the
+    /// default): the widest this CPU has. Every level gives bitwise the same results.
+    pub simd: Option<SimdLevel>,
 }
 
 impl Default for SimConfig {
@@ -85,6 +91,7 @@ impl Default for SimConfig {
             energy_rise_limit: DEFAULT_ENERGY_RISE_LIMIT,
             bulk_viscosity: BulkViscosity::default(),
             max_nodes: 1 << 26,
+            simd: None,
         }
     }
 }
@@ -133,9 +140,9 @@ pub struct Simulation {
     engine: Engine,
     /// Each worker's part of the P2G scatter before assembly (AE copies or DD sub-grids);
     /// empty for the serial strategy, which scatters into `nodes.p2g` directly.
-    p2g_parts: Vec<[f64; P2G_WIDTH]>,
+    p2g_parts: Records<P2G_WIDTH>,
     /// The same for the re-map scatter.
-    remap_parts: Vec<[f64; REMAP_WIDTH]>,
+    remap_parts: Records<REMAP_WIDTH>,
     partials: Vec<Partial>,
     consts: PointConsts,
     mass_tol: f64,
@@ -152,6 +159,8 @@ pub struct Simulation {
     poisoned: Option<u64>,
     /// Whether [`Simulation::release_grid_arrays`] freed the arrays a step needs.
     released: bool,
+    /// The instruction-set level the particle kernels run at (available on this CPU).
+    simd: SimdLevel,
     /// The workers of the parallel strategies, built once; `None` for the serial strategy.
     /// Shared (`Arc`) only so that a step can hold the team while it borrows the rest of
     /// the simulation mutably.
@@ -187,6 +196,13 @@ impl Simulation {
         }
         config.bulk_viscosity.validate()?;
         setup.material.validate()?;
+        let simd = config.simd.unwrap_or_else(SimdLevel::detected);
+        if !simd.is_available() {
+            return Err(SimError::Config(format!(
+                "this CPU cannot run the particle kernels at SIMD level {simd}: the widest it has is {}",
+                SimdLevel::detected()
+            )));
+        }
         let Setup { mut particles, material, grid: spec, walls, spacing, part, .. } = setup;
         let (bbox, ids) = match part {
             Some(p) => ((p.lo, p.hi), Some(p.ids)),
@@ -272,8 +288,8 @@ impl Simulation {
             geom,
             nodes,
             blocks,
-            p2g_parts: vec![[0.0; P2G_WIDTH]; parts_len],
-            remap_parts: vec![[0.0; REMAP_WIDTH]; parts_len],
+            p2g_parts: Records::zeroed(parts_len),
+            remap_parts: Records::zeroed(parts_len),
             time: 0.0,
             steps: 0,
             dt_next: dt,
@@ -286,6 +302,7 @@ impl Simulation {
             times: StageTimes::default(),
             poisoned: None,
             released: false,
+            simd,
             team: config.strategy.is_parallel().then(|| Arc::new(Team::new(config.threads))),
             config,
         })
@@ -407,6 +424,12 @@ impl Simulation {
         &self.balance
     }
 
+    /// The instruction-set level the particle kernels run at ([`SimConfig::simd`], or the
+    /// widest this CPU has).
+    pub fn simd_level(&self) -> SimdLevel {
+        self.simd
+    }
+
     /// The per-particle constants the stress update runs with (material and viscosity).
     pub fn point_consts(&self) -> &PointConsts {
         &self.consts
@@ -441,8 +464,8 @@ impl Simulation {
     pub fn memory_bytes(&self) -> usize {
         self.particles.bytes()
             + self.nodes.bytes()
-            + capacity_bytes(&self.p2g_parts)
-            + capacity_bytes(&self.remap_parts)
+            + self.p2g_parts.bytes()
+            + self.remap_parts.bytes()
             + self.engine.bytes()
             + self.blocks.as_ref().map_or(0, BlockMap::bytes)
     }
@@ -457,8 +480,8 @@ impl Simulation {
         if let Some(map) = &mut self.blocks {
             *map = BlockMap::default();
         }
-        self.p2g_parts = Vec::new();
-        self.remap_parts = Vec::new();
+        self.p2g_parts = Records::default();
+        self.remap_parts = Records::default();
         self.released = true;
     }
 
@@ -532,8 +555,14 @@ impl Simulation {
         let n = self.particles.len();
         // The exchange calls below are no-ops for one process (`SingleProcess`): the sums and
         // maxima over one rank leave every value as it is, bit for bit.
-        let p2g = transfer::P2g { geom: &geom, particles: &self.particles, body_force: self.config.body_force };
-        self.engine.scatter(exec, &geom, &index, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
+        let (particles, body_force) = (&self.particles, self.config.body_force);
+        if body_force == [0.0; 3] {
+            let p2g = transfer::P2g::<false> { geom: &geom, particles, body_force, simd: self.simd };
+            self.engine.scatter(exec, &geom, &index, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
+        } else {
+            let p2g = transfer::P2g::<true> { geom: &geom, particles, body_force, simd: self.simd };
+            self.engine.scatter(exec, &geom, &index, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
+        }
         lap.lap(&mut self.times, Substage::Scatter);
         self.engine.assemble(exec, &geom, &index, &mut self.nodes.p2g, &self.p2g_parts);
         self.exchange.sum_shared_nodes(&geom, self.nodes.p2g.as_flattened_mut(), P2G_WIDTH)?;
@@ -542,10 +571,12 @@ impl Simulation {
         lap.lap(&mut self.times, Substage::GridUpdate);
 
         // ---- particle stage --------------------------------------------------------
-        transfer::gather(exec, &geom, &index, &self.nodes.kin, &self.particles.x, &mut self.particles.v, dt);
-        lap.lap(&mut self.times, Substage::Gather);
-        let remap = transfer::Remap { geom: &geom, particles: &self.particles };
-        self.engine.scatter(exec, &geom, &index, n, &mut self.nodes.remap, &mut self.remap_parts, &remap);
+        // The gather (Eqs. 8, 10) runs inside the re-map scatter (Eq. 11), particle by
+        // particle: its time is the re-map scatter's (`Substage::Gather` stays 0).
+        let NodeArrays { kin, remap, .. } = &mut self.nodes;
+        let Particles { x, v, mass, .. } = &mut self.particles;
+        let gather_remap = transfer::GatherRemap::new(&geom, kin, x, mass, v, dt, self.simd);
+        self.engine.scatter(exec, &geom, &index, n, remap, &mut self.remap_parts, &gather_remap);
         lap.lap(&mut self.times, Substage::RemapScatter);
         self.engine.assemble(exec, &geom, &index, &mut self.nodes.remap, &self.remap_parts);
         self.exchange.sum_shared_nodes(&geom, self.nodes.remap.as_flattened_mut(), REMAP_WIDTH)?;
@@ -553,11 +584,14 @@ impl Simulation {
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
         let (nodes, particles, consts, partials) = (&self.nodes, &mut self.particles, &self.consts, &mut self.partials);
+        let simd = self.simd;
         match self.material.eos {
             Eos::MieGruneisen(ref m) => {
-                transfer::update(exec, &geom, &index, nodes, particles, consts, m, dt, partials)
+                transfer::update(exec, &geom, &index, nodes, particles, consts, m, dt, partials, simd)
             }
-            Eos::Linear(ref l) => transfer::update(exec, &geom, &index, nodes, particles, consts, l, dt, partials),
+            Eos::Linear(ref l) => {
+                transfer::update(exec, &geom, &index, nodes, particles, consts, l, dt, partials, simd)
+            }
         }
         let mut total = Partial::default();
         for p in &self.partials[..exec.workers()] {

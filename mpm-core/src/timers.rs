@@ -20,9 +20,12 @@ pub enum Substage {
     Assembly,
     /// Nodal momentum update and boundary conditions (Eq. 6).
     GridUpdate,
-    /// Particle velocity update from nodal accelerations (Eqs. 8, 10).
+    /// Particle velocity update from nodal accelerations (Eqs. 8, 10). Since the gather runs
+    /// inside the re-map scatter's pass (one pass over the particles), its time is counted
+    /// there and this sub-stage stays at 0; it is kept so that summaries keep their keys.
     Gather,
-    /// MUSL re-map scatter of particle momentum (Eq. 11).
+    /// MUSL re-map scatter of particle momentum (Eq. 11), with the gather (Eqs. 8, 10) of
+    /// each particle just before its scatter.
     RemapScatter,
     /// Assembly of the re-mapped momentum and nodal velocities (Eq. 11).
     RemapAssembly,

@@ -1,87 +1,205 @@
 //! The per-particle and per-node kernels of the MUSL step (Eqs. 1-15), shared by every
-//! strategy. The scatter kernels ([`p2g`], [`remap`]) say what one particle adds to its 8
-//! nodes; the strategy decides where that goes. The other passes are split across workers
-//! by loop splitting (particles) or by node rows (nodes), through an [`Exec`].
+//! strategy. The scatter kernels ([`P2g`]; the gather fused with the re-map,
+//! `GatherRemap`) add what one particle gives its 8 nodes into the node records the
+//! strategy hands them; the strategy decides which particles and which records. The other
+//! passes are split across workers by loop splitting (particles) or by node rows (nodes),
+//! through an [`Exec`].
 //!
-//! They are public so that benchmarks measure exactly the code the solver runs.
+//! They are public (the fused gather through [`gather_remap_serial`]) so that benchmarks
+//! measure exactly the code the solver runs.
 
 use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
 use crate::energy::Partial;
-use crate::grid::{CellNodes, GridGeom, NodeArrays, NodeIndex, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
-use crate::material::{update_point, PointConsts, PointState, PressureModel};
-use crate::math::{sym_mul_vec, Sym, Vec3};
-use crate::parallel::{partition, Exec, Split};
+use crate::grid::{records, CellNodes, GridGeom, NodeArrays, NodeIndex, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
+use crate::material::{update_block, LaneState, PointConsts, PressureModel};
+use crate::math::{Sym, Vec3};
+use crate::parallel::{partition, DisjointSlice, Exec, Split};
 use crate::particles::Particles;
-use crate::strategy::{Contribution, Kernel};
+use crate::shape;
+use crate::simd::{array, Real, SimdLevel, F4, LANES, M4};
+use crate::strategy::{Cursors, Kernel};
 
-/// Eqs. 1-5 for particle `p`: mass `m_p S_ip`, momentum `m_p v_p S_ip` and force
-/// `-V_p sigma_p . G_ip + m_p S_ip b` at its 8 nodes, as `[m, p_x, p_y, p_z, f_x, f_y, f_z]`.
+/// `kernel`'s loop over the particles `ids` at the level `simd`: the copy of the loop compiled
+/// for AVX2 where that is asked for, the baseline one otherwise.
 #[inline(always)]
-pub fn p2g(geom: &GridGeom, particles: &Particles, body_force: Vec3, p: usize) -> Contribution<P2G_WIDTH> {
-    let s = geom.shape(particles.x[p]);
-    let m = particles.mass[p];
-    let vol = m / particles.rho[p];
-    let vp = particles.v[p];
-    let stress = &particles.stress[p];
-    let mut c = [[0.0; P2G_WIDTH]; 8];
-    for q in 0..8 {
-        let t = sym_mul_vec(stress, s.g[q]);
-        let mw = m * s.w[q];
-        c[q] = [
-            mw,
-            mw * vp[0],
-            mw * vp[1],
-            mw * vp[2],
-            mw * body_force[0] - vol * t[0],
-            mw * body_force[1] - vol * t[1],
-            mw * body_force[2] - vol * t[2],
-        ];
+fn scatter_at<const K: usize, Kn: Kernel<K>>(
+    kernel: &Kn,
+    simd: SimdLevel,
+    ids: impl Iterator<Item = usize>,
+    nodes: &mut Cursors<'_>,
+    data: &mut [[f64; K]],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if simd == SimdLevel::Avx2 {
+        assert!(SimdLevel::Avx2.is_available(), "AVX2 asked for on a CPU without it");
+        // SAFETY: `scatter_avx2` is compiled with AVX2 enabled, and the line above has just
+        // checked (through `is_x86_feature_detected!`) that this CPU executes AVX2. The test
+        // `dispatch_levels_agree_bitwise` runs both levels.
+        unsafe { scatter_avx2(kernel, ids, nodes, data) };
+        return;
     }
-    Contribution { cell: s.cell, c }
+    for p in ids {
+        kernel.scatter(p, nodes, data);
+    }
 }
 
-/// Eq. 11 for particle `p`: momentum `m_p v_p(k+1) S_ip` at its 8 nodes.
-#[inline(always)]
-pub fn remap(geom: &GridGeom, particles: &Particles, p: usize) -> Contribution<REMAP_WIDTH> {
-    let s = geom.shape(particles.x[p]);
-    let m = particles.mass[p];
-    let v = particles.v[p];
-    let mv = [m * v[0], m * v[1], m * v[2]];
-    Contribution { cell: s.cell, c: s.w.map(|w| [mv[0] * w, mv[1] * w, mv[2] * w]) }
+/// [`scatter_at`]'s loop compiled for AVX2.
+///
+/// # Safety
+/// The CPU must execute AVX2 (`SimdLevel::Avx2.is_available()`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn scatter_avx2<const K: usize, Kn: Kernel<K>>(
+    kernel: &Kn,
+    ids: impl Iterator<Item = usize>,
+    nodes: &mut Cursors<'_>,
+    data: &mut [[f64; K]],
+) {
+    for p in ids {
+        kernel.scatter(p, nodes, data);
+    }
 }
 
-/// The P2G kernel ([`p2g`]) as a scatter [`Kernel`].
+/// The P2G kernel (Eqs. 1-5) as a scatter [`Kernel`]: particle `p` adds mass `m_p S_ip`,
+/// momentum `m_p v_p S_ip` and force `-V_p sigma_p . G_ip + m_p S_ip b` to its 8 nodes,
+/// straight into their 64-byte records `[m, p_x, p_y, p_z | f_x, f_y, f_z, 0]`, each half one
+/// [`F4`] (one AVX2 register): `m S [1, v]` and `sigma . G = S_x G_x + S_y G_y + S_z G_z`
+/// with the columns `S_b` of the stress, each lane summed in [`crate::math::sym_mul_vec`]'s
+/// order, so every value is bitwise the scalar form's. `BODY` says whether the body force
+/// `b` is on; without it (the paper's problems) its terms are not computed (`f -= V t`,
+/// bitwise `f += 0 - V t`). The strategy's loop runs at the level `simd` (which must be
+/// available on this CPU).
 #[derive(Clone, Copy)]
-pub struct P2g<'a> {
+pub struct P2g<'a, const BODY: bool> {
     /// The grid of this step.
     pub geom: &'a GridGeom,
     /// The particles at step `k`.
     pub particles: &'a Particles,
-    /// Body force per unit mass (m/s^2).
+    /// Body force per unit mass (m/s^2); ignored unless `BODY`.
     pub body_force: Vec3,
+    /// The instruction-set level of the scatter loop.
+    pub simd: SimdLevel,
 }
 
-impl Kernel<P2G_WIDTH> for P2g<'_> {
+impl<const BODY: bool> Kernel<P2G_WIDTH> for P2g<'_, BODY> {
     #[inline(always)]
-    fn contribution(&self, p: usize) -> Contribution<P2G_WIDTH> {
-        p2g(self.geom, self.particles, self.body_force, p)
+    fn scatter(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut [[f64; P2G_WIDTH]]) {
+        let pt = self.particles;
+        let s = self.geom.shape(pt.x[p]);
+        let idx = nodes.target(s.cell);
+        let m = pt.mass[p];
+        let vol = F4::splat(m / pt.rho[p]);
+        let vp = pt.v[p];
+        let st = &pt.stress[p];
+        // sigma . g = S_x g_x + S_y g_y + S_z g_z: the columns of the stress in Voigt order.
+        let columns = [F4([st[0], st[5], st[4], 0.0]), F4([st[5], st[1], st[3], 0.0]), F4([st[4], st[3], st[2], 0.0])];
+        let one_v = F4([1.0, vp[0], vp[1], vp[2]]);
+        let b = F4([self.body_force[0], self.body_force[1], self.body_force[2], 0.0]);
+        for q in 0..8 {
+            let g = s.g[q];
+            let t = columns[0] * F4::splat(g[0]) + columns[1] * F4::splat(g[1]) + columns[2] * F4::splat(g[2]);
+            let mw = F4::splat(m * s.w[q]);
+            let d = &mut data[idx[q]];
+            let lo = F4([d[0], d[1], d[2], d[3]]) + mw * one_v;
+            let f = F4([d[4], d[5], d[6], d[7]]);
+            let hi = if BODY { f + (mw * b - vol * t) } else { f - vol * t };
+            *d = [lo.0[0], lo.0[1], lo.0[2], lo.0[3], hi.0[0], hi.0[1], hi.0[2], hi.0[3]];
+        }
+    }
+
+    #[inline(always)]
+    fn scatter_all(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; P2G_WIDTH]]) {
+        scatter_at(self, self.simd, ids, nodes, data);
     }
 }
 
-/// The re-map kernel ([`remap`]) as a scatter [`Kernel`].
-#[derive(Clone, Copy)]
-pub struct Remap<'a> {
-    /// The grid of this step.
-    pub geom: &'a GridGeom,
-    /// The particles with their updated velocities.
-    pub particles: &'a Particles,
+/// The gather (Eqs. 8, 10: `v_p += dt sum_i S_ip a_i`) and the MUSL re-map scatter (Eq. 11:
+/// `m_p v_p(k+1) S_ip` at the 8 nodes) of particle `p` in one pass: one shape evaluation, one
+/// cell look-up, the particle's data read once. The strategy's scatter calls it once per
+/// particle from the worker that owns it ([`crate::strategy::ScatterStrategy::scatter`]), so
+/// the gather follows the re-map's partition (DD: the patch's particles).
+pub(crate) struct GatherRemap<'a> {
+    geom: &'a GridGeom,
+    /// `[v, a]` per node of the grid (numbered like the grid: `Cursors::both`'s second).
+    kin: &'a [[f64; KIN_WIDTH]],
+    x: &'a [Vec3],
+    mass: &'a [f64],
+    /// The velocities, written by the worker that scatters each particle.
+    v: DisjointSlice<'a, Vec3>,
+    dt: f64,
+    /// The instruction-set level of the scatter loop.
+    simd: SimdLevel,
 }
 
-impl Kernel<REMAP_WIDTH> for Remap<'_> {
-    #[inline(always)]
-    fn contribution(&self, p: usize) -> Contribution<REMAP_WIDTH> {
-        remap(self.geom, self.particles, p)
+impl<'a> GatherRemap<'a> {
+    /// The kernel over the particles at `x` with masses `mass` and velocities `v` (updated
+    /// in place) for nodal accelerations in `kin`.
+    pub(crate) fn new(
+        geom: &'a GridGeom,
+        kin: &'a [[f64; KIN_WIDTH]],
+        x: &'a [Vec3],
+        mass: &'a [f64],
+        v: &'a mut [Vec3],
+        dt: f64,
+        simd: SimdLevel,
+    ) -> Self {
+        assert!(x.len() == v.len() && x.len() == mass.len(), "one position, mass and velocity per particle");
+        Self { geom, kin, x, mass, v: DisjointSlice::new(v), dt, simd }
     }
+}
+
+impl Kernel<REMAP_WIDTH> for GatherRemap<'_> {
+    #[inline(always)]
+    fn scatter_all(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; REMAP_WIDTH]]) {
+        scatter_at(self, self.simd, ids, nodes, data);
+    }
+
+    #[inline(always)]
+    fn scatter(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut [[f64; REMAP_WIDTH]]) {
+        let s = self.geom.shape(self.x[p]);
+        let (target, grid) = nodes.both(s.cell);
+        let mut acc = [0.0; 3];
+        for q in 0..8 {
+            let a = &self.kin[grid[q]];
+            for k in 0..3 {
+                acc[k] += s.w[q] * a[3 + k];
+            }
+        }
+        // SAFETY: the kernel is crate-private and only the crate's three strategies call it,
+        // through `Engine::scatter`; each calls it exactly once per particle per scatter, on
+        // the one worker that owns the particle (serial: 0..n; AE: worker j's chunk
+        // `partition(n, T, j)`; DD: the ids in `Pindex(:, j)`, each particle in one column).
+        // So no other reference to `v[p]` exists during this call. Guarded by the test
+        // `every_strategy_scatters_every_particle_once` (and the equivalence tests).
+        let vp = unsafe { self.v.get_mut(p) };
+        for k in 0..3 {
+            vp[k] += self.dt * acc[k];
+        }
+        let m = self.mass[p];
+        let mv = F4([m * vp[0], m * vp[1], m * vp[2], 0.0]);
+        for q in 0..8 {
+            let d = &mut data[target[q]];
+            *d = (F4(*d) + mv * F4::splat(s.w[q])).0;
+        }
+    }
+}
+
+/// [`GatherRemap`] over every particle in order into `remap` (zeroed first; numbered by
+/// `index`), on the calling thread: the serial strategy's pass, for benchmarks.
+#[allow(clippy::too_many_arguments)]
+pub fn gather_remap_serial(
+    geom: &GridGeom,
+    index: &NodeIndex<'_>,
+    kin: &[[f64; KIN_WIDTH]],
+    x: &[Vec3],
+    mass: &[f64],
+    v: &mut [Vec3],
+    dt: f64,
+    remap: &mut [[f64; REMAP_WIDTH]],
+) {
+    let n = x.len();
+    let kernel = GatherRemap::new(geom, kin, x, mass, v, dt, SimdLevel::detected());
+    crate::strategy::serial::scatter(index, n, remap, &kernel);
 }
 
 /// How the node loops split a grid's nodes between workers: node rows of a dense grid, or
@@ -216,117 +334,11 @@ pub fn remap_velocity(
     });
 }
 
-/// Eqs. 8, 10: `v_p += dt sum_i S_ip a_i`, by loop splitting (`kin` numbered by `index`).
-pub fn gather(
-    exec: &Exec<'_>,
-    geom: &GridGeom,
-    index: &NodeIndex<'_>,
-    kin: &[[f64; KIN_WIDTH]],
-    x: &[Vec3],
-    v: &mut [Vec3],
-    dt: f64,
-) {
-    assert_eq!(x.len(), v.len(), "one velocity per position");
-    let n = x.len();
-    let t = exec.workers();
-    exec.for_each_chunk_mut(Split::Even.of(v), |w, vw| {
-        let mut nodes = CellNodes::new(*index);
-        for (vp, xp) in vw.iter_mut().zip(&x[partition(n, t, w)]) {
-            let s = geom.shape(*xp);
-            let idx = nodes.get(s.cell);
-            let mut acc = [0.0; 3];
-            for q in 0..8 {
-                let a = &kin[idx[q]];
-                for k in 0..3 {
-                    acc[k] += s.w[q] * a[3 + k];
-                }
-            }
-            for k in 0..3 {
-                vp[k] += dt * acc[k];
-            }
-        }
-    });
-}
-
-/// The gradients `L[a][b] = sum_q v_q[a] G_q[b]` of two nodal velocity fields at once: the
-/// re-mapped velocity (`remap`, Eq. 12) and the mid-step velocity (`kin[3..6]` after
-/// [`remap_velocity`]), whose gradient gives the work of the stress. `nodes(q)` returns node
-/// `q`'s `(remap, kin)` rows.
-///
-/// On x86-64 the six components are summed as three pairs in SSE2 registers (18 sums in 9
-/// registers, with room for the operands). As two scalar loops the 18 sums did not fit the
-/// registers of the baseline target and spilled: the mid-step gradient alone made the Taylor
-/// bar step 6.7 % slower. Each sum adds the same products (`mulpd`, then `addpd`: no fused
-/// multiply-add) in the same order `q = 0..8` as the scalar form
-/// ([`gradients_scalar`], used elsewhere), so both give bitwise the same results.
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-fn gradients<'n>(
-    g: &[Vec3; 8],
-    nodes: impl Fn(usize) -> (&'n [f64; REMAP_WIDTH], &'n [f64; KIN_WIDTH]),
-) -> ([[f64; 3]; 3], [[f64; 3]; 3]) {
-    use std::arch::x86_64::{
-        _mm_add_pd, _mm_cvtsd_f64, _mm_mul_pd, _mm_set1_pd, _mm_set_pd, _mm_setzero_pd, _mm_unpackhi_pd,
-    };
-    // SAFETY: these are SSE2 intrinsics, and SSE2 is part of every x86-64 target (the
-    // `target_arch` gate above), so the instructions exist; none of them reads or writes
-    // memory through a pointer (operands are values). The test
-    // `simd_gradients_equal_the_scalar_form_bitwise` checks the result against
-    // `gradients_scalar`.
-    unsafe {
-        // acc[b][c]: along b, components (2c, 2c + 1) of the stacked field [remap, mid].
-        let mut acc = [[_mm_setzero_pd(); 3]; 3];
-        for q in 0..8 {
-            let (vr, vk) = nodes(q);
-            let pairs = [_mm_set_pd(vr[1], vr[0]), _mm_set_pd(vk[3], vr[2]), _mm_set_pd(vk[5], vk[4])];
-            for b in 0..3 {
-                let gb = _mm_set1_pd(g[q][b]);
-                for c in 0..3 {
-                    acc[b][c] = _mm_add_pd(acc[b][c], _mm_mul_pd(pairs[c], gb));
-                }
-            }
-        }
-        let mut out = [[0.0; 3]; 6];
-        for b in 0..3 {
-            for c in 0..3 {
-                out[2 * c][b] = _mm_cvtsd_f64(acc[b][c]);
-                out[2 * c + 1][b] = _mm_cvtsd_f64(_mm_unpackhi_pd(acc[b][c], acc[b][c]));
-            }
-        }
-        ([out[0], out[1], out[2]], [out[3], out[4], out[5]])
-    }
-}
-
-/// [`gradients`] in plain scalar code: the form on other targets, and the reference the
-/// SSE2 form is tested against.
-#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
-#[inline(always)]
-fn gradients_scalar<'n>(
-    g: &[Vec3; 8],
-    nodes: impl Fn(usize) -> (&'n [f64; REMAP_WIDTH], &'n [f64; KIN_WIDTH]),
-) -> ([[f64; 3]; 3], [[f64; 3]; 3]) {
-    let mut l = [[0.0; 3]; 3];
-    let mut lm = [[0.0; 3]; 3];
-    for q in 0..8 {
-        let (vr, vk) = nodes(q);
-        for a in 0..3 {
-            for b in 0..3 {
-                l[a][b] += vr[a] * g[q][b];
-                lm[a][b] += vk[3 + a] * g[q][b];
-            }
-        }
-    }
-    (l, lm)
-}
-
-#[cfg(not(target_arch = "x86_64"))]
-use gradients_scalar as gradients;
-
 /// Eq. 12: the strain increment `dt sym(L)` of the velocity gradient `L` (`L[a][b] =
 /// dv_a / dx_b`), in Voigt order.
 #[inline(always)]
-fn strain_increment(l: &[[f64; 3]; 3], dt: f64) -> Sym {
-    let half_dt = 0.5 * dt;
+fn strain_increment<R: Real>(l: &[[R; 3]; 3], dt: f64) -> [R; 6] {
+    let (dt, half_dt) = (R::splat(dt), R::splat(0.5 * dt));
     [
         dt * l[0][0],
         dt * l[1][1],
@@ -346,6 +358,12 @@ fn strain_increment(l: &[[f64; 3]; 3], dt: f64) -> Sym {
 /// `dt sum_i f_i . (v_i(k) + v_i(k+1)) / 2` (the gather and the re-map use the same shape
 /// functions), so kinetic plus internal energy changes exactly by the work of the body
 /// forces: the energy balance holds to round-off (see [`crate::material::update_point`]).
+///
+/// The particles go through in blocks of [`LANES`]: the increments of each particle of a
+/// block from its nodes, then the material update of the whole block at once
+/// ([`crate::material::update_lanes`], vector instructions at the level `simd`, which must
+/// be available on this CPU), then positions and sums particle by particle in order. Every
+/// value is bitwise that of the particle-by-particle form.
 #[allow(clippy::too_many_arguments)]
 pub fn update<E: PressureModel + Sync>(
     exec: &Exec<'_>,
@@ -357,12 +375,13 @@ pub fn update<E: PressureModel + Sync>(
     eos: &E,
     dt: f64,
     partials: &mut [Partial],
+    simd: SimdLevel,
 ) {
+    assert!(simd.is_available(), "the particle update at SIMD level {simd}, which this CPU does not have");
     let n = particles.len();
     let Particles { x, v, mass, rho, stress, eps_p, e_int, sound, failed } = particles;
     let (v, mass) = (&v[..], &mass[..]);
-    let (kin, remap) = (&nodes.kin, &nodes.remap);
-    let half_dt = 0.5 * dt;
+    let (kin, remap) = (&nodes.kin[..], &nodes.remap[..]);
     let t = exec.workers();
     let chunks = (
         Split::Even.of(x),
@@ -376,104 +395,206 @@ pub fn update<E: PressureModel + Sync>(
     );
     exec.for_each_chunk_mut(chunks, |w, (x, rho, stress, eps_p, e_int, sound, failed, acc)| {
         let r = partition(n, t, w);
-        let mut sum = Partial::default();
-        let mut nodes = CellNodes::new(*index);
-        for k in 0..r.len() {
-            let p = r.start + k;
-            let s = geom.shape(x[k]);
-            let idx = nodes.get(s.cell);
-            let mut vx = [0.0; 3];
-            for q in 0..8 {
-                let vn = &kin[idx[q]];
-                for a in 0..3 {
-                    vx[a] += s.w[q] * vn[a];
-                }
-            }
-            let (l, lm) = gradients(&s.g, |q| (&remap[idx[q]], &kin[idx[q]]));
-            let de = strain_increment(&l, dt);
-            let dw = [half_dt * (l[1][2] - l[2][1]), half_dt * (l[2][0] - l[0][2]), half_dt * (l[0][1] - l[1][0])];
-            let de_mid = strain_increment(&lm, dt);
-            let (signal, floor) = update_point(
-                consts,
-                eos,
-                &de,
-                &de_mid,
-                dw,
-                dt,
-                PointState {
-                    stress: &mut stress[k],
-                    eps_p: &mut eps_p[k],
-                    e_int: &mut e_int[k],
-                    rho: &mut rho[k],
-                    sound: &mut sound[k],
-                    failed: &mut failed[k],
-                },
-            );
-            let xp = &mut x[k];
-            for a in 0..3 {
-                xp[a] += dt * vx[a];
-            }
-            let vp = v[p];
-            let m = mass[p];
-            let v2 = vp[0] * vp[0] + vp[1] * vp[1] + vp[2] * vp[2];
-            sum.kinetic += 0.5 * m * v2;
-            sum.internal += m * e_int[k];
-            sum.negative_internal += u64::from(e_int[k] < -consts.energy_tolerance);
-            if floor > 0.0 {
-                sum.failed_floors += 1;
-                sum.failed_floor_energy += m * floor;
-            }
-            for a in 0..3 {
-                sum.momentum[a] += m * vp[a];
-                sum.lo[a] = sum.lo[a].min(xp[a]);
-                sum.hi[a] = sum.hi[a].max(xp[a]);
-            }
-            sum.max_speed = sum.max_speed.max(signal + v2.sqrt());
-            let finite =
-                (xp[0] + xp[1] + xp[2] + v2 + stress[k][0] + stress[k][1] + stress[k][2] + e_int[k]).is_finite();
-            if !finite {
-                sum.non_finite += 1;
-            }
-        }
-        acc[0] = sum;
+        let mut chunk = UpdateChunk {
+            geom,
+            index: *index,
+            kin,
+            remap,
+            consts,
+            eos,
+            dt,
+            v: &v[r.clone()],
+            mass: &mass[r],
+            x,
+            rho,
+            stress,
+            eps_p,
+            e_int,
+            sound,
+            failed,
+        };
+        acc[0] = chunk.run(simd);
     });
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::shape;
+/// One worker's particles in [`update`]: the shared node arrays and its own particle parts.
+struct UpdateChunk<'a, E> {
+    geom: &'a GridGeom,
+    index: NodeIndex<'a>,
+    kin: &'a [[f64; KIN_WIDTH]],
+    remap: &'a [[f64; REMAP_WIDTH]],
+    consts: &'a PointConsts,
+    eos: &'a E,
+    dt: f64,
+    v: &'a [Vec3],
+    mass: &'a [f64],
+    x: &'a mut [Vec3],
+    rho: &'a mut [f64],
+    stress: &'a mut [Sym],
+    eps_p: &'a mut [f64],
+    e_int: &'a mut [f64],
+    sound: &'a mut [f64],
+    failed: &'a mut [bool],
+}
 
-    /// Deterministic test values spread over many magnitudes and both signs.
-    fn value(i: usize) -> f64 {
-        let u = ((i as f64 + 0.5) * 12.9898).sin() * 43758.5453;
-        let f = u - u.floor();
-        (f - 0.5) * 10f64.powi((i % 9) as i32 - 4)
-    }
-
-    /// The SSE2 form sums the same products in the same order as the scalar form: any
-    /// reordering or fused multiply-add would change the last bits of some of these sums.
-    #[test]
-    fn simd_gradients_equal_the_scalar_form_bitwise() {
-        let mut k = 0;
-        let mut next = || {
-            k += 1;
-            value(k)
-        };
-        for _ in 0..2000 {
-            let x = [next().abs() * 3.0, next().abs() * 3.0, next().abs() * 3.0];
-            let s = shape::evaluate(x, [0.0; 3], 1.7, [100, 100, 100]);
-            let remap: [[f64; REMAP_WIDTH]; 8] = std::array::from_fn(|_| std::array::from_fn(|_| next()));
-            let kin: [[f64; KIN_WIDTH]; 8] = std::array::from_fn(|_| std::array::from_fn(|_| next()));
-            let a = gradients(&s.g, |q| (&remap[q], &kin[q]));
-            let b = gradients_scalar(&s.g, |q| (&remap[q], &kin[q]));
-            for (fa, fb) in [(a.0, b.0), (a.1, b.1)] {
-                for i in 0..3 {
-                    for j in 0..3 {
-                        assert_eq!(fa[i][j].to_bits(), fb[i][j].to_bits(), "component {i}{j} at x = {x:?}");
+impl<E: PressureModel> UpdateChunk<'_, E> {
+    /// The chunk's update at level `simd` (checked available by [`update`]); its sums.
+    fn run(&mut self, simd: SimdLevel) -> Partial {
+        let linear = self.consts.hardening.n == 1.0;
+        match simd {
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx2 => {
+                assert!(SimdLevel::Avx2.is_available(), "AVX2 asked for on a CPU without it");
+                // SAFETY: `run_avx2` is compiled with AVX2 enabled, and the line above has just
+                // checked (through `is_x86_feature_detected!`) that this CPU executes AVX2.
+                // The test `dispatch_levels_agree_bitwise` runs both levels; a call on a CPU
+                // without AVX2 would stop at the assertion, not at an illegal instruction.
+                unsafe {
+                    if linear {
+                        self.run_avx2::<true>()
+                    } else {
+                        self.run_avx2::<false>()
                     }
                 }
             }
+            _ if linear => self.run_lanes::<true>(),
+            _ => self.run_lanes::<false>(),
         }
+    }
+
+    /// [`UpdateChunk::run_lanes`] compiled for AVX2.
+    ///
+    /// # Safety
+    /// The CPU must execute AVX2 (`SimdLevel::Avx2.is_available()`).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn run_avx2<const LINEAR: bool>(&mut self) -> Partial {
+        self.run_lanes::<LINEAR>()
+    }
+
+    /// The chunk in blocks of [`LANES`] particles (the last block's unused lanes repeat its
+    /// last particle and are not written back). Every quantity of a block is one [`F4`],
+    /// lane `l` particle `l`: the shape functions, the sums over the 8 nodes (the nodes'
+    /// values gathered lane by lane), the increments, the material update; then positions
+    /// and sums particle by particle, in order. Each lane computes its particle's values with
+    /// the operations, in the order, of `shape::evaluate` and the scalar sums.
+    #[inline(always)]
+    fn run_lanes<const LINEAR: bool>(&mut self) -> Partial {
+        let dt = self.dt;
+        let n = self.x.len();
+        let g = self.geom;
+        let mut sum = Partial::default();
+        let mut nodes = CellNodes::new(self.index);
+        let mut start = 0;
+        while start < n {
+            let len = LANES.min(n - start);
+            let k: [usize; LANES] = array(|l| start + l.min(len - 1));
+            // Shape functions (shape::evaluate), the cell per lane, the rest on all lanes.
+            let mut r = [[0.0; LANES]; 3];
+            let mut idx = [[0usize; 8]; LANES];
+            for l in 0..LANES {
+                let mut cell = [0usize; 3];
+                for d in 0..3 {
+                    let xi = (self.x[k[l]][d] - g.origin[d]) * g.inv_dx;
+                    cell[d] = shape::axis_cell(xi, g.cells[d]);
+                    r[d][l] = xi - cell[d] as f64;
+                }
+                idx[l] = nodes.get(cell);
+            }
+            let one = F4::splat(1.0);
+            let n1: [F4; 3] = array(|d| F4(r[d]));
+            let n0: [F4; 3] = array(|d| one - n1[d]);
+            let grad = [F4::splat(-g.inv_dx), F4::splat(g.inv_dx)];
+            let nx = [n0[0], n1[0]];
+            let ny = [n0[1], n1[1]];
+            let nz = [n0[2], n1[2]];
+            let kin = [
+                records(self.kin, &idx[0]),
+                records(self.kin, &idx[1]),
+                records(self.kin, &idx[2]),
+                records(self.kin, &idx[3]),
+            ];
+            let remap = [
+                records(self.remap, &idx[0]),
+                records(self.remap, &idx[1]),
+                records(self.remap, &idx[2]),
+                records(self.remap, &idx[3]),
+            ];
+            let zero = F4::splat(0.0);
+            let mut vx = [zero; 3];
+            let mut lv = [[zero; 3]; 3];
+            let mut lm = [[zero; 3]; 3];
+            for c in 0..2 {
+                for b in 0..2 {
+                    for a in 0..2 {
+                        let q = a + 2 * b + 4 * c;
+                        let nyz = ny[b] * nz[c];
+                        let w = nx[a] * nyz;
+                        let gq = [grad[a] * nyz, nx[a] * grad[b] * nz[c], nx[a] * ny[b] * grad[c]];
+                        let kin_q: [F4; KIN_WIDTH] = array(|i| F4::from_lanes(|l| kin[l][q][i]));
+                        let remap_q: [F4; 3] = array(|i| F4::from_lanes(|l| remap[l][q][i]));
+                        for i in 0..3 {
+                            // Eq. 7's velocity, Eq. 12's gradient, the mid-step gradient.
+                            vx[i] = vx[i] + w * kin_q[i];
+                            for j in 0..3 {
+                                lv[i][j] = lv[i][j] + remap_q[i] * gq[j];
+                                lm[i][j] = lm[i][j] + kin_q[3 + i] * gq[j];
+                            }
+                        }
+                    }
+                }
+            }
+            let de = strain_increment(&lv, dt);
+            let half_dt = F4::splat(0.5 * dt);
+            let dw =
+                [half_dt * (lv[1][2] - lv[2][1]), half_dt * (lv[2][0] - lv[0][2]), half_dt * (lv[0][1] - lv[1][0])];
+            let de_mid = strain_increment(&lm, dt);
+            let state = LaneState {
+                stress: array(|i| F4::from_lanes(|l| self.stress[k[l]][i])),
+                eps_p: F4::from_lanes(|l| self.eps_p[k[l]]),
+                e_int: F4::from_lanes(|l| self.e_int[k[l]]),
+                rho: F4::from_lanes(|l| self.rho[k[l]]),
+                sound: F4::from_lanes(|l| self.sound[k[l]]),
+                failed: M4::from_bools(array(|l| self.failed[k[l]])),
+            };
+            let (out, signal, floor) = update_block::<F4, E, LINEAR>(self.consts, self.eos, dt, de, de_mid, dw, state);
+            for l in 0..len {
+                let k = start + l;
+                self.stress[k] = array(|i| out.stress[i].0[l]);
+                let e = out.e_int.0[l];
+                self.eps_p[k] = out.eps_p.0[l];
+                self.e_int[k] = e;
+                self.rho[k] = out.rho.0[l];
+                self.sound[k] = out.sound.0[l];
+                self.failed[k] = out.failed.get(l);
+                let xp = &mut self.x[k];
+                for a in 0..3 {
+                    xp[a] += dt * vx[a].0[l];
+                }
+                let vp = self.v[k];
+                let m = self.mass[k];
+                let v2 = vp[0] * vp[0] + vp[1] * vp[1] + vp[2] * vp[2];
+                sum.kinetic += 0.5 * m * v2;
+                sum.internal += m * e;
+                sum.negative_internal += u64::from(e < -self.consts.energy_tolerance);
+                if floor.0[l] > 0.0 {
+                    sum.failed_floors += 1;
+                    sum.failed_floor_energy += m * floor.0[l];
+                }
+                for a in 0..3 {
+                    sum.momentum[a] += m * vp[a];
+                    sum.lo[a] = sum.lo[a].min(xp[a]);
+                    sum.hi[a] = sum.hi[a].max(xp[a]);
+                }
+                sum.max_speed = sum.max_speed.max(signal.0[l] + v2.sqrt());
+                let st = &self.stress[k];
+                let finite = (xp[0] + xp[1] + xp[2] + v2 + st[0] + st[1] + st[2] + e).is_finite();
+                if !finite {
+                    sum.non_finite += 1;
+                }
+            }
+            start += len;
+        }
+        sum
     }
 }

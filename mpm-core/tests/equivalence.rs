@@ -6,7 +6,7 @@ mod common;
 
 use common::*;
 use mpm_core::scenario::taylor::TaylorBar;
-use mpm_core::{GridMode, Particles, Setup, SimConfig, Simulation, Strategy};
+use mpm_core::{GridMode, Particles, Setup, SimConfig, SimdLevel, Simulation, Strategy};
 
 const THREADS: [usize; 6] = [1, 2, 3, 4, 6, 8];
 
@@ -173,6 +173,52 @@ fn sparse_grid_is_bitwise_the_adaptive_grid() {
                     sparse.stored_nodes(),
                     dense.stored_nodes()
                 );
+            }
+        }
+    }
+}
+
+/// Every bit of every particle array.
+fn bits(p: &Particles) -> Vec<u64> {
+    let flat = |v: &[[f64; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let mut out = [flat(&p.x), flat(&p.v)].concat();
+    out.extend(p.stress.iter().flatten().map(|x| x.to_bits()));
+    for a in [&p.rho, &p.eps_p, &p.e_int, &p.sound, &p.mass] {
+        out.extend(a.iter().map(|x| x.to_bits()));
+    }
+    out.extend(p.failed.iter().map(|&f| u64::from(f)));
+    out
+}
+
+/// The particle kernels at the baseline instruction set and at the widest this CPU has
+/// (AVX2 here) give bitwise the same results: the same operations in the same order on
+/// every lane, no fused multiply-add (see `mpm_core::simd`). On the Taylor bar (plastic
+/// flow at the wall) and the mini impact (failure, the heat-free rule, strong compression),
+/// serial and DD.
+#[test]
+fn dispatch_levels_agree_bitwise() {
+    let widest = SimdLevel::detected();
+    println!("widest SIMD level of this CPU: {widest}");
+    let cases = [(TaylorBar::default().setup().unwrap(), GridMode::Fixed, 40), (mini_impact(), GridMode::Adaptive, 40)];
+    for (setup, grid_mode, steps) in &cases {
+        for (strategy, threads) in [(Strategy::Serial, 1), (Strategy::DomainDecomposition, 2)] {
+            let at = |simd| {
+                let config =
+                    SimConfig { strategy, threads, grid_mode: *grid_mode, simd: Some(simd), ..Default::default() };
+                let mut sim = Simulation::new(setup.clone(), config).unwrap();
+                assert_eq!(sim.simd_level(), simd);
+                let pool = pool(threads);
+                for _ in 0..*steps {
+                    sim.step(&pool, f64::INFINITY).unwrap();
+                }
+                sim
+            };
+            let (base, wide) = (at(SimdLevel::Baseline), at(widest));
+            let what = format!("{} {strategy} x{threads}: baseline vs {widest}", setup.model);
+            assert!(bits(base.particles()) == bits(wide.particles()), "{what}: particles differ");
+            assert_eq!(base.diagnostics(), wide.diagnostics(), "{what}");
+            if setup.model == "mini-impact" {
+                assert!(base.particles().failed_count() > 0, "the impact should fail particles");
             }
         }
     }

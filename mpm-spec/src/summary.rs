@@ -289,6 +289,23 @@ impl StageSeconds {
     }
 }
 
+/// How close one sub-stage ran to the machine's limits in the steady state
+/// ([`mpm_core::roofline`]): what it must move and compute per particle-step, counted from
+/// the code, and the rates it achieved.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StageRoofline {
+    /// Bytes moved per particle-step (node terms weighted by the run's nodes per particle).
+    pub bytes_per_particle_step: f64,
+    /// Floating-point operations per particle-step.
+    pub flops_per_particle_step: f64,
+    /// Nanoseconds per particle-step.
+    pub ns_per_particle_step: f64,
+    /// Achieved bandwidth, 10^9 bytes per second (`null`: no time, or nothing moved).
+    pub gb_per_s: Option<f64>,
+    /// Achieved rate, 10^9 flops per second.
+    pub gflop_per_s: Option<f64>,
+}
+
 /// Largest over mean of per-worker busy times; `None` when empty or all zero.
 pub fn load_imbalance(busy: &[f64]) -> Option<f64> {
     let mean = busy.iter().sum::<f64>() / busy.len() as f64;
@@ -426,6 +443,15 @@ pub struct Summary {
     pub steady_particle_stage_s: f64,
     /// Sub-stages after the warm-up (s).
     pub steady_substages: StageSeconds,
+    /// The instruction-set level the particle kernels ran at (`baseline`, `avx2`); `null` in
+    /// older summaries.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simd_level: Option<mpm_core::simd::SimdLevel>,
+    /// Per sub-stage, the steady state's bytes and flops per particle-step and the GB/s and
+    /// GFLOP/s it achieved ([`StageRoofline`]); `null` without steady steps and in older
+    /// summaries.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub roofline: Option<BTreeMap<Substage, StageRoofline>>,
     /// Steady-state wall time per step (s); `null` without steady steps.
     pub steady_s_per_step: Option<f64>,
     /// Steady-state wall time per particle and step (ns); `null` without steady steps.

@@ -82,7 +82,7 @@ mod tests {
         let ae8 = estimate_memory(ScenarioKind::Taylor, 4, Strategy::ArrayExpansion, 8);
         let dd1 = estimate_memory(ScenarioKind::Taylor, 4, Strategy::DomainDecomposition, 1);
         let dd8 = estimate_memory(ScenarioKind::Taylor, 4, Strategy::DomainDecomposition, 8);
-        assert_eq!(ae8 - ae1, 7 * (80 * 8_302_185 + BYTES_PER_THREAD));
+        assert_eq!(ae8 - ae1, 7 * (108 * 8_302_185 + BYTES_PER_THREAD));
         assert_eq!(dd8 - dd1, 7 * BYTES_PER_THREAD);
         assert_eq!(scenario_size(ScenarioKind::Impact, 1).map(|s| s.particles), Some(847_888));
         assert_eq!(scenario_size(ScenarioKind::Taylor, 5), None);

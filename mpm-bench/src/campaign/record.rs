@@ -34,6 +34,7 @@ use mpm_spec::scenario::{ImpactSpec, PlateSpec, TaylorSpec};
 use mpm_spec::summary::{load_imbalance, EndReason, StageSeconds, Summary};
 use mpm_spec::{OptLevel, RunSpec, Scenario, ScenarioKind};
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -123,6 +124,15 @@ pub struct Placement {
     pub oversubscribed: bool,
 }
 
+/// The rates one sub-stage achieved in the steady state (the summary's `roofline`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Rates {
+    /// 10^9 bytes per second.
+    pub gb_per_s: Option<f64>,
+    /// 10^9 flops per second.
+    pub gflop_per_s: Option<f64>,
+}
+
 /// What the solver measured, from its JSON summary ([`Measured::of`]). Empty for a run
 /// that did not finish.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -164,6 +174,12 @@ pub struct Measured {
     /// Seconds per sub-stage after the warm-up; empty in rows before schema 6.
     #[serde(default)]
     pub steady_substages: StageSeconds,
+    /// The instruction-set level of the particle kernels (`baseline`, `avx2`). Since schema 6.
+    pub simd_level: Option<mpm_core::simd::SimdLevel>,
+    /// Per sub-stage, the rates achieved in the steady state (`roofline.<stage>.gb_per_s`,
+    /// `.gflop_per_s`; see `mpm_core::roofline` for the bytes and flops counted). Since
+    /// schema 6.
+    pub roofline: BTreeMap<Substage, Rates>,
     /// Steady-state wall time per step, warm-up excluded (s).
     pub steady_s_per_step: Option<f64>,
     /// Wall time per particle per step (ns).
@@ -252,6 +268,13 @@ impl Measured {
             steady_grid_stage_s: Some(s.steady_grid_stage_s),
             steady_particle_stage_s: Some(s.steady_particle_stage_s),
             steady_substages: s.steady_substages.clone(),
+            simd_level: s.simd_level,
+            roofline: s
+                .roofline
+                .iter()
+                .flatten()
+                .map(|(&k, r)| (k, Rates { gb_per_s: r.gb_per_s, gflop_per_s: r.gflop_per_s }))
+                .collect(),
             steady_s_per_step: s.steady_s_per_step,
             ns_per_particle_step: s.ns_per_particle_step,
             particle_steps_per_s: s.particle_steps_per_s,
@@ -487,6 +510,11 @@ impl Row {
                         steady_grid_stage_s: Some(0.0),
                         steady_particle_stage_s: Some(0.0),
                         steady_substages: all,
+                        simd_level: Some(mpm_core::simd::SimdLevel::Avx2),
+                        roofline: Substage::ALL
+                            .iter()
+                            .map(|&s| (s, Rates { gb_per_s: Some(0.0), gflop_per_s: Some(0.0) }))
+                            .collect(),
                         steady_s_per_step: Some(0.0),
                         ns_per_particle_step: Some(0.0),
                         particle_steps_per_s: Some(0.0),

@@ -46,6 +46,10 @@ pub struct MachineInfo {
     pub arch: String,
     /// CPU frequency governor(s), `unknown` when not readable (VMs, containers).
     pub cpu_governor: String,
+    /// The first CPU's clock as `/proc/cpuinfo` reports it (MHz; in a VM the host's nominal
+    /// one); `null` when not reported or in manifests written before it existed.
+    #[serde(default)]
+    pub cpu_mhz: Option<f64>,
     /// Full topology as plain data.
     pub topology: Machine,
     /// CPU identity, caches, SMT, hashed machine id (`null` in manifests written before
@@ -98,9 +102,16 @@ pub fn machine_info(m: &Machine) -> MachineInfo {
         kernel: read_trim("/proc/sys/kernel/osrelease").unwrap_or_else(|| "unknown".into()),
         arch: std::env::consts::ARCH.into(),
         cpu_governor: governor(),
+        cpu_mhz: m.is_this_system.then(cpu_mhz).flatten(),
         topology: m.clone(),
         identity,
     }
+}
+
+/// `cpu MHz` of the first processor in `/proc/cpuinfo`.
+fn cpu_mhz() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    text.lines().find_map(|l| l.strip_prefix("cpu MHz")?.split(':').nth(1)?.trim().parse().ok())
 }
 
 fn os_name() -> String {

@@ -19,7 +19,9 @@ use crate::analysis::ratio::{self, Comparison};
 use crate::analysis::results::{load_campaign, Campaign};
 use crate::analysis::select::RowFilter;
 use crate::analysis::stats::{self, parallel_strategies, tag, Analysis, Compare, Estimate, Stage, StatsOptions};
+use crate::campaign::preset::OptLevel;
 use crate::campaign::record::Status;
+use crate::util::median;
 use anyhow::{bail, Context, Result};
 use mpm_core::Strategy;
 use serde::Serialize;
@@ -414,6 +416,114 @@ fn hybrid_section(sets: &[Set]) -> Result<Option<Section>> {
     Ok((blocks.len() > 1).then(|| section("hybrid", "Hybrid MPI x threads: speedup against total cores", blocks)))
 }
 
+/// How close each sub-stage runs to the machine's limits: for each set, the one-thread O3
+/// runs of every model (DD, else serial, else AE), per sub-stage the bytes and flops per
+/// particle-step counted from the code (`mpm_core::roofline`), the achieved GB/s against the
+/// one-thread STREAM triad ceiling of the campaign's `bandwidth.json` and the achieved
+/// GFLOP/s against one core's peak (clock x flops per cycle of the kernels' SIMD level).
+fn roofline_section(sets: &[Set]) -> Section {
+    use mpm_core::Substage;
+    let mut blocks = vec![Block::Para(
+        "Per sub-stage of the steady state, one thread, O3: bytes and flops per particle-step counted from the \
+         code (mpm_core::roofline; node terms weighted by the run's nodes per particle), the achieved rates \
+         (medians over repetitions), their share of the one-thread STREAM triad ceiling (bandwidth.json of the \
+         campaign) and of one core's peak (the clock /proc/cpuinfo reports times the flops per cycle of the \
+         kernels' SIMD level: 8 with AVX2, 4 with SSE2, no fused multiply-add). The stages far from both \
+         ceilings are bound by latency and instruction count, not by the machine's limits."
+            .into(),
+    )];
+    for set in sets {
+        let stream = set
+            .campaign
+            .bandwidth
+            .as_ref()
+            .and_then(|b| b.results.iter().filter(|p| p.threads == 1).map(|p| p.best_gb_s).reduce(f64::max));
+        let mhz = set.campaign.manifest.as_ref().and_then(|m| m.machine.cpu_mhz);
+        let mut rows = Vec::new();
+        for m in set.analysis.models() {
+            let pick = [Strategy::DomainDecomposition, Strategy::Serial, Strategy::ArrayExpansion]
+                .into_iter()
+                .find_map(|st| {
+                    let r: Vec<&crate::campaign::record::Row> = set
+                        .campaign
+                        .rows
+                        .iter()
+                        .filter(|r| {
+                            r.model() == m
+                                && r.strategy() == st
+                                && r.threads() == 1
+                                && r.opt() == OptLevel::O3
+                                && r.outcome.status == crate::campaign::record::Status::Ok
+                                && !r.measured.roofline.is_empty()
+                        })
+                        .collect();
+                    (!r.is_empty()).then_some((st, r))
+                });
+            let Some((st, rs)) = pick else { continue };
+            let per_particle = median(
+                &rs.iter()
+                    .filter_map(|r| Some(r.measured.mean_nodes? / r.measured.particles? as f64))
+                    .collect::<Vec<_>>(),
+            );
+            let peak =
+                rs.iter().find_map(|r| r.measured.simd_level).zip(mhz).map(|(l, f)| f * 1e-3 * l.flops_per_cycle());
+            for s in Substage::ALL {
+                let (bytes, flops) = mpm_core::roofline::cost(s).per_particle_step(per_particle);
+                let med = |f: &dyn Fn(&crate::campaign::record::Rates) -> Option<f64>| {
+                    let v: Vec<f64> = rs.iter().filter_map(|r| r.measured.roofline.get(&s).and_then(f)).collect();
+                    (!v.is_empty()).then(|| median(&v))
+                };
+                let (gb, gf) = (med(&|r| r.gb_per_s), med(&|r| r.gflop_per_s));
+                if gb.is_none() && gf.is_none() {
+                    continue;
+                }
+                let share = |x: Option<f64>, of: Option<f64>| match (x, of) {
+                    (Some(x), Some(c)) if c > 0.0 => format!("{:.0} %", 100.0 * x / c),
+                    _ => "-".into(),
+                };
+                rows.push(vec![
+                    format!("Model{m} {}", tag(st)),
+                    s.name().to_string(),
+                    format!("{bytes:.0}"),
+                    format!("{flops:.0}"),
+                    gb.map_or("-".into(), |g| format!("{g:.2}")),
+                    share(gb, stream),
+                    gf.map_or("-".into(), |g| format!("{g:.2}")),
+                    share(gf, peak),
+                ]);
+            }
+        }
+        let caption = format!(
+            "Roofline on {} (STREAM 1 thread: {}; core peak: {})",
+            set.label,
+            stream
+                .map_or("not measured (run mpm-bench bandwidth --out <campaign>/bandwidth.json)".into(), |g| format!(
+                    "{g:.1} GB/s"
+                )),
+            mhz.map_or("clock not reported".into(), |f| format!("{f:.0} MHz x flops per cycle"))
+        );
+        let heads = [
+            "run",
+            "sub-stage",
+            "bytes/particle-step",
+            "flops/particle-step",
+            "GB/s",
+            "of STREAM",
+            "GFLOP/s",
+            "of peak",
+        ];
+        if rows.is_empty() {
+            blocks.push(Block::Para(format!(
+                "{}: no one-thread O3 run with roofline figures (CSV schema 6).",
+                set.label
+            )));
+        } else {
+            blocks.push(table(&caption, &heads, rows));
+        }
+    }
+    section("roofline", "Roofline: how far each stage is from the machine's limits", blocks)
+}
+
 /// The verdicts side by side, then each set's reasons and evidence.
 fn claims_section(sets: &[Set]) -> Section {
     let mut head = vec!["claim".to_string()];
@@ -475,6 +585,7 @@ pub fn build(args: &ReportArgs) -> Result<Report> {
     sc.extend(report_figures::scaling_figures(&sets)?);
     page.sections.push(section("scaling", "Speedup and efficiency, machines overlaid", sc));
     page.sections.push(memory_section(&sets));
+    page.sections.push(roofline_section(&sets));
     page.sections.extend(hybrid_section(&sets)?);
     page.sections.push(claims_section(&sets));
     page.sections.push(super::machines::machines_section(&sets));

@@ -29,6 +29,7 @@
 //! tangent at `mu_limit`, so a particle that overshoots in a shock sees a large but finite,
 //! increasing pressure.
 
+use crate::simd::Real;
 use serde::{Deserialize, Serialize};
 
 /// Which form of the Mie-Grüneisen EOS to use (see the module docs).
@@ -86,6 +87,13 @@ pub trait PressureModel {
     /// Pressure and `dp/dmu` along an isentrope at compression `mu` and specific internal
     /// energy `e` (J/kg); `dp/dmu / rho0` is the square of the bulk sound speed.
     fn pressure(&self, mu: f64, e: f64) -> (f64, f64);
+
+    /// [`PressureModel::pressure`] at `(mu, e)` and at `(mu, 0)` for one particle (`f64`) or
+    /// a block of them ([`crate::simd::F4`]), without a branch on the state, for the blocked
+    /// particle update ([`super::update_lanes`]): every case of the model is computed and
+    /// the right one selected, with the same operations in the same order as `pressure`, so
+    /// each lane's result is bitwise `pressure`'s.
+    fn pressure_and_heat_free<R: Real>(&self, mu: R, e: R) -> [(R, R); 2];
 }
 
 /// Mie-Grüneisen parameters (paper Tables 1 and 3).
@@ -129,24 +137,28 @@ impl MieGruneisen {
         self.compressed(k0, mu)
     }
 
-    /// The cold part for `0 < mu <= mu_limit` and its derivative.
+    /// The cold part for `0 < mu <= mu_limit` and its derivative (for one particle or a
+    /// block: each constant factor is formed in `f64` as the scalar expression forms it).
     #[inline(always)]
-    fn compressed(&self, k0: f64, mu: f64) -> (f64, f64) {
-        let d = 1.0 - (self.s - 1.0) * mu;
-        let inv_d2 = 1.0 / (d * d);
+    fn compressed<R: Real>(&self, k0: f64, mu: R) -> (R, R) {
+        let one = R::splat(1.0);
+        let d = one - R::splat(self.s - 1.0) * mu;
+        let inv_d2 = one / (d * d);
         let (f, df) = match self.form {
             MgForm::PaperPrinted => {
+                // a = mu + mu^2, b = 1 - (gamma0 / 2) mu; f' = (1 + 2 mu) b - a gamma0 / 2
                 let a = mu + mu * mu;
-                let b = 1.0 - 0.5 * self.gamma0 * mu;
-                (a * b, (1.0 + 2.0 * mu) * b - a * 0.5 * self.gamma0)
+                let b = one - R::splat(0.5 * self.gamma0) * mu;
+                (a * b, (one + R::splat(2.0) * mu) * b - a * R::splat(0.5) * R::splat(self.gamma0))
             }
             MgForm::Hugoniot => {
                 let c = 1.0 - 0.5 * self.gamma0;
-                (mu + c * mu * mu, 1.0 + 2.0 * c * mu)
+                (mu + R::splat(c) * mu * mu, one + R::splat(2.0 * c) * mu)
             }
         };
         // d/dmu [f / d^2] = f'/d^2 + 2 (s - 1) f / d^3
-        (k0 * f * inv_d2, k0 * (df * inv_d2 + 2.0 * (self.s - 1.0) * f * inv_d2 / d))
+        let k0 = R::splat(k0);
+        (k0 * f * inv_d2, k0 * (df * inv_d2 + R::splat(2.0 * (self.s - 1.0)) * f * inv_d2 / d))
     }
 
     /// Pressure at compression `mu` and internal energy per initial volume `e_vol` (Eq. 18).
@@ -155,15 +167,46 @@ impl MieGruneisen {
     }
 }
 
+impl MieGruneisen {
+    /// [`MieGruneisen::cold`] without a branch on `mu`: the three cases (expansion, the
+    /// compressed form, the tangent past `mu_limit`) computed and one selected, each with
+    /// `cold`'s operations (bitwise `cold`, NaN included: no comparison holds for it).
+    #[inline(always)]
+    fn cold_branchless<R: Real>(&self, mu: R) -> (R, R) {
+        let k0 = self.rho0 * self.c0 * self.c0;
+        let lim = self.mu_limit();
+        // The same for every particle: hoisted out of the particle loop.
+        let (p_lim, dp_lim) = self.compressed(k0, lim);
+        let (pc, dpc) = self.compressed(k0, mu);
+        let tangent = R::splat(p_lim) + R::splat(dp_lim) * (mu - R::splat(lim));
+        let below = mu.le(R::splat(0.0));
+        let beyond = mu.gt(R::splat(lim));
+        let p = R::select(below, R::splat(k0) * mu, R::select(beyond, tangent, pc));
+        let dp = R::select(below, R::splat(k0), R::select(beyond, R::splat(dp_lim), dpc));
+        (p, dp)
+    }
+
+    /// The energy term and the isentropic slope on top of the cold part `(pc, dpc)`.
+    #[inline(always)]
+    fn with_energy<R: Real>(&self, (pc, dpc): (R, R), mu: R, e: R) -> (R, R) {
+        let p = pc + R::splat(self.gamma0 * self.rho0) * e;
+        // Along an isentrope de = p dv = -p dmu / (rho0 (1 + mu)^2), so
+        // dp/dmu = dpc/dmu + gamma0 p / (1 + mu)^2.
+        let opm = R::splat(1.0) + mu;
+        (p, dpc + R::splat(self.gamma0) * p / (opm * opm))
+    }
+}
+
 impl PressureModel for MieGruneisen {
     #[inline(always)]
     fn pressure(&self, mu: f64, e: f64) -> (f64, f64) {
-        let (pc, dpc) = self.cold(mu);
-        let p = pc + self.gamma0 * self.rho0 * e;
-        // Along an isentrope de = p dv = -p dmu / (rho0 (1 + mu)^2), so
-        // dp/dmu = dpc/dmu + gamma0 p / (1 + mu)^2.
-        let opm = 1.0 + mu;
-        (p, dpc + self.gamma0 * p / (opm * opm))
+        self.with_energy(self.cold(mu), mu, e)
+    }
+
+    #[inline(always)]
+    fn pressure_and_heat_free<R: Real>(&self, mu: R, e: R) -> [(R, R); 2] {
+        let cold = self.cold_branchless(mu);
+        [self.with_energy(cold, mu, e), self.with_energy(cold, mu, R::splat(0.0))]
     }
 }
 
@@ -178,6 +221,12 @@ impl PressureModel for LinearEos {
     #[inline(always)]
     fn pressure(&self, mu: f64, _e: f64) -> (f64, f64) {
         (self.bulk * mu, self.bulk)
+    }
+
+    #[inline(always)]
+    fn pressure_and_heat_free<R: Real>(&self, mu: R, _e: R) -> [(R, R); 2] {
+        let p = (R::splat(self.bulk) * mu, R::splat(self.bulk));
+        [p, p]
     }
 }
 
@@ -347,6 +396,29 @@ mod tests {
         let dv = 1.0 / (m.rho0 * (1.0 + mu + h)) - 1.0 / (m.rho0 * (1.0 + mu));
         let (p2, _) = m.pressure(mu + h, e - p * dv);
         assert!(rel((p2 - p) / h, slope) < 1e-5, "{} vs {slope}", (p2 - p) / h);
+    }
+
+    /// The branch-free form gives `pressure`'s bits in every case: expansion, compression,
+    /// past the limit, exactly at 0 and at the limit, NaN; both forms and a heat-free state.
+    #[test]
+    fn branchless_pressure_is_bitwise_the_branching_one() {
+        for form in MgForm::ALL {
+            let m = lead(form);
+            let lim = m.mu_limit();
+            let mut mus =
+                vec![0.0, -0.0, lim, lim * (1.0 + 1e-15), lim * (1.0 - 1e-4), 1.0 / 0.45, 5.0, f64::NAN, -1e-300];
+            mus.extend((0..400).map(|i| -0.3 + 0.0075 * i as f64));
+            for mu in mus {
+                for e in [0.0, 3.7e4, -2.0e3] {
+                    let [a, b] = m.pressure_and_heat_free(mu, e);
+                    let (wa, wb) = (m.pressure(mu, e), m.pressure(mu, 0.0));
+                    for (got, want) in [(a, wa), (b, wb)] {
+                        assert_eq!(got.0.to_bits(), want.0.to_bits(), "{form:?} mu={mu} e={e}");
+                        assert_eq!(got.1.to_bits(), want.1.to_bits(), "{form:?} mu={mu} e={e}");
+                    }
+                }
+            }
+        }
     }
 
     #[test]

@@ -8,25 +8,26 @@
 //!   160 x 160 x 220 mm, measured on the small model), an upper estimate.
 //! * Memory ([`ModelSize::memory_bytes`]): bytes per particle and per node fitted to the
 //!   solver's own [`crate::Simulation::memory_bytes`] on Models 1-3 (serial: 137 B per
-//!   particle + 128 B per node reproduces all three exactly) and checked against the peak
-//!   RSS of Model 4 (AE, 1 and 8 threads: 3.4 and 8.1 GB, within 1 %). Array expansion keeps
-//!   one private 80-byte copy of the scattered nodal arrays per worker, so it grows with
-//!   every thread; domain decomposition adds binning and sub-grid arrays that barely depend
-//!   on the thread count ([`Strategy::memory_model`]).
+//!   particle + 162 B per node, the node records of 64 + 48 + 32 bytes and the grid's flags,
+//!   reproduces all three to 0.002 %). Array expansion keeps one private 108-byte copy of the
+//!   scattered node records per worker (Model 2 at 1 and 4 threads: exactly 108 and 432 B
+//!   per node), so it grows with every thread; domain decomposition adds binning (8 B per
+//!   particle) and sub-grid records (108-113 B per node at 1-4 threads) that barely depend on
+//!   the thread count ([`Strategy::memory_model`]).
 
 use super::{impact, taylor};
 use crate::strategy::{MemoryModel, Strategy};
 
 /// Bytes per particle (state, stress, strain, material history).
 pub const BYTES_PER_PARTICLE: u64 = 137;
-/// Bytes per grid node (mass, momentum, force, velocity, flags).
-pub const BYTES_PER_NODE: u64 = 128;
-/// Extra bytes per node for each AE worker (its private copy of the scattered arrays).
-pub const AE_BYTES_PER_NODE_PER_THREAD: u64 = 80;
+/// Bytes per grid node (the P2G, kinematic and re-map records, flags).
+pub const BYTES_PER_NODE: u64 = 162;
+/// Extra bytes per node for each AE worker (its private copy of the scattered records).
+pub const AE_BYTES_PER_NODE_PER_THREAD: u64 = 108;
 /// DD binning overhead per particle (patch index, permutation).
 pub const DD_BYTES_PER_PARTICLE: u64 = 8;
-/// DD sub-grid overhead per node (patch-local arrays and halo bookkeeping).
-pub const DD_BYTES_PER_NODE: u64 = 80;
+/// DD sub-grid overhead per node (the patches' records, shared faces held twice).
+pub const DD_BYTES_PER_NODE: u64 = 112;
 /// Process baseline (binary, runtime, allocator), plus [`BYTES_PER_THREAD`] per worker.
 pub const BASE_BYTES: u64 = 16 << 20;
 /// Per-worker slack (stack pages touched, DD halo growth with the patch count).
@@ -113,7 +114,7 @@ mod tests {
         let (ae1, ae8) = (m4.memory_bytes(Strategy::ArrayExpansion, 1), m4.memory_bytes(Strategy::ArrayExpansion, 8));
         let dd1 = m4.memory_bytes(Strategy::DomainDecomposition, 1);
         let dd8 = m4.memory_bytes(Strategy::DomainDecomposition, 8);
-        assert_eq!(ae8 - ae1, 7 * (80 * 8_302_185 + BYTES_PER_THREAD));
+        assert_eq!(ae8 - ae1, 7 * (108 * 8_302_185 + BYTES_PER_THREAD));
         assert_eq!(dd8 - dd1, 7 * BYTES_PER_THREAD);
         assert!(m4.memory_bytes(Strategy::Serial, 1) < dd1);
         assert_eq!(ModelSize::default().memory_bytes(Strategy::Serial, 2), BASE_BYTES + 2 * BYTES_PER_THREAD);

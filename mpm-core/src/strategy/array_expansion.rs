@@ -4,9 +4,9 @@
 //! `A(:) = sum_j A_list(:, j)` (Eq. 16). No races and no atomics; the memory grows with
 //! `(T - 1) x` the nodal arrays, and the assembly with `N x T`.
 
-use super::{add, Kernel, ScatterStrategy};
+use super::{Cursors, Kernel, ScatterStrategy};
 use crate::blocks::BlockMap;
-use crate::grid::{CellNodes, GridGeom, NodeIndex};
+use crate::grid::{GridGeom, NodeIndex, Records};
 use crate::math::Vec3;
 use crate::parallel::{partition, Exec, Split};
 
@@ -30,19 +30,17 @@ pub fn scatter<const K: usize, F>(
     nn: usize,
     index: &NodeIndex<'_>,
     n: usize,
-    columns: &mut Vec<[f64; K]>,
+    columns: &mut Records<K>,
     kernel: &F,
 ) where
     F: Kernel<K>,
 {
     let t = exec.workers();
-    crate::resize_with_headroom(columns, nn * t, [0.0; K]);
+    columns.resize(nn * t);
     exec.for_each_chunk_mut(Split::Blocks(nn).of(columns), |j, column| {
         column.fill([0.0; K]);
-        let mut nodes = CellNodes::new(*index);
-        for p in partition(n, t, j) {
-            add(&mut nodes, column, &kernel.contribution(p));
-        }
+        let mut nodes = Cursors::global(*index);
+        kernel.scatter_all(partition(n, t, j), &mut nodes, column);
     });
 }
 
@@ -79,7 +77,7 @@ impl ScatterStrategy for ArrayExpansion {
         index: &NodeIndex<'_>,
         n: usize,
         global: &mut [[f64; K]],
-        parts: &mut Vec<[f64; K]>,
+        parts: &mut Records<K>,
         kernel: &F,
     ) where
         F: Kernel<K>,

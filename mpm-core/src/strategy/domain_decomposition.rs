@@ -48,9 +48,9 @@
 //! first-holder rule over the patch's nodes: every sum is the dense grid's, bit for bit.
 
 use super::cuts::{Cuts, LayoutChooser, PatchLoad};
-use super::{add, Kernel, ScatterStrategy};
+use super::{Cursors, Kernel, ScatterStrategy};
 use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
-use crate::grid::{CellNodes, GridGeom, NodeIndex};
+use crate::grid::{GridGeom, NodeIndex, Records};
 use crate::math::Vec3;
 use crate::parallel::{partition, DisjointSlice, Exec, Split};
 use std::mem::size_of;
@@ -604,21 +604,19 @@ impl ScatterStrategy for DomainDecomposition {
         &self,
         exec: &Exec<'_>,
         _geom: &GridGeom,
-        _index: &NodeIndex<'_>,
+        index: &NodeIndex<'_>,
         _n: usize,
         _global: &mut [[f64; K]],
-        subgrids: &mut Vec<[f64; K]>,
+        subgrids: &mut Records<K>,
         kernel: &F,
     ) where
         F: Kernel<K>,
     {
-        crate::resize_with_headroom(subgrids, self.subgrid_nodes(), [0.0; K]);
+        subgrids.resize(self.subgrid_nodes());
         exec.for_each_chunk_mut(Split::Offsets(&self.offsets).of(subgrids), |j, sub| {
             sub.fill([0.0; K]);
-            let mut nodes = CellNodes::new(self.subgrid_index(j));
-            for &id in self.binning.column(j) {
-                add(&mut nodes, sub, &kernel.contribution(id as usize - 1));
-            }
+            let mut nodes = Cursors::split(self.subgrid_index(j), *index);
+            kernel.scatter_all(self.binning.column(j).iter().map(|&id| id as usize - 1), &mut nodes, sub);
         });
     }
 

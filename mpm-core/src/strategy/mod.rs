@@ -25,7 +25,7 @@ pub mod domain_decomposition;
 pub mod serial;
 
 use crate::blocks::BlockMap;
-use crate::grid::{CellNodes, GridGeom, NodeIndex};
+use crate::grid::{CellNodes, GridGeom, NodeIndex, Records};
 use crate::math::Vec3;
 use crate::parallel::Exec;
 use serde::{Deserialize, Serialize};
@@ -156,30 +156,77 @@ pub struct Contribution<const K: usize> {
     pub c: [[f64; K]; 8],
 }
 
-/// The per-particle kernel of a scatter: what particle `p` adds to its 8 nodes.
+/// The node numberings a scatter loop walks: the scatter target's (the global arrays, an AE
+/// copy of them, or a DD sub-grid) and, where it differs, the global grid's, which a kernel
+/// reads nodal values from (the fused gather and re-map reads the nodal accelerations).
+/// Each remembers the last cell's nodes ([`CellNodes`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Cursors<'a> {
+    target: CellNodes<'a>,
+    global: Option<CellNodes<'a>>,
+}
+
+impl<'a> Cursors<'a> {
+    /// A loop whose target is numbered like the global grid (`index`): serial and AE.
+    pub fn global(index: NodeIndex<'a>) -> Self {
+        Self { target: CellNodes::new(index), global: None }
+    }
+
+    /// A loop whose target is numbered by `target` (a DD sub-grid) inside the grid `global`.
+    pub fn split(target: NodeIndex<'a>, global: NodeIndex<'a>) -> Self {
+        Self { target: CellNodes::new(target), global: Some(CellNodes::new(global)) }
+    }
+
+    /// The target's indices of the 8 nodes of `cell`.
+    #[inline(always)]
+    pub fn target(&mut self, cell: [usize; 3]) -> [usize; 8] {
+        self.target.get(cell)
+    }
+
+    /// The target's and the global grid's indices of the 8 nodes of `cell`.
+    #[inline(always)]
+    pub fn both(&mut self, cell: [usize; 3]) -> ([usize; 8], [usize; 8]) {
+        let t = self.target.get(cell);
+        match &mut self.global {
+            Some(g) => (t, g.get(cell)),
+            None => (t, t),
+        }
+    }
+}
+
+/// The per-particle kernel of a scatter: what particle `p` adds to the 8 nodes of its cell.
 ///
-/// The solver's kernels are [`crate::transfer::P2g`] and [`crate::transfer::Remap`], whose
-/// [`Kernel::contribution`] is `#[inline(always)]`, so every strategy's scatter loop
-/// compiles with the kernel inlined. (Given as a closure, the kernel stayed out of line in
-/// the DD scatter loop, and each particle's 8 x `K` values went through memory: the DD
-/// scatter of Model 2 ran 20 % slower.) Closures are kernels too, for tests and benchmarks.
+/// The solver's kernels ([`crate::transfer::P2g`], and the fused gather and re-map) add
+/// their values straight into the target's node records, `#[inline(always)]`, so that a
+/// particle's 8 x `K` values stay in registers (returned as a [`Contribution`], the 448
+/// bytes of a P2G particle went through the stack). Closures returning a [`Contribution`]
+/// are kernels too, for tests and benchmarks.
 pub trait Kernel<const K: usize>: Sync {
-    /// Particle `p`'s contribution.
-    fn contribution(&self, p: usize) -> Contribution<K>;
+    /// Add particle `p`'s values into `data`, whose nodes `nodes.target` numbers.
+    fn scatter(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut [[f64; K]]);
+
+    /// [`Kernel::scatter`] for every particle of `ids`, in order: a strategy's loop over its
+    /// particles. A kernel may run the loop at a wider SIMD level ([`crate::transfer::P2g`]).
+    #[inline(always)]
+    fn scatter_all(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; K]]) {
+        for p in ids {
+            self.scatter(p, nodes, data);
+        }
+    }
 }
 
 impl<const K: usize, F: Fn(usize) -> Contribution<K> + Sync> Kernel<K> for F {
     #[inline(always)]
-    fn contribution(&self, p: usize) -> Contribution<K> {
-        self(p)
+    fn scatter(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut [[f64; K]]) {
+        add(nodes, data, &self(p));
     }
 }
 
 /// Add a particle's contribution at the nodes `nodes` gives its cell (every node of the
 /// cell must be stored there).
 #[inline(always)]
-pub(crate) fn add<const K: usize>(nodes: &mut CellNodes<'_>, data: &mut [[f64; K]], con: &Contribution<K>) {
-    let idx = nodes.get(con.cell);
+pub(crate) fn add<const K: usize>(nodes: &mut Cursors<'_>, data: &mut [[f64; K]], con: &Contribution<K>) {
+    let idx = nodes.target(con.cell);
     for q in 0..8 {
         let d = &mut data[idx[q]];
         for k in 0..K {
@@ -208,9 +255,11 @@ pub trait ScatterStrategy {
     /// sparse grid, the blocks stored this step.
     fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, blocks: Option<&BlockMap>, x: &[Vec3]);
 
-    /// Add `kernel.contribution(p)` of every particle `p < n`, either into `global` (zeroed
-    /// first; its nodes numbered by `index`) or into `parts` for
-    /// [`ScatterStrategy::assemble`] to sum into `global`.
+    /// Call `kernel.scatter` once for every particle `p < n`, each from one worker, either
+    /// into `global` (zeroed first; its nodes numbered by `index`) or into `parts` for
+    /// [`ScatterStrategy::assemble`] to sum into `global`. (The crate's fused gather and
+    /// re-map kernel writes particle `p`'s velocity from the worker that scatters `p`, and
+    /// relies on this: every particle once, by one worker.)
     #[allow(clippy::too_many_arguments)]
     fn scatter<const K: usize, F>(
         &self,
@@ -219,7 +268,7 @@ pub trait ScatterStrategy {
         index: &NodeIndex<'_>,
         n: usize,
         global: &mut [[f64; K]],
-        parts: &mut Vec<[f64; K]>,
+        parts: &mut Records<K>,
         kernel: &F,
     ) where
         F: Kernel<K>;
@@ -288,7 +337,7 @@ impl Engine {
         index: &NodeIndex<'_>,
         n: usize,
         global: &mut [[f64; K]],
-        parts: &mut Vec<[f64; K]>,
+        parts: &mut Records<K>,
         kernel: &F,
     ) where
         F: Kernel<K>,
@@ -319,6 +368,62 @@ impl Engine {
         match self {
             Engine::Dd(dd) => Some(dd),
             Engine::Serial(_) | Engine::Ae(_) => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::GridSpec;
+    use crate::parallel::Team;
+    use std::sync::atomic::{AtomicU32, Ordering};
+
+    /// What the fused gather and re-map relies on for its writes to particle velocities:
+    /// every strategy's scatter calls the kernel exactly once per particle, for every thread
+    /// count, on dense and sparse grids (a particle visited twice, by two workers or one,
+    /// or never, fails this).
+    #[test]
+    fn every_strategy_scatters_every_particle_once() {
+        let geom = GridGeom::fixed(&GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [13, 9, 11] });
+        let mut s = 99u64;
+        let mut unit = move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let x: Vec<Vec3> = (0..5000).map(|_| [13.0 * unit(), 9.0 * unit(), 4.0 + 7.0 * unit()]).collect();
+        let mut map = BlockMap::default();
+        map.build(&Exec::serial(), &geom, &x);
+        for blocks in [None, Some(&map)] {
+            let index = NodeIndex::of(&geom, blocks);
+            for strategy in Strategy::ALL {
+                for threads in if strategy.is_parallel() { vec![1, 2, 3, 4, 6, 8] } else { vec![1] } {
+                    let visits: Vec<AtomicU32> = (0..x.len()).map(|_| AtomicU32::new(0)).collect();
+                    let kernel = |p: usize| {
+                        visits[p].fetch_add(1, Ordering::Relaxed);
+                        Contribution::<1> { cell: geom.shape_cell(x[p]), c: [[1.0]; 8] }
+                    };
+                    let mut engine = Engine::new(strategy, threads);
+                    let len = engine.reserve(&geom, blocks);
+                    let (mut global, mut parts) =
+                        (vec![[0.0; 1]; index.num_nodes()], crate::grid::Records::<1>::zeroed(len));
+                    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                    let mut run = |exec: &Exec<'_>| {
+                        engine.prepare(exec, &geom, blocks, &x);
+                        engine.scatter(exec, &geom, &index, x.len(), &mut global, &mut parts, &kernel);
+                        engine.assemble(exec, &geom, &index, &mut global, &parts);
+                    };
+                    if strategy.is_parallel() {
+                        Team::new(threads).region(&pool, run).unwrap();
+                    } else {
+                        run(&Exec::serial());
+                    }
+                    let what = format!("{strategy} x{threads}, sparse {}", blocks.is_some());
+                    assert!(visits.iter().all(|v| v.load(Ordering::Relaxed) == 1), "{what}");
+                    // And the sums carry 8 per particle, once each.
+                    assert_eq!(global.iter().map(|g| g[0]).sum::<f64>(), 8.0 * x.len() as f64, "{what}");
+                }
+            }
         }
     }
 }

@@ -1,9 +1,9 @@
 //! The serial scatter: every particle straight into the global nodal arrays. It is the
 //! oracle every parallel strategy is tested against.
 
-use super::{add, Kernel, ScatterStrategy};
+use super::{Cursors, Kernel, ScatterStrategy};
 use crate::blocks::BlockMap;
-use crate::grid::{CellNodes, GridGeom, NodeIndex};
+use crate::grid::{GridGeom, NodeIndex, Records};
 use crate::math::Vec3;
 use crate::parallel::Exec;
 
@@ -17,10 +17,8 @@ where
     F: Kernel<K>,
 {
     global.fill([0.0; K]);
-    let mut nodes = CellNodes::new(*index);
-    for p in 0..n {
-        add(&mut nodes, global, &kernel.contribution(p));
-    }
+    let mut nodes = Cursors::global(*index);
+    kernel.scatter_all(0..n, &mut nodes, global);
 }
 
 impl ScatterStrategy for Serial {
@@ -37,7 +35,7 @@ impl ScatterStrategy for Serial {
         index: &NodeIndex<'_>,
         n: usize,
         global: &mut [[f64; K]],
-        _parts: &mut Vec<[f64; K]>,
+        _parts: &mut Records<K>,
         kernel: &F,
     ) where
         F: Kernel<K>,
