@@ -384,13 +384,13 @@ scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell
 ranks,rank_layout,grid,physics.eos,physics.q.c1,physics.q.c2,physics.cfl,physics.energy_rise_limit,\
 budget.steps,budget.end_time_s,budget.warmup,split_wait,model,opt,pin,launcher,rep,requested_cpus,\
 observed_cpus,rank_cpus,oversubscribed,particles,cells,nodes,mean_nodes,steps,sim_time_s,end_reason,\
-dt_first_s,wall_s,grid_stage_s,particle_stage_s,substages.grid_fit,substages.binning,\
+dt_first_s,wall_s,grid_stage_s,particle_stage_s,substages.reorder,substages.grid_fit,substages.binning,\
 substages.scatter,substages.assembly,substages.grid_update,substages.gather,substages.remap_scatter,\
 substages.remap_assembly,substages.stress_update,steady_steps,steady_wall_s,steady_grid_stage_s,\
-steady_particle_stage_s,steady_substages.grid_fit,steady_substages.binning,steady_substages.scatter,\
+steady_particle_stage_s,steady_substages.reorder,steady_substages.grid_fit,steady_substages.binning,steady_substages.scatter,\
 steady_substages.assembly,steady_substages.grid_update,steady_substages.gather,\
 steady_substages.remap_scatter,steady_substages.remap_assembly,steady_substages.stress_update,\
-simd_level,roofline.grid_fit.gb_per_s,roofline.grid_fit.gflop_per_s,roofline.binning.gb_per_s,\
+simd_level,roofline.reorder.gb_per_s,roofline.reorder.gflop_per_s,roofline.grid_fit.gb_per_s,roofline.grid_fit.gflop_per_s,roofline.binning.gb_per_s,\
 roofline.binning.gflop_per_s,roofline.scatter.gb_per_s,roofline.scatter.gflop_per_s,\
 roofline.assembly.gb_per_s,roofline.assembly.gflop_per_s,roofline.grid_update.gb_per_s,\
 roofline.grid_update.gflop_per_s,roofline.gather.gb_per_s,roofline.gather.gflop_per_s,\

@@ -91,6 +91,17 @@ mod mpi_impl {
             }
         }
 
+        /// New id `i` is old id `order[i]`, through `scratch`.
+        fn permute(&mut self, order: &[u64], scratch: &mut Vec<u64>) {
+            scratch.clear();
+            scratch.extend(order.iter().map(|&o| self.get(o as usize)));
+            match self {
+                // Every id was narrow before, and the permutation only moves them.
+                Ids::Narrow(v) => v.iter_mut().zip(scratch.iter()).for_each(|(id, &s)| *id = s as u32),
+                Ids::Wide(v) => v.copy_from_slice(scratch),
+            }
+        }
+
         fn push(&mut self, id: u64) {
             match self {
                 Ids::Narrow(v) => match u32::try_from(id) {
@@ -230,6 +241,8 @@ mod mpi_impl {
         /// Ranks adjacent in the layout (the only possible destinations of a particle).
         adjacent: Vec<usize>,
         ids: Ids,
+        /// The ids being permuted ([`Exchange::reorder`]).
+        id_scratch: Vec<u64>,
         /// Links of the current global grid, increasing rank, and their ranks.
         links: Vec<Link>,
         peers: Vec<usize>,
@@ -267,6 +280,7 @@ mod mpi_impl {
                     .collect(),
                 boxes,
                 ids: Ids::Narrow(Vec::new()),
+                id_scratch: Vec::new(),
                 links: Vec::new(),
                 peers: Vec::new(),
                 links_for: None,
@@ -605,6 +619,10 @@ mod mpi_impl {
             self.ids.get(p)
         }
 
+        fn reorder(&mut self, order: &[u64]) {
+            self.ids.permute(order, &mut self.id_scratch);
+        }
+
         fn stats(&self) -> ExchangeStats {
             self.stats
         }
@@ -637,6 +655,8 @@ mod mpi_impl {
             ids.push(1 << 40);
             assert!(matches!(ids, Ids::Wide(_)));
             assert_eq!((0..4).map(|p| ids.get(p)).collect::<Vec<_>>(), [9, 3, 11, 1 << 40]);
+            ids.permute(&[3, 0, 2, 1], &mut Vec::new());
+            assert_eq!((0..4).map(|p| ids.get(p)).collect::<Vec<_>>(), [1 << 40, 9, 11, 3]);
             assert!(matches!(Ids::new(vec![1, u64::MAX]), Ids::Wide(_)));
         }
     }

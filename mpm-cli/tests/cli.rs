@@ -243,6 +243,7 @@ const REQUIRED_KEYS: &[&str] = &[
 ];
 
 const SUBSTAGES: &[&str] = &[
+    "reorder",
     "grid_fit",
     "binning",
     "scatter",

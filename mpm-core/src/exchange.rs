@@ -1,8 +1,8 @@
 //! What a run needs from other processes when the problem is split over ranks: the
 //! [`Collectives`] trait (reductions and a gather, also what the scenario figures need to
 //! measure the whole set from its parts), the [`Exchange`] trait built on it (halo sums,
-//! particle migration: what a step needs), their single-process no-op [`SingleProcess`],
-//! and the rank boxes ([`RankBoxes`]) every implementation cuts the lattice into.
+//! particle migration: what a step needs), the single-process identity of the collectives
+//! [`SingleProcess`] and the exchange of one process [`OneProcess`], and the rank boxes ([`RankBoxes`]) every implementation cuts the lattice into.
 //!
 //! The library has no MPI code: a program implements [`Exchange`] with its message-passing
 //! library (the `mpm` program does it with MPI behind its `mpi` feature) and hands it to
@@ -86,13 +86,21 @@ pub trait Exchange: Collectives {
     /// ones that arrived; returns how many left.
     fn migrate(&mut self, particles: &mut Particles) -> Result<usize, SimError>;
 
-    /// Global id (index in the initial set) of this rank's particle `p` (`p` itself for
-    /// one process).
+    /// Global id (index in the initial set) of this rank's particle `p`.
     fn global_id(&self, p: usize) -> u64;
+
+    /// The particles were put in another order ([`crate::order`]): this rank's new particle
+    /// `i` is its old particle `order[i]`. The ids follow their particles.
+    fn reorder(&mut self, order: &[u64]);
 
     /// Traffic and time of the exchange so far (zero for one process).
     fn stats(&self) -> ExchangeStats {
         ExchangeStats::default()
+    }
+
+    /// Memory the exchange holds for this rank's particles (their ids), in bytes.
+    fn bytes(&self) -> usize {
+        0
     }
 }
 
@@ -147,8 +155,61 @@ impl Collectives for SingleProcess {
     }
 }
 
-impl Exchange for SingleProcess {
-    fn adopt(&mut self, _: &mut Particles, _: Option<Vec<u64>>) -> Result<(), SimError> {
+/// The exchange of a run in one process: no other rank, so every operation but the ids is
+/// the identity. It keeps the particles' global ids once the cell order
+/// ([`crate::order`]) has moved them (4 bytes a particle, and as much again while they are
+/// permuted; none before the first move).
+#[derive(Clone, Debug, Default)]
+pub struct OneProcess {
+    /// Global id of each particle; empty while every particle is at its index. One process
+    /// holds fewer than 2^32 particles (the cell order packs indices in 32 bits).
+    ids: Vec<u32>,
+    /// The ids being permuted.
+    scratch: Vec<u32>,
+}
+
+impl Collectives for OneProcess {
+    fn ranks(&self) -> usize {
+        1
+    }
+    fn rank(&self) -> usize {
+        0
+    }
+    fn sum(&mut self, _: &mut [f64]) -> Result<(), SimError> {
+        Ok(())
+    }
+    fn sum_counts(&mut self, _: &mut [u64]) -> Result<(), SimError> {
+        Ok(())
+    }
+    fn max(&mut self, _: &mut [f64]) -> Result<(), SimError> {
+        Ok(())
+    }
+    fn gather(&mut self, values: Vec<f64>) -> Result<Option<Vec<f64>>, SimError> {
+        Ok(Some(values))
+    }
+}
+
+impl Exchange for OneProcess {
+    fn adopt(&mut self, particles: &mut Particles, ids: Option<Vec<u64>>) -> Result<(), SimError> {
+        if let Some(ids) = ids {
+            if ids.len() != particles.len() {
+                return Err(SimError::Config(format!(
+                    "{} particle ids for {} particles; build the set-up with one id per particle",
+                    ids.len(),
+                    particles.len()
+                )));
+            }
+            self.ids = ids
+                .into_iter()
+                .map(|id| {
+                    u32::try_from(id).map_err(|_| {
+                        SimError::Config(format!(
+                            "particle id {id} does not fit in 32 bits: one process holds fewer than 2^32 particles"
+                        ))
+                    })
+                })
+                .collect::<Result<_, _>>()?;
+        }
         Ok(())
     }
     fn local_grid(&mut self, global: &GridGeom) -> GridGeom {
@@ -161,7 +222,22 @@ impl Exchange for SingleProcess {
         Ok(0)
     }
     fn global_id(&self, p: usize) -> u64 {
-        p as u64
+        self.ids.get(p).map_or(p as u64, |&id| u64::from(id))
+    }
+    fn reorder(&mut self, order: &[u64]) {
+        // The order's indices are those of this process's particles: below 2^32.
+        if self.ids.is_empty() {
+            self.ids.extend(order.iter().map(|&o| o as u32));
+            // The next permutation's buffer now: a step allocates nothing after the first.
+            self.scratch.reserve_exact(order.len());
+            return;
+        }
+        self.scratch.clear();
+        self.scratch.extend(order.iter().map(|&o| self.ids[o as usize]));
+        std::mem::swap(&mut self.ids, &mut self.scratch);
+    }
+    fn bytes(&self) -> usize {
+        crate::capacity_bytes(&self.ids) + crate::capacity_bytes(&self.scratch)
     }
 }
 
@@ -343,7 +419,7 @@ mod tests {
             failed_floor_energy: 0.125,
         };
         let mut after = before;
-        reduce_partial(&mut SingleProcess, &mut after).unwrap();
+        reduce_partial(&mut OneProcess::default(), &mut after).unwrap();
         let bits = |p: &Partial| {
             let f = [p.kinetic, p.internal, p.max_speed, p.failed_floor_energy];
             let v = [p.momentum, p.lo, p.hi].concat();

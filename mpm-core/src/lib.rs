@@ -46,6 +46,7 @@ pub mod exchange;
 pub mod grid;
 pub mod material;
 pub mod math;
+pub mod order;
 pub mod parallel;
 pub mod particles;
 pub mod roofline;
@@ -58,7 +59,7 @@ pub mod timers;
 pub mod transfer;
 
 pub use error::SimError;
-pub use exchange::{Collectives, Exchange, RankBoxes, SingleProcess};
+pub use exchange::{Collectives, Exchange, OneProcess, RankBoxes, SingleProcess};
 pub use grid::{GridGeom, GridMode, GridSpec, NodeIndex, Wall, WallKind};
 pub use material::{BulkViscosity, Material, MgForm};
 pub use particles::Particles;

@@ -73,7 +73,17 @@ pub const SHAPE_FLOPS: f64 = 12.0 + 56.0;
 pub const MATERIAL_FLOPS: f64 = 166.0;
 
 /// The counts of every sub-stage (serial step, dense grid), in [`Substage::ALL`] order.
-pub const COSTS: [StageCost; 9] = [
+pub const COSTS: [StageCost; 10] = [
+    // reorder (crate::order, every SimConfig::sort_every steps): not counted. Its traffic is
+    // per sort, not per step, and a sort of particles already in order reads the positions
+    // and writes keys only; the table leaves it at zero, so its rates are not reported.
+    StageCost {
+        substage: Substage::Reorder,
+        particle_bytes: 0.0,
+        node_bytes: 0.0,
+        particle_flops: 0.0,
+        node_flops: 0.0,
+    },
     // grid_fit: the adaptive grid's box from last step's bounding box (per step, not per
     // particle); the sparse grid's marking pass reads every position once.
     StageCost {
@@ -189,7 +199,7 @@ pub struct Achieved {
 /// The rates of every sub-stage of a run of `particles` particles over `steps` steps with
 /// `nodes` stored nodes on average, from its sub-stage seconds `times` (the whole run's or
 /// the steady steps', matching `steps`). Pure: the same inputs give the same figures.
-pub fn achieved(times: &StageTimes, particles: u64, nodes: f64, steps: u64) -> [Achieved; 9] {
+pub fn achieved(times: &StageTimes, particles: u64, nodes: f64, steps: u64) -> [Achieved; 10] {
     let particle_steps = particles as f64 * steps as f64;
     let per_particle = if particles > 0 { nodes / particles as f64 } else { 0.0 };
     std::array::from_fn(|i| {

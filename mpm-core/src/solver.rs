@@ -3,6 +3,7 @@
 //! ```text
 //! step k -> k+1, dt = CFL dx / max_p(c_p + |v_p|)
 //!   grid-node stage
+//!     every sort_every steps: particles into cell order (crate::order)
 //!     fit grid (adaptive) ; DD: bin particles into patches
 //!     scatter  m_i, p_i = sum m_p v_p S_ip, f_i = -sum V_p sigma_p . G_ip (+ m_p S_ip b)   Eqs. 1-5
 //!     nodes    p_i += f_i dt, walls zero p_i and f_i; v_i = p_i/m_i, a_i = f_i/m_i          Eq. 6
@@ -16,19 +17,22 @@
 //! Shape functions are evaluated at the positions of step `k` throughout the step (positions
 //! move only in the last pass). Both scatters go through the [`crate::strategy`]; every other
 //! pass is split across workers by loop splitting. A parallel step is one parallel region of
-//! the simulation's [`Team`] ([`crate::parallel`]). The step allocates nothing once the grid
-//! has reached its largest size, except rayon's job list for the region's one `broadcast`
-//! (`T` entries; the count of such allocations does not depend on the problem size).
+//! the simulation's [`Team`] ([`crate::parallel`]); the sort into cell order runs before it,
+//! on the pool's threads through rayon. The step allocates nothing once the grid has reached
+//! its largest size and the first sort has sized its buffers, except rayon's job list for
+//! the region's one `broadcast` (`T` entries; the count of such allocations does not depend
+//! on the problem size).
 
 use crate::blocks::BlockMap;
 use crate::energy::{EnergyBalance, Partial};
 use crate::error::SimError;
-use crate::exchange::{reduce_partial, Exchange, SingleProcess};
+use crate::exchange::{reduce_partial, Exchange, OneProcess};
 use crate::grid::{
     GridGeom, GridMode, GridSpec, NodeArrays, NodeIndex, Records, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH,
 };
 use crate::material::{BulkViscosity, Eos, Material, PointConsts};
 use crate::math::{norm, Vec3};
+use crate::order::{CellOrder, SORT_EVERY};
 use crate::parallel::{Exec, RegionError, Team};
 use crate::particles::Particles;
 use crate::scenario::Setup;
@@ -77,6 +81,10 @@ pub struct SimConfig {
     /// The instruction-set level of the particle kernels ([`crate::simd`]); `None` (the
     /// default): the widest this CPU has. Every level gives bitwise the same results.
     pub simd: Option<SimdLevel>,
+    /// Sort the particles into cell order ([`crate::order`]) before the first step and
+    /// then before every `sort_every`-th step; 0: never (the scenario's order stays).
+    /// Default [`SORT_EVERY`].
+    pub sort_every: u64,
 }
 
 impl Default for SimConfig {
@@ -92,6 +100,7 @@ impl Default for SimConfig {
             bulk_viscosity: BulkViscosity::default(),
             max_nodes: 1 << 26,
             simd: None,
+            sort_every: SORT_EVERY,
         }
     }
 }
@@ -161,6 +170,8 @@ pub struct Simulation {
     released: bool,
     /// The instruction-set level the particle kernels run at (available on this CPU).
     simd: SimdLevel,
+    /// The buffers of the cell order's sort.
+    order: CellOrder,
     /// The workers of the parallel strategies, built once; `None` for the serial strategy.
     /// Shared (`Arc`) only so that a step can hold the team while it borrows the rest of
     /// the simulation mutably.
@@ -170,7 +181,7 @@ pub struct Simulation {
 impl Simulation {
     /// Set up a simulation of `setup` with `config`.
     pub fn new(setup: Setup, config: SimConfig) -> Result<Self, SimError> {
-        Self::with_exchange(setup, config, Box::new(SingleProcess))
+        Self::with_exchange(setup, config, Box::new(OneProcess::default()))
     }
 
     /// Set up this rank's part of a simulation split over ranks by `exchange`.
@@ -303,6 +314,7 @@ impl Simulation {
             poisoned: None,
             released: false,
             simd,
+            order: CellOrder::default(),
             team: config.strategy.is_parallel().then(|| Arc::new(Team::new(config.threads))),
             config,
         })
@@ -468,6 +480,8 @@ impl Simulation {
             + self.remap_parts.bytes()
             + self.engine.bytes()
             + self.blocks.as_ref().map_or(0, BlockMap::bytes)
+            + self.order.bytes()
+            + self.exchange.bytes()
     }
 
     /// After the last step: free the node arrays and the strategy's scatter buffers, which
@@ -499,6 +513,13 @@ impl Simulation {
         }
         if self.released {
             return Err(SimError::Released(self.steps));
+        }
+        let every = self.config.sort_every;
+        if every > 0 && self.steps % every == 0 {
+            let start = std::time::Instant::now();
+            let Self { order, geom, particles, exchange, .. } = self;
+            pool.install(|| order.sort(geom, particles, exchange.as_mut()));
+            self.times.add(Substage::Reorder, start.elapsed().as_secs_f64());
         }
         let result = match self.team.clone() {
             None => pool.install(|| self.step_inner(&Exec::serial(), dt_max)),

@@ -10,6 +10,9 @@ use std::time::Instant;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Substage {
+    /// Sorting the particles into cell order ([`crate::order`]), every
+    /// [`crate::SimConfig::sort_every`] steps (0 in the others).
+    Reorder,
     /// Re-fitting the adaptive grid and (DD) re-cutting the patches.
     GridFit,
     /// DD particle binning (`patnp_th`, `patnp`, `Pindex`).
@@ -35,7 +38,8 @@ pub enum Substage {
 
 impl Substage {
     /// Every sub-stage in execution order.
-    pub const ALL: [Substage; 9] = [
+    pub const ALL: [Substage; 10] = [
+        Substage::Reorder,
         Substage::GridFit,
         Substage::Binning,
         Substage::Scatter,
@@ -50,6 +54,7 @@ impl Substage {
     /// Stable snake_case name used in JSON and CSV.
     pub fn name(self) -> &'static str {
         match self {
+            Substage::Reorder => "reorder",
             Substage::GridFit => "grid_fit",
             Substage::Binning => "binning",
             Substage::Scatter => "scatter",
@@ -66,7 +71,12 @@ impl Substage {
     pub fn is_grid_stage(self) -> bool {
         matches!(
             self,
-            Substage::GridFit | Substage::Binning | Substage::Scatter | Substage::Assembly | Substage::GridUpdate
+            Substage::Reorder
+                | Substage::GridFit
+                | Substage::Binning
+                | Substage::Scatter
+                | Substage::Assembly
+                | Substage::GridUpdate
         )
     }
 }
@@ -74,7 +84,7 @@ impl Substage {
 /// Accumulated seconds per sub-stage.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StageTimes {
-    seconds: [f64; 9],
+    seconds: [f64; 10],
 }
 
 impl StageTimes {
@@ -117,7 +127,7 @@ impl StageTimes {
 impl Serialize for StageTimes {
     fn serialize<S: serde::Serializer>(&self, ser: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeMap;
-        let mut m = ser.serialize_map(Some(9))?;
+        let mut m = ser.serialize_map(Some(Substage::ALL.len()))?;
         for (k, v) in self.named() {
             m.serialize_entry(k, &v)?;
         }

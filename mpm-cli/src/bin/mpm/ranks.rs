@@ -186,10 +186,13 @@ impl Ranks {
                 None => Ok(()),
             };
         }
-        let p = sim.particles();
+        // In global id order: the cell order ([`mpm_core::order`]) has moved the particles.
+        let (p, ids) = (sim.particles(), sim.exchange());
         let mut bytes = vec![0u8; p.len() * RECORD_BYTES];
-        for (i, out) in bytes.chunks_exact_mut(RECORD_BYTES).enumerate() {
-            put_record(out, i as u64, state_values(p, i));
+        for i in 0..p.len() {
+            let id = ids.global_id(i);
+            let at = id as usize * RECORD_BYTES;
+            put_record(&mut bytes[at..at + RECORD_BYTES], id, state_values(p, i));
         }
         write_state(path, &bytes)
     }

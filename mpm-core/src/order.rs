@@ -1,0 +1,194 @@
+//! Particles kept in cell order: every few steps the particle arrays are sorted by the block
+//! of 4^3 cells each particle lies in, blocks in Morton order (x the most significant axis),
+//! particles of one block in their previous order.
+//!
+//! Why: the scatters and the particle update read and write the 8 nodes of each particle's
+//! cell. Neighbouring particles in memory then touch neighbouring nodes, so the node records
+//! a block of particles needs stay in the caches while it goes through, and the repeated
+//! cell look-ups of [`crate::grid::CellNodes`] hit. The particles start in the order their
+//! scenario made them (layer by layer); the debris of an impact mixes that order within tens
+//! of steps.
+//!
+//! The sort is a function of the positions alone: the same positions give the same order
+//! whatever the strategy and thread count, so the equivalence of the strategies is kept.
+//! Blocks are counted on the anchor's lattice ([`GridGeom::start`]), so a refitted adaptive
+//! grid does not move them. The permutation goes to the run's [`Exchange`], which keeps the
+//! particles' global ids (index in the initial set) for dumps and for the scenarios'
+//! figures that tell particles apart by id.
+//!
+//! It runs before a step, in the caller's rayon pool (`install`), on its threads: keys,
+//! sort (`par_sort_unstable` on unique keys: the result does not depend on the schedule),
+//! then the arrays gathered component by component through one `f64` buffer. Its memory is
+//! 16 bytes per particle (keys and that buffer), allocated at the first sort and kept.
+
+use crate::exchange::Exchange;
+use crate::grid::GridGeom;
+use crate::particles::Particles;
+use crate::shape;
+use rayon::prelude::*;
+
+/// Default [`crate::SimConfig::sort_every`]: sort the particles before every 20th step
+/// (and before the first).
+pub const SORT_EVERY: u64 = 20;
+
+/// Cells per block edge of the sort key (the sparse grid's blocks, [`crate::blocks`]).
+const BLOCK_CELLS: i64 = 4;
+
+/// Bits per axis of the block coordinates in the key: up to 1024 blocks (4096 cells) per
+/// axis are told apart; beyond that the coordinates are clamped (the order stays valid,
+/// only less local).
+const AXIS_BITS: u32 = 10;
+
+/// The sort's buffers, kept between sorts.
+#[derive(Debug, Default)]
+pub(crate) struct CellOrder {
+    /// `key << 32 | index` per particle; after the sort, the old index of each new position.
+    keys: Vec<u64>,
+    /// One component of one particle array, gathered.
+    scratch: Vec<f64>,
+}
+
+impl CellOrder {
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        crate::capacity_bytes(&self.keys) + crate::capacity_bytes(&self.scratch)
+    }
+
+    /// Sort `particles` into cell order on `geom` (the grid of the last step: a particle
+    /// outside it counts in its nearest cell) and tell `exchange` the permutation. Returns
+    /// whether anything moved. Runs on the current rayon pool.
+    pub fn sort(&mut self, geom: &GridGeom, particles: &mut Particles, exchange: &mut dyn Exchange) -> bool {
+        let n = particles.len();
+        assert!(
+            n <= u32::MAX as usize,
+            "the cell order packs particle indices in 32 bits: at most 2^32 particles a process"
+        );
+        // Both buffers at once, so that only the first sort allocates.
+        self.keys.resize(n, 0);
+        self.scratch.resize(n, 0.0);
+        let x = &particles.x;
+        self.keys.par_iter_mut().enumerate().with_min_len(4096).for_each(|(i, k)| {
+            *k = (block_key(geom, x[i]) << 32) | i as u64;
+        });
+        self.keys.par_sort_unstable();
+        let order = &mut self.keys;
+        order.par_iter_mut().with_min_len(4096).for_each(|k| *k &= u64::from(u32::MAX));
+        if order.par_iter().enumerate().all(|(i, &k)| k == i as u64) {
+            return false;
+        }
+        let Particles { x, v, mass, rho, stress, eps_p, e_int, sound, failed } = particles;
+        gather(x, order, &mut self.scratch);
+        gather(v, order, &mut self.scratch);
+        gather(bytemuck::cast_slice_mut::<f64, [f64; 1]>(mass), order, &mut self.scratch);
+        gather(bytemuck::cast_slice_mut::<f64, [f64; 1]>(rho), order, &mut self.scratch);
+        gather(stress, order, &mut self.scratch);
+        gather(bytemuck::cast_slice_mut::<f64, [f64; 1]>(eps_p), order, &mut self.scratch);
+        gather(bytemuck::cast_slice_mut::<f64, [f64; 1]>(e_int), order, &mut self.scratch);
+        gather(bytemuck::cast_slice_mut::<f64, [f64; 1]>(sound), order, &mut self.scratch);
+        let scratch = &mut self.scratch;
+        scratch.par_iter_mut().zip(order.par_iter()).with_min_len(4096).for_each(|(s, &o)| {
+            *s = if failed[o as usize] { 1.0 } else { 0.0 };
+        });
+        failed.par_iter_mut().zip(scratch.par_iter()).with_min_len(4096).for_each(|(f, &s)| *f = s != 0.0);
+        exchange.reorder(order);
+        true
+    }
+}
+
+/// `data[i] = old data[order[i]]`, one component at a time through `scratch`.
+fn gather<const K: usize>(data: &mut [[f64; K]], order: &[u64], scratch: &mut [f64]) {
+    for c in 0..K {
+        scratch.par_iter_mut().zip(order.par_iter()).with_min_len(4096).for_each(|(s, &o)| *s = data[o as usize][c]);
+        data.par_iter_mut().zip(scratch.par_iter()).with_min_len(4096).for_each(|(d, &s)| d[c] = s);
+    }
+}
+
+/// The Morton code of the block of the cell of `geom` holding `x` (x's bits the most
+/// significant of each triple).
+fn block_key(geom: &GridGeom, x: crate::math::Vec3) -> u64 {
+    let cell = shape::cell_of(x, geom.origin, geom.inv_dx, geom.cells);
+    let max = (1i64 << AXIS_BITS) - 1;
+    let b: [u64; 3] = std::array::from_fn(|d| {
+        let lattice = geom.start[d] + cell[d] as i64;
+        (lattice.div_euclid(BLOCK_CELLS) - geom.start[d].div_euclid(BLOCK_CELLS)).clamp(0, max) as u64
+    });
+    spread(b[0]) << 2 | spread(b[1]) << 1 | spread(b[2])
+}
+
+/// The low [`AXIS_BITS`] bits of `v` spread to every third bit.
+fn spread(v: u64) -> u64 {
+    let mut out = 0;
+    for bit in 0..AXIS_BITS {
+        out |= (v >> bit & 1) << (3 * bit);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::exchange::OneProcess;
+    use crate::grid::GridSpec;
+
+    fn particles(xs: &[[f64; 3]]) -> Particles {
+        let mut p = Particles::default();
+        for (i, &x) in xs.iter().enumerate() {
+            let f = i as f64;
+            p.push(x, [f, -f, 2.0 * f], 1.0 + f, 1000.0 + f, 10.0 + f);
+            p.stress[i] = [f, 2.0 * f, 3.0 * f, 4.0 * f, 5.0 * f, 6.0 * f];
+            p.eps_p[i] = 0.5 * f;
+            p.e_int[i] = 7.0 * f;
+            p.failed[i] = i % 3 == 0;
+        }
+        p
+    }
+
+    #[test]
+    fn morton_code_interleaves_x_first() {
+        assert_eq!(spread(0b101), 0b001_000_001);
+        let spec = GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [16, 16, 16] };
+        let g = GridGeom::fixed(&spec);
+        assert_eq!(block_key(&g, [0.5, 0.5, 0.5]), 0);
+        assert_eq!(block_key(&g, [3.9, 3.9, 3.9]), 0, "one block of 4 cells per axis");
+        assert_eq!(block_key(&g, [4.5, 0.5, 0.5]), 0b100);
+        assert_eq!(block_key(&g, [0.5, 4.5, 0.5]), 0b010);
+        assert_eq!(block_key(&g, [0.5, 0.5, 4.5]), 0b001);
+        assert_eq!(block_key(&g, [8.5, 0.5, 0.5]), 0b100_000);
+        assert_eq!(block_key(&g, [-5.0, 0.5, 99.0]), 0b001_001, "outside: the nearest cell");
+    }
+
+    /// Every particle's whole state moves with it, blocks come out in Morton order and
+    /// particles of one block keep their order; the exchange learns the permutation.
+    #[test]
+    fn sort_moves_whole_particles_into_block_order() {
+        let xs = [[4.5, 0.5, 0.5], [0.5, 4.5, 0.5], [0.5, 0.5, 0.5], [4.6, 0.4, 0.4], [1.5, 1.5, 1.5], [0.5, 0.5, 4.5]];
+        let before = particles(&xs);
+        let mut p = before.clone();
+        let g = GridGeom::fixed(&GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [16, 16, 16] });
+        let mut ex = OneProcess::default();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        let mut order = CellOrder::default();
+        assert!(pool.install(|| order.sort(&g, &mut p, &mut ex)));
+        let want = [2, 4, 5, 1, 0, 3];
+        for (i, &o) in want.iter().enumerate() {
+            assert_eq!(p.x[i], before.x[o]);
+            assert_eq!(p.v[i], before.v[o]);
+            assert_eq!(p.mass[i], before.mass[o]);
+            assert_eq!(p.rho[i], before.rho[o]);
+            assert_eq!(p.stress[i], before.stress[o]);
+            assert_eq!(p.eps_p[i], before.eps_p[o]);
+            assert_eq!(p.e_int[i], before.e_int[o]);
+            assert_eq!(p.sound[i], before.sound[o]);
+            assert_eq!(p.failed[i], before.failed[o]);
+            assert_eq!(ex.global_id(i), o as u64);
+        }
+        // Sorted already: nothing moves, the ids stay.
+        assert!(!pool.install(|| order.sort(&g, &mut p, &mut ex)));
+        assert_eq!((0..6).map(|i| ex.global_id(i)).collect::<Vec<_>>(), want.map(|o| o as u64));
+        // Moved again: the ids compose.
+        p.x.swap(0, 5);
+        assert!(pool.install(|| order.sort(&g, &mut p, &mut ex)));
+        assert_eq!((0..6).map(|i| ex.global_id(i)).collect::<Vec<_>>(), [4, 3, 5, 1, 2, 0]);
+        assert_eq!((p.v[0], p.v[1]), (before.v[4], before.v[3]), "the velocity stays with the particle");
+    }
+}
