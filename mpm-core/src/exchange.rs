@@ -134,26 +134,33 @@ pub struct ExchangeStats {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SingleProcess;
 
-impl Collectives for SingleProcess {
-    fn ranks(&self) -> usize {
-        1
-    }
-    fn rank(&self) -> usize {
-        0
-    }
-    fn sum(&mut self, _: &mut [f64]) -> Result<(), SimError> {
-        Ok(())
-    }
-    fn sum_counts(&mut self, _: &mut [u64]) -> Result<(), SimError> {
-        Ok(())
-    }
-    fn max(&mut self, _: &mut [f64]) -> Result<(), SimError> {
-        Ok(())
-    }
-    fn gather(&mut self, values: Vec<f64>) -> Result<Option<Vec<f64>>, SimError> {
-        Ok(Some(values))
-    }
+/// The collectives of one process, where every operation is the identity.
+macro_rules! identity_collectives {
+    ($t:ty) => {
+        impl Collectives for $t {
+            fn ranks(&self) -> usize {
+                1
+            }
+            fn rank(&self) -> usize {
+                0
+            }
+            fn sum(&mut self, _: &mut [f64]) -> Result<(), SimError> {
+                Ok(())
+            }
+            fn sum_counts(&mut self, _: &mut [u64]) -> Result<(), SimError> {
+                Ok(())
+            }
+            fn max(&mut self, _: &mut [f64]) -> Result<(), SimError> {
+                Ok(())
+            }
+            fn gather(&mut self, values: Vec<f64>) -> Result<Option<Vec<f64>>, SimError> {
+                Ok(Some(values))
+            }
+        }
+    };
 }
+
+identity_collectives!(SingleProcess);
 
 /// The exchange of a run in one process: no other rank, so every operation but the ids is
 /// the identity. It keeps the particles' global ids once the cell order
@@ -168,26 +175,7 @@ pub struct OneProcess {
     scratch: Vec<u32>,
 }
 
-impl Collectives for OneProcess {
-    fn ranks(&self) -> usize {
-        1
-    }
-    fn rank(&self) -> usize {
-        0
-    }
-    fn sum(&mut self, _: &mut [f64]) -> Result<(), SimError> {
-        Ok(())
-    }
-    fn sum_counts(&mut self, _: &mut [u64]) -> Result<(), SimError> {
-        Ok(())
-    }
-    fn max(&mut self, _: &mut [f64]) -> Result<(), SimError> {
-        Ok(())
-    }
-    fn gather(&mut self, values: Vec<f64>) -> Result<Option<Vec<f64>>, SimError> {
-        Ok(Some(values))
-    }
-}
+identity_collectives!(OneProcess);
 
 impl Exchange for OneProcess {
     fn adopt(&mut self, particles: &mut Particles, ids: Option<Vec<u64>>) -> Result<(), SimError> {
