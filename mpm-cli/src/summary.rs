@@ -28,7 +28,8 @@ pub const TARGET: &str = env!("MPM_TARGET");
 
 /// Records the energy history of a run of unknown length in bounded memory: keeps every
 /// `stride`-th step, doubling the stride when too many points pile up, plus the latest.
-#[derive(Clone, Debug)]
+/// Saved whole in a checkpoint (its serialised form).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct HistoryRecorder {
     points: Vec<HistoryPoint>,
     stride: u64,
@@ -81,6 +82,11 @@ impl HistoryRecorder {
         }
         out
     }
+}
+
+/// Now, in seconds since the Unix epoch (0 if the clock is before it).
+pub fn unix_now() -> f64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// Peak resident memory of this process (`VmHWM` in `/proc/self/status`), bytes.

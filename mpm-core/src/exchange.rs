@@ -94,6 +94,10 @@ pub trait Exchange: Collectives {
     fn stats(&self) -> ExchangeStats {
         ExchangeStats::default()
     }
+
+    /// Continue counting from `stats`, the traffic of a saved run's steps
+    /// ([`crate::Simulation::resume`]; nothing to do for one process).
+    fn resume_stats(&mut self, _stats: ExchangeStats) {}
 }
 
 /// What an [`Exchange`] sent and how long it took, summed over the steps taken.

@@ -22,7 +22,7 @@
 //! patches); once the tables have reached their largest size it allocates nothing.
 
 use super::domain_decomposition::Patch;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Place the `parts - 1` inner cut planes of one axis at the particle-count quantiles of
 /// `hist` (particles per cell plane along the axis). `cuts` has `parts + 1` entries and
@@ -353,6 +353,12 @@ impl LayoutChooser {
         self.current
     }
 
+    /// A chooser whose layout in use is `current` (a run continued from a saved state
+    /// keeps the layout the hysteresis held, see [`LayoutChooser::choose`]).
+    pub fn resumed(current: Option<[usize; 3]>) -> Self {
+        Self { current, scratch: Vec::new() }
+    }
+
     /// Predicted work imbalance of `layout` for the histograms `marginals` (particles per
     /// cell plane along x, y and z); 1 without particles.
     pub fn predict(&mut self, marginals: [&[u32]; 3], layout: [usize; 3]) -> f64 {
@@ -406,7 +412,7 @@ pub fn imbalance(counts: &[u32]) -> Option<f64> {
 }
 
 /// Per-patch particle counts and work imbalance accumulated over the steps of a run.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PatchLoad {
     /// Steps recorded.
     pub steps: u64,
