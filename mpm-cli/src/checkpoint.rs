@@ -15,6 +15,8 @@
 //! flushed and `fsync`ed), then the folder is `fsync`ed, renamed to `step-N/` and its parent
 //! `fsync`ed ([`Folder::commit`]): a checkpoint that exists under its name is complete on
 //! disk, whatever kills the run. Only then are checkpoints older than the last two removed.
+//! The run that writes into the folder holds its lock (`DIR/.lock`, [`Folder::lock`]): a
+//! second run or resume into it waits for the first to end, or is refused.
 //!
 //! # One rank's file
 //!
@@ -63,6 +65,7 @@
 //! print(header["step"], header["time_s"], p["x"].shape, p["stress"][:, 2].min())
 //! ```
 
+use crate::lock::{FolderLock, LockError};
 use anyhow::{bail, Context, Result};
 use mpm_core::Particles;
 use serde::{Deserialize, Serialize};
@@ -70,6 +73,7 @@ use sha2::{Digest, Sha256};
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 /// The first 8 bytes of every checkpoint file.
 pub const MAGIC: &[u8; 8] = b"MPMCKPT1";
@@ -123,7 +127,7 @@ pub struct Header {
     pub git_commit: String,
     /// SHA-256 of the `mpm` binary that wrote it.
     pub binary_sha256: String,
-    /// The run's key ([`mpm_spec::RunSpec::key`]).
+    /// The run's key ([`run_key`]).
     pub spec_key: String,
     /// Bytes of the data section.
     pub data_bytes: u64,
@@ -222,7 +226,7 @@ pub struct Meta {
     pub step: u64,
     /// Simulated time (s).
     pub time_s: f64,
-    /// [`mpm_spec::RunSpec::key`] of the run.
+    /// [`run_key`] of the run.
     pub spec_key: String,
     /// SHA-256 of this binary.
     pub binary_sha256: String,
@@ -480,6 +484,23 @@ impl Folder {
         &self.dir
     }
 
+    /// Take the folder's lock for the run that writes its checkpoints (one process: rank
+    /// 0), waiting up to `wait` for another holder to end (the ranks of a run killed with its
+    /// launcher end a moment after it). Held until dropped.
+    pub fn lock(&self, wait: Duration) -> Result<FolderLock> {
+        let waiting = |who: &str| {
+            eprintln!("waiting for the checkpoint folder {} (in use by {who})", self.dir.display());
+        };
+        match FolderLock::acquire(&self.dir, "mpm", Some(wait), waiting) {
+            Ok(lock) => Ok(lock),
+            Err(LockError::Busy(who)) => bail!(
+                "the checkpoint folder {} is in use by {who}: another run is writing checkpoints into it; wait for it                  to end, or give this run a folder of its own",
+                self.dir.display()
+            ),
+            Err(e) => Err(e.into()),
+        }
+    }
+
     /// Its complete checkpoints, oldest first (none when the folder does not exist).
     pub fn list(&self) -> Result<Vec<Entry>> {
         let rd = match std::fs::read_dir(&self.dir) {
@@ -567,6 +588,15 @@ impl Folder {
     }
 }
 
+/// The key a checkpoint names its run by: the spec's [`mpm_spec::RunSpec::key`] with the
+/// warm-up left out (a fresh run resolves it only once its first time step is known, and it
+/// changes no result).
+pub fn run_key(spec: &mpm_spec::RunSpec) -> String {
+    let mut s = spec.clone();
+    s.budget.warmup = None;
+    s.key()
+}
+
 /// The rank count and run key of the newest checkpoint in `dir` and when it was written, from
 /// rank 0's header (not checked further): what the harness and `mpm resume` need before
 /// they start a run. `None` when `dir` holds no checkpoint.
@@ -577,8 +607,8 @@ pub fn newest_header(dir: &Path) -> Result<Option<(Entry, Header)>> {
 }
 
 /// Refuse `dir` as a new run's checkpoint folder when it already holds checkpoints, so
-/// that nothing in it is overwritten: of this run (`key`), continue it with `mpm resume`;
-/// of another, choose another folder.
+/// that nothing in it is overwritten: of this run (`key`, its [`run_key`]), continue it with
+/// `mpm resume`; of another, choose another folder.
 pub fn refuse_used_folder(dir: &Path, key: &str) -> Result<()> {
     let entries = Folder::new(dir).list()?;
     let Some(newest) = entries.last() else { return Ok(()) };

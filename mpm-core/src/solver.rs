@@ -225,6 +225,14 @@ pub struct Simulation {
     busy_before: Option<Vec<f64>>,
 }
 
+/// What a simulation takes from its set-up besides the particles.
+struct Parts {
+    material: Material,
+    spec: GridSpec,
+    walls: Vec<Wall>,
+    spacing: Vec3,
+}
+
 /// The checks of a configuration every set-up makes; the SIMD level it runs at.
 fn check_config(config: &SimConfig, material: &Material) -> Result<SimdLevel, SimError> {
     config.strategy.check_threads(config.threads).map_err(SimError::Config)?;
@@ -321,6 +329,47 @@ impl Simulation {
         };
         let dt = config.cfl * spec.dx / max_speed[0];
         let geom = exchange.local_grid(&global);
+        let state = SimState {
+            strategy: config.strategy,
+            threads: config.threads,
+            steps: 0,
+            time: 0.0,
+            dt_next: dt,
+            dt_first: dt,
+            bbox,
+            initial,
+            last: initial,
+            balance: EnergyBalance::new(initial.total()),
+            node_steps: 0,
+            mass_tol: 1e-12 * mean_mass,
+            total,
+            migrated: 0,
+            global,
+            geom,
+            times: StageTimes::default(),
+            busy: None,
+            engine: EngineState::default(),
+            // The set-up's own reductions.
+            exchange: exchange.stats(),
+        };
+        Ok(Self::assemble(Parts { material, spec, walls, spacing }, config, exchange, particles, simd, state))
+    }
+
+    /// The simulation of `state` (with this rank's grid `state.geom`) and `particles`: the
+    /// arrays a step needs, sized for that grid (so that memory figures are right before the
+    /// first step and the first step does not allocate either), the strategy (continuing
+    /// from `state.engine` when it is the one the state was saved with), the team.
+    fn assemble(
+        parts: Parts,
+        config: SimConfig,
+        mut exchange: Box<dyn Exchange>,
+        particles: Particles,
+        simd: SimdLevel,
+        state: SimState,
+    ) -> Self {
+        let Parts { material, spec, walls, spacing } = parts;
+        let geom = state.geom;
+        let consts = material.consts().with_viscosity(config.bulk_viscosity, spec.dx);
         let mut wall_layers = WallLayers::with_capacity(walls.len());
         wall_layers.resolve(&walls, &geom);
         let blocks = (config.grid_mode == GridMode::Sparse).then(|| {
@@ -330,23 +379,26 @@ impl Simulation {
         });
         let mut nodes = NodeArrays::default();
         nodes.resize(NodeIndex::of(&geom, blocks.as_ref()).num_nodes());
-        // Size the strategy's buffers for the initial grid now, so that memory figures are
-        // right before the first step and the first step does not allocate either.
         let mut engine = Engine::new(config.strategy, config.threads);
         let parts_len = engine.reserve(&geom, blocks.as_ref());
-        Ok(Self {
+        let same = state.strategy == config.strategy && state.threads == config.threads;
+        if same {
+            engine.restore(&state.engine);
+        }
+        exchange.resume_stats(state.exchange);
+        Self {
             engine,
             spacing,
             partials: vec![Partial::default(); config.threads],
             consts,
-            mass_tol: 1e-12 * mean_mass,
+            mass_tol: state.mass_tol,
             particles,
             material,
             spec,
-            global,
+            global: state.global,
             exchange,
-            migrated: 0,
-            total,
+            migrated: state.migrated,
+            total: state.total,
             walls,
             wall_layers,
             geom,
@@ -354,23 +406,23 @@ impl Simulation {
             blocks,
             p2g_parts: Records::zeroed(parts_len),
             remap_parts: Records::zeroed(parts_len),
-            time: 0.0,
-            steps: 0,
-            dt_next: dt,
-            dt_first: dt,
-            bbox,
-            initial,
-            last: initial,
-            balance: EnergyBalance::new(initial.total()),
-            node_steps: 0,
-            times: StageTimes::default(),
+            time: state.time,
+            steps: state.steps,
+            dt_next: state.dt_next,
+            dt_first: state.dt_first,
+            bbox: state.bbox,
+            initial: state.initial,
+            last: state.last,
+            balance: state.balance,
+            node_steps: u128::from(state.node_steps),
+            times: state.times,
             poisoned: None,
             released: false,
             simd,
             team: config.strategy.is_parallel().then(|| Arc::new(Team::new(config.threads))),
-            busy_before: None,
+            busy_before: state.busy.filter(|b| same && b.len() == config.threads),
             config,
-        })
+        }
     }
 
     /// What this simulation carries from one step to the next besides its particles
@@ -448,60 +500,7 @@ impl Simulation {
                 "this rank's part of the grid differs from the saved one: continue the run with the rank count and layout it was saved with".into(),
             ));
         }
-        let consts = material.consts().with_viscosity(config.bulk_viscosity, spec.dx);
-        let mut wall_layers = WallLayers::with_capacity(walls.len());
-        wall_layers.resolve(&walls, &geom);
-        let blocks = (config.grid_mode == GridMode::Sparse).then(|| {
-            let mut map = BlockMap::default();
-            map.build(&Exec::serial(), &geom, &particles.x);
-            map
-        });
-        let mut nodes = NodeArrays::default();
-        nodes.resize(NodeIndex::of(&geom, blocks.as_ref()).num_nodes());
-        let mut engine = Engine::new(config.strategy, config.threads);
-        let parts_len = engine.reserve(&geom, blocks.as_ref());
-        let same = state.strategy == config.strategy && state.threads == config.threads;
-        if same {
-            engine.restore(&state.engine);
-        }
-        exchange.resume_stats(state.exchange);
-        Ok(Self {
-            engine,
-            spacing,
-            partials: vec![Partial::default(); config.threads],
-            consts,
-            mass_tol: state.mass_tol,
-            particles,
-            material,
-            spec,
-            global: state.global,
-            exchange,
-            migrated: state.migrated,
-            total: state.total,
-            walls,
-            wall_layers,
-            geom,
-            nodes,
-            blocks,
-            p2g_parts: Records::zeroed(parts_len),
-            remap_parts: Records::zeroed(parts_len),
-            time: state.time,
-            steps: state.steps,
-            dt_next: state.dt_next,
-            dt_first: state.dt_first,
-            bbox: state.bbox,
-            initial: state.initial,
-            last: state.last,
-            balance: state.balance,
-            node_steps: u128::from(state.node_steps),
-            times: state.times,
-            poisoned: None,
-            released: false,
-            simd,
-            team: config.strategy.is_parallel().then(|| Arc::new(Team::new(config.threads))),
-            busy_before: state.busy.filter(|b| same && b.len() == config.threads),
-            config,
-        })
+        Ok(Self::assemble(Parts { material, spec, walls, spacing }, config, exchange, particles, simd, state))
     }
 
     /// The particles.

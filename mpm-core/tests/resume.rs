@@ -31,7 +31,13 @@ fn continued(setup: &mpm_core::Setup, before: SimConfig, after: SimConfig, first
     // What a restart has: the set-up without particles, the saved state and particles.
     let bare = mpm_core::Setup { particles: Particles::default(), ..setup.clone() };
     let threads = after.threads;
-    let mut sim = Simulation::resume(bare, after, Box::new(SingleProcess), particles, None, state).unwrap();
+    let same = (before.strategy, before.threads) == (after.strategy, after.threads);
+    let mut sim = Simulation::resume(bare, after, Box::new(SingleProcess), particles, None, state.clone()).unwrap();
+    if same {
+        // Taken back whole: the state before any step is the saved one (the balanced cuts'
+        // layout in use included, which only a later step's choice would show).
+        assert_eq!(untimed(sim.state()), untimed(state), "the state right after the restart");
+    }
     step(&mut sim, threads, then);
     sim
 }

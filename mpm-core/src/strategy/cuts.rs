@@ -649,6 +649,9 @@ mod tests {
         assert!((ch.predict([&hx, &hy1, &hz], [1, 8, 1]) - 1520.0 / 1502.5).abs() < 1e-12);
         assert_eq!(LayoutChooser::default().choose(8, paper, [&hx, &hy1, &hz]), [8, 1, 1]);
         assert_eq!(ch.choose(8, paper, [&hx, &hy1, &hz]), [1, 8, 1], "kept within the slack");
+        // A chooser continued from a saved run's layout in use decides as the saved one.
+        let mut resumed = LayoutChooser::resumed(Some([1, 8, 1]));
+        assert_eq!(resumed.choose(8, paper, [&hx, &hy1, &hz]), [1, 8, 1], "the hysteresis survives a restart");
         let hy2 = heavy(200); // 1x8x1 predicts 1.117: beyond the slack
         assert_eq!(ch.choose(8, paper, [&hx, &hy2, &hz]), [8, 1, 1]);
         // No particles: the paper's layout.
