@@ -95,7 +95,7 @@ pub struct Cli {
 pub enum Command {
     /// Run one simulation: a scenario and its flags (e.g. `mpm run taylor --model 1`), or a
     /// run spec (`mpm run --spec FILE`).
-    Run(RunCmd),
+    Run(Box<RunCmd>),
     /// Continue a run from its newest checkpoint (`mpm run ... --checkpoint-dir DIR`): with
     /// the same strategy and thread count (and, over MPI, the same rank count) it ends bit
     /// for bit where the run would have ended had it never stopped, and writes the same

@@ -39,7 +39,7 @@ fn main() {
 fn dispatch(cli: Cli) -> Result<()> {
     let command_line: Vec<String> = std::env::args().collect();
     let RunCmd { scenario, spec, json, quiet, control } = match cli.command {
-        Command::Run(run) => run,
+        Command::Run(run) => *run,
         Command::Resume(cmd) => return resume::resume(cmd, command_line),
     };
     let (request, control) = match (scenario, spec) {
