@@ -644,7 +644,7 @@ pub fn go(run: Ready, ranks: &mut Ranks) -> Result<()> {
     let lead = ranks.rank() == 0;
     let quiet = spec.outputs.quiet;
     let interrupted = install_interrupt_handler();
-    let progress = Progress::new(quiet || !lead, spec.budget.end_time_s, spec.budget.steps);
+    let progress = Progress::new(quiet || !lead, spec.budget.end_time_s, spec.budget.steps, &sim);
     let ctx = LoopContext {
         spec: &spec,
         pool: &pool,
