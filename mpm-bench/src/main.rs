@@ -245,6 +245,13 @@ struct RunArgs {
     /// guard: runs that would not fit are recorded as skipped.
     #[arg(long, value_name = "SIZE")]
     mem_limit: Option<String>,
+    /// Every run saves its state this often, as steps (`500`) or wall-clock time (`10m`)
+    /// (default: the preset's `checkpoint_every`, else none), into
+    /// <campaign>/checkpoints/<run>/: a run killed, timed out or interrupted continues from
+    /// its last checkpoint when the campaign resumes, and its row records the restarts and
+    /// the compute time lost. A finished run's checkpoints are removed.
+    #[arg(long, value_name = "N|DURATION", value_parser = mpm_spec::spec::CheckpointEvery::parse)]
+    checkpoint_every: Option<mpm_spec::spec::CheckpointEvery>,
     /// Root folder of the results tree. The default, results/local, is not tracked by git:
     /// the committed reference campaigns under results/<fingerprint>/ are never written.
     #[arg(long, value_name = "DIR", default_value = "results/local")]
@@ -432,6 +439,7 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         warmup: a.warmup,
         grid: a.grid.as_deref().map(str::parse::<mpm_core::GridMode>).transpose().map_err(anyhow::Error::msg)?,
         mem_limit: a.mem_limit.as_deref().map(preset::parse_size).transpose()?,
+        checkpoint_every: a.checkpoint_every,
         seed: a.seed,
     })
 }

@@ -377,7 +377,7 @@ fn pinning_none_passes_no_cpus() {
 /// readers would misread it). The spec's columns come from `mpm_spec::RunSpec` itself.
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 6);
+    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 7);
     let want = "schema_version,campaign_id,run_id,run_key,timestamp,git_commit,git_dirty,machine_id,binary_sha256,\
 seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,scenario.wall,\
 scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell,strategy,threads,\
@@ -401,10 +401,10 @@ worker_busy_s,load_imbalance,dd_work_imbalance,peak_rss_bytes,peak_rss_sum_bytes
 rank_busy_imbalance,migrated_particles,comm_s_per_step,comm_frac,wait_s_per_step,wait_frac,\
 comm_bytes_per_step,comm_messages_per_step,kinetic_energy_initial_j,kinetic_energy_j,\
 internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
-failed_particles,host_load1_before,host_load1_after,host_others_running_before,\
+failed_particles,checkpoints_written,checkpoint_write_s,restarts,restart_setup_s,host_load1_before,host_load1_after,host_others_running_before,\
 host_others_running_after,host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,\
 calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,status,reason,exit_code,process_wall_s,\
-mem_estimate_bytes";
+mem_estimate_bytes,lost_compute_s";
     assert_eq!(Row::header().join(","), want);
 }
 
@@ -611,6 +611,101 @@ fn end_to_end_smoke_campaign_with_the_real_solver() {
     let second = bench().args(["run", "--preset", "smoke", "--out", out, "--quiet", "--no-build"]).output().unwrap();
     assert!(second.status.success(), "{}", String::from_utf8_lossy(&second.stderr));
     assert_eq!(read_rows(&d.join("runs.csv")).unwrap().len(), rows.len());
+}
+
+/// Checkpoints in a campaign, with the real solver: a campaign interrupted (SIGINT) in the
+/// middle of a run, then resumed with a time-out shorter than the run, continues the run from
+/// its checkpoints attempt after attempt until it ends; its row records the restarts and the
+/// compute time lost, the failed attempts' rows say they timed out, the checkpoints are
+/// removed, and the physics are bitwise those of the run made in one go.
+#[test]
+fn interrupted_and_timed_out_runs_continue_from_their_checkpoints() {
+    let dir = tempfile::tempdir().unwrap();
+    let preset = dir.path().join("ckpt.toml");
+    std::fs::write(
+        &preset,
+        "name = \"ckpt\"\ndescription = \"checkpoints\"\nscenario = \"taylor\"\nmodels = [1]\nthreads = [1]\n\
+         strategies = [\"serial\"]\nopt = [\"o3\"]\nreps = 1\npin = \"close\"\ngrid = \"fixed\"\nseed = 1\n\
+         timeout = \"3s\"\ncheckpoint_every = 10\n\n[budget]\nsteps = 400\nwarmup = 2\n",
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let args = ["run", "--preset", preset.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet"];
+    let (p, src) = preset::load_preset(preset.to_str().unwrap(), None).unwrap();
+    let c = Campaign::resolve(p, src, &Overrides::default()).unwrap();
+    assert_eq!(c.checkpoint_every, Some(mpm_spec::spec::CheckpointEvery::Steps(10)));
+    let d = runner::campaign_dir(&out, &Machine::detect().unwrap(), &c);
+    let checkpoints = d.join("checkpoints");
+    let has_checkpoint = || {
+        std::fs::read_dir(&checkpoints).is_ok_and(|rd| {
+            rd.flatten().any(|e| {
+                std::fs::read_dir(e.path())
+                    .is_ok_and(|r| r.flatten().any(|f| f.file_name().to_string_lossy().starts_with("step-")))
+            })
+        })
+    };
+    // 1. Interrupted once the run has a checkpoint: no row, the attempt's loss booked.
+    let child = bench().args(args).stderr(std::process::Stdio::null()).spawn().unwrap();
+    let t0 = std::time::Instant::now();
+    while !has_checkpoint() {
+        assert!(t0.elapsed().as_secs() < 900, "no checkpoint after 15 minutes (building mpm included)");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap().success());
+    assert_eq!(child.wait_with_output().unwrap().status.code(), Some(130));
+    let csv = d.join("runs.csv");
+    assert!(read_rows(&csv).map_or(true, |r| r.is_empty()), "an interrupted run writes no row");
+    let log = std::fs::read_dir(&checkpoints)
+        .unwrap()
+        .flatten()
+        .find(|e| e.file_name().to_string_lossy().ends_with(".attempts.json"))
+        .unwrap()
+        .path();
+    assert!(std::fs::read_to_string(&log).unwrap().contains("interrupted"));
+    // 2. Resumed until the run ends, every attempt cut by the 3 s time-out but for the last.
+    let mut sessions = 0;
+    while !read_rows(&csv).unwrap_or_default().iter().any(|r| r.outcome.status == Status::Ok) {
+        sessions += 1;
+        assert!(
+            sessions <= 10,
+            "the run never finished: {:?}",
+            read_rows(&csv).unwrap_or_default().iter().map(|r| r.outcome.reason.clone()).collect::<Vec<_>>()
+        );
+        let r = bench().args(args).args(["--no-build", "--allow-failures"]).output().unwrap();
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    let rows = read_rows(&csv).unwrap();
+    let (ok, failed): (Vec<&Row>, Vec<&Row>) = rows.iter().partition(|r| r.outcome.status == Status::Ok);
+    assert_eq!(ok.len(), 1);
+    let ok = ok[0];
+    assert_eq!(ok.measured.steps, Some(400));
+    assert_eq!(ok.measured.restarts, Some(1 + failed.len() as u32), "every attempt after the first continued");
+    assert!(ok.measured.checkpoints_written.is_some_and(|n| n >= 39), "{:?}", ok.measured.checkpoints_written);
+    assert!(
+        ok.measured.checkpoint_write_s.is_some_and(|s| s > 0.0) && ok.measured.restart_setup_s.is_some_and(|s| s > 0.0)
+    );
+    let lost = ok.outcome.lost_compute_s.unwrap();
+    for f in &failed {
+        assert!(f.outcome.reason.contains("timed out"), "{}", f.outcome.reason);
+        assert!(f.outcome.lost_compute_s.is_some_and(|l| l > 0.0 && l <= lost));
+    }
+    assert!(lost > 0.0 && lost < 3.5 * (1 + failed.len()) as f64, "lost {lost} s over {} attempts", 1 + failed.len());
+    assert!(std::fs::read_dir(&checkpoints).unwrap().next().is_none(), "a finished run's checkpoints are removed");
+    // 3. The physics of the run made in one go, bit for bit.
+    let man = mpm_bench::campaign::manifest::read(&d.join("manifest.json")).unwrap();
+    let mpm = &man.software.binaries[0].path;
+    let json = dir.path().join("whole.json");
+    let whole = Command::new(mpm)
+        .args(["run", "taylor", "--model", "1", "--steps", "400", "--warmup", "2", "--quiet", "--json"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(whole.status.success());
+    let s: mpm_spec::Summary = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(ok.measured.kinetic_energy_j.map(f64::to_bits), Some(s.kinetic_energy.to_bits()));
+    assert_eq!(ok.measured.internal_energy_j.map(f64::to_bits), Some(s.internal_energy.to_bits()));
+    assert_eq!(ok.measured.final_length_m.map(f64::to_bits), s.final_length_m.map(f64::to_bits));
+    assert_eq!(ok.measured.mean_nodes.map(f64::to_bits), Some(s.mean_nodes.to_bits()));
 }
 
 /// Ctrl-C (SIGINT) in the middle of a campaign leaves a valid CSV with every finished run,

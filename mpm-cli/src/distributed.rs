@@ -626,6 +626,12 @@ mod mpi_impl {
         fn stats(&self) -> ExchangeStats {
             self.stats
         }
+
+        fn resume_stats(&mut self, stats: ExchangeStats) {
+            // The waiting is measured exactly when this run splits it out (`--split-wait`).
+            let wait_seconds = self.split_wait.then(|| stats.wait_seconds.unwrap_or(0.0));
+            self.stats = ExchangeStats { wait_seconds, ..stats };
+        }
     }
 
     #[cfg(test)]

@@ -58,16 +58,21 @@ pub fn read_caches(dir: &Path) -> Vec<CacheSize> {
 
 /// Provenance of this process: this host, this binary and the build constants.
 pub fn provenance_of_this_process() -> Provenance {
-    // /proc/self/exe opens the running image even if the file was rebuilt meanwhile.
-    let proc_exe = Path::new("/proc/self/exe");
-    let exe = if proc_exe.exists() { Some(proc_exe.to_path_buf()) } else { std::env::current_exe().ok() };
     Provenance {
         host: read_host(),
         rustc: RUSTC.to_string(),
         git_commit: GIT_COMMIT.to_string(),
         git_dirty: GIT_DIRTY.parse().ok(),
-        binary_sha256: exe.and_then(|p| sha256_file(&p).ok()).unwrap_or_else(|| "unknown".into()),
+        binary_sha256: this_binary_sha256(),
     }
+}
+
+/// SHA-256 of the running binary, lower-case hex (`unknown` if it cannot be read).
+pub fn this_binary_sha256() -> String {
+    // /proc/self/exe opens the running image even if the file was rebuilt meanwhile.
+    let proc_exe = Path::new("/proc/self/exe");
+    let exe = if proc_exe.exists() { Some(proc_exe.to_path_buf()) } else { std::env::current_exe().ok() };
+    exe.and_then(|p| sha256_file(&p).ok()).unwrap_or_else(|| "unknown".into())
 }
 
 /// The `--version` line: crate version, commit (with `-dirty`), build profile.

@@ -12,6 +12,9 @@
 //! * [`picture`]: the embedded font of every figure, the radiograph-style view of the
 //!   debris cloud and its history;
 //! * [`atomic`]: atomic file writes;
+//! * [`checkpoint`]: checkpoint files (a TOML header, the particle arrays, a SHA-256) and
+//!   the folder that keeps a run's last two;
+//! * [`lock`]: one writer per folder (`flock`): a campaign's, a run's checkpoints;
 //! * [`identity`]: the host's identity (CPU, caches, SMT, machine id) and the build's
 //!   provenance (commit, dirty flag, rustc, binary SHA-256);
 //! * [`group_digits`]: counts printed for people (`1,234,567`).
@@ -20,8 +23,10 @@
 //! `mpm-core` has no OS code.
 
 pub mod atomic;
+pub mod checkpoint;
 pub mod distributed;
 pub mod identity;
+pub mod lock;
 pub mod memory;
 pub mod picture;
 pub mod pinning;

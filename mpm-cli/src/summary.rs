@@ -12,8 +12,8 @@ use mpm_core::scenario::plate::{PlateGeometry, PlateResult};
 use mpm_core::scenario::taylor::TaylorFigures;
 use mpm_core::{Simulation, StageTimes};
 use mpm_spec::summary::{
-    load_imbalance, EndReason, EnergyReport, EosKind, HistoryPoint, PatchCounts, StageRoofline, StageSeconds, Summary,
-    WallContact, LENGTH_CONVENTION, PLATE_CONFIGURATION,
+    load_imbalance, CheckpointReport, EndReason, EnergyReport, EosKind, HistoryPoint, PatchCounts, StageRoofline,
+    StageSeconds, Summary, WallContact, LENGTH_CONVENTION, PLATE_CONFIGURATION,
 };
 use mpm_spec::{OptLevel, RunSpec};
 
@@ -28,7 +28,8 @@ pub const TARGET: &str = env!("MPM_TARGET");
 
 /// Records the energy history of a run of unknown length in bounded memory: keeps every
 /// `stride`-th step, doubling the stride when too many points pile up, plus the latest.
-#[derive(Clone, Debug)]
+/// Saved whole in a checkpoint (its serialised form).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct HistoryRecorder {
     points: Vec<HistoryPoint>,
     stride: u64,
@@ -83,6 +84,11 @@ impl HistoryRecorder {
     }
 }
 
+/// Now, in seconds since the Unix epoch (0 if the clock is before it).
+pub fn unix_now() -> f64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
+}
+
 /// Peak resident memory of this process (`VmHWM` in `/proc/self/status`), bytes.
 pub fn peak_rss_bytes() -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
@@ -102,8 +108,9 @@ pub fn parse_vm_hwm(status: &str) -> Option<u64> {
     Some(value * unit)
 }
 
-/// Wall-clock figures measured by the program around the stepping loop.
-#[derive(Clone, Debug, Default)]
+/// Wall-clock figures measured by the program around the stepping loop (over every process
+/// that ran a part of it, for a run continued from a checkpoint).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Timing {
     /// Whole stepping loop, VTU output excluded (s).
     pub wall_s: f64,
@@ -157,6 +164,8 @@ pub struct RunContext<'a> {
     pub command_line: Vec<String>,
     /// Wall-clock start of the run, seconds since the Unix epoch.
     pub started_unix_s: f64,
+    /// Checkpoints written and restarts (`None`: neither).
+    pub checkpoint: Option<CheckpointReport>,
 }
 /// Build the summary of a finished run from its simulation and what the program
 /// measured (`ctx`). `peak_rss_bytes` is left for the caller to read last.
@@ -169,6 +178,7 @@ pub fn build(sim: &Simulation, ctx: RunContext<'_>) -> Summary {
     s.model_name = ctx.model_name;
     s.history = ctx.history;
     s.command_line = ctx.command_line;
+    s.checkpoint = ctx.checkpoint;
     s.provenance = Some(provenance_of_this_process());
     s
 }

@@ -104,6 +104,8 @@ fn help_teaches_the_commands_and_every_flag() {
         "--ranks",
         "--rank-layout",
         "--split-wait",
+        "--checkpoint-dir",
+        "--checkpoint-every",
         "--dump-state",
         "--print-spec",
         "--force",
@@ -131,8 +133,14 @@ fn help_teaches_the_commands_and_every_flag() {
         "1,155,192",
         "mpirun -n R mpm run",
         "Default: the domain-decomposition layout",
+        "mpm resume DIR",
+        "[default: 10m]",
     ] {
         assert!(h.contains(must), "help lacks {must:?}:\n{h}");
+    }
+    let resume = text(&mpm(&["resume", "--help"]).stdout);
+    for must in ["--older", "--spec <FILE>", "bit for bit", "mpirun -n 2 mpm resume ck", "damaged-step-N"] {
+        assert!(resume.contains(must), "resume --help lacks {must:?}:\n{resume}");
     }
 }
 
@@ -702,7 +710,9 @@ fn vtk_snapshots_and_pvd_are_written() {
     for n in ["taylor_000000.vtu", "taylor_000010.vtu", "taylor_000020.vtu"] {
         assert!(pvd.contains(&format!("file=\"{n}\"")), "{pvd}");
     }
-    let vtu = std::fs::read_to_string(vtk.join("taylor_000020.vtu")).unwrap();
+    // Compressed by default: the XML is text, the appended data binary.
+    let vtu = text(&std::fs::read(vtk.join("taylor_000020.vtu")).unwrap());
+    assert!(vtu.contains(r#"compressor="vtkZLibDataCompressor""#));
     assert!(vtu.contains(r#"<Piece NumberOfPoints="56056" NumberOfCells="56056">"#));
     assert!(vtu.contains(r#"Name="CYCLE" NumberOfTuples="1" format="ascii">20<"#));
 }

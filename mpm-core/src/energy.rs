@@ -12,7 +12,7 @@
 //! run whose rise `(E - W - E0) / E0` exceeds `SimConfig::energy_rise_limit`.
 
 use crate::math::Vec3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// `sum_p 1/2 m_p |v_p|^2` (J).
 pub fn kinetic(mass: &[f64], v: &[Vec3]) -> f64 {
@@ -86,7 +86,7 @@ impl Partial {
 }
 
 /// The energy balance of a run so far (see the module docs).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct EnergyBalance {
     /// Initial total energy `E0 = K0 + U0` (J).
     pub initial_total: f64,

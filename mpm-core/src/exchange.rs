@@ -102,6 +102,10 @@ pub trait Exchange: Collectives {
     fn bytes(&self) -> usize {
         0
     }
+
+    /// Continue counting from `stats`, the traffic of a saved run's steps
+    /// ([`crate::Simulation::resume`]; nothing to do for one process).
+    fn resume_stats(&mut self, _stats: ExchangeStats) {}
 }
 
 /// What an [`Exchange`] sent and how long it took, summed over the steps taken.

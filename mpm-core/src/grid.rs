@@ -85,7 +85,7 @@ pub struct GridSpec {
 }
 
 /// Geometry of the grid during one step.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct GridGeom {
     /// Cell size (m).
     pub dx: f64,

@@ -65,8 +65,8 @@ pub use material::{BulkViscosity, Material, MgForm};
 pub use particles::Particles;
 pub use scenario::Setup;
 pub use simd::SimdLevel;
-pub use solver::{Diagnostics, SimConfig, Simulation, DEFAULT_CFL, DEFAULT_ENERGY_RISE_LIMIT};
-pub use strategy::{MemoryModel, Strategy};
+pub use solver::{Diagnostics, SimConfig, SimState, Simulation, DEFAULT_CFL, DEFAULT_ENERGY_RISE_LIMIT};
+pub use strategy::{EngineState, MemoryModel, Strategy};
 pub use timers::{StageTimes, Substage};
 
 /// Bytes held by `v`'s allocation (its capacity, not its length).

@@ -26,7 +26,7 @@
 use crate::blocks::BlockMap;
 use crate::energy::{EnergyBalance, Partial};
 use crate::error::SimError;
-use crate::exchange::{reduce_partial, Exchange, OneProcess};
+use crate::exchange::{reduce_partial, Exchange, ExchangeStats, OneProcess};
 use crate::grid::{
     GridGeom, GridMode, GridSpec, NodeArrays, NodeIndex, Records, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH,
 };
@@ -37,11 +37,11 @@ use crate::parallel::{Exec, RegionError, Team};
 use crate::particles::Particles;
 use crate::scenario::Setup;
 use crate::simd::SimdLevel;
-use crate::strategy::{DomainDecomposition, Engine, Strategy};
+use crate::strategy::{DomainDecomposition, Engine, EngineState, Strategy};
 use crate::timers::{Lap, StageTimes, Substage};
 use crate::transfer;
 use rayon::ThreadPool;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
 /// Default CFL number. The paper does not give its value; 0.5 of the cell crossing time of
@@ -106,7 +106,7 @@ impl Default for SimConfig {
 }
 
 /// Energies and momentum after a step.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Diagnostics {
     /// Kinetic energy (J).
     pub kinetic: f64,
@@ -125,6 +125,60 @@ impl Diagnostics {
     }
 }
 
+/// Everything a simulation carries from one step to the next besides its particles and
+/// what its set-up gives again (material, grid specification, walls): with the particles
+/// (in their order) it continues a run bit for bit ([`Simulation::state`],
+/// [`Simulation::resume`]). Node arrays, sparse blocks, DD patches and binning are not in
+/// it: every step recomputes them from the particles.
+///
+/// The figures a summary reports of the steps taken are here too (the energy balance, the
+/// mean stored nodes, the stage timers, the workers' busy time, the particles that changed
+/// rank and the exchange's traffic), so that a continued run reports the whole run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SimState {
+    /// The strategy the state was saved with.
+    pub strategy: Strategy,
+    /// Worker threads it was saved with.
+    pub threads: usize,
+    /// Steps taken.
+    pub steps: u64,
+    /// Simulated time (s).
+    pub time: f64,
+    /// The CFL time step of the next step (s).
+    pub dt_next: f64,
+    /// The first time step (s).
+    pub dt_first: f64,
+    /// Bounding box of the whole set after the last step (the adaptive grid's next box).
+    pub bbox: (Vec3, Vec3),
+    /// Energies and momentum at the start.
+    pub initial: Diagnostics,
+    /// Energies and momentum after the last step.
+    pub last: Diagnostics,
+    /// The energy balance so far.
+    pub balance: EnergyBalance,
+    /// Stored nodes summed over the steps taken (for the mean).
+    pub node_steps: u64,
+    /// Mass below which a node counts as empty (from the initial mean particle mass).
+    pub mass_tol: f64,
+    /// Particles of the whole problem, over every rank.
+    pub total: u64,
+    /// Particles that left this rank over the steps taken.
+    pub migrated: u64,
+    /// The whole problem's grid of the last step.
+    pub global: GridGeom,
+    /// This rank's part of it.
+    pub geom: GridGeom,
+    /// Stage timers over the steps taken.
+    pub times: StageTimes,
+    /// Each worker's busy seconds over the steps taken (`None`: serial).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub busy: Option<Vec<f64>>,
+    /// What the strategy carries ([`EngineState`]).
+    pub engine: EngineState,
+    /// This rank's exchange traffic so far (zero for one process).
+    pub exchange: ExchangeStats,
+}
+
 /// An explicit MPM simulation: particles, grid, material, strategy state and timers.
 pub struct Simulation {
     particles: Particles,
@@ -133,7 +187,7 @@ pub struct Simulation {
     spec: GridSpec,
     /// The whole problem's grid; `geom` is this rank's part of it (the same with one rank).
     global: GridGeom,
-    /// Halo sums, migration and reductions over ranks ([`SingleProcess`]: none).
+    /// Halo sums, migration and reductions over ranks (one process: [`OneProcess`]).
     exchange: Box<dyn Exchange>,
     /// Particles that left this rank over the steps taken.
     migrated: u64,
@@ -176,6 +230,41 @@ pub struct Simulation {
     /// Shared (`Arc`) only so that a step can hold the team while it borrows the rest of
     /// the simulation mutably.
     team: Option<Arc<Team>>,
+    /// Busy seconds of the workers before this process took over a saved run (same
+    /// worker count), added to the team's own.
+    busy_before: Option<Vec<f64>>,
+}
+
+/// What a simulation takes from its set-up besides the particles.
+struct Parts {
+    material: Material,
+    spec: GridSpec,
+    walls: Vec<Wall>,
+    spacing: Vec3,
+}
+
+/// The checks of a configuration every set-up makes; the SIMD level it runs at.
+fn check_config(config: &SimConfig, material: &Material) -> Result<SimdLevel, SimError> {
+    config.strategy.check_threads(config.threads).map_err(SimError::Config)?;
+    if !(config.cfl > 0.0 && config.cfl <= 1.0) {
+        return Err(SimError::Config(format!("CFL number must be in (0, 1], got {}", config.cfl)));
+    }
+    if config.energy_rise_limit.is_nan() || config.energy_rise_limit <= 0.0 {
+        return Err(SimError::Config(format!(
+            "the energy rise limit must be a fraction > 0 (default {DEFAULT_ENERGY_RISE_LIMIT}; infinity turns the check off), got {}",
+            config.energy_rise_limit
+        )));
+    }
+    config.bulk_viscosity.validate()?;
+    material.validate()?;
+    let simd = config.simd.unwrap_or_else(SimdLevel::detected);
+    if !simd.is_available() {
+        return Err(SimError::Config(format!(
+            "this CPU cannot run the particle kernels at SIMD level {simd}: the widest it has is {}",
+            SimdLevel::detected()
+        )));
+    }
+    Ok(simd)
 }
 
 impl Simulation {
@@ -191,28 +280,10 @@ impl Simulation {
     /// the initial figures (dt, energies, grid) are the whole set's, through the exchange's
     /// reductions.
     pub fn with_exchange(setup: Setup, config: SimConfig, mut exchange: Box<dyn Exchange>) -> Result<Self, SimError> {
-        config.strategy.check_threads(config.threads).map_err(SimError::Config)?;
-        if !(config.cfl > 0.0 && config.cfl <= 1.0) {
-            return Err(SimError::Config(format!("CFL number must be in (0, 1], got {}", config.cfl)));
-        }
+        let simd = check_config(&config, &setup.material)?;
         let total = setup.part.as_ref().map_or(setup.particles.len() as u64, |p| p.total);
         if total == 0 {
             return Err(SimError::Config("the scenario has no particles".into()));
-        }
-        if config.energy_rise_limit.is_nan() || config.energy_rise_limit <= 0.0 {
-            return Err(SimError::Config(format!(
-                "the energy rise limit must be a fraction > 0 (default {DEFAULT_ENERGY_RISE_LIMIT}; infinity turns the check off), got {}",
-                config.energy_rise_limit
-            )));
-        }
-        config.bulk_viscosity.validate()?;
-        setup.material.validate()?;
-        let simd = config.simd.unwrap_or_else(SimdLevel::detected);
-        if !simd.is_available() {
-            return Err(SimError::Config(format!(
-                "this CPU cannot run the particle kernels at SIMD level {simd}: the widest it has is {}",
-                SimdLevel::detected()
-            )));
         }
         let Setup { mut particles, material, grid: spec, walls, spacing, part, .. } = setup;
         let (bbox, ids) = match part {
@@ -268,6 +339,47 @@ impl Simulation {
         };
         let dt = config.cfl * spec.dx / max_speed[0];
         let geom = exchange.local_grid(&global);
+        let state = SimState {
+            strategy: config.strategy,
+            threads: config.threads,
+            steps: 0,
+            time: 0.0,
+            dt_next: dt,
+            dt_first: dt,
+            bbox,
+            initial,
+            last: initial,
+            balance: EnergyBalance::new(initial.total()),
+            node_steps: 0,
+            mass_tol: 1e-12 * mean_mass,
+            total,
+            migrated: 0,
+            global,
+            geom,
+            times: StageTimes::default(),
+            busy: None,
+            engine: EngineState::default(),
+            // The set-up's own reductions.
+            exchange: exchange.stats(),
+        };
+        Ok(Self::assemble(Parts { material, spec, walls, spacing }, config, exchange, particles, simd, state))
+    }
+
+    /// The simulation of `state` (with this rank's grid `state.geom`) and `particles`: the
+    /// arrays a step needs, sized for that grid (so that memory figures are right before the
+    /// first step and the first step does not allocate either), the strategy (continuing
+    /// from `state.engine` when it is the one the state was saved with), the team.
+    fn assemble(
+        parts: Parts,
+        config: SimConfig,
+        mut exchange: Box<dyn Exchange>,
+        particles: Particles,
+        simd: SimdLevel,
+        state: SimState,
+    ) -> Self {
+        let Parts { material, spec, walls, spacing } = parts;
+        let geom = state.geom;
+        let consts = material.consts().with_viscosity(config.bulk_viscosity, spec.dx);
         let mut wall_layers = WallLayers::with_capacity(walls.len());
         wall_layers.resolve(&walls, &geom);
         let blocks = (config.grid_mode == GridMode::Sparse).then(|| {
@@ -277,23 +389,26 @@ impl Simulation {
         });
         let mut nodes = NodeArrays::default();
         nodes.resize(NodeIndex::of(&geom, blocks.as_ref()).num_nodes());
-        // Size the strategy's buffers for the initial grid now, so that memory figures are
-        // right before the first step and the first step does not allocate either.
         let mut engine = Engine::new(config.strategy, config.threads);
         let parts_len = engine.reserve(&geom, blocks.as_ref());
-        Ok(Self {
+        let same = state.strategy == config.strategy && state.threads == config.threads;
+        if same {
+            engine.restore(&state.engine);
+        }
+        exchange.resume_stats(state.exchange);
+        Self {
             engine,
             spacing,
             partials: vec![Partial::default(); config.threads],
             consts,
-            mass_tol: 1e-12 * mean_mass,
+            mass_tol: state.mass_tol,
             particles,
             material,
             spec,
-            global,
+            global: state.global,
             exchange,
-            migrated: 0,
-            total,
+            migrated: state.migrated,
+            total: state.total,
             walls,
             wall_layers,
             geom,
@@ -301,23 +416,103 @@ impl Simulation {
             blocks,
             p2g_parts: Records::zeroed(parts_len),
             remap_parts: Records::zeroed(parts_len),
-            time: 0.0,
-            steps: 0,
-            dt_next: dt,
-            dt_first: dt,
-            bbox,
-            initial,
-            last: initial,
-            balance: EnergyBalance::new(initial.total()),
-            node_steps: 0,
-            times: StageTimes::default(),
+            time: state.time,
+            steps: state.steps,
+            dt_next: state.dt_next,
+            dt_first: state.dt_first,
+            bbox: state.bbox,
+            initial: state.initial,
+            last: state.last,
+            balance: state.balance,
+            node_steps: u128::from(state.node_steps),
+            times: state.times,
             poisoned: None,
             released: false,
             simd,
             order: CellOrder::default(),
             team: config.strategy.is_parallel().then(|| Arc::new(Team::new(config.threads))),
+            busy_before: state.busy.filter(|b| same && b.len() == config.threads),
             config,
-        })
+        }
+    }
+
+    /// What this simulation carries from one step to the next besides its particles
+    /// ([`SimState`]); with [`Simulation::particles`] (and, over ranks, each particle's
+    /// [`Exchange::global_id`]) it is what [`Simulation::resume`] continues from.
+    pub fn state(&self) -> SimState {
+        SimState {
+            strategy: self.config.strategy,
+            threads: self.config.threads,
+            steps: self.steps,
+            time: self.time,
+            dt_next: self.dt_next,
+            dt_first: self.dt_first,
+            bbox: self.bbox,
+            initial: self.initial,
+            last: self.last,
+            balance: self.balance,
+            // A u64 holds a mean of 10^9 nodes over 10^10 steps.
+            node_steps: u64::try_from(self.node_steps).unwrap_or(u64::MAX),
+            mass_tol: self.mass_tol,
+            total: self.total,
+            migrated: self.migrated,
+            global: self.global,
+            geom: self.geom,
+            times: self.times,
+            busy: self.worker_busy(),
+            engine: self.engine.state(),
+            exchange: self.exchange.stats(),
+        }
+    }
+
+    /// Continue a run from its saved `state` and `particles` (in the order they were saved):
+    /// the next step is bitwise the one the saved simulation would have taken, when
+    /// `config` has the strategy and thread count `state` was saved with. Another strategy
+    /// or thread count continues the same physics (to round-off, as any two of them agree)
+    /// and starts its strategy's own figures (DD's patch load) and the workers' busy time
+    /// afresh.
+    ///
+    /// `setup` gives what a state does not hold: the material, the grid specification, the
+    /// walls and the spacing (its particles, if any, are not used: build it with
+    /// [`crate::scenario::Pick::Where`] keeping none). Over ranks `exchange` is this rank's,
+    /// with the rank boxes of the saved run, and `ids` the saved particles' global ids
+    /// ([`Exchange::global_id`]); `None` when each particle's id is its index (one process
+    /// before the cell order has moved any, [`crate::order`]).
+    pub fn resume(
+        setup: Setup,
+        config: SimConfig,
+        mut exchange: Box<dyn Exchange>,
+        mut particles: Particles,
+        ids: Option<Vec<u64>>,
+        state: SimState,
+    ) -> Result<Self, SimError> {
+        let simd = check_config(&config, &setup.material)?;
+        let Setup { material, grid: spec, walls, spacing, .. } = setup;
+        if exchange.ranks() == 1 && particles.len() as u64 != state.total {
+            return Err(SimError::Config(format!(
+                "the saved state has {} particles but the run it continues had {}: the particles and the state belong to different runs",
+                particles.len(),
+                state.total
+            )));
+        }
+        if config.grid_mode == GridMode::Sparse && exchange.ranks() > 1 {
+            return Err(SimError::Config("the sparse grid runs in one process only".into()));
+        }
+        let kept = particles.len();
+        exchange.adopt(&mut particles, ids)?;
+        if particles.len() != kept {
+            return Err(SimError::Config(format!(
+                "{} of this rank's {kept} saved particles lie outside its box: continue the run with the rank layout it was saved with",
+                kept - particles.len()
+            )));
+        }
+        let geom = exchange.local_grid(&state.global);
+        if geom != state.geom {
+            return Err(SimError::Config(
+                "this rank's part of the grid differs from the saved one: continue the run with the rank count and layout it was saved with".into(),
+            ));
+        }
+        Ok(Self::assemble(Parts { material, spec, walls, spacing }, config, exchange, particles, simd, state))
     }
 
     /// The particles.
@@ -464,7 +659,11 @@ impl Simulation {
     /// largest over the mean is the load imbalance: the strategies give every worker an
     /// equal share, so a large value means a worker's CPU was slowed from outside the run.
     pub fn worker_busy(&self) -> Option<Vec<f64>> {
-        self.team.as_ref().map(|team| team.busy_seconds().collect())
+        let team = self.team.as_ref()?;
+        Some(match &self.busy_before {
+            Some(before) => team.busy_seconds().zip(before).map(|(now, b)| b + now).collect(),
+            None => team.busy_seconds().collect(),
+        })
     }
 
     /// Domain-decomposition state, if the strategy is DD.

@@ -135,6 +135,20 @@ impl Serialize for StageTimes {
     }
 }
 
+/// Reads what [`Serialize`] writes: every sub-stage by its name (a missing one is an error,
+/// so a saved state cannot silently lose a stage's time).
+impl<'de> Deserialize<'de> for StageTimes {
+    fn deserialize<D: serde::Deserializer<'de>>(de: D) -> Result<Self, D::Error> {
+        let named = std::collections::BTreeMap::<Substage, f64>::deserialize(de)?;
+        let mut times = StageTimes::default();
+        for s in Substage::ALL {
+            let secs = named.get(&s).ok_or_else(|| serde::de::Error::missing_field(s.name()))?;
+            times.add(s, *secs);
+        }
+        Ok(times)
+    }
+}
+
 /// A running stopwatch that charges elapsed time to sub-stages.
 pub(crate) struct Lap {
     last: Instant,

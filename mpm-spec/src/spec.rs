@@ -16,6 +16,7 @@ use mpm_core::{BulkViscosity, GridMode, MgForm, Strategy, DEFAULT_ENERGY_RISE_LI
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 /// Layout version of [`RunSpec`]; a spec file of another version is refused by name.
 pub const SPEC_VERSION: u32 = 1;
@@ -164,8 +165,11 @@ pub struct Budget {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum VtkEncoding {
-    /// Inline base64 binary (compact, exact).
+    /// Raw binary appended after the XML, zlib-compressed in blocks (VTK's
+    /// `vtkZLibDataCompressor`: ParaView and VisIt read it as it is); exact.
     #[default]
+    Compressed,
+    /// Inline base64 binary (exact; a third larger than raw, not compressed).
     Binary,
     /// Inline ASCII (readable; values printed in shortest round-trip form).
     Ascii,
@@ -195,8 +199,77 @@ pub struct RadiographOutput {
     pub every: Option<u64>,
 }
 
+/// How often a run saves its state ([`CheckpointOutput::every`]): every so many steps, or
+/// after so much wall-clock time since the last checkpoint (or the run's start). Written as
+/// a whole number of steps (`every = 500`) or as a duration in words (`every = "10m"`,
+/// `"1h 30m"`, `"90s"`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CheckpointEvery {
+    /// Every this many steps (the step count a multiple of it).
+    Steps(u64),
+    /// When this much wall-clock time has passed since the last checkpoint.
+    Duration(Duration),
+}
+
+impl CheckpointEvery {
+    /// `500` (steps) or a duration such as `10m`, `90s`, `1h 30m`.
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let s = s.trim();
+        if let Ok(n) = s.parse::<u64>() {
+            return Ok(CheckpointEvery::Steps(n));
+        }
+        humantime::parse_duration(s).map(CheckpointEvery::Duration).map_err(|e| {
+            format!("'{s}' is neither a step count nor a duration ({e}): give e.g. 500 (steps) or 10m, 90s, 1h 30m")
+        })
+    }
+}
+
+impl std::fmt::Display for CheckpointEvery {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CheckpointEvery::Steps(n) => write!(f, "{n} steps"),
+            CheckpointEvery::Duration(d) => write!(f, "{}", humantime::format_duration(*d)),
+        }
+    }
+}
+
+impl Serialize for CheckpointEvery {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            CheckpointEvery::Steps(n) => s.serialize_u64(*n),
+            CheckpointEvery::Duration(d) => s.serialize_str(&humantime::format_duration(*d).to_string()),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for CheckpointEvery {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Steps(u64),
+            Words(String),
+        }
+        match Raw::deserialize(d)? {
+            Raw::Steps(n) => Ok(CheckpointEvery::Steps(n)),
+            Raw::Words(w) => CheckpointEvery::parse(&w).map_err(serde::de::Error::custom),
+        }
+    }
+}
+
+/// Checkpoints of a run: its whole state, saved into a folder (the last two kept) so that
+/// `mpm resume DIR` continues it bit for bit.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CheckpointOutput {
+    /// The folder of the checkpoints (created if needed; one folder per run).
+    pub dir: PathBuf,
+    /// How often.
+    pub every: CheckpointEvery,
+}
+
 /// What a run writes besides its state: the JSON summary, snapshots, pictures, the final
-/// particle state. Outputs do not change what is computed, so they are not part of
+/// particle state, checkpoints. Outputs do not change what is computed, so they are not part of
 /// [`RunSpec::key`].
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -216,6 +289,9 @@ pub struct Outputs {
     /// The final particle state, sorted by particle id (binary; see `mpm run --help`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dump_state: Option<PathBuf>,
+    /// Checkpoints of the run's state.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub checkpoint: Option<CheckpointOutput>,
 }
 
 /// The file format of a spec.
@@ -467,6 +543,23 @@ impl RunSpec {
 
     fn check_outputs(&self) -> Result<(), SpecError> {
         let o = &self.outputs;
+        match o.checkpoint.as_ref().map(|c| c.every) {
+            Some(CheckpointEvery::Steps(0)) => {
+                return Err(SpecError::Invalid {
+                    key: "outputs.checkpoint.every",
+                    flag: "--checkpoint-every",
+                    why: "a checkpoint every 0 steps: give at least 1 (or a duration such as 10m)".into(),
+                })
+            }
+            Some(CheckpointEvery::Duration(d)) if d.is_zero() => {
+                return Err(SpecError::Invalid {
+                    key: "outputs.checkpoint.every",
+                    flag: "--checkpoint-every",
+                    why: "a checkpoint every 0 s: give a positive duration such as 10m (or a step count)".into(),
+                })
+            }
+            _ => {}
+        }
         if o.vtk.as_ref().is_some_and(|v| v.every == 0) {
             return Err(SpecError::Invalid {
                 key: "outputs.vtk.every",
@@ -542,8 +635,12 @@ mod tests {
         s.physics.energy_rise_limit = RiseLimit::Off;
         s.budget = Budget { steps: Some(30), end_time_s: Some(1.0e-5 / 3.0), warmup: Some(3) };
         s.outputs.json = Some("x.json".into());
-        assert_eq!(RunSpec::parse(&s.to_toml(), SpecFormat::Toml).unwrap(), s);
-        assert_eq!(RunSpec::parse(&s.to_json(), SpecFormat::Json).unwrap(), s);
+        for every in [CheckpointEvery::Steps(250), CheckpointEvery::Duration(Duration::from_secs(5430))] {
+            s.outputs.checkpoint = Some(CheckpointOutput { dir: "ck".into(), every });
+            assert_eq!(RunSpec::parse(&s.to_toml(), SpecFormat::Toml).unwrap(), s);
+            assert_eq!(RunSpec::parse(&s.to_json(), SpecFormat::Json).unwrap(), s);
+        }
+        assert!(s.to_toml().contains(r#"every = "1h 30m 30s""#), "{}", s.to_toml());
         let no_out = RunSpec { outputs: Outputs::default(), ..s.clone() };
         assert_eq!(no_out.key(), s.key());
         let other = RunSpec {
@@ -553,6 +650,16 @@ mod tests {
         assert_ne!(other.key(), s.key());
         let other = RunSpec { physics: Physics { cfl: 0.4, ..s.physics }, ..s.clone() };
         assert_ne!(other.key(), s.key());
+    }
+
+    #[test]
+    fn checkpoint_intervals_are_steps_or_durations() {
+        assert_eq!(CheckpointEvery::parse("500"), Ok(CheckpointEvery::Steps(500)));
+        assert_eq!(CheckpointEvery::parse(" 10m"), Ok(CheckpointEvery::Duration(Duration::from_secs(600))));
+        assert_eq!(CheckpointEvery::parse("1h 30m"), Ok(CheckpointEvery::Duration(Duration::from_secs(5400))));
+        let err = CheckpointEvery::parse("10 minutes please").unwrap_err();
+        assert!(err.contains("neither a step count nor a duration"), "{err}");
+        assert!(CheckpointEvery::parse("-3").is_err());
     }
 
     #[test]
@@ -580,6 +687,16 @@ mod tests {
             (RunSpec { grid: GridMode::Sparse, ranks: 2, ..taylor(1) }, "--grid"),
             (RunSpec { rank_layout: Some([2, 2, 1]), ranks: 2, ..taylor(1) }, "--rank-layout"),
             (RunSpec { split_wait: true, ..taylor(1) }, "--split-wait"),
+            (
+                RunSpec {
+                    outputs: Outputs {
+                        checkpoint: Some(CheckpointOutput { dir: "c".into(), every: CheckpointEvery::Steps(0) }),
+                        ..Outputs::default()
+                    },
+                    ..taylor(1)
+                },
+                "--checkpoint-every",
+            ),
         ];
         for (spec, flag) in cases {
             let err = spec.check().unwrap_err().to_string();

@@ -612,6 +612,32 @@ pub struct Summary {
     /// written before it existed.
     #[serde(default)]
     pub provenance: Option<Provenance>,
+    /// Checkpoints written and restarts from them (absent when the run wrote none and was
+    /// never continued from one). Their time is in none of the timings above.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub checkpoint: Option<CheckpointReport>,
+}
+
+/// The checkpoints of a run and its restarts (`mpm resume`), over every process that ran a
+/// part of it. Writing checkpoints and setting a restart up take time that `wall_s`, the
+/// stage times and the steady-state figures leave out; it is reported here instead.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointReport {
+    /// Checkpoints written over the run.
+    pub written: u64,
+    /// Seconds spent writing them (rank 0's, each rank writing its own part at the same
+    /// time).
+    pub write_s: f64,
+    /// Bytes of the last checkpoint written, all ranks' files together (0 if none).
+    pub last_bytes: u64,
+    /// Times the run was continued from a checkpoint.
+    pub restarts: u32,
+    /// The step each restart continued from, in order.
+    #[serde(default)]
+    pub restart_steps: Vec<u64>,
+    /// Seconds the restarts spent before their first step: starting, reading and checking
+    /// the checkpoint, rebuilding the simulation.
+    pub restart_setup_s: f64,
 }
 
 impl Summary {

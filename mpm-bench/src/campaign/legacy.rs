@@ -468,6 +468,7 @@ impl LegacyRow {
                 exit_code: self.exit_code,
                 process_wall_s: self.process_wall_s,
                 mem_estimate_bytes: self.mem_estimate_bytes,
+                lost_compute_s: None,
             },
         })
     }

@@ -20,7 +20,7 @@ use crate::util::SplitMix64;
 use anyhow::{anyhow, bail, Context, Result};
 use mpm_core::{GridMode, Strategy};
 use mpm_spec::scenario::{ImpactSpec, TaylorSpec};
-use mpm_spec::spec::{hex_sha256, Budget, Outputs};
+use mpm_spec::spec::{hex_sha256, Budget, CheckpointEvery, Outputs};
 use mpm_spec::{RunSpec, Scenario, ScenarioKind};
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
@@ -61,6 +61,8 @@ pub struct Overrides {
     pub mem_limit: Option<u64>,
     /// `--seed` (order only: not part of the campaign id).
     pub seed: Option<u64>,
+    /// `--checkpoint-every` (how runs survive, not what runs: not part of the campaign id).
+    pub checkpoint_every: Option<CheckpointEvery>,
 }
 
 impl Overrides {
@@ -258,6 +260,9 @@ pub struct Campaign {
     /// Per-run time limit.
     #[serde(skip)]
     pub timeout: Option<Duration>,
+    /// Every run's checkpoints (`None`: none), in `<campaign>/checkpoints/<run>/`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub checkpoint_every: Option<CheckpointEvery>,
     /// Budget section after CLI overrides.
     pub budget: BudgetSpec,
 }
@@ -295,6 +300,7 @@ impl Campaign {
             seed: overrides.seed.unwrap_or(preset.seed),
             mem_limit: None,
             timeout: None,
+            checkpoint_every: overrides.checkpoint_every.or(preset.checkpoint_every),
             budget: overrides.budget_of(&preset.budget),
             preset,
         };

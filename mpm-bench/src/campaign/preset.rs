@@ -23,6 +23,8 @@
 //! seed = 2009              # run-order shuffle
 //! # mem_limit = "8GiB"     # pretend the machine has this much memory (memory guard)
 //! # timeout = "30m"        # per run
+//! # checkpoint_every = "10m"   # each run saves its state this often (or a step count); a
+//! #                            # killed, timed-out or interrupted run continues from it
 //!
 //! [physics]                # optional: every absent key is the solver's default
 //! eos = "hugoniot"         # or "paper-printed"
@@ -203,6 +205,9 @@ pub struct Preset {
     pub mem_limit: Option<String>,
     /// Per-run time limit (`30m`), humantime syntax.
     pub timeout: Option<String>,
+    /// Checkpoints of every run: steps (`500`) or wall-clock time (`"10m"`).
+    #[serde(default)]
+    pub checkpoint_every: Option<mpm_spec::spec::CheckpointEvery>,
     /// Step budget.
     pub budget: BudgetSpec,
 }

@@ -1,6 +1,7 @@
 //! One run as a child process: the request (the run's spec file), what came back, and the
 //! runners: [`ProcessRunner`] writes the run's [`mpm_spec::RunSpec`] to a file and spawns
-//! `mpm run --spec FILE` as a fresh process (clean memory figure, no state carried over), or
+//! `mpm run --spec FILE` as a fresh process (clean memory figure, no state carried over; a
+//! run with a checkpoint to continue from: `mpm resume DIR --spec FILE`), or
 //! with several ranks `<launcher> mpm run --spec FILE` (see [`super::launcher`]) with the CPU
 //! set of the run as the launcher's affinity mask, in a process group of its own so that a
 //! timeout or Ctrl-C stops every rank; [`MockRunner`] fakes it in microseconds for tests.
@@ -46,6 +47,9 @@ pub struct RunRequest {
     pub json_path: PathBuf,
     /// Per-run time limit.
     pub timeout: Option<Duration>,
+    /// The run's checkpoint folder when it holds a checkpoint to continue from: the solver
+    /// runs `mpm resume DIR --spec FILE` (the spec checked against the checkpoint's).
+    pub resume: Option<PathBuf>,
 }
 
 impl RunRequest {
@@ -65,12 +69,18 @@ impl RunRequest {
             mask: None,
             json_path,
             timeout: None,
+            resume: None,
         }
     }
 
-    /// Arguments of `mpm`: the spec file, nothing else.
+    /// Arguments of `mpm`: the spec file, nothing else (`run --spec FILE`, or `resume DIR
+    /// --spec FILE` to continue from the run's checkpoint).
     pub fn args(&self) -> Vec<String> {
-        vec!["run".into(), "--spec".into(), self.spec_path.display().to_string()]
+        let spec = ["--spec".into(), self.spec_path.display().to_string()];
+        match &self.resume {
+            Some(dir) => [vec!["resume".into(), dir.display().to_string()], spec.to_vec()].concat(),
+            None => [vec!["run".into()], spec.to_vec()].concat(),
+        }
     }
 
     /// The program and its arguments: `mpm run --spec FILE`, or the launcher's words, then

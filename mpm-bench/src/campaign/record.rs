@@ -44,8 +44,10 @@ use std::sync::OnceLock;
 /// would misread. Schemas 1-5 were flat rows (see [`super::legacy`]); schema 6 is the
 /// planned run's spec flattened (`scenario.kind`, `physics.cfl`, `budget.steps`, ...), the
 /// resume key `run_key`, lists as lists, sub-stages by the solver's names
-/// (`substages.scatter`), and the steady-state stage times (`steady_*`).
-pub const SCHEMA_VERSION: u32 = 6;
+/// (`substages.scatter`), and the steady-state stage times (`steady_*`); schema 7 adds the
+/// checkpoints and restarts (`checkpoints_written`, `checkpoint_write_s`, `restarts`,
+/// `restart_setup_s`, `lost_compute_s`; empty in schema-6 rows, which still read).
+pub const SCHEMA_VERSION: u32 = 7;
 
 /// Outcome of one run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -242,6 +244,15 @@ pub struct Measured {
     pub cloud_width_m: Option<f64>,
     /// Failed particles at the end.
     pub failed_particles: Option<u64>,
+    /// Checkpoints the run wrote, over every process that ran a part of it; empty for a run
+    /// without checkpoints. Since schema 7.
+    pub checkpoints_written: Option<u64>,
+    /// Seconds spent writing them (in none of the timings above).
+    pub checkpoint_write_s: Option<f64>,
+    /// Times the run was continued from a checkpoint (0: it ran in one go).
+    pub restarts: Option<u32>,
+    /// Seconds the restarts spent before their first step (in none of the timings above).
+    pub restart_setup_s: Option<f64>,
 }
 
 impl Measured {
@@ -296,6 +307,10 @@ impl Measured {
             cloud_front_m: s.cloud_front_m,
             cloud_width_m: s.cloud_width_m,
             failed_particles: Some(s.failed_particles as u64),
+            checkpoints_written: s.checkpoint.as_ref().map(|c| c.written),
+            checkpoint_write_s: s.checkpoint.as_ref().map(|c| c.write_s),
+            restarts: Some(s.checkpoint.as_ref().map_or(0, |c| c.restarts)),
+            restart_setup_s: s.checkpoint.as_ref().map(|c| c.restart_setup_s),
             ..Measured::default()
         };
         if let Some(ranks) = s.ranks.as_deref().filter(|r| !r.is_empty()) {
@@ -409,6 +424,11 @@ pub struct Outcome {
     /// The memory guard's estimate for this run, bytes.
     #[serde(default)]
     pub mem_estimate_bytes: u64,
+    /// Compute time the run has lost to attempts that did not finish (killed, timed out,
+    /// interrupted), this one's included: each attempt's time after its last checkpoint,
+    /// all of it when it wrote none (s). Empty for a campaign without checkpoints. Since
+    /// schema 7.
+    pub lost_compute_s: Option<f64>,
 }
 
 /// One run of the campaign (one CSV row). Each part is a group of columns.
@@ -541,6 +561,10 @@ impl Row {
                         cloud_front_m: Some(0.0),
                         cloud_width_m: Some(0.0),
                         failed_particles: Some(0),
+                        checkpoints_written: Some(0),
+                        checkpoint_write_s: Some(0.0),
+                        restarts: Some(0),
+                        restart_setup_s: Some(0.0),
                     },
                     host: HostColumns {
                         host_load1_before: Some(0.0),
@@ -561,6 +585,7 @@ impl Row {
                         exit_code: Some(0),
                         process_wall_s: Some(0.0),
                         mem_estimate_bytes: 0,
+                        lost_compute_s: Some(0.0),
                     },
                     ..Row::planned(run)
                 }

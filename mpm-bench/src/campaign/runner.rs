@@ -10,9 +10,13 @@
 //!   the launcher's affinity mask and each rank must be seen on its slice of it.
 //! * Ctrl-C / SIGTERM ([`install_interrupt_handler`]): the run in progress is stopped and not
 //!   recorded; every finished run is already in the CSV, so the campaign resumes later.
+//! * Checkpoints (a campaign's `checkpoint_every`, [`RunCheckpoints`]): each run saves its
+//!   state into `<campaign>/checkpoints/<run>/`; an attempt killed, timed out or interrupted
+//!   is continued from there by the next attempt (`mpm resume`), the compute time it lost is
+//!   booked, and the run's row records its restarts and the time lost.
 
 use super::launcher;
-use super::lock::FolderLock;
+use super::lock::{self, FolderLock};
 use super::manifest::{self, BinaryInfo, Manifest, Session};
 use super::matrix::{Campaign, PlannedRun};
 use super::memory::{available_memory, estimate_run_memory, memory_verdict};
@@ -30,7 +34,9 @@ use crate::machine::topology::{format_cpu_list, human_bytes, Machine};
 use crate::util::now_rfc3339;
 use anyhow::{anyhow, bail, Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use mpm_spec::spec::CheckpointOutput;
 use mpm_spec::Summary;
+use serde::{Deserialize, Serialize};
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -274,7 +280,7 @@ impl Plan {
     fn of(campaign: &Campaign, machine: &Machine, solvers: &[Solver], opts: &ExecOptions) -> Result<Self> {
         let dir = choose_folder(campaign, machine, &SessionIdentity::of(machine, solvers), opts)?;
         // The lock before the rows are read: what this session skips, it skips for good.
-        let lock = (!opts.dry_run).then(|| FolderLock::acquire(&dir, opts.wait_lock)).transpose()?;
+        let lock = (!opts.dry_run).then(|| lock::acquire(&dir, opts.wait_lock)).transpose()?;
         let csv_path = dir.join("runs.csv");
         let order = campaign.ordered(campaign.seed);
         if csv_path.is_file() && !opts.fresh && !opts.dry_run {
@@ -511,7 +517,78 @@ struct RunContext<'a> {
     machine: &'a Machine,
     git: manifest::GitInfo,
     json_dir: PathBuf,
+    /// `<campaign>/checkpoints`: each run's checkpoint folder (with a campaign checkpoint
+    /// interval).
+    checkpoint_root: PathBuf,
     interrupted: &'a AtomicBool,
+}
+
+/// An attempt of a run that did not finish, as the harness saw it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LostAttempt {
+    /// When it started and ended, seconds since the Unix epoch.
+    pub started_unix_s: f64,
+    /// When it ended (killed, timed out, interrupted, failed).
+    pub ended_unix_s: f64,
+    /// Its compute time after its last checkpoint (all of it when it wrote none), s.
+    pub lost_s: f64,
+    /// Why it ended.
+    pub reason: String,
+}
+
+/// A run's checkpoints in its campaign folder: `checkpoints/<label>-<key>/`, the solver's
+/// folder (one per planned run, whatever the attempt), and beside it `<...>.attempts.json`,
+/// the harness's list of the attempts that did not finish (what they lost), kept across
+/// sessions until the run ends `ok`; then both are removed.
+#[derive(Clone, Debug)]
+pub struct RunCheckpoints {
+    /// The solver's checkpoint folder.
+    pub dir: PathBuf,
+    log: PathBuf,
+}
+
+impl RunCheckpoints {
+    /// The checkpoints of `run` under `root`.
+    pub fn of(root: &Path, run: &PlannedRun) -> Self {
+        let name = format!("{}-{}", run.label(), run.key().0);
+        Self { dir: root.join(&name), log: root.join(format!("{name}.attempts.json")) }
+    }
+
+    /// Whether the folder holds a checkpoint to continue from.
+    pub fn resumable(&self) -> bool {
+        matches!(mpm_cli::checkpoint::newest_header(&self.dir), Ok(Some(_)))
+    }
+
+    /// The attempts that did not finish, oldest first.
+    pub fn attempts(&self) -> Vec<LostAttempt> {
+        std::fs::read_to_string(&self.log).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default()
+    }
+
+    /// Compute time lost by the attempts that did not finish (s).
+    pub fn lost_s(&self) -> f64 {
+        self.attempts().iter().map(|a| a.lost_s).sum()
+    }
+
+    /// Book an attempt from `started` to `ended` (Unix seconds) that did not finish: it lost
+    /// its time after the newest checkpoint it wrote, or all of it.
+    pub fn record_loss(&self, started: f64, ended: f64, reason: &str) -> Result<()> {
+        let saved_at = mpm_cli::checkpoint::newest_header(&self.dir)
+            .ok()
+            .flatten()
+            .map(|(_, h)| h.written_unix_s)
+            .filter(|&t| t >= started && t <= ended);
+        let lost_s = (ended - saved_at.unwrap_or(started)).max(0.0);
+        let mut all = self.attempts();
+        all.push(LostAttempt { started_unix_s: started, ended_unix_s: ended, lost_s, reason: reason.into() });
+        std::fs::create_dir_all(self.log.parent().unwrap_or(Path::new(".")))?;
+        mpm_cli::atomic::write_atomic(&self.log, serde_json::to_string_pretty(&all)?.as_bytes())
+    }
+
+    /// A finished run needs neither its checkpoints nor its list of attempts.
+    pub fn remove(&self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+        let _ = std::fs::remove_file(&self.log);
+    }
 }
 
 impl RunContext<'_> {
@@ -542,18 +619,40 @@ impl RunContext<'_> {
                 self.json_dir.join(format!("{run_id}.json")),
                 self.json_dir.join(format!("{run_id}.spec.toml")),
             );
+            // With checkpoints: into the run's own folder, and continued from it when a
+            // checkpoint is there (an earlier attempt was killed, timed out or interrupted).
+            let checkpoints = self.campaign.checkpoint_every.map(|every| {
+                let c = RunCheckpoints::of(&self.checkpoint_root, planned);
+                req.spec.outputs.checkpoint = Some(CheckpointOutput { dir: c.dir.clone(), every });
+                req.resume = c.resumable().then(|| c.dir.clone());
+                c
+            });
             req.binary = solver.path.clone();
             req.launcher = launched.then(|| self.campaign.launcher.expand(planned.spec.ranks, planned.spec.threads));
             req.mask = if launched { plan.cpus.clone() } else { None };
             req.timeout = self.campaign.timeout;
             let probe_cpus = plan.cpus.clone().unwrap_or_default();
             let before = watch.as_deref_mut().map(|w| w.before_run(&probe_cpus));
+            let started = mpm_cli::summary::unix_now();
             let out = runner.run(&req);
+            let ended = mpm_cli::summary::unix_now();
             if out.interrupted || self.interrupted.load(Ordering::SeqCst) {
                 let _ = std::fs::remove_file(&req.json_path);
+                if let Some(c) = &checkpoints {
+                    c.record_loss(started, ended, "interrupted")?;
+                }
                 return Ok(None);
             }
             fill_from_output(&mut row, &req, &out);
+            if let Some(c) = &checkpoints {
+                if row.outcome.status == Status::Ok {
+                    row.outcome.lost_compute_s = Some(c.lost_s());
+                    c.remove();
+                } else {
+                    c.record_loss(started, ended, &row.outcome.reason)?;
+                    row.outcome.lost_compute_s = Some(c.lost_s());
+                }
+            }
             if let (Some(w), Some(b)) = (watch, before) {
                 row.set_host(&w.after_run(&probe_cpus, b), self.machine.usable_pus().len());
             }
@@ -697,7 +796,8 @@ pub fn execute(
     for r in &plan.existing {
         *attempts.entry(r.key()).or_default() += 1;
     }
-    let ctx = RunContext { campaign, machine, git: manifest.git(), json_dir, interrupted };
+    let checkpoint_root = plan.dir.join("checkpoints");
+    let ctx = RunContext { campaign, machine, git: manifest.git(), json_dir, checkpoint_root, interrupted };
     for (n, (order_index, spec)) in plan.todo.iter().enumerate() {
         if interrupted.load(Ordering::SeqCst) {
             counts.interrupted = true;
@@ -936,6 +1036,50 @@ mod tests {
     use mpm_spec::scenario::TaylorSpec;
     use mpm_spec::summary::RankReport;
     use mpm_spec::{RunSpec, Scenario};
+
+    /// The compute time an attempt lost: its time after the newest checkpoint it wrote, all
+    /// of it when it wrote none (a checkpoint of an earlier attempt does not count), summed
+    /// over the attempts until the run is removed.
+    #[test]
+    fn lost_compute_is_the_time_after_the_last_checkpoint_of_each_attempt() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = spec(1, 1, PinPolicy::CLOSE);
+        let c = RunCheckpoints::of(dir.path(), &run);
+        assert!(c.dir.starts_with(dir.path()) && c.dir.to_string_lossy().contains(&run.key().0));
+        assert!(!c.resumable());
+        assert_eq!(c.lost_s(), 0.0);
+        // An attempt that wrote no checkpoint lost all of it.
+        c.record_loss(100.0, 160.0, "timed out after 1m").unwrap();
+        assert_eq!(c.lost_s(), 60.0);
+        // An attempt that wrote one (now, by the clock) lost only its time after it.
+        let folder = mpm_cli::checkpoint::Folder::new(&c.dir);
+        let partial = folder.begin(40).unwrap();
+        let meta = mpm_cli::checkpoint::Meta {
+            rank: 0,
+            ranks: 1,
+            step: 40,
+            time_s: 1e-6,
+            spec_key: "k".into(),
+            binary_sha256: "b".into(),
+        };
+        let p = mpm_core::Particles::default();
+        mpm_cli::checkpoint::write_file(&partial.join("rank-0000.ckpt"), &meta, toml::Table::new(), &p, None).unwrap();
+        folder.commit(40).unwrap();
+        assert!(c.resumable());
+        let now = mpm_cli::summary::unix_now();
+        c.record_loss(now - 100.0, now + 5.0, "killed by signal 9").unwrap();
+        let lost = c.lost_s() - 60.0;
+        assert!((4.0..6.0).contains(&lost), "{lost}");
+        // A later attempt that wrote none: its whole time, though a checkpoint exists.
+        c.record_loss(now + 10.0, now + 30.0, "interrupted").unwrap();
+        assert!((c.lost_s() - 60.0 - lost - 20.0).abs() < 1e-9);
+        assert_eq!(
+            c.attempts().iter().map(|a| a.reason.as_str()).collect::<Vec<_>>(),
+            ["timed out after 1m", "killed by signal 9", "interrupted"]
+        );
+        c.remove();
+        assert!(!c.dir.exists() && c.attempts().is_empty());
+    }
 
     fn spec(ranks: usize, threads: usize, pin: PinPolicy) -> PlannedRun {
         let mut spec = RunSpec::new(Scenario::Taylor(TaylorSpec::model(1))).unwrap();

@@ -406,6 +406,17 @@ impl History {
         Ok(Self { interval, samples: Vec::new(), last_time: None })
     }
 
+    /// The time of the last sample taken (`None` before the first): with `interval` and
+    /// `samples`, what a continued run needs ([`History::resumed`]).
+    pub fn last_time(&self) -> Option<f64> {
+        self.last_time
+    }
+
+    /// A history continued from a saved one's `interval`, `samples` and [`History::last_time`].
+    pub fn resumed(interval: f64, samples: Vec<HistorySample>, last_time: Option<f64>) -> Result<Self, SimError> {
+        Ok(Self { samples, last_time, ..Self::new(interval)? })
+    }
+
     /// Record a sample of `sim` if it has entered a new interval since the last sample (or
     /// none was taken yet); whether it did. Collective over ranks (see [`History`]).
     pub fn observe(

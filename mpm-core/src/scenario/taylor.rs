@@ -40,7 +40,7 @@ use crate::grid::{GridSpec, Wall, WallKind};
 use crate::material::{Material, MgForm};
 use crate::math::Vec3;
 use crate::particles::Particles;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Bar length `L0` (m).
 pub const LENGTH: f64 = 25.4e-3;
@@ -206,7 +206,7 @@ fn for_each_position(spec: &ModelSpec, layer: &[Vec3], f: &mut dyn FnMut(Vec3)) 
 }
 
 /// Shape figures of a deformed bar.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TaylorFigures {
     /// `max z - min z` of the particle centres plus one layer spacing (m).
     pub length: f64,

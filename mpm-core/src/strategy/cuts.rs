@@ -22,7 +22,7 @@
 //! patches); once the tables have reached their largest size it allocates nothing.
 
 use super::domain_decomposition::Patch;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Place the `parts - 1` inner cut planes of one axis at the particle-count quantiles of
 /// `hist` (particles per cell plane along the axis). `cuts` has `parts + 1` entries and
@@ -353,6 +353,12 @@ impl LayoutChooser {
         self.current
     }
 
+    /// A chooser whose layout in use is `current` (a run continued from a saved state
+    /// keeps the layout the hysteresis held, see [`LayoutChooser::choose`]).
+    pub fn resumed(current: Option<[usize; 3]>) -> Self {
+        Self { current, scratch: Vec::new() }
+    }
+
     /// Predicted work imbalance of `layout` for the histograms `marginals` (particles per
     /// cell plane along x, y and z); 1 without particles.
     pub fn predict(&mut self, marginals: [&[u32]; 3], layout: [usize; 3]) -> f64 {
@@ -406,7 +412,7 @@ pub fn imbalance(counts: &[u32]) -> Option<f64> {
 }
 
 /// Per-patch particle counts and work imbalance accumulated over the steps of a run.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PatchLoad {
     /// Steps recorded.
     pub steps: u64,
@@ -643,6 +649,9 @@ mod tests {
         assert!((ch.predict([&hx, &hy1, &hz], [1, 8, 1]) - 1520.0 / 1502.5).abs() < 1e-12);
         assert_eq!(LayoutChooser::default().choose(8, paper, [&hx, &hy1, &hz]), [8, 1, 1]);
         assert_eq!(ch.choose(8, paper, [&hx, &hy1, &hz]), [1, 8, 1], "kept within the slack");
+        // A chooser continued from a saved run's layout in use decides as the saved one.
+        let mut resumed = LayoutChooser::resumed(Some([1, 8, 1]));
+        assert_eq!(resumed.choose(8, paper, [&hx, &hy1, &hz]), [1, 8, 1], "the hysteresis survives a restart");
         let hy2 = heavy(200); // 1x8x1 predicts 1.117: beyond the slack
         assert_eq!(ch.choose(8, paper, [&hx, &hy2, &hz]), [8, 1, 1]);
         // No particles: the paper's layout.

@@ -385,6 +385,19 @@ impl DomainDecomposition {
         &self.load
     }
 
+    /// What later steps depend on besides the grid and the particles (a saved state): the
+    /// layout the balanced cuts' chooser holds and the load recorded so far. The patches,
+    /// cuts and binning are recomputed every step from the particles.
+    pub fn carried(&self) -> (Option<[usize; 3]>, PatchLoad) {
+        (self.chooser.current(), self.load)
+    }
+
+    /// Take over what [`DomainDecomposition::carried`] returned.
+    pub fn carry_on(&mut self, layout_in_use: Option<[usize; 3]>, load: PatchLoad) {
+        self.chooser = LayoutChooser::resumed(layout_in_use);
+        self.load = load;
+    }
+
     /// Cut `geom` into uniform patches if the grid changed (no allocation once capacities
     /// are reached). Balanced cuts start from these and move the planes every step.
     pub fn cut(&mut self, geom: &GridGeom) {

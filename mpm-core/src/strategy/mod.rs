@@ -288,6 +288,21 @@ pub trait ScatterStrategy {
     fn bytes(&self) -> usize;
 }
 
+/// What a strategy carries from one step to the next beyond the grid and the particles
+/// (part of a saved [`crate::solver::SimState`]): serial and AE carry nothing; DD carries
+/// the load recorded so far and, with balanced cuts, the layout the chooser holds (its
+/// hysteresis decides the next step's layout).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EngineState {
+    /// DD with balanced cuts: the layout in use (`None` before the first step, and for the
+    /// other strategies).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dd_layout_in_use: Option<[usize; 3]>,
+    /// DD: particles per patch recorded over the steps taken.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dd_load: Option<PatchLoad>,
+}
+
 /// The strategy of a simulation, with its per-simulation state.
 #[derive(Debug)]
 pub(crate) enum Engine {
@@ -361,6 +376,24 @@ impl Engine {
     /// See [`ScatterStrategy::bytes`].
     pub fn bytes(&self) -> usize {
         dispatch!(self, s => s.bytes())
+    }
+
+    /// What later steps of this engine depend on ([`EngineState`]).
+    pub fn state(&self) -> EngineState {
+        match self {
+            Engine::Dd(dd) => {
+                let (layout_in_use, load) = dd.carried();
+                EngineState { dd_layout_in_use: layout_in_use, dd_load: Some(load) }
+            }
+            Engine::Serial(_) | Engine::Ae(_) => EngineState::default(),
+        }
+    }
+
+    /// Continue from `state`, saved by an engine of the same strategy and thread count.
+    pub fn restore(&mut self, state: &EngineState) {
+        if let (Engine::Dd(dd), Some(load)) = (self, state.dd_load) {
+            dd.carry_on(state.dd_layout_in_use, load);
+        }
     }
 
     /// The domain-decomposition state, if this is DD (uniform or balanced cuts).

@@ -7,7 +7,9 @@ use mpm_core::scenario::taylor;
 use mpm_core::scenario::{impact, plate};
 use mpm_core::{BulkViscosity, GridMode, MgForm, Strategy, DEFAULT_ENERGY_RISE_LIMIT};
 use mpm_spec::scenario::{Contact, ImpactSpec, PlateSpec, TaylorSpec};
-use mpm_spec::spec::{Budget, Outputs, Physics, RadiographOutput, RiseLimit, VtkEncoding, VtkOutput};
+use mpm_spec::spec::{
+    Budget, CheckpointEvery, CheckpointOutput, Outputs, Physics, RadiographOutput, RiseLimit, VtkEncoding, VtkOutput,
+};
 use mpm_spec::{RunSpec, SpecError};
 use std::path::PathBuf;
 
@@ -28,6 +30,11 @@ Examples:
   # Two MPI ranks, each owning half of the grid with one DD worker; rank 0 writes the
   # summary, whose ranks section lists each rank's CPUs, particles and communication
   mpirun -n 2 mpm run taylor --model 3 --strategy dd --threads 1 --steps 20 --json x.json
+
+  # A long run that survives a kill: its state saved every 10 minutes (the last two kept),
+  # then continued from the newest checkpoint, bit for bit, to the same summary
+  mpm run taylor --model 4 --end-time 40e-6 --checkpoint-dir ck --checkpoint-every 10m --json m4.json
+  mpm resume ck
 
 The JSON summary (SI units) holds the configuration, counts, wall time split into the
 grid-node and particle stages with sub-stages, steady-state ns per particle-step, peak
@@ -88,7 +95,74 @@ pub struct Cli {
 pub enum Command {
     /// Run one simulation: a scenario and its flags (e.g. `mpm run taylor --model 1`), or a
     /// run spec (`mpm run --spec FILE`).
-    Run(RunCmd),
+    Run(Box<RunCmd>),
+    /// Continue a run from its newest checkpoint (`mpm run ... --checkpoint-dir DIR`): with
+    /// the same strategy and thread count (and, over MPI, the same rank count) it ends bit
+    /// for bit where the run would have ended had it never stopped, and writes the same
+    /// summary (its `checkpoint` section counts the restarts and their cost).
+    #[command(after_help = RESUME_HELP)]
+    Resume(ResumeCmd),
+}
+
+pub const RESUME_HELP: &str = "\
+Everything the run needs is in the checkpoint: its spec, outputs included (JSON summary,
+snapshots, further checkpoints into the same folder). Over MPI start it with the rank count
+that wrote it (`mpirun -n R mpm resume DIR`).
+
+Refused, with nothing overwritten: a folder without checkpoints, a checkpoint written by
+another mpm binary (its results would not be bit for bit those of the run), a checkpoint of
+another spec than --spec FILE, and a damaged newest checkpoint (truncated or corrupted; then
+the older one, checked, is offered: --older continues from it and keeps the damaged one as
+DIR/damaged-step-N).
+
+Examples:
+  mpm resume ck                                   # continue, same outputs
+  mpm resume ck --json again.json --quiet         # the summary elsewhere
+  mpm resume ck --older                           # the newest checkpoint is damaged
+  mpm resume ck --strategy dd --threads 2         # same physics to round-off, other speed
+  mpirun -n 2 mpm resume ck                       # a checkpoint of 2 ranks";
+
+/// `mpm resume DIR`.
+#[derive(Debug, Args)]
+pub struct ResumeCmd {
+    /// The checkpoint folder of the run (its `--checkpoint-dir`).
+    #[arg(value_name = "DIR")]
+    pub dir: PathBuf,
+
+    /// Write the JSON summary to FILE instead of the run's `outputs.json`.
+    #[arg(long, value_name = "FILE")]
+    pub json: Option<PathBuf>,
+
+    /// No progress bar and no human summary.
+    #[arg(long, short)]
+    pub quiet: bool,
+
+    /// Continue only if the checkpoint is of the run in FILE (a spec or a summary; every
+    /// key but `outputs` and `cpus` must match), and then with FILE's outputs and CPUs.
+    #[arg(long, value_name = "FILE")]
+    pub spec: Option<PathBuf>,
+
+    /// Continue from the older of the two checkpoints when the newest is damaged (it is
+    /// kept, renamed DIR/damaged-step-N).
+    #[arg(long)]
+    pub older: bool,
+
+    /// Continue with another strategy (the same physics to round-off, not bit for bit).
+    #[arg(long, value_parser = strategy_parser(), conflicts_with = "spec")]
+    pub strategy: Option<Strategy>,
+
+    /// Continue on another number of worker threads (the same physics to round-off, not bit
+    /// for bit).
+    #[arg(long, value_name = "N", value_parser = parse_threads, conflicts_with = "spec")]
+    pub threads: Option<usize>,
+
+    /// Pin worker j to the j-th CPU of LIST (`--cpus` of `mpm run`); `none` unpins.
+    #[arg(long, value_name = "LIST", conflicts_with = "spec")]
+    pub cpus: Option<String>,
+
+    /// Run even when the memory estimate exceeds the memory available.
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// `mpm run`: a scenario and its flags, or a spec file.
@@ -336,7 +410,7 @@ pub struct RunOptions {
     pub every: u64,
 
     /// With --vtk: array encoding of the snapshots.
-    #[arg(long, value_enum, value_name = "ENCODING", default_value_t = EncodingArg::Binary, requires = "vtk")]
+    #[arg(long, value_enum, value_name = "ENCODING", default_value_t = EncodingArg::Compressed, requires = "vtk")]
     pub vtk_format: EncodingArg,
 
     /// No progress bar and no human summary (warnings and errors still go to stderr).
@@ -362,6 +436,20 @@ pub struct RunOptions {
     /// operation (6 per step): for measuring, not for production runs at many ranks.
     #[arg(long)]
     pub split_wait: bool,
+
+    /// Save the run's whole state into DIR (created if needed) every --checkpoint-every, the
+    /// last two kept, so that `mpm resume DIR` continues it bit for bit after a kill, a
+    /// time-out or a reboot. DIR must hold no checkpoints yet (nothing is overwritten).
+    #[arg(long, value_name = "DIR")]
+    pub checkpoint_dir: Option<PathBuf>,
+
+    /// With --checkpoint-dir: how often, as steps (`500`) or as wall-clock time since the
+    /// last checkpoint (`10m`, `90s`, `1h 30m`). Writing one takes about as long as the
+    /// disk needs for 137 bytes per particle; it is left out of every timing and reported
+    /// in the summary's `checkpoint` section.
+    #[arg(long, value_name = "N|DURATION", default_value = "10m", requires = "checkpoint_dir",
+          value_parser = CheckpointEvery::parse)]
+    pub checkpoint_every: CheckpointEvery,
 
     /// Write the final particle state to FILE (binary, little-endian, sorted by particle id:
     /// per particle the id as u64, then position, velocity and stress as 12 f64). Used to
@@ -482,7 +570,10 @@ pub fn parse_threads(s: &str) -> Result<usize, String> {
 /// `--vtk-format`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum EncodingArg {
-    /// Inline base64 binary (compact, exact).
+    /// Raw binary appended after the XML, zlib-compressed (ParaView reads it as it is;
+    /// exact; the smallest).
+    Compressed,
+    /// Inline base64 binary (exact; a third larger than raw).
     Binary,
     /// Inline ASCII (readable; values printed in shortest round-trip form).
     Ascii,
@@ -590,12 +681,14 @@ impl Scenario {
                 dir,
                 every: o.every,
                 encoding: match o.vtk_format {
+                    EncodingArg::Compressed => VtkEncoding::Compressed,
                     EncodingArg::Binary => VtkEncoding::Binary,
                     EncodingArg::Ascii => VtkEncoding::Ascii,
                 },
             }),
             radiograph,
             dump_state: o.dump_state.clone(),
+            checkpoint: o.checkpoint_dir.clone().map(|dir| CheckpointOutput { dir, every: o.checkpoint_every }),
         };
         spec.check()?;
         Ok(spec)

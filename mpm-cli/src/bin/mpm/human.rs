@@ -115,6 +115,22 @@ fn timing(s: &Summary) -> Vec<String> {
             p.min, p.mean, p.max, p.imbalance_mean, p.imbalance_max
         ));
     }
+    if let Some(c) = &s.checkpoint {
+        let restarts = match c.restarts {
+            0 => String::new(),
+            n => format!(
+                "; continued {n} time(s), from step(s) {}, {:.3} s of set-up",
+                c.restart_steps.iter().map(u64::to_string).collect::<Vec<_>>().join(", "),
+                c.restart_setup_s
+            ),
+        };
+        lines.push(format!(
+            "checkpoints: {} written in {:.3} s (the last {}){restarts}; none of it in the times above",
+            c.written,
+            c.write_s,
+            mpm_cli::memory::human_bytes(c.last_bytes)
+        ));
+    }
     lines
 }
 

@@ -4,14 +4,18 @@
 //! A run in steps: [`cli`] parses the command line into a run spec (`mpm_spec::RunSpec`,
 //! or reads one with `--spec`), [`run`] checks it against the machine, builds the scenario,
 //! the pinned pool and the simulation and steps it
-//! ([`output`] writes snapshots and pictures on the way, [`progress`] shows a bar), then
-//! writes the summary; [`human`] prints it for people.
+//! ([`output`] writes snapshots and pictures on the way, [`checkpointing`] the run's
+//! checkpoints, [`progress`] shows a bar), then writes the summary; [`human`] prints it for
+//! people. `mpm resume DIR` ([`resume`]) takes a run back from its newest checkpoint and
+//! goes on through the same loop.
 
+mod checkpointing;
 mod cli;
 mod human;
 mod output;
 mod progress;
 mod ranks;
+mod resume;
 mod run;
 
 use anyhow::Result;
@@ -34,7 +38,10 @@ fn main() {
 /// Run the command the user gave.
 fn dispatch(cli: Cli) -> Result<()> {
     let command_line: Vec<String> = std::env::args().collect();
-    let Command::Run(RunCmd { scenario, spec, json, quiet, control }) = cli.command;
+    let RunCmd { scenario, spec, json, quiet, control } = match cli.command {
+        Command::Run(run) => *run,
+        Command::Resume(cmd) => return resume::resume(cmd, command_line),
+    };
     let (request, control) = match (scenario, spec) {
         (Some(sc), _) => {
             let control = sc.options().control;

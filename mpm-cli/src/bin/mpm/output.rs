@@ -28,10 +28,17 @@ impl Outputs {
     /// Check and reserve every output before the run: the JSON summary's file, the snapshot
     /// directory, the radiograph directory.
     pub fn open(spec: &RunSpec) -> Result<Self> {
+        Self::open_continued(spec, Vec::new())
+    }
+
+    /// [`Outputs::open`] for a run continued from a checkpoint, whose snapshot collection
+    /// already lists the `written` snapshots `(step, time, file)`.
+    pub fn open_continued(spec: &RunSpec, written: Vec<(u64, f64, String)>) -> Result<Self> {
         let o = &spec.outputs;
         let json = o.json.as_deref().map(PendingFile::reserve).transpose()?;
         let name = spec.scenario.kind().name();
-        let snapshots = o.vtk.as_ref().map(|v| SnapshotWriter::new(&v.dir, name, v.encoding)).transpose()?;
+        let snapshots =
+            o.vtk.as_ref().map(|v| SnapshotWriter::resumed(&v.dir, name, v.encoding, written.clone())).transpose()?;
         let radiographs = o.radiograph.as_ref().map(|r| (r.dir.clone(), r.every));
         if let Some((dir, _)) = &radiographs {
             std::fs::create_dir_all(dir)

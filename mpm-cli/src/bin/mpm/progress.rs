@@ -13,10 +13,13 @@ pub struct Progress {
     end_time: Option<f64>,
     step_limit: Option<u64>,
     start: Instant,
+    /// The step the bar started at (a run continued from a checkpoint starts there).
+    first_step: u64,
 }
 
 impl Progress {
-    pub fn new(quiet: bool, end_time: Option<f64>, step_limit: Option<u64>) -> Option<Self> {
+    /// The bar of a run stopping at `end_time` or `step_limit`, starting at `sim`'s step.
+    pub fn new(quiet: bool, end_time: Option<f64>, step_limit: Option<u64>, sim: &Simulation) -> Option<Self> {
         if quiet || !std::io::stderr().is_terminal() {
             return None;
         }
@@ -31,12 +34,15 @@ impl Progress {
             .unwrap_or_else(|_| ProgressStyle::default_bar())
             .progress_chars("=> ");
         bar.set_style(style);
-        Some(Self { bar, by_steps, end_time, step_limit, start: Instant::now() })
+        let progress = Self { bar, by_steps, end_time, step_limit, start: Instant::now(), first_step: sim.steps() };
+        progress.update(sim);
+        progress.bar.reset_eta();
+        Some(progress)
     }
 
     pub fn update(&self, sim: &Simulation) {
         let steps = sim.steps();
-        let rate = steps as f64 / self.start.elapsed().as_secs_f64().max(1e-9);
+        let rate = (steps - self.first_step) as f64 / self.start.elapsed().as_secs_f64().max(1e-9);
         let t_us = sim.time() * 1e6;
         let msg = match (self.end_time, self.step_limit) {
             (Some(end), Some(n)) => format!("t {t_us:.3}/{:.3} µs, step {steps}/{n}, {rate:.1} steps/s", end * 1e6),

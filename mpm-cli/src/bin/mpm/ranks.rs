@@ -128,28 +128,37 @@ impl Ranks {
     /// Over several ranks no process holds the whole set: a first pass generates it only
     /// to find its bounding box, over which the rank boxes of `layout` (default: the DD
     /// layout for the rank count) are cut uniformly; the second builds the particles of this
-    /// rank's box alone, numbered as in the whole set.
+    /// rank's box alone, numbered as in the whole set. With `bare` (a run continued from a
+    /// checkpoint, whose particles come from it) the scenario is built without particles,
+    /// over the same rank boxes.
     pub fn build(
         &self,
         scenario: &Scenario,
         eos: MgForm,
         _layout: Option<[usize; 3]>,
         _split_wait: bool,
+        bare: bool,
     ) -> Result<(Prepared, Option<Box<dyn Exchange>>)> {
         let what = || format!("cannot set up the {}", scenario.describe());
+        let census = || scenario.build(eos, Pick::Where(&|_| false)).with_context(what);
         #[cfg(feature = "mpi")]
         if let Some(m) = &self.mpi {
-            let census = scenario.build(eos, Pick::Where(&|_| false)).with_context(what)?;
+            let census = census()?;
             let part = census.setup.part.as_ref().context("a picked set-up describes the whole set")?;
             if part.total == 0 {
                 bail!("the scenario has no particles; check its size options");
             }
             let boxes = m.boxes(&census.setup.grid, (part.lo, part.hi), _layout)?;
             let rank = m.rank;
-            let prepared = scenario.build(eos, Pick::Where(&|x| boxes.owner(x) == rank)).with_context(what)?;
+            let prepared = if bare {
+                census
+            } else {
+                scenario.build(eos, Pick::Where(&|x| boxes.owner(x) == rank)).with_context(what)?
+            };
             return Ok((prepared, Some(m.exchange(boxes, _split_wait)?)));
         }
-        Ok((scenario.build(eos, Pick::All).with_context(what)?, None))
+        let prepared = if bare { census()? } else { scenario.build(eos, Pick::All).with_context(what)? };
+        Ok((prepared, None))
     }
 
     /// This rank's CPUs for `threads` workers and whether ranks share CPUs ([`place`]).

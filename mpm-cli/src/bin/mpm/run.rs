@@ -1,14 +1,17 @@
 //! One run from checked options to its summary: check everything that can be checked before
 //! building the model ([`Plan`]), reserve the outputs, build the pinned pool and the
-//! simulation, step it until the end time or step limit ([`step_loop`]), then build, write
-//! and print the summary.
+//! simulation, step it until the end time or step limit ([`step_loop`], writing checkpoints
+//! when due), then build, write and print the summary ([`go`], which a run continued from
+//! a checkpoint enters too).
 
+use crate::checkpointing::{Carried, Checkpointer, RunLog, SavedCloud, SavedSnapshot};
 use crate::cli::Control;
 use crate::human::print_human;
 use crate::output::Outputs;
 use crate::progress::Progress;
 use crate::ranks::Ranks;
 use anyhow::{bail, Context, Result};
+use mpm_cli::checkpoint::Folder;
 use mpm_cli::pinning::{self, PinnedPool};
 use mpm_cli::summary::{self, HistoryRecorder, RunContext, Timing};
 use mpm_core::scenario::impact::{self, CloudFigures, History, ImpactGeometry, DEFAULT_HISTORY_INTERVAL};
@@ -17,12 +20,12 @@ use mpm_core::scenario::taylor::{self, TaylorFigures};
 use mpm_core::{Collectives, SimConfig, Simulation};
 use mpm_spec::scenario::Prepared;
 use mpm_spec::spec::Budget;
-use mpm_spec::summary::{EndReason, HistoryPoint, RankReport};
+use mpm_spec::summary::{CheckpointReport, EndReason, HistoryPoint, RankReport};
 use mpm_spec::RunSpec;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// Raised when the user interrupts the run.
 #[derive(Debug, thiserror::Error)]
@@ -34,7 +37,7 @@ pub struct Interrupted(u64);
 pub const MAX_THREADS_PER_CORE: usize = 16;
 
 /// What the machine says about the spec, checked before anything is built.
-struct Plan {
+pub struct Plan {
     available_cores: usize,
     /// More workers than cores, or than distinct pinned CPUs.
     oversubscribed: bool,
@@ -44,7 +47,7 @@ impl Plan {
     /// Check the spec against this machine: the CPU list, a thread count not far beyond the
     /// cores, the memory estimate against the memory available (unless `force`); warn (once)
     /// when the run is oversubscribed.
-    fn check(spec: &RunSpec, force: bool) -> Result<Self> {
+    pub fn check(spec: &RunSpec, force: bool) -> Result<Self> {
         let threads = spec.threads;
         if let Some(c) = &spec.cpus {
             pinning::validate_cpus(c, threads).context("invalid --cpus")?;
@@ -122,7 +125,7 @@ fn warn_oversubscribed(threads: usize, available_cores: usize, distinct_cpus: Op
 
 /// The pool of the run, pinned as planned; a worker not where it was asked to be is a
 /// warning (and the summary says `pinning_verified = false`).
-fn start_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool> {
+pub fn start_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool> {
     let pool = pinning::build_pool(threads, cpus)?;
     let mismatches = pool.mismatches();
     if !mismatches.is_empty() {
@@ -134,13 +137,9 @@ fn start_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool> {
     Ok(pool)
 }
 
-/// The simulation of a built scenario as the spec asks: strategy, threads, grid, physics.
-fn simulation(
-    spec: &RunSpec,
-    setup: mpm_core::Setup,
-    exchange: Option<Box<dyn mpm_core::Exchange>>,
-) -> Result<Simulation> {
-    let config = SimConfig {
+/// The solver settings of the spec: strategy, threads, grid, physics.
+pub fn sim_config(spec: &RunSpec) -> SimConfig {
+    SimConfig {
         strategy: spec.strategy,
         threads: spec.threads,
         grid_mode: spec.grid,
@@ -148,7 +147,16 @@ fn simulation(
         bulk_viscosity: spec.physics.q,
         energy_rise_limit: spec.physics.energy_rise_limit.as_f64(),
         ..SimConfig::default()
-    };
+    }
+}
+
+/// The simulation of a built scenario as the spec asks: strategy, threads, grid, physics.
+fn simulation(
+    spec: &RunSpec,
+    setup: mpm_core::Setup,
+    exchange: Option<Box<dyn mpm_core::Exchange>>,
+) -> Result<Simulation> {
+    let config = sim_config(spec);
     match exchange {
         Some(exchange) => Simulation::with_exchange(setup, config, exchange),
         None => Simulation::new(setup, config),
@@ -159,7 +167,7 @@ fn simulation(
 /// The CPUs of this process's workers: the spec's, or with several ranks and none given,
 /// a slice of the CPUs the launcher gave this rank ([`Ranks::rank_cpus`]); and whether ranks
 /// share CPUs (flagged).
-fn place_rank(spec: &RunSpec, plan: &mut Plan, ranks: &Ranks) -> Result<(Option<Vec<usize>>, bool)> {
+pub fn place_rank(spec: &RunSpec, plan: &mut Plan, ranks: &Ranks) -> Result<(Option<Vec<usize>>, bool)> {
     if ranks.size() == 1 || spec.cpus.is_some() {
         return Ok((spec.cpus.clone(), false));
     }
@@ -211,7 +219,7 @@ fn record(history: &mut HistoryRecorder, sim: &Simulation) {
 /// What a run measures while it steps besides the energy history: the impact's cloud
 /// history, the plate's shock front. Over several ranks every rank tracks them, since the
 /// measurements are collective (rank 0 holds the cloud history's samples).
-struct Tracking {
+pub struct Tracking {
     cloud: Option<(History, ImpactGeometry)>,
     shock: Option<ShockTracker>,
 }
@@ -223,6 +231,38 @@ impl Tracking {
             None => None,
         };
         Ok(Self { cloud, shock: plate.map(ShockTracker::new) })
+    }
+
+    /// The tracking a checkpoint saved, on the scenario's geometries.
+    pub fn restored(
+        cloud: Option<SavedCloud>,
+        shock_path: Option<Vec<[f64; 2]>>,
+        impact: Option<ImpactGeometry>,
+        plate: Option<PlateGeometry>,
+    ) -> Result<Self> {
+        let cloud = match (impact, cloud) {
+            (Some(g), Some(c)) => Some((History::resumed(c.interval, c.samples, c.last_time)?, g)),
+            (None, None) => None,
+            _ => bail!("the checkpoint's cloud history does not fit the scenario"),
+        };
+        let shock = match (plate, shock_path) {
+            (Some(geometry), Some(path)) => {
+                Some(ShockTracker { geometry, path: path.into_iter().map(|[t, z]| (t, z)).collect() })
+            }
+            (None, None) => None,
+            _ => bail!("the checkpoint's shock tracker does not fit the scenario"),
+        };
+        Ok(Self { cloud, shock })
+    }
+
+    /// What a checkpoint saves of it.
+    fn saved(&self) -> (Option<SavedCloud>, Option<Vec<[f64; 2]>>) {
+        let cloud = self.cloud.as_ref().map(|(h, _)| SavedCloud {
+            interval: h.interval,
+            samples: h.samples.clone(),
+            last_time: h.last_time(),
+        });
+        (cloud, self.shock.as_ref().map(|t| t.path.iter().map(|&(t, z)| [t, z]).collect()))
     }
 
     /// Sample the current state (the history only when a new interval has begun).
@@ -276,40 +316,108 @@ impl FinalFigures {
     }
 }
 
-/// Mark the end of the warm-up: the loop's wall time so far (output excluded), the stage
-/// timers and the workers' busy counters.
+/// Mark the end of the warm-up: the loop's wall time so far (output and checkpoints
+/// excluded), the stage timers and the workers' busy counters.
 fn mark_warmup(timing: &mut Timing, sim: &Simulation, wall_s: f64) {
     timing.warmup_wall_s = wall_s;
     timing.warmup_times = *sim.times();
     timing.warmup_busy = sim.worker_busy();
 }
 
+/// What a run carries besides the simulation while it steps, from its start (or its
+/// checkpoint) to its summary; a checkpoint saves it as [`Carried`].
+pub struct Carry {
+    /// The run's log: initial grid, start, timing so far, checkpoints and restarts before
+    /// this process, energy history, the bar's initial figures.
+    pub log: RunLog,
+    /// The impact's cloud history, the plate's shock tracker.
+    pub tracking: Tracking,
+}
+
+impl Carry {
+    /// The carry of a checkpoint, on the scenario's geometries.
+    pub fn restored(c: Carried, impact: Option<ImpactGeometry>, plate: Option<PlateGeometry>) -> Result<Self> {
+        Ok(Self { log: c.log, tracking: Tracking::restored(c.cloud, c.shock_path, impact, plate)? })
+    }
+
+    /// What a checkpoint saves now: the carry with the timing and the report as of now,
+    /// and the snapshots written.
+    fn saved(&self, timing: Timing, report: CheckpointReport, outputs: &Outputs) -> Carried {
+        let (cloud, shock_path) = self.tracking.saved();
+        Carried {
+            log: RunLog { timing, report, ..self.log.clone() },
+            cloud,
+            shock_path,
+            snapshots: outputs
+                .snapshots()
+                .map(|w| w.written().into_iter().map(|(step, time, file)| SavedSnapshot { step, time, file }).collect())
+                .unwrap_or_default(),
+        }
+    }
+}
+
+/// The checkpoint report as of now: the restored one plus this process's checkpoints.
+fn report_now(base: &CheckpointReport, ck: Option<&Checkpoints>) -> CheckpointReport {
+    let mut r = base.clone();
+    if let Some(c) = ck {
+        r.written += c.written;
+        r.write_s += c.writer.spent.as_secs_f64();
+        if c.written > 0 {
+            r.last_bytes = c.last_bytes;
+        }
+    }
+    r
+}
+
+/// This process's checkpoints: the writer and what it wrote.
+pub struct Checkpoints {
+    /// The writer.
+    pub writer: Checkpointer,
+    written: u64,
+    last_bytes: u64,
+}
+
+impl Checkpoints {
+    /// Checkpoints by `writer`, none written yet.
+    pub fn new(writer: Checkpointer) -> Self {
+        Self { writer, written: 0, last_bytes: 0 }
+    }
+}
+
 /// What the stepping loop reads besides the simulation.
 struct LoopContext<'a> {
     spec: &'a RunSpec,
     pool: &'a PinnedPool,
-    warmup: u64,
     interrupted: &'a AtomicBool,
     progress: Option<&'a Progress>,
     geometry: Option<&'a ImpactGeometry>,
 }
 
-/// Step until the end time or the step limit (or Ctrl-C, or a solver error). The whole
-/// loop runs on the pool's first worker (one hand-over to the pool per run, not per step);
-/// the solver's parallel phases broadcast from there. Returns why it stopped and the
-/// loop's timing (output time excluded). `ranks`: what the tracking measures with.
+/// Step until the end time or the step limit (or Ctrl-C, or a solver error), writing
+/// checkpoints when due. The whole loop runs on the pool's first worker (one hand-over to
+/// the pool per run, not per step); the solver's parallel phases broadcast from there.
+/// Returns why it stopped; `carry.log.timing` holds the loop's timing (output and checkpoint
+/// writes excluded, added to what a checkpoint carried). `ranks`: what the tracking
+/// measures with.
 fn step_loop(
     ctx: &LoopContext<'_>,
     sim: &mut Simulation,
     outputs: &mut Outputs,
-    history: &mut HistoryRecorder,
-    tracking: &mut Tracking,
+    carry: &mut Carry,
+    mut checkpoints: Option<&mut Checkpoints>,
     ranks: &mut dyn Collectives,
-) -> Result<(EndReason, Timing)> {
-    let mut timing = Timing { warmup_steps: ctx.warmup, ..Timing::default() };
-    let mut warm_done = ctx.warmup == 0;
+) -> Result<EndReason> {
+    let (base_wall, base_output) = (carry.log.timing.wall_s, carry.log.timing.output_s);
+    let warmup = carry.log.timing.warmup_steps;
+    let mut warm_done = warmup == 0 || sim.steps() >= warmup;
     let budget = &ctx.spec.budget;
     let loop_start = Instant::now();
+    // The loop's wall time: what a checkpoint carried plus this process's loop, less its
+    // output and checkpoint writes.
+    let wall = |outputs: &Outputs, ck: Option<&Checkpoints>| {
+        let left_out = outputs.spent + ck.map_or(Duration::ZERO, |c| c.writer.spent);
+        base_wall + loop_start.elapsed().saturating_sub(left_out).as_secs_f64()
+    };
     let end_reason = ctx.pool.pool.install(|| -> Result<EndReason> {
         loop {
             if let Some(reason) = reached(budget, sim) {
@@ -330,25 +438,42 @@ fn step_loop(
                     ctx.spec.threads
                 )));
             }
-            record(history, sim);
+            record(&mut carry.log.history, sim);
             let t0 = Instant::now();
-            tracking.observe(sim, ranks)?;
+            carry.tracking.observe(sim, ranks)?;
             outputs.spent += t0.elapsed();
-            if !warm_done && sim.steps() >= ctx.warmup {
+            if !warm_done && sim.steps() >= warmup {
                 warm_done = true;
-                mark_warmup(&mut timing, sim, loop_start.elapsed().saturating_sub(outputs.spent).as_secs_f64());
+                mark_warmup(&mut carry.log.timing, sim, wall(outputs, checkpoints.as_deref()));
             }
             ctx.progress.inspect(|p| p.update(sim));
             outputs.after_step(sim, ctx.geometry)?;
+            if let Some(ck) = checkpoints.as_deref_mut() {
+                // No checkpoint of the final state: the summary follows at once.
+                if reached(budget, sim).is_none() && ck.writer.due(sim, ranks)? {
+                    let timing = Timing {
+                        wall_s: wall(outputs, Some(ck)),
+                        output_s: base_output + outputs.spent.as_secs_f64(),
+                        ..carry.log.timing.clone()
+                    };
+                    let mut report = report_now(&carry.log.report, Some(ck));
+                    report.written += 1;
+                    let program = carry.saved(timing, report, outputs);
+                    if let Some(bytes) = ck.writer.write(ctx.spec, sim, program, ranks)? {
+                        ck.written += 1;
+                        ck.last_bytes = bytes;
+                    }
+                }
+            }
         }
     })?;
-    let wall_s = loop_start.elapsed().saturating_sub(outputs.spent).as_secs_f64();
-    timing.wall_s = wall_s;
+    let wall_s = wall(outputs, checkpoints.as_deref());
+    carry.log.timing.wall_s = wall_s;
     if !warm_done {
         // The run ended inside the warm-up: no steady-state steps.
-        mark_warmup(&mut timing, sim, wall_s);
+        mark_warmup(&mut carry.log.timing, sim, wall_s);
     }
-    Ok((end_reason, timing))
+    Ok(end_reason)
 }
 
 /// Where a run's spec comes from.
@@ -387,8 +512,7 @@ impl Request {
 /// `mpm run ...`: the whole run, from its spec (read, or built from the flags on the
 /// launcher's rank count) to its summary.
 pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Result<()> {
-    let started_unix_s =
-        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64());
+    let started_unix_s = mpm_cli::summary::unix_now();
     let (requested, from_file) = request.before_start()?;
     let mut ranks = Ranks::start(requested)?;
     let lead = ranks.rank() == 0;
@@ -404,49 +528,147 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
         return Ok(());
     }
     let mut plan = Plan::check(&spec, control.force)?;
+    // Rank 0 holds the checkpoint folder for the run; every rank checks it is unused.
+    let _lock = match &spec.outputs.checkpoint {
+        Some(c) if lead => Some(Folder::new(&c.dir).lock(Duration::ZERO)?),
+        _ => None,
+    };
+    if let Some(c) = &spec.outputs.checkpoint {
+        mpm_cli::checkpoint::refuse_used_folder(&c.dir, &mpm_cli::checkpoint::run_key(&spec))?;
+    }
     let (cpus, rank_oversubscribed) = place_rank(&spec, &mut plan, &ranks)?;
-    let quiet = spec.outputs.quiet;
     let mut outputs = if lead { Outputs::open(&spec)? } else { Outputs::none() };
     let pool = start_pool(spec.threads, cpus.as_deref())?;
     let (Prepared { setup, impact, plate }, exchange) =
-        ranks.build(&spec.scenario, spec.physics.eos, spec.rank_layout, spec.split_wait)?;
+        ranks.build(&spec.scenario, spec.physics.eos, spec.rank_layout, spec.split_wait, false)?;
     let taylor = matches!(spec.scenario, mpm_spec::Scenario::Taylor(_));
     let model_name = setup.model.clone();
-    let mut sim = simulation(&spec, setup, exchange)?;
+    let sim = simulation(&spec, setup, exchange)?;
     let (cells, nodes) = (sim.global_geom().num_cells(), sim.global_geom().num_nodes());
     let warmup = spec.budget.warmup.unwrap_or_else(|| spec.default_warmup(sim.dt_first()));
     spec.budget.warmup = Some(warmup);
-    let interrupted = install_interrupt_handler();
-
+    let checkpoints = match &spec.outputs.checkpoint {
+        Some(c) => Some(Checkpoints::new(Checkpointer::new(
+            &c.dir,
+            c.every,
+            &spec,
+            ranks.rank(),
+            mpm_cli::identity::this_binary_sha256(),
+        )?)),
+        None => None,
+    };
     let mut history = HistoryRecorder::new();
     record(&mut history, &sim);
     let initial_taylor = bar_figures(taylor, &sim, ranks.collectives())?;
     let mut tracking = Tracking::new(impact, plate)?;
     tracking.observe(&sim, ranks.collectives())?;
     outputs.initial(&sim)?;
-    let progress = Progress::new(quiet || !lead, spec.budget.end_time_s, spec.budget.steps);
+    let log = RunLog {
+        cells,
+        nodes,
+        started_unix_s,
+        command_line,
+        timing: Timing { warmup_steps: warmup, ..Timing::default() },
+        report: CheckpointReport::default(),
+        history,
+        initial_taylor,
+    };
+    let carry = Carry { log, tracking };
+    let run = Ready {
+        spec,
+        plan,
+        rank_oversubscribed,
+        pool,
+        sim,
+        outputs,
+        carry,
+        impact,
+        plate,
+        taylor,
+        model_name,
+        checkpoints,
+        restart: None,
+    };
+    go(run, &mut ranks)
+}
+
+/// A run ready to step: fresh from its spec ([`run`]) or taken back from a checkpoint
+/// (`resume`).
+pub struct Ready {
+    /// The run, resolved.
+    pub spec: RunSpec,
+    /// What the machine said about it.
+    pub plan: Plan,
+    /// Whether this rank shares CPUs with another.
+    pub rank_oversubscribed: bool,
+    /// The pinned pool.
+    pub pool: PinnedPool,
+    /// The simulation.
+    pub sim: Simulation,
+    /// Its outputs.
+    pub outputs: Outputs,
+    /// What the program carries.
+    pub carry: Carry,
+    /// Impact: the geometry.
+    pub impact: Option<ImpactGeometry>,
+    /// Plate: the geometry.
+    pub plate: Option<PlateGeometry>,
+    /// Whether the scenario is the Taylor bar.
+    pub taylor: bool,
+    /// The model's label.
+    pub model_name: String,
+    /// The run's checkpoints.
+    pub checkpoints: Option<Checkpoints>,
+    /// A restart: when this process started (its set-up until the loop is booked as the
+    /// restart's).
+    pub restart: Option<Instant>,
+}
+
+/// Step a ready run to its end, then measure, write and print its summary.
+pub fn go(run: Ready, ranks: &mut Ranks) -> Result<()> {
+    let Ready {
+        spec,
+        plan,
+        rank_oversubscribed,
+        pool,
+        mut sim,
+        mut outputs,
+        mut carry,
+        impact,
+        plate,
+        taylor,
+        model_name,
+        mut checkpoints,
+        restart,
+    } = run;
+    let lead = ranks.rank() == 0;
+    let quiet = spec.outputs.quiet;
+    let interrupted = install_interrupt_handler();
+    let progress = Progress::new(quiet || !lead, spec.budget.end_time_s, spec.budget.steps, &sim);
     let ctx = LoopContext {
         spec: &spec,
         pool: &pool,
-        warmup,
         interrupted: &interrupted,
         progress: progress.as_ref(),
         geometry: impact.as_ref(),
     };
-    let (end_reason, mut timing) =
-        step_loop(&ctx, &mut sim, &mut outputs, &mut history, &mut tracking, ranks.collectives())?;
+    if let Some(t0) = restart {
+        carry.log.report.restart_setup_s += t0.elapsed().as_secs_f64();
+    }
+    let end_reason = step_loop(&ctx, &mut sim, &mut outputs, &mut carry, checkpoints.as_mut(), ranks.collectives())?;
     // The final figures, measured once: the summary's, and the history's last sample.
-    let figures = FinalFigures::measure(&sim, taylor, &tracking, ranks.collectives())?;
-    tracking.finish(&sim, &figures);
+    let figures = FinalFigures::measure(&sim, taylor, &carry.tracking, ranks.collectives())?;
+    carry.tracking.finish(&sim, &figures);
     outputs.finish(&sim, impact.as_ref(), quiet)?;
-    let cloud_history = tracking.cloud.map(|(h, _)| h);
+    let cloud_history = carry.tracking.cloud.take().map(|(h, _)| h);
     if let Some(h) = &cloud_history {
         outputs.history_plot(h, quiet)?;
     }
-    timing.output_s = outputs.spent.as_secs_f64();
+    carry.log.timing.output_s += outputs.spent.as_secs_f64();
     if let Some(p) = &progress {
         p.bar.finish_and_clear();
     }
+    let report = report_now(&carry.log.report, checkpoints.as_ref());
 
     // Rank 0's summary, built before a state dump can release the grid's arrays.
     let summary = lead.then(|| {
@@ -455,21 +677,22 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
             RunContext {
                 spec: &spec,
                 model_name,
-                cells,
-                nodes,
+                cells: carry.log.cells,
+                nodes: carry.log.nodes,
                 end_reason,
-                timing: &timing,
+                timing: &carry.log.timing,
                 pool: &pool,
                 available_cores: plan.available_cores,
                 oversubscribed: plan.oversubscribed,
-                history: history.finish(200),
+                history: carry.log.history.finish(200),
                 failed_particles: figures.failed,
-                taylor: initial_taylor.zip(figures.taylor),
+                taylor: carry.log.initial_taylor.zip(figures.taylor),
                 cloud: figures.cloud,
                 cloud_history,
                 plate: plate.map(|g| (g, figures.plate)),
-                command_line,
-                started_unix_s,
+                command_line: carry.log.command_line,
+                started_unix_s: carry.log.started_unix_s,
+                checkpoint: (report.written > 0 || report.restarts > 0).then_some(report),
             },
         )
     });
@@ -479,7 +702,7 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
     // Every rank's peak memory, read after the last thing the run holds memory for.
     let reports = match ranks.size() {
         1 => None,
-        _ => ranks.gather_reports(rank_report(&sim, &pool, &ranks, rank_oversubscribed))?,
+        _ => ranks.gather_reports(rank_report(&sim, &pool, ranks, rank_oversubscribed))?,
     };
     let Some(mut summary) = summary else { return Ok(()) };
     summary.ranks = reports;
