@@ -377,9 +377,9 @@ fn pinning_none_passes_no_cpus() {
 /// readers would misread it). The spec's columns come from `mpm_spec::RunSpec` itself.
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 6);
-    let want = "schema_version,campaign_id,run_id,run_key,timestamp,git_commit,git_dirty,machine_id,binary_sha256,\
-seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,scenario.wall,\
+    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 7);
+    let want = "schema_version,campaign_id,run_id,run_key,timestamp,git_commit,git_dirty,machine_id,node,job_id,\
+binary_sha256,seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,scenario.wall,\
 scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell,strategy,threads,\
 ranks,rank_layout,grid,physics.eos,physics.q.c1,physics.q.c2,physics.cfl,physics.energy_rise_limit,\
 budget.steps,budget.end_time_s,budget.warmup,split_wait,model,opt,pin,launcher,rep,requested_cpus,\
@@ -504,6 +504,16 @@ fn cli_errors_are_clear() {
     fails_cleanly(&["run", "--preset", "smoke", "--pin", "0,x", "--mock", "--out", out], "bad CPU list");
     fails_cleanly(&["run", "--preset", "smoke", "--pin", "9999", "--mock", "--out", out], "cannot use");
     fails_cleanly(&["run", "--preset", "smoke", "--mock", "--out", "/proc/no-such-dir"], "output folder");
+    fails_cleanly(
+        &["run", "--preset", "smoke", "--partition", "p", "--mock", "--out", out],
+        "--partition is an option of --scheduler slurm",
+    );
+    fails_cleanly(
+        &["run", "--preset", "smoke", "--detach", "--mock", "--out", out],
+        "--detach is an option of --scheduler slurm",
+    );
+    fails_cleanly(&["run", "--preset", "smoke", "--scheduler", "slurm", "--mock", "--out", out], "cannot go to Slurm");
+    fails_cleanly(&["run", "--preset", "smoke", "--scheduler", "pbs", "--out", out], "invalid value 'pbs'");
     fails_cleanly(&["topology", "--pin", "0,x"], "bad CPU list");
     fails_cleanly(&["paired", "--model", "7"], "Models 1-4");
     fails_cleanly(&["paired", "--threads", "0"], "use 2 or more");
@@ -526,6 +536,10 @@ fn cli_errors_are_clear() {
         "--out",
         "--seed",
         "--dry-run",
+        "--scheduler",
+        "--partition",
+        "--max-jobs",
+        "--detach",
         "Examples",
     ] {
         assert!(help.contains(flag), "help lacks {flag}");
