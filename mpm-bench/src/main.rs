@@ -534,7 +534,7 @@ fn cmd_run(a: RunArgs) -> Result<i32> {
     } else {
         Scheduler::Local
     };
-    let here = scheduler == Scheduler::Local;
+    let here = scheduler.runs_here();
     let interrupted = runner::install_interrupt_handler();
     let opts = ExecOptions {
         out_root: a.out.clone(),

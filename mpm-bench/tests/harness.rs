@@ -1136,3 +1136,40 @@ fn a_garbage_line_is_set_aside_and_its_run_redone() {
     assert_eq!(aside.len(), 1);
     assert_eq!(std::fs::read_to_string(aside[0].path()).unwrap(), "a,b,c,d\n");
 }
+
+/// `mpm-bench job FILE` (what a Slurm job runs on its node) refuses a solver binary other
+/// than the one the campaign hashed, saying so, after recording where it ran; it writes no row.
+#[test]
+fn a_job_refuses_another_solver_binary_than_the_campaigns() {
+    use mpm_bench::campaign::job::{self, JobFile};
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("camp").join("json");
+    std::fs::create_dir_all(&json).unwrap();
+    let solver = dir.path().join("mpm");
+    std::fs::write(&solver, "#!/bin/sh\nexit 0\n").unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let run = c.expand().remove(0);
+    let file = JobFile {
+        campaign: c,
+        timeout: None,
+        git: Default::default(),
+        solver: Solver { opt: run.opt, path: solver.clone(), sha256: "ab".repeat(32) },
+        run,
+        order_index: 0,
+        run_id: "r0".into(),
+        watch: None,
+    };
+    let path = job::job_path(&json, "r0");
+    job::write_json(&path, &file).unwrap();
+    let out = bench().args(["job"]).arg(&path).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("is not the one the campaign was submitted with") && err.contains("shared filesystem"),
+        "{err}"
+    );
+    let started = job::read_started(&json, "r0").unwrap();
+    assert_eq!(started.fingerprint, fingerprint::fingerprint(&Machine::detect().unwrap()));
+    assert!(dir.path().join("camp/nodes").join(format!("{}.json", started.fingerprint)).is_file());
+    assert_eq!(job::read_row(&json, "r0").unwrap(), None);
+}

@@ -304,7 +304,7 @@ impl Plan {
     /// `--retry-failed`).
     fn of(campaign: &Campaign, machine: &Machine, solvers: &[Solver], opts: &ExecOptions) -> Result<Self> {
         let mut who = SessionIdentity::of(machine, solvers);
-        if matches!(opts.scheduler, Scheduler::Slurm(_)) {
+        if !opts.scheduler.runs_here() {
             who.fingerprint = None;
         }
         let dir = choose_folder(campaign, machine, &who, opts)?;
@@ -450,7 +450,7 @@ impl ManifestLog {
                 nodes: Default::default(),
             }
         };
-        let here = matches!(opts.scheduler, Scheduler::Local);
+        let here = opts.scheduler.runs_here();
         man.sessions.push(Session {
             started: now_rfc3339(),
             command: opts.command.clone(),
@@ -508,6 +508,8 @@ pub(super) struct CampaignProgress {
     bar: ProgressBar,
     show: bool,
     total: usize,
+    /// The scheduler's queue as last shown: pending, running, done.
+    queue: std::cell::Cell<Option<(usize, usize, usize)>>,
 }
 
 impl CampaignProgress {
@@ -524,7 +526,7 @@ impl CampaignProgress {
                 .progress_chars("=> "),
         );
         bar.enable_steady_tick(Duration::from_millis(500));
-        Self { bar, show, total: todo.len() }
+        Self { bar, show, total: todo.len(), queue: std::cell::Cell::new(None) }
     }
 
     /// Run `n` (0-based) starts.
@@ -533,9 +535,15 @@ impl CampaignProgress {
         self.bar.set_message(spec.describe());
     }
 
-    /// Under a scheduler: how many runs wait in its queue, run, and are done.
+    /// Under a scheduler: how many runs wait in its queue, run, and are done (without a
+    /// terminal, a line whenever that changes).
     pub(super) fn queue(&self, pending: usize, running: usize, done: usize, last: &str) {
-        self.bar.set_prefix(format!("slurm: {pending} pending, {running} running, {done}/{} done", self.total));
+        let text = format!("slurm: {pending} pending, {running} running, {done}/{} done", self.total);
+        if self.queue.replace(Some((pending, running, done))) != Some((pending, running, done)) && self.bar.is_hidden()
+        {
+            self.say(&text);
+        }
+        self.bar.set_prefix(text);
         self.bar.set_message(last.to_string());
     }
 
@@ -763,7 +771,7 @@ pub fn execute(
         plan.print(campaign, machine)?;
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
     }
-    let here = matches!(opts.scheduler, Scheduler::Local);
+    let here = opts.scheduler.runs_here();
     plan.notes(campaign, machine, here);
     if plan.todo.is_empty() {
         // Nothing to do: the folder, its manifest and topology stay as they are.

@@ -22,6 +22,11 @@ pub enum Scheduler {
 }
 
 impl Scheduler {
+    /// Whether the runs run on this machine.
+    pub fn runs_here(&self) -> bool {
+        matches!(self, Scheduler::Local)
+    }
+
     /// For the manifest's session: `None` here, else the cluster and the options.
     pub fn describe(&self) -> Option<String> {
         match self {

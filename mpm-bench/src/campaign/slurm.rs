@@ -507,12 +507,21 @@ fn failed_row(ctx: &RunContext, sub: &Submission, f: &InFlight, queue: Option<&Q
     if !row.id.node.is_empty() {
         why.push_str(&format!(" on node {}", row.id.node));
     }
-    let output =
-        std::fs::read_to_string(ctx.json_dir.join(format!("{}.slurm.out", f.record.run_id))).unwrap_or_default();
-    let tail = super::process::tail(&output, 3);
-    if !tail.is_empty() {
-        why.push_str(": ");
-        why.push_str(&tail);
+    let out_path = ctx.json_dir.join(format!("{}.slurm.out", f.record.run_id));
+    match std::fs::read_to_string(&out_path) {
+        Ok(output) => {
+            let tail = super::process::tail(&output, 3);
+            if !tail.is_empty() {
+                why.push_str(": ");
+                why.push_str(&tail);
+            }
+        }
+        // The job ran but its output is not here: the nodes do not share this folder.
+        Err(_) if !row.id.node.is_empty() => why.push_str(&format!(
+            "; its output {} is not here: is the results folder on a filesystem every node shares?",
+            out_path.display()
+        )),
+        Err(_) => {}
     }
     row.outcome.reason = why;
     Ok(row)
