@@ -170,12 +170,21 @@ fn hostname() -> String {
     String::from_utf8_lossy(&o.stdout).trim().to_string()
 }
 
-/// The smoke preset through Slurm: its rows are a local smoke campaign's configurations (the
-/// same planned runs, keys and requested CPUs), each ok, verified on the CPUs placed, from a
-/// job of its own on this node, with the node's machine in the manifest.
+/// `scontrol show job`'s `key=` time of job `id` (`2026-11-26T16:12:14`: sorts as it reads).
+fn job_time(slurm: &LocalSlurm, id: &str, key: &str) -> String {
+    let o = slurm.command("scontrol").args(["show", "job", "-o", id]).output().unwrap();
+    let line = String::from_utf8_lossy(&o.stdout).into_owned();
+    let v = line.split_whitespace().find_map(|w| w.strip_prefix(key)?.strip_prefix('=').map(str::to_string));
+    v.unwrap_or_else(|| panic!("no {key} in {line}"))
+}
+
+/// The smoke preset through Slurm, at most two jobs in the queue at once: its rows are a
+/// local smoke campaign's configurations (the same planned runs, keys and requested CPUs),
+/// each ok, verified on the CPUs placed, from a job of its own on this node, with the node's
+/// machine in the manifest; no job was submitted while two others were still out.
 fn smoke_through_slurm_is_the_local_smoke(slurm: &LocalSlurm, out: &Path) {
-    let o =
-        slurm.bench().args(["run", "--preset", "smoke", "--scheduler", "slurm", "--out"]).arg(out).output().unwrap();
+    let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--max-jobs", "2", "--out"];
+    let o = slurm.bench().args(args).arg(out).output().unwrap();
     assert!(o.status.success(), "{}", text(&o));
     let dir = folder(&o);
     assert!(dir.starts_with(out.join("slurm-mpmlocal")), "{}", dir.display());
@@ -207,8 +216,16 @@ fn smoke_through_slurm_is_the_local_smoke(slurm: &LocalSlurm, out: &Path) {
         assert_eq!((r.id.machine_id.as_str(), r.id.node.as_str()), (fp.as_str(), node.as_str()));
         assert!(r.measured.steady_s_per_step.is_some_and(|t| t > 0.0));
     }
-    let ids: BTreeSet<&str> = rows.iter().map(|r| r.id.job_id.as_str()).filter(|i| !i.is_empty()).collect();
+    let ids: BTreeSet<u64> = rows.iter().filter_map(|r| r.id.job_id.parse().ok()).collect();
     assert_eq!(ids.len(), rows.len(), "one job per run");
+    let times: Vec<(String, String)> = ids
+        .iter()
+        .map(|id| (job_time(slurm, &id.to_string(), "SubmitTime"), job_time(slurm, &id.to_string(), "EndTime")))
+        .collect();
+    for (i, (submit, _)) in times.iter().enumerate() {
+        let out_then = times[..i].iter().filter(|(_, end)| end > submit).count();
+        assert!(out_then < 2, "job {i} submitted while {out_then} others were out: {times:?}");
+    }
     let man = mpm_bench::campaign::manifest::read(&dir.join("manifest.json")).unwrap();
     let n = &man.nodes[&fp];
     assert_eq!((n.node.as_str(), n.machine.fingerprint.as_str()), (node.as_str(), fp.as_str()));

@@ -467,8 +467,14 @@ fn submit(
 }
 
 /// The failed row of a job that ended without writing one: Slurm's state, reason and exit
-/// code, the node, and the end of the job's output.
-fn failed_row(ctx: &RunContext, sub: &Submission, f: &InFlight, queue: Option<&QueueEntry>) -> Result<Row> {
+/// code (`end`, else `queue`), the node, and the end of the job's output.
+fn failed_row(
+    ctx: &RunContext,
+    sub: &Submission,
+    f: &InFlight,
+    queue: Option<&QueueEntry>,
+    end: Option<JobEnd>,
+) -> Result<Row> {
     let solver = solver_for(sub.solvers, f.run)?;
     let mut row = planned_row(ctx.campaign, &ctx.git, solver, f.run);
     let id = &f.record.job_id;
@@ -478,7 +484,6 @@ fn failed_row(ctx: &RunContext, sub: &Submission, f: &InFlight, queue: Option<&Q
     row.id.timestamp = now_rfc3339();
     row.outcome.mem_estimate_bytes = estimate_run_memory(&f.run.spec);
     row.outcome.status = Status::Failed;
-    let end = job_end(id);
     let (state, reason, node) = match (&end, queue) {
         (Some(e), _) => (e.state.clone(), e.reason.clone(), e.node.clone()),
         (None, Some(q)) => (q.state.clone(), q.reason.clone(), q.node.clone()),
@@ -543,7 +548,7 @@ fn ended_row(
         }
         Ok(None) => {}
         Err(e) => {
-            let mut row = failed_row(ctx, sub, f, None)?;
+            let mut row = failed_row(ctx, sub, f, None, None)?;
             row.outcome.reason = format!("Slurm job {}: {e:#}", f.record.job_id);
             return Ok(Some(row));
         }
@@ -560,7 +565,12 @@ fn ended_row(
             return Ok(None);
         }
     }
-    failed_row(ctx, sub, f, q).map(Some)
+    let end = job_end(&f.record.job_id);
+    // Not in squeue's answer, yet Slurm has it waiting or running: not ended.
+    if q.is_none() && end.as_ref().is_some_and(|e| phase(&e.state) != Phase::Ended) {
+        return Ok(None);
+    }
+    failed_row(ctx, sub, f, q, end).map(Some)
 }
 
 /// Submit the runs of `plan` still to do as Slurm jobs (those an earlier invocation submitted
@@ -629,6 +639,7 @@ fn drive<'p>(
     let mut polled: Option<Instant> = None;
     let mut squeue_error: Option<String> = None;
     loop {
+        let mut submitted_now = false;
         if ctx.interrupted.load(Ordering::SeqCst) {
             let own: Vec<String> = flight.iter().filter(|f| f.own).map(|f| f.record.job_id.clone()).collect();
             if !own.is_empty() {
@@ -656,8 +667,10 @@ fn drive<'p>(
                 ids.push(record.job_id.clone());
             }
             flight.push(InFlight { record, run, own: true, ended: None });
+            submitted_now = true;
         }
-        if polled.is_none_or(|t| t.elapsed() >= POLL) {
+        // A job submitted since the last answer is not in it: ask again.
+        if submitted_now || polled.is_none_or(|t| t.elapsed() >= POLL) {
             let ids: Vec<String> = flight.iter().map(|f| f.record.job_id.clone()).collect();
             match squeue(&ids) {
                 Ok(s) => {
