@@ -2,7 +2,9 @@
 # Install what the workspace needs on a Debian/Ubuntu machine, only what is missing:
 #   - system packages: libhwloc-dev (topology and pinning), pkg-config, a C compiler,
 #     Open MPI (libopenmpi-dev, openmpi-bin: `mpm`'s `mpi` feature and `mpirun`) and
-#     libclang (the MPI bindings are generated with bindgen at build time)
+#     libclang (the MPI bindings are generated with bindgen at build time), and Slurm with
+#     munge (slurm-wlm, munge: `mpm-bench run --scheduler slurm`, tested against a one-node
+#     Slurm that scripts/slurm-local.sh starts)
 #   - a Rust toolchain >= 1.85 (through rustup when cargo is missing or too old)
 # Safe to run again: it does nothing when everything is present.
 set -euo pipefail
@@ -32,6 +34,9 @@ command -v mpirun >/dev/null 2>&1 || missing+=(openmpi-bin)
 ls /usr/lib/llvm-*/lib/libclang*.so* >/dev/null 2>&1 || ls /usr/lib/*/libclang*.so* >/dev/null 2>&1 \
     || missing+=(libclang-dev)
 command -v clang >/dev/null 2>&1 || missing+=(clang)
+command -v slurmctld >/dev/null 2>&1 && command -v slurmd >/dev/null 2>&1 && command -v sbatch >/dev/null 2>&1 \
+    || missing+=(slurm-wlm)
+command -v munged >/dev/null 2>&1 || missing+=(munge)
 if [ "${#missing[@]}" -gt 0 ]; then
     if ! command -v apt-get >/dev/null 2>&1; then
         echo "bootstrap: please install ${missing[*]} with your package manager (no apt-get here)" >&2

@@ -2,7 +2,8 @@
 # The test command: formatting, lints with warnings as errors, every test of the workspace
 # (unit, integration, CLI, end-to-end harness, doc tests), built optimised (profile o3-test:
 # o3 without its LTO, see Cargo.toml) so the physics tests run fast, and the loom model check
-# of mpm-core's parallel primitives.
+# of mpm-core's parallel primitives. mpm-bench's Slurm test starts a one-node Slurm of its own
+# (scripts/slurm-local.sh) and stops it: it needs root and the packages the bootstrap installs.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/bootstrap.sh

@@ -8,6 +8,7 @@ use mpm_bench::campaign::matrix::{Campaign, Overrides};
 use mpm_bench::campaign::preset::{self, OptLevel};
 use mpm_bench::campaign::process::{MockRunner, ProcessRunner};
 use mpm_bench::campaign::runner::{self, ExecOptions};
+use mpm_bench::campaign::scheduler::{Scheduler, SlurmOptions};
 use mpm_bench::campaign::solver::{self, Solver};
 use mpm_bench::campaign::watch::WatchSettings;
 use mpm_bench::machine::placement::{PinPolicy, Places, PAPER_THREADS};
@@ -97,7 +98,9 @@ enum Cmd {
             mpm-bench run --preset paper --models 4 --mem-limit 8GiB --dry-run   # the paper's 8 GB machine\n  \
             mpm-bench run --preset configs/my.toml --seed 7\n  \
             mpm-bench run --preset hybrid                   # 1-2 MPI ranks x 1-2 threads\n  \
-            mpm-bench run --preset hybrid --launcher \"mpirun --bind-to none --oversubscribe --allow-run-as-root -n {ranks}\""
+            mpm-bench run --preset hybrid --launcher \"mpirun --bind-to none --oversubscribe --allow-run-as-root -n {ranks}\"\n  \
+            mpm-bench run --preset quick --scheduler slurm --partition compute --time-limit 30   # one Slurm job per run\n  \
+            mpm-bench run --preset paper --scheduler slurm --max-jobs 20 --detach   # submit and log out; rerun to collect"
     )]
     Run(Box<RunArgs>),
     /// Regenerate the paper's Figures 7-14 (and a memory figure) from a campaign.
@@ -153,6 +156,13 @@ enum Cmd {
             mpm-bench imbalance --scenario impact --steps 50 --out /tmp/imb"
     )]
     Imbalance(imbalance::ImbalanceArgs),
+    /// Run one run of a campaign on this node and write its row: what a Slurm job of
+    /// `mpm-bench run --scheduler slurm` runs (FILE is json/<run id>.job.json).
+    #[command(hide = true)]
+    Job {
+        /// The job file the harness wrote.
+        file: PathBuf,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -292,6 +302,42 @@ struct RunArgs {
     /// Use a fake solver (testing the harness itself).
     #[arg(long, hide = true)]
     mock: bool,
+    /// Where the runs run: local (here, one fresh process after another) or slurm (one
+    /// batch job per run, each on a node of its own, `sbatch --exclusive`; the results
+    /// folder and the binaries must be on a filesystem every node sees). Under Slurm the
+    /// campaign folder is <out>/slurm-<cluster>/<campaign>, each row names its node and that
+    /// node's machine fingerprint, and the job ids are kept in slurm-jobs.json until the
+    /// rows are in: running the same command again collects jobs an earlier invocation
+    /// submitted instead of submitting them twice. Ctrl-C cancels the jobs this invocation
+    /// submitted (only those).
+    #[arg(long, value_enum, default_value_t = SchedulerKind::Local)]
+    scheduler: SchedulerKind,
+    /// Slurm: the partition of every job (default: the cluster's default partition).
+    #[arg(long, value_name = "P")]
+    partition: Option<String>,
+    /// Slurm: the account every job is charged to.
+    #[arg(long, value_name = "A")]
+    account: Option<String>,
+    /// Slurm: the time limit of every job, as sbatch --time takes it (minutes, or
+    /// [days-]hours:minutes:seconds). Default: the preset's per-run timeout plus 2 minutes.
+    #[arg(long, value_name = "T")]
+    time_limit: Option<String>,
+    /// Slurm: at most N of the campaign's jobs in the queue at once (default: all).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    max_jobs: Option<u64>,
+    /// Slurm: submit the runs and exit without waiting; run the same command again (without
+    /// --detach) to wait for them and collect their rows.
+    #[arg(long)]
+    detach: bool,
+}
+
+/// `--scheduler`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum SchedulerKind {
+    /// Here, one fresh child process after another.
+    Local,
+    /// One Slurm batch job per run.
+    Slurm,
 }
 
 fn main() {
@@ -322,6 +368,13 @@ fn main() {
         }
         Cmd::Paired(a) => measure_and_report(a.json.as_deref(), "--json", || paired::measure(&a), paired::table),
         Cmd::Imbalance(a) => cmd_imbalance(&a),
+        Cmd::Job { file } => match mpm_bench::campaign::job::run(&file) {
+            Ok(code) => std::process::exit(code),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::exit(2);
+            }
+        },
     };
     if let Err(e) = result {
         // `mpm-bench ... | head` closing the pipe is not an error worth a message.
@@ -464,18 +517,45 @@ fn cmd_run(a: RunArgs) -> Result<i32> {
             bad_input(e.context(format!("bad --bind {p}")));
         }
     }
+    let slurm_only = [
+        ("--partition", a.partition.is_some()),
+        ("--account", a.account.is_some()),
+        ("--time-limit", a.time_limit.is_some()),
+        ("--max-jobs", a.max_jobs.is_some()),
+        ("--detach", a.detach),
+    ];
+    if let Some((flag, _)) = slurm_only.iter().find(|(_, given)| *given && a.scheduler != SchedulerKind::Slurm) {
+        bad_input(anyhow::anyhow!("{flag} is an option of --scheduler slurm"));
+    }
+    let scheduler = if a.scheduler == SchedulerKind::Slurm {
+        if a.mock {
+            bad_input(anyhow::anyhow!("--mock runs the fake solver in this process: it cannot go to Slurm"));
+        }
+        Scheduler::Slurm(SlurmOptions {
+            cluster: mpm_bench::campaign::slurm::cluster_name()?,
+            partition: a.partition.clone(),
+            account: a.account.clone(),
+            time_limit: a.time_limit.clone(),
+            max_jobs: a.max_jobs.map(|n| usize::try_from(n).unwrap_or(usize::MAX)),
+            detach: a.detach,
+        })
+    } else {
+        Scheduler::Local
+    };
+    let here = scheduler.runs_here();
     let interrupted = runner::install_interrupt_handler();
     let opts = ExecOptions {
         out_root: a.out.clone(),
         dry_run: a.dry_run,
         retry_failed: a.retry_failed,
         wait_lock: a.wait,
-        eta: !a.quiet && !a.mock && !a.dry_run,
+        eta: !a.quiet && !a.mock && !a.dry_run && here,
         fresh: a.fresh,
         resume_foreign: a.resume_foreign,
         watch: Some(WatchSettings::default()),
         quiet: a.quiet,
         command: std::env::args().collect::<Vec<_>>().join(" "),
+        scheduler,
     };
     if !a.dry_run {
         check_writable(&a.out)?;

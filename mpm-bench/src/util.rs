@@ -1,5 +1,5 @@
 //! Small helpers below every layer: the median, SplitMix64 (a generator whose sequence never
-//! changes), lower-case hex and the current time in RFC 3339.
+//! changes), lower-case hex, the current time in RFC 3339 and this node's name.
 
 /// Median of a sample (mean of the two middle values for an even count); NaN when empty.
 pub fn median(xs: &[f64]) -> f64 {
@@ -66,6 +66,17 @@ pub fn hex(bytes: &[u8]) -> String {
 /// Current time, RFC 3339 UTC (seconds).
 pub fn now_rfc3339() -> String {
     humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string()
+}
+
+/// This machine's host name (`/proc/sys/kernel/hostname`), empty when unreadable.
+pub fn hostname() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_string()).unwrap_or_default()
+}
+
+/// The name of the node this process runs on: the Slurm node name inside a Slurm job
+/// (`SLURMD_NODENAME`), else the host name.
+pub fn node_name() -> String {
+    std::env::var("SLURMD_NODENAME").ok().filter(|n| !n.is_empty()).unwrap_or_else(hostname)
 }
 
 #[cfg(test)]

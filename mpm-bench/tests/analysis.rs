@@ -649,3 +649,97 @@ fn regress_refuses_campaigns_of_different_budgets() {
     assert_eq!(out.status.code(), Some(2));
     assert_eq!(regress::evaluate(&regress_args(&base, &base)).unwrap().exit_code(), 0);
 }
+
+/// A campaign whose runs ran on two machines (a cluster's node types under `--scheduler
+/// slurm`) is analysed machine by machine: each part holds one machine's rows and finds the
+/// speedups that machine alone gives, with that machine's facts from the manifest's nodes;
+/// `figures` writes each machine's figures apart, `claims` judges each, `report` shows them
+/// as two sets, and `regress` refuses the mix.
+#[test]
+fn runs_of_several_machines_are_split_by_fingerprint() {
+    use mpm_bench::analysis::results::load_campaigns;
+    use mpm_bench::campaign::manifest::{self, NodeInfo};
+    use mpm_bench::machine::fingerprint;
+    use mpm_bench::machine::topology::Machine;
+    use mpm_bench::report::comparison::{self, ReportArgs};
+    let tmp = tempfile::tempdir().unwrap();
+    let (ta, tb) = ("pack:2 core:4 pu:1", "pack:1 core:8 pu:1");
+    let a = write_campaign(
+        &tmp.path().join("a").join("camp"),
+        &Craft { topo: Some(ta), models: vec![1, 2], ..Craft::default() },
+    );
+    let b = write_campaign(
+        &tmp.path().join("b").join("camp"),
+        &Craft { topo: Some(tb), models: vec![1, 2], slow_parallel: 1.3, ..Craft::default() },
+    );
+    let (fa, fb) = (fingerprint(Some(ta)), fingerprint(Some(tb)));
+    // One folder with both machines' rows, interleaved as jobs end, and a manifest written
+    // by a third machine (the login node) that names both nodes' machines.
+    let both = tmp.path().join("slurm-c").join("camp");
+    std::fs::create_dir_all(&both).unwrap();
+    let (ra, rb) = (read_rows(&a.join("runs.csv")).unwrap(), read_rows(&b.join("runs.csv")).unwrap());
+    let mut log = CsvLog::open(&both.join("runs.csv")).unwrap();
+    for (x, y) in ra.iter().zip(&rb) {
+        log.append(x).unwrap();
+        log.append(y).unwrap();
+    }
+    write_manifest(&both, "pack:1 core:2 pu:1");
+    let mut man = manifest::read(&both.join("manifest.json")).unwrap();
+    for (fp, t) in [(&fa, ta), (&fb, tb)] {
+        let machine = fingerprint::machine_info(&Machine::synthetic(t).unwrap());
+        man.nodes.insert(fp.clone(), NodeInfo { node: format!("node-{t}"), machine, topology: String::new() });
+    }
+    manifest::write(&both.join("manifest.json"), &man).unwrap();
+
+    let parts = load_campaigns(&both, &RowFilter::analysis(false)).unwrap();
+    assert_eq!(parts.len(), 2);
+    let speedups = |an: &Analysis| -> Vec<(CellKey, Option<f64>)> {
+        an.points
+            .iter()
+            .filter(|p| p.stage == Stage::Total)
+            .map(|p| (p.key.clone(), p.speedup.map(|s| s.value)))
+            .collect()
+    };
+    for (part, (fp, alone)) in
+        parts.iter().zip([(&fa, &a), (&fb, &b)].into_iter().collect::<std::collections::BTreeMap<_, _>>())
+    {
+        assert_eq!(&part.fingerprint(), fp);
+        assert!(part.all_rows().all(|r| &r.id.machine_id == fp));
+        assert_eq!(
+            part.manifest.as_ref().unwrap().machine.fingerprint,
+            *fp,
+            "the node's machine, not the login node's"
+        );
+        assert_eq!(part.label(), format!("camp@{fp}"));
+        assert_eq!(speedups(&part.analyse(None)), speedups(&analysis(alone)), "machine {fp} as if alone");
+        assert!(part.analyse(None).notes.iter().all(|n| !n.contains("machines")), "{:?}", part.analyse(None).notes);
+    }
+    let err = format!("{:#}", load_campaign(&both, &RowFilter::analysis(false)).unwrap_err());
+    assert!(err.contains("2 machines") && err.contains(&fa) && err.contains(&fb), "{err}");
+
+    let out = tmp.path().join("figs");
+    figures::run(FiguresArgs { results: both.clone(), out: out.clone(), pin: None, include_noisy: false }).unwrap();
+    for fp in [&fa, &fb] {
+        assert!(out.join(fp).join("fig07.svg").is_file(), "figures of {fp}");
+        assert!(std::fs::read_to_string(out.join(fp).join("README.md")).unwrap().contains(fp.as_str()));
+    }
+    assert!(!out.join("fig07.svg").exists(), "no figure mixes the machines");
+
+    let md = tmp.path().join("claims.md");
+    let args =
+        claims::ClaimsArgs { results: both.clone(), markdown: Some(md.clone()), pin: None, include_noisy: false };
+    claims::run(args).unwrap();
+    let text = std::fs::read_to_string(&md).unwrap();
+    assert!(text.contains(&format!("## Machine `{fa}`")) && text.contains(&format!("## Machine `{fb}`")), "{text}");
+
+    let report = comparison::build(&ReportArgs {
+        dirs: vec![both.clone()],
+        out: tmp.path().join("report"),
+        pin: None,
+        include_noisy: false,
+    })
+    .unwrap();
+    assert_eq!(report.comparisons.len(), 1, "two sets, one comparison");
+    let md = report.page.to_markdown();
+    assert!(md.contains(&fa) && md.contains(&fb));
+}

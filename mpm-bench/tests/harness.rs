@@ -378,8 +378,8 @@ fn pinning_none_passes_no_cpus() {
 #[test]
 fn csv_header_snapshot() {
     assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 7);
-    let want = "schema_version,campaign_id,run_id,run_key,timestamp,git_commit,git_dirty,machine_id,binary_sha256,\
-seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,scenario.wall,\
+    let want = "schema_version,campaign_id,run_id,run_key,timestamp,git_commit,git_dirty,machine_id,node,job_id,\
+binary_sha256,seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,scenario.wall,\
 scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell,strategy,threads,\
 ranks,rank_layout,grid,physics.eos,physics.q.c1,physics.q.c2,physics.cfl,physics.energy_rise_limit,\
 budget.steps,budget.end_time_s,budget.warmup,split_wait,model,opt,pin,launcher,rep,requested_cpus,\
@@ -504,6 +504,16 @@ fn cli_errors_are_clear() {
     fails_cleanly(&["run", "--preset", "smoke", "--pin", "0,x", "--mock", "--out", out], "bad CPU list");
     fails_cleanly(&["run", "--preset", "smoke", "--pin", "9999", "--mock", "--out", out], "cannot use");
     fails_cleanly(&["run", "--preset", "smoke", "--mock", "--out", "/proc/no-such-dir"], "output folder");
+    fails_cleanly(
+        &["run", "--preset", "smoke", "--partition", "p", "--mock", "--out", out],
+        "--partition is an option of --scheduler slurm",
+    );
+    fails_cleanly(
+        &["run", "--preset", "smoke", "--detach", "--mock", "--out", out],
+        "--detach is an option of --scheduler slurm",
+    );
+    fails_cleanly(&["run", "--preset", "smoke", "--scheduler", "slurm", "--mock", "--out", out], "cannot go to Slurm");
+    fails_cleanly(&["run", "--preset", "smoke", "--scheduler", "pbs", "--out", out], "invalid value 'pbs'");
     fails_cleanly(&["topology", "--pin", "0,x"], "bad CPU list");
     fails_cleanly(&["paired", "--model", "7"], "Models 1-4");
     fails_cleanly(&["paired", "--threads", "0"], "use 2 or more");
@@ -526,6 +536,10 @@ fn cli_errors_are_clear() {
         "--out",
         "--seed",
         "--dry-run",
+        "--scheduler",
+        "--partition",
+        "--max-jobs",
+        "--detach",
         "Examples",
     ] {
         assert!(help.contains(flag), "help lacks {flag}");
@@ -1216,4 +1230,41 @@ fn a_garbage_line_is_set_aside_and_its_run_redone() {
         .collect();
     assert_eq!(aside.len(), 1);
     assert_eq!(std::fs::read_to_string(aside[0].path()).unwrap(), "a,b,c,d\n");
+}
+
+/// `mpm-bench job FILE` (what a Slurm job runs on its node) refuses a solver binary other
+/// than the one the campaign hashed, saying so, after recording where it ran; it writes no row.
+#[test]
+fn a_job_refuses_another_solver_binary_than_the_campaigns() {
+    use mpm_bench::campaign::job::{self, JobFile};
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("camp").join("json");
+    std::fs::create_dir_all(&json).unwrap();
+    let solver = dir.path().join("mpm");
+    std::fs::write(&solver, "#!/bin/sh\nexit 0\n").unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let run = c.expand().remove(0);
+    let file = JobFile {
+        campaign: c,
+        timeout: None,
+        git: Default::default(),
+        solver: Solver { opt: run.opt, path: solver.clone(), sha256: "ab".repeat(32) },
+        run,
+        order_index: 0,
+        run_id: "r0".into(),
+        watch: None,
+    };
+    let path = job::job_path(&json, "r0");
+    job::write_json(&path, &file).unwrap();
+    let out = bench().args(["job"]).arg(&path).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("is not the one the campaign was submitted with") && err.contains("shared filesystem"),
+        "{err}"
+    );
+    let started = job::read_started(&json, "r0").unwrap();
+    assert_eq!(started.fingerprint, fingerprint::fingerprint(&Machine::detect().unwrap()));
+    assert!(dir.path().join("camp/nodes").join(format!("{}.json", started.fingerprint)).is_file());
+    assert_eq!(job::read_row(&json, "r0").unwrap(), None);
 }

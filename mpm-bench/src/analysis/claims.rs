@@ -22,7 +22,7 @@
 //! * Speedups and efficiencies are those of the total step time at optimisation O3 unless
 //!   the claim is about a stage or about optimisation.
 
-use super::results::{load_campaign, Campaign};
+use super::results::{load_campaigns, Campaign};
 use super::select::RowFilter;
 use super::stats::{compare, parallel_strategies, tag, Analysis, CellKey, Compare, Estimate, Stage, StatsOptions};
 use crate::campaign::record::Status;
@@ -583,31 +583,45 @@ pub fn markdown(results: &[ClaimResult], heading: &str) -> String {
     s
 }
 
-/// `mpm-bench claims`.
+/// `mpm-bench claims`: the claims of each machine's runs (a campaign of several machines,
+/// under a scheduler, gets a verdict per machine; with `--markdown`, one section each).
 pub fn run(args: ClaimsArgs) -> Result<()> {
-    let c = load_campaign(&args.results, &RowFilter::analysis(args.include_noisy))?;
-    c.note_left_out("claims");
-    c.note_hybrid_left_out("claims");
-    let an = c.analyse(args.pin.as_deref());
-    let res = evaluate(&c, &an);
-    println!("Claims of the paper on campaign {} (machine {}, {})", c.id(), c.fingerprint(), c.dir.display());
-    for n in &an.notes {
-        println!("note: {n}");
+    let parts = load_campaigns(&args.results, &RowFilter::analysis(args.include_noisy))?;
+    let mut text = String::new();
+    for c in &parts {
+        c.note_left_out("claims");
+        c.note_hybrid_left_out("claims");
+        let an = c.analyse(args.pin.as_deref());
+        let res = evaluate(c, &an);
+        println!("Claims of the paper on campaign {} (machine {}, {})", c.id(), c.fingerprint(), c.dir.display());
+        for n in &an.notes {
+            println!("note: {n}");
+        }
+        print!("{}", table(&res));
+        if parts.len() > 1 {
+            println!();
+            let _ = writeln!(text, "## Machine `{}`\n", c.fingerprint());
+            text.push_str(&markdown(&res, "###"));
+            text.push('\n');
+        } else {
+            text.push_str(&markdown(&res, "##"));
+        }
     }
-    print!("{}", table(&res));
     if let Some(md) = &args.markdown {
-        let mut text = format!(
-            "# The paper's claims on campaign `{}`\n\nMachine `{}`; results `{}`; made with `mpm-bench claims --results {}`.\n\n",
+        let c = &parts[0];
+        let machines: Vec<String> = parts.iter().map(|p| format!("`{}`", p.fingerprint())).collect();
+        let head = format!(
+            "# The paper's claims on campaign `{}`\n\n{} {}; results `{}`; made with `mpm-bench claims --results {}`.\n\n",
             c.id(),
-            c.fingerprint(),
+            if parts.len() > 1 { "Machines (each judged on its own runs)" } else { "Machine" },
+            machines.join(", "),
             c.dir.display(),
             args.results.display()
         );
-        text.push_str(&markdown(&res, "##"));
         if let Some(parent) = md.parent().filter(|p| !p.as_os_str().is_empty()) {
             std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
         }
-        std::fs::write(md, text)
+        std::fs::write(md, head + &text)
             .with_context(|| format!("cannot write {}: choose a writable --markdown path", md.display()))?;
         println!("wrote {}", md.display());
     }

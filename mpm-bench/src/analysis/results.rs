@@ -1,5 +1,11 @@
 //! Campaign folders on disk: finding them under a results tree and reading one (its
 //! `runs.csv`, `manifest.json` and `bandwidth.json`) for the analysis commands.
+//!
+//! A campaign run under a scheduler may hold runs of several machines (a cluster's node
+//! types). Runs of different machines are never analysed together: [`load_campaigns`] splits
+//! a folder into one [`Campaign`] per machine fingerprint (`figures`, `claims` and `report`
+//! take each apart), and [`load_campaign`] refuses a folder of several (`regress` compares
+//! one machine with itself).
 
 use super::select::{select, Configurations, LeftOut, RowFilter};
 use super::stats::{Analysis, StatsOptions};
@@ -7,6 +13,7 @@ use crate::campaign::manifest::{self, Manifest};
 use crate::campaign::record::{read_rows, Row};
 use crate::machine::bandwidth::{self, BandwidthReport};
 use anyhow::{bail, Context, Result};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// A campaign folder read from disk.
@@ -29,6 +36,10 @@ pub struct Campaign {
     /// The configuration (scenario, grid, physics, budget) of each model and optimisation
     /// level's rows.
     pub configurations: Configurations,
+    /// The machine fingerprint of every row (when they name one).
+    pub machine: Option<String>,
+    /// The folder holds runs of other machines too (this is one machine's part of it).
+    pub split: bool,
 }
 
 impl Campaign {
@@ -41,13 +52,21 @@ impl Campaign {
             .unwrap_or_else(|| self.dir.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default())
     }
 
-    /// Machine fingerprint: the manifest's, else the rows' (`unknown` if neither has one).
+    /// Machine fingerprint: the rows', else the manifest's (`unknown` if neither has one).
     pub fn fingerprint(&self) -> String {
-        self.manifest
-            .as_ref()
-            .map(|m| m.machine.fingerprint.clone())
-            .or_else(|| self.all_rows().map(|r| r.id.machine_id.clone()).find(|s| !s.is_empty()))
+        self.machine
+            .clone()
+            .or_else(|| self.manifest.as_ref().map(|m| m.machine.fingerprint.clone()))
             .unwrap_or_else(|| "unknown".into())
+    }
+
+    /// The campaign id, with the machine when the folder holds several: `smoke@54276cbdfe10`.
+    pub fn label(&self) -> String {
+        if self.split {
+            format!("{}@{}", self.id(), self.fingerprint())
+        } else {
+            self.id()
+        }
     }
 
     /// Say on stderr what the selection rule left out of `what` (figures, claims, regress,
@@ -153,12 +172,33 @@ pub fn resolve_campaign(dir: &Path) -> Result<PathBuf> {
     }
 }
 
-/// Read the campaign `dir` names (see [`resolve_campaign`]): rows, manifest, bandwidth; the
-/// rows an analysis uses by the one rule of [`super::select`] with `filter`, and what it left
-/// out.
+/// Read the campaign `dir` names (see [`resolve_campaign`]), which must hold the runs of one
+/// machine (see [`load_campaigns`]).
 pub fn load_campaign(dir: &Path, filter: &RowFilter) -> Result<Campaign> {
+    let mut parts = load_campaigns(dir, filter)?;
+    if parts.len() > 1 {
+        let fps: Vec<String> = parts.iter().map(Campaign::fingerprint).collect();
+        bail!(
+            "{} holds runs of {} machines ({}): runs of different machines are never compared as one; `figures`, \
+             `claims` and `report` take each machine apart",
+            parts[0].dir.display(),
+            parts.len(),
+            fps.join(", ")
+        );
+    }
+    Ok(parts.remove(0))
+}
+
+/// Read the campaign `dir` names (see [`resolve_campaign`]): rows, manifest, bandwidth; one
+/// [`Campaign`] per machine fingerprint of its rows, in fingerprint order (one for a campaign
+/// run on one machine); in each, the rows an analysis uses by the one rule of
+/// [`super::select`] with `filter`, and what it left out. A machine's part takes its manifest
+/// machine from the manifest's `nodes` (a scheduler's node types); rows that name no machine
+/// (a job that never reached a node) join the one machine, or are left out when there are
+/// several.
+pub fn load_campaigns(dir: &Path, filter: &RowFilter) -> Result<Vec<Campaign>> {
     let dir = resolve_campaign(dir)?;
-    let (rows, left_out, configurations) = select(read_rows(&dir.join("runs.csv"))?, filter);
+    let all = read_rows(&dir.join("runs.csv"))?;
     let mpath = dir.join("manifest.json");
     let manifest = if mpath.is_file() {
         match manifest::read(&mpath) {
@@ -183,6 +223,56 @@ pub fn load_campaign(dir: &Path, filter: &RowFilter) -> Result<Campaign> {
     } else {
         None
     };
-    let (rows, hybrid) = Campaign::split(rows);
-    Ok(Campaign { dir, rows, hybrid, manifest, bandwidth, left_out, configurations })
+    let mut by_machine: BTreeMap<String, Vec<Row>> = BTreeMap::new();
+    let mut nameless = Vec::new();
+    for r in all {
+        if r.id.machine_id.is_empty() {
+            nameless.push(r);
+        } else {
+            by_machine.entry(r.id.machine_id.clone()).or_default().push(r);
+        }
+    }
+    let split = by_machine.len() > 1;
+    let mut groups: Vec<(Option<String>, Vec<Row>)> = by_machine.into_iter().map(|(f, r)| (Some(f), r)).collect();
+    let mut unplaced = None;
+    match groups.as_mut_slice() {
+        [] => groups.push((None, nameless)),
+        [(_, rows)] => rows.extend(nameless),
+        _ if !nameless.is_empty() => {
+            unplaced = Some(LeftOut {
+                reason: "that name no machine (jobs that never reached a node), in a campaign of several machines"
+                    .into(),
+                rows: nameless.len(),
+            });
+        }
+        _ => {}
+    }
+    let parts = groups
+        .into_iter()
+        .map(|(fp, rows)| {
+            let (rows, mut left_out, configurations) = select(rows, filter);
+            left_out.extend(unplaced.clone());
+            let mut manifest = manifest.clone();
+            if let (Some(m), Some(fp)) = (manifest.as_mut(), fp.as_deref()) {
+                if let Some(node) = m.nodes.get(fp) {
+                    m.machine = node.machine.clone();
+                }
+            }
+            // bandwidth.json is measured on one machine: it belongs to that machine's part.
+            let bandwidth = bandwidth.clone().filter(|b| !split || fp.as_deref().is_none_or(|f| b.machine_id == f));
+            let (rows, hybrid) = Campaign::split(rows);
+            Campaign {
+                dir: dir.clone(),
+                rows,
+                hybrid,
+                manifest,
+                bandwidth,
+                left_out,
+                configurations,
+                machine: fp,
+                split,
+            }
+        })
+        .collect();
+    Ok(parts)
 }

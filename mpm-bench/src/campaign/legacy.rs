@@ -393,6 +393,8 @@ impl LegacyRow {
                 git_commit: self.git_commit,
                 git_dirty: self.git_dirty,
                 machine_id: self.machine_id,
+                node: String::new(),
+                job_id: String::new(),
                 binary_sha256: self.binary_sha256,
                 seed: self.seed,
                 order_index: self.order_index,

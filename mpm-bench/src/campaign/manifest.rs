@@ -13,6 +13,11 @@
 //! command line and counts (a run with nothing to do writes nothing). The hwloc topology is
 //! exported beside it as `topology.xml` once, when the campaign is created.
 //!
+//! Under a scheduler (`mpm-bench run --scheduler slurm`) the runs run on other machines: the
+//! top-level `machine` is then the one that submitted the jobs, and `nodes` holds, by
+//! fingerprint, the machine of every node type a run ran on ([`NodeInfo`], as the first job
+//! on such a node found it, with its hwloc topology beside it under `nodes/`).
+//!
 //! `reference: true` marks a committed reference campaign: read-only, never a resume target
 //! (`mpm-bench run` starts a new folder instead; see the README's "Results").
 
@@ -93,6 +98,13 @@ pub struct SessionCounts {
     pub oversubscribed: usize,
     /// Stopped by Ctrl-C / SIGTERM.
     pub interrupted: bool,
+    /// Under a scheduler: runs left in its queue (submitted, not yet collected) at the end.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub queued: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// One invocation of `mpm-bench run` on this campaign.
@@ -123,6 +135,21 @@ pub struct Session {
     /// The host calibration at the session's start (rows store their ratio to it).
     #[serde(default)]
     pub calibration: Option<Calibration>,
+    /// Where the session's runs ran when not here: `slurm cluster <name>, partition ...`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scheduler: Option<String>,
+}
+
+/// The machine of a node a run ran on (under a scheduler): written by the first job on a
+/// node of this fingerprint to `nodes/<fingerprint>.json`, copied into the manifest.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NodeInfo {
+    /// The node that wrote it (other nodes of the same fingerprint are the same machine).
+    pub node: String,
+    /// Its machine: fingerprint, CPU, topology, caches, memory, OS.
+    pub machine: MachineInfo,
+    /// Its hwloc topology (XML), relative to the campaign folder; empty when not exported.
+    pub topology: String,
 }
 
 /// `manifest.json`.
@@ -143,6 +170,17 @@ pub struct Manifest {
     pub software: SoftwareInfo,
     /// Every session that ran on this campaign, each with its own machine and software.
     pub sessions: Vec<Session>,
+    /// The machines of the nodes the runs ran on under a scheduler, by fingerprint (empty
+    /// for a campaign run here: its machine is `machine`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub nodes: BTreeMap<String, NodeInfo>,
+}
+
+impl Manifest {
+    /// The machine of fingerprint `fp`: a node's, or the campaign's own.
+    pub fn machine_of(&self, fp: &str) -> Option<&MachineInfo> {
+        self.nodes.get(fp).map(|n| &n.machine).or_else(|| (self.machine.fingerprint == fp).then_some(&self.machine))
+    }
 }
 
 /// Software part of the manifest.

@@ -220,8 +220,9 @@ impl PlannedRun {
     }
 }
 
-/// A resolved campaign: preset plus overrides, validated.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+/// A resolved campaign: preset plus overrides, validated. Its serialised form is the
+/// manifest's `campaign`, and travels in a Slurm job's file ([`super::job`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Campaign {
     /// Campaign id: the preset name, plus a slug of the overrides when there are any.
     pub id: String,
@@ -494,7 +495,7 @@ fn check_budget(budget: &BudgetSpec) -> Result<()> {
     Ok(())
 }
 
-fn sanitize_id(s: &str) -> String {
+pub(super) fn sanitize_id(s: &str) -> String {
     let mut id: String = s
         .chars()
         .map(|c| if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') { c.to_ascii_lowercase() } else { '-' })

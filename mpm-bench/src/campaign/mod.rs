@@ -7,6 +7,8 @@
 //! * [`process`]: one run as a child process (and the mock runner for tests);
 //! * [`launcher`]: the MPI launcher template of runs with several ranks;
 //! * [`runner`]: the loop over the runs, with resume and Ctrl-C;
+//! * [`scheduler`]: where the runs run: here, or as Slurm batch jobs ([`slurm`]: submit,
+//!   wait, collect, cancel; [`job`]: one run on its node, `mpm-bench job FILE`);
 //! * [`watch`]: the host's load and calibration around each run (`host_noisy`);
 //! * [`record`]: the CSV row, made of typed parts, its columns derived by [`columns`];
 //!   [`legacy`]: rows of CSV schemas 1-5; [`manifest`]: the machine and software of a
@@ -15,6 +17,7 @@
 //! It uses the machine layer ([`crate::machine`]) and nothing of analysis or report.
 
 pub mod columns;
+pub mod job;
 pub mod launcher;
 pub mod legacy;
 pub mod lock;
@@ -25,5 +28,7 @@ pub mod preset;
 pub mod process;
 pub mod record;
 pub mod runner;
+pub mod scheduler;
+pub mod slurm;
 pub mod solver;
 pub mod watch;

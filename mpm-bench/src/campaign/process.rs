@@ -367,7 +367,8 @@ fn remove_temp_files_for(json_path: &Path) {
     }
 }
 
-fn tail(s: &str, lines: usize) -> String {
+/// The last `lines` lines of `s` that are not blank, joined by ` | `.
+pub(super) fn tail(s: &str, lines: usize) -> String {
     let v: Vec<&str> = s.lines().filter(|l| !l.trim().is_empty()).collect();
     v[v.len().saturating_sub(lines)..].join(" | ")
 }

@@ -44,9 +44,10 @@ use std::sync::OnceLock;
 /// would misread. Schemas 1-5 were flat rows (see [`super::legacy`]); schema 6 is the
 /// planned run's spec flattened (`scenario.kind`, `physics.cfl`, `budget.steps`, ...), the
 /// resume key `run_key`, lists as lists, sub-stages by the solver's names
-/// (`substages.scatter`), and the steady-state stage times (`steady_*`); schema 7 adds the
-/// checkpoints and restarts (`checkpoints_written`, `checkpoint_write_s`, `restarts`,
-/// `restart_setup_s`, `lost_compute_s`; empty in schema-6 rows, which still read).
+/// (`substages.scatter`), and the steady-state stage times (`steady_*`). Schema 7 adds the
+/// node the run ran on (`node`) and its Slurm job (`job_id`), and the checkpoints and
+/// restarts (`checkpoints_written`, `checkpoint_write_s`, `restarts`, `restart_setup_s`,
+/// `lost_compute_s`); schema-6 files read with them empty.
 pub const SCHEMA_VERSION: u32 = 7;
 
 /// Outcome of one run.
@@ -95,8 +96,14 @@ pub struct RowId {
     pub git_commit: String,
     /// Whether the work tree had uncommitted changes.
     pub git_dirty: bool,
-    /// Machine fingerprint id (see `manifest`).
+    /// Machine fingerprint id (see `manifest`): of the machine the run ran on (under Slurm,
+    /// its node's; the manifest's `nodes` holds that machine's facts).
     pub machine_id: String,
+    /// The node the run ran on: its Slurm node name in a Slurm job, else its host name.
+    /// Since schema 7.
+    pub node: String,
+    /// The Slurm job that ran it (empty for a run of a local campaign). Since schema 7.
+    pub job_id: String,
     /// SHA-256 (first 16 hex digits) of the solver binary that ran.
     pub binary_sha256: String,
     /// Seed of the shuffled run order of the session that ran this row.

@@ -14,6 +14,9 @@
 //!   state into `<campaign>/checkpoints/<run>/`; an attempt killed, timed out or interrupted
 //!   is continued from there by the next attempt (`mpm resume`), the compute time it lost is
 //!   booked, and the run's row records its restarts and the time lost.
+//! * Where runs run ([`Scheduler`]): here, one child process after another (this loop), or
+//!   as Slurm batch jobs ([`super::slurm`]), each running [`RunContext::run_one`] on its node
+//!   ([`super::job`]); both append their rows through the same [`Books`].
 
 use super::launcher;
 use super::lock::{self, FolderLock};
@@ -25,13 +28,14 @@ use super::process::{remove_stale_temp_files, RunOutput, RunRequest, Runner};
 use super::record::{
     read_rows, repair_garbage, repair_torn_tail, CsvLog, Measured, Row, RunKey, Status, SCHEMA_VERSION,
 };
+use super::scheduler::Scheduler;
 use super::solver::{workspace_root, Solver};
 use super::watch::{HostWatch, WatchSettings};
 use crate::machine::fingerprint;
 use crate::machine::load::Calibration;
 use crate::machine::placement::PinPolicy;
 use crate::machine::topology::{format_cpu_list, human_bytes, Machine};
-use crate::util::now_rfc3339;
+use crate::util::{node_name, now_rfc3339};
 use anyhow::{anyhow, bail, Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mpm_spec::spec::CheckpointOutput;
@@ -61,6 +65,7 @@ pub fn install_interrupt_handler() -> Arc<AtomicBool> {
                 f.store(true, Ordering::SeqCst);
                 if count.fetch_add(1, Ordering::SeqCst) >= 1 {
                     super::process::kill_live_child();
+                    super::slurm::cancel_submitted();
                     eprintln!("\ninterrupted twice: exiting now (finished rows are in the CSV)");
                     std::process::exit(130);
                 }
@@ -104,6 +109,8 @@ pub struct ExecOptions {
     pub resume_foreign: bool,
     /// Watch the host's load around each run (`None`: the `host_*` columns stay empty).
     pub watch: Option<WatchSettings>,
+    /// Where the runs run: here (default) or as Slurm jobs.
+    pub scheduler: Scheduler,
 }
 
 /// What a campaign session did.
@@ -123,7 +130,13 @@ impl ExecSummary {
         format!(
             "{}: {} rows written ({} ok, {} skipped, {} failed, {} invalid; {} oversubscribed), \
              {} already done of {} planned, wall time {}",
-            if self.counts.interrupted { "interrupted" } else { "done" },
+            if self.counts.interrupted {
+                "interrupted"
+            } else if self.counts.queued > 0 {
+                "submitted"
+            } else {
+                "done"
+            },
             self.counts.written,
             self.counts.ok,
             self.counts.skipped,
@@ -133,6 +146,21 @@ impl ExecSummary {
             self.counts.already_done,
             self.counts.planned,
             humantime::format_duration(Duration::from_secs(self.wall.as_secs()))
+        ) + &self.queued_note()
+    }
+
+    /// Under a scheduler, when runs were left behind: where they are and how to collect them.
+    fn queued_note(&self) -> String {
+        let c = &self.counts;
+        let unsubmitted = c.planned.saturating_sub(c.already_done + c.written + c.queued);
+        if c.queued == 0 && unsubmitted == 0 || c.interrupted {
+            return String::new();
+        }
+        format!(
+            "\n{} run(s) in the Slurm queue (job ids in {}), {unsubmitted} not submitted yet: run the same command \
+             again to collect them",
+            c.queued,
+            self.dir.join(super::slurm::JOBS_FILE).display()
         )
     }
 }
@@ -151,11 +179,12 @@ pub fn campaign_dir(out_root: &Path, machine: &Machine, campaign: &Campaign) -> 
     out_root.join(fingerprint::fingerprint(machine)).join(&campaign.id)
 }
 
-/// What a session would append under: this machine's fingerprint and the solver binaries'
-/// hashes (16 hex digits, as in the rows) by optimisation level.
+/// What a session would append under: this machine's fingerprint (none when the runs run
+/// on a cluster's nodes, whichever they are) and the solver binaries' hashes (16 hex digits,
+/// as in the rows) by optimisation level.
 pub struct SessionIdentity {
-    /// Machine fingerprint.
-    pub fingerprint: String,
+    /// Machine fingerprint; `None` under Slurm (the rows name their nodes' machines).
+    pub fingerprint: Option<String>,
     /// `(opt level, hash prefix)` of each solver binary.
     pub binaries: Vec<(String, String)>,
 }
@@ -164,7 +193,7 @@ impl SessionIdentity {
     /// Of `machine` and `solvers`.
     pub fn of(machine: &Machine, solvers: &[Solver]) -> Self {
         Self {
-            fingerprint: fingerprint::fingerprint(machine),
+            fingerprint: Some(fingerprint::fingerprint(machine)),
             binaries: solvers.iter().map(|s| (s.opt.to_string(), short_hash(&s.sha256))).collect(),
         }
     }
@@ -174,11 +203,10 @@ impl SessionIdentity {
     pub fn foreign(&self, rows: &[Row], manifest: Option<&Manifest>) -> Option<String> {
         let machines =
             rows.iter().map(|r| r.id.machine_id.as_str()).chain(manifest.map(|m| m.machine.fingerprint.as_str()));
-        if let Some(other) = machines.filter(|f| !f.is_empty()).find(|f| *f != self.fingerprint) {
-            return Some(format!(
-                "holds results of another machine (fingerprint {other}, this one {})",
-                self.fingerprint
-            ));
+        if let Some(here) = &self.fingerprint {
+            if let Some(other) = machines.filter(|f| !f.is_empty()).find(|f| f != here) {
+                return Some(format!("holds results of another machine (fingerprint {other}, this one {here})"));
+            }
         }
         for r in rows.iter().filter(|r| !r.id.binary_sha256.is_empty()) {
             if let Some((opt, here)) = self.binaries.iter().find(|(o, _)| *o == r.opt().as_str()) {
@@ -210,7 +238,10 @@ pub fn choose_folder(
     who: &SessionIdentity,
     opts: &ExecOptions,
 ) -> Result<PathBuf> {
-    let base = campaign_dir(&opts.out_root, machine, campaign);
+    let base = match &opts.scheduler {
+        Scheduler::Local => campaign_dir(&opts.out_root, machine, campaign),
+        Scheduler::Slurm(s) => opts.out_root.join(s.folder()).join(&campaign.id),
+    };
     let mut first_refusal: Option<String> = None;
     for n in 1usize.. {
         let dir = if n == 1 { base.clone() } else { base.with_file_name(format!("{}-{n}", campaign.id)) };
@@ -263,14 +294,14 @@ fn refusal(dir: &Path, who: &SessionIdentity, opts: &ExecOptions) -> Result<Opti
 
 /// The runs of one invocation: the campaign folder, the rows already there and the runs
 /// still to do (with their position in the seeded order).
-struct Plan {
+pub(super) struct Plan {
     /// This process's hold on the folder (none for a dry run): no other campaign writes it.
     _lock: Option<FolderLock>,
-    dir: PathBuf,
+    pub(super) dir: PathBuf,
     csv_path: PathBuf,
     planned: usize,
-    existing: Vec<Row>,
-    todo: Vec<(usize, PlannedRun)>,
+    pub(super) existing: Vec<Row>,
+    pub(super) todo: Vec<(usize, PlannedRun)>,
 }
 
 impl Plan {
@@ -278,7 +309,11 @@ impl Plan {
     /// the configurations they already hold (all of them, or only the `ok` ones with
     /// `--retry-failed`).
     fn of(campaign: &Campaign, machine: &Machine, solvers: &[Solver], opts: &ExecOptions) -> Result<Self> {
-        let dir = choose_folder(campaign, machine, &SessionIdentity::of(machine, solvers), opts)?;
+        let mut who = SessionIdentity::of(machine, solvers);
+        if !opts.scheduler.runs_here() {
+            who.fingerprint = None;
+        }
+        let dir = choose_folder(campaign, machine, &who, opts)?;
         // The lock before the rows are read: what this session skips, it skips for good.
         let lock = (!opts.dry_run).then(|| lock::acquire(&dir, opts.wait_lock)).transpose()?;
         let csv_path = dir.join("runs.csv");
@@ -328,7 +363,7 @@ impl Plan {
 
     /// Create the folder (moving an old `runs.csv` aside with `--fresh`) and open the CSV
     /// log and the folder of JSON summaries.
-    fn open_folder(&self, fresh: bool) -> Result<(CsvLog, PathBuf)> {
+    fn open_folder(&self, fresh: bool, here: bool) -> Result<(CsvLog, PathBuf)> {
         let dir = &self.dir;
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create the output folder {}", dir.display()))?;
         if fresh && self.csv_path.is_file() {
@@ -343,18 +378,22 @@ impl Plan {
         let log = CsvLog::open(&self.csv_path)?;
         let json_dir = dir.join("json");
         std::fs::create_dir_all(&json_dir).with_context(|| format!("cannot create {}", json_dir.display()))?;
-        let stale = remove_stale_temp_files(dir) + remove_stale_temp_files(&json_dir);
+        // Under a scheduler, jobs on other machines may be writing into json/ now: their pids
+        // mean nothing here.
+        let stale = remove_stale_temp_files(dir) + if here { remove_stale_temp_files(&json_dir) } else { 0 };
         if stale > 0 {
             eprintln!("note: removed {stale} temporary file(s) left by a killed run in {}", dir.display());
         }
         Ok((log, json_dir))
     }
 
-    /// Say once which thread counts are oversubscribed here, and when there is nothing to do.
-    fn notes(&self, campaign: &Campaign, machine: &Machine) {
+    /// Say once which thread counts are oversubscribed here (when the runs run here), and
+    /// when there is nothing to do.
+    fn notes(&self, campaign: &Campaign, machine: &Machine, here: bool) {
         let mut over: Vec<(usize, usize)> = self
             .todo
             .iter()
+            .filter(|_| here)
             .filter(|(_, r)| RunPlan::of(machine, r).is_ok_and(|p| p.oversubscribed))
             .map(|(_, r)| (r.spec.ranks, r.spec.threads))
             .collect();
@@ -376,7 +415,7 @@ impl Plan {
 }
 
 /// The campaign's `manifest.json` with this invocation's session, and `topology.xml`.
-struct ManifestLog {
+pub(super) struct ManifestLog {
     path: PathBuf,
     manifest: Manifest,
 }
@@ -414,8 +453,10 @@ impl ManifestLog {
                 machine: machine_info.clone(),
                 software: software.clone(),
                 sessions: Vec::new(),
+                nodes: Default::default(),
             }
         };
+        let here = opts.scheduler.runs_here();
         man.sessions.push(Session {
             started: now_rfc3339(),
             command: opts.command.clone(),
@@ -426,11 +467,13 @@ impl ManifestLog {
             machine: Some(machine_info),
             software: Some(software),
             calibration,
+            scheduler: opts.scheduler.describe(),
             ..Session::default()
         });
         manifest::write(&path, &man)?;
+        // Under a scheduler the runs' machines are the nodes' (recorded as they report).
         let topo = dir.join("topology.xml");
-        if machine.is_this_system && !topo.exists() {
+        if here && machine.is_this_system && !topo.exists() {
             match crate::machine::topology::export_xml() {
                 Ok(xml) => mpm_cli::atomic::write_atomic(&topo, xml.as_bytes())?,
                 Err(e) => eprintln!("warning: no topology.xml: {e:#}"),
@@ -444,6 +487,18 @@ impl ManifestLog {
         self.manifest.sessions.last().map(|s| s.git.clone()).unwrap_or_default()
     }
 
+    /// Add the machine of fingerprint `fp` to the manifest's nodes (from
+    /// `nodes/<fp>.json`, written by the node that ran a job) when it is not there yet.
+    pub(super) fn add_node(&mut self, fp: &str) -> Result<()> {
+        if fp.is_empty() || self.manifest.nodes.contains_key(fp) {
+            return Ok(());
+        }
+        let dir = self.path.parent().unwrap_or(Path::new("."));
+        let Some(node) = super::job::read_node(dir, fp)? else { return Ok(()) };
+        self.manifest.nodes.insert(fp.to_string(), node);
+        manifest::write(&self.path, &self.manifest)
+    }
+
     /// Record the session's end and counts.
     fn finish(&mut self, counts: manifest::SessionCounts) -> Result<()> {
         if let Some(s) = self.manifest.sessions.last_mut() {
@@ -455,10 +510,12 @@ impl ManifestLog {
 }
 
 /// The progress bar over the runs to do (its ETA weighted by [`cost`]) and a line per run.
-struct CampaignProgress {
+pub(super) struct CampaignProgress {
     bar: ProgressBar,
     show: bool,
     total: usize,
+    /// The scheduler's queue as last shown: pending, running, done.
+    queue: std::cell::Cell<Option<(usize, usize, usize)>>,
 }
 
 impl CampaignProgress {
@@ -475,13 +532,34 @@ impl CampaignProgress {
                 .progress_chars("=> "),
         );
         bar.enable_steady_tick(Duration::from_millis(500));
-        Self { bar, show, total: todo.len() }
+        Self { bar, show, total: todo.len(), queue: std::cell::Cell::new(None) }
     }
 
     /// Run `n` (0-based) starts.
     fn start(&self, n: usize, spec: &PlannedRun) {
         self.bar.set_prefix(format!("run {}/{} ({} left)", n + 1, self.total, self.total - n));
         self.bar.set_message(spec.describe());
+    }
+
+    /// Under a scheduler: how many runs wait in its queue, run, and are done (without a
+    /// terminal, a line whenever that changes).
+    pub(super) fn queue(&self, pending: usize, running: usize, done: usize, last: &str) {
+        let text = format!("slurm: {pending} pending, {running} running, {done}/{} done", self.total);
+        if self.queue.replace(Some((pending, running, done))) != Some((pending, running, done)) && self.bar.is_hidden()
+        {
+            self.say(&text);
+        }
+        self.bar.set_prefix(text);
+        self.bar.set_message(last.to_string());
+    }
+
+    /// Print a line above the bar (or on stderr when it is hidden).
+    pub(super) fn say(&self, line: &str) {
+        if self.show && self.bar.is_hidden() {
+            eprintln!("{line}");
+        } else if self.show {
+            self.bar.println(line);
+        }
     }
 
     /// Run `n` ended with `row`: its line, and the bar moves on.
@@ -511,16 +589,38 @@ impl CampaignProgress {
     }
 }
 
-/// What every run of one invocation shares.
-struct RunContext<'a> {
-    campaign: &'a Campaign,
-    machine: &'a Machine,
-    git: manifest::GitInfo,
-    json_dir: PathBuf,
+/// Where finished runs go: the CSV, the session's counts, the manifest (the nodes' machines)
+/// and the progress bar.
+pub(super) struct Books<'a> {
+    pub(super) log: &'a mut CsvLog,
+    pub(super) counts: &'a mut manifest::SessionCounts,
+    pub(super) manifest: &'a mut ManifestLog,
+    pub(super) progress: &'a CampaignProgress,
+}
+
+impl Books<'_> {
+    /// Append `row`, the `n`-th (0-based) run of this invocation to end, count it, add its
+    /// machine to the manifest when new, and print its line.
+    pub(super) fn record(&mut self, n: usize, spec: &PlannedRun, row: &Row) -> Result<()> {
+        self.log.append(row)?;
+        count(self.counts, row);
+        self.manifest.add_node(&row.id.machine_id)?;
+        self.progress.ended(n, spec, row);
+        Ok(())
+    }
+}
+
+/// What every run of one invocation shares: the campaign, the machine the runs run on, the
+/// git state, the folder of the runs' files, that of their checkpoints and the interrupt flag.
+pub(super) struct RunContext<'a> {
+    pub(super) campaign: &'a Campaign,
+    pub(super) machine: &'a Machine,
+    pub(super) git: manifest::GitInfo,
+    pub(super) json_dir: PathBuf,
     /// `<campaign>/checkpoints`: each run's checkpoint folder (with a campaign checkpoint
     /// interval).
-    checkpoint_root: PathBuf,
-    interrupted: &'a AtomicBool,
+    pub(super) checkpoint_root: PathBuf,
+    pub(super) interrupted: &'a AtomicBool,
 }
 
 /// An attempt of a run that did not finish, as the harness saw it.
@@ -594,7 +694,7 @@ impl RunCheckpoints {
 impl RunContext<'_> {
     /// One run: skipped by the memory guard, or run by `runner` and recorded from its
     /// summary. `None` when the campaign was interrupted during the run (nothing recorded).
-    fn run_one(
+    pub(super) fn run_one(
         &self,
         runner: &mut dyn Runner,
         mut watch: Option<&mut HostWatch>,
@@ -770,21 +870,23 @@ pub fn execute(
         plan.print(campaign, machine)?;
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
     }
-    plan.notes(campaign, machine);
+    let here = opts.scheduler.runs_here();
+    plan.notes(campaign, machine, here);
     if plan.todo.is_empty() {
         // Nothing to do: the folder, its manifest and topology stay as they are.
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
     }
-    if plan.todo.iter().any(|(_, run)| run.spec.ranks > 1) {
+    if here && plan.todo.iter().any(|(_, run)| run.spec.ranks > 1) {
         if let Some(why) = runner.launcher_refusal(&campaign.launcher) {
             bail!("{why}");
         }
     }
-    let (mut log, json_dir) = plan.open_folder(opts.fresh)?;
-    let mut watch = opts.watch.map(|w| HostWatch::start(w, machine.usable_pus().len()));
+    let (mut log, json_dir) = plan.open_folder(opts.fresh, here)?;
+    // Under a scheduler each job watches its own node.
+    let mut watch = opts.watch.filter(|_| here).map(|w| HostWatch::start(w, machine.usable_pus().len()));
     let calibration = watch.as_ref().map(HostWatch::calibration);
     let mut manifest = ManifestLog::start(campaign, machine, solvers, opts, &plan.dir, counts, calibration)?;
-    if opts.eta {
+    if opts.eta && here {
         match estimate_duration(runner, solvers, &plan.todo, &json_dir, machine.usable_pus().len()) {
             Ok(eta) => eprintln!("{eta}"),
             Err(e) => eprintln!("note: no duration estimate: {e:#}"),
@@ -798,25 +900,28 @@ pub fn execute(
     }
     let checkpoint_root = plan.dir.join("checkpoints");
     let ctx = RunContext { campaign, machine, git: manifest.git(), json_dir, checkpoint_root, interrupted };
-    for (n, (order_index, spec)) in plan.todo.iter().enumerate() {
-        if interrupted.load(Ordering::SeqCst) {
-            counts.interrupted = true;
-            break;
+    let mut books = Books { log: &mut log, counts: &mut counts, manifest: &mut manifest, progress: &progress };
+    match &opts.scheduler {
+        Scheduler::Slurm(slurm) => {
+            let settings = super::slurm::Submission { options: slurm, watch: opts.watch, solvers: &solver_of };
+            super::slurm::run_jobs(&ctx, &settings, &plan, &mut attempts, &mut books)?;
         }
-        progress.start(n, spec);
-        let solver =
-            *solver_of.get(&spec.opt).ok_or_else(|| anyhow!("no solver binary for optimisation level {}", spec.opt))?;
-        let key = spec.key();
-        let attempt = attempts.entry(key.clone()).or_default();
-        let run_id = format!("{}-{}-a{}", spec.label(), key.0, *attempt);
-        *attempt += 1;
-        let Some(row) = ctx.run_one(runner, watch.as_mut(), solver, spec, *order_index, run_id)? else {
-            counts.interrupted = true;
-            break;
-        };
-        log.append(&row)?;
-        count(&mut counts, &row);
-        progress.ended(n, spec, &row);
+        Scheduler::Local => {
+            for (n, (order_index, spec)) in plan.todo.iter().enumerate() {
+                if interrupted.load(Ordering::SeqCst) {
+                    books.counts.interrupted = true;
+                    break;
+                }
+                progress.start(n, spec);
+                let solver = solver_for(&solver_of, spec)?;
+                let run_id = next_run_id(&mut attempts, spec);
+                let Some(row) = ctx.run_one(runner, watch.as_mut(), solver, spec, *order_index, run_id)? else {
+                    books.counts.interrupted = true;
+                    break;
+                };
+                books.record(n, spec, &row)?;
+            }
+        }
     }
     progress.bar.finish_and_clear();
     counts.interrupted |= interrupted.load(Ordering::SeqCst);
@@ -824,6 +929,20 @@ pub fn execute(
     manifest.finish(counts)?;
     debug_assert_eq!(log.path(), plan.csv_path.as_path());
     Ok(ExecSummary { dir: plan.dir, counts, wall })
+}
+
+/// The solver binary of `run`'s optimisation level.
+pub(super) fn solver_for<'s>(solvers: &HashMap<OptLevel, &'s Solver>, run: &PlannedRun) -> Result<&'s Solver> {
+    solvers.get(&run.opt).copied().ok_or_else(|| anyhow!("no solver binary for optimisation level {}", run.opt))
+}
+
+/// The id of `run`'s next attempt (`<label>-<key>-a<attempt>`), counting it.
+pub(super) fn next_run_id(attempts: &mut HashMap<RunKey, usize>, run: &PlannedRun) -> String {
+    let key = run.key();
+    let attempt = attempts.entry(key.clone()).or_default();
+    let id = format!("{}-{}-a{}", run.label(), key.0, *attempt);
+    *attempt += 1;
+    id
 }
 
 /// Keys of configurations that need no new run: those with an `ok` row, and those the
@@ -861,6 +980,18 @@ impl RunPlan {
     }
 }
 
+/// The row of `run` before it runs anywhere: its campaign, software and seed.
+pub(super) fn planned_row(campaign: &Campaign, git: &manifest::GitInfo, solver: &Solver, run: &PlannedRun) -> Row {
+    let mut row = Row::planned(run.clone());
+    row.id.campaign_id = campaign.id.clone();
+    row.id.git_commit = git.commit.clone();
+    row.id.git_dirty = git.dirty;
+    row.id.binary_sha256 = short_hash(&solver.sha256);
+    row.id.seed = campaign.seed;
+    row
+}
+
+/// The row of `run` about to run on `machine` (this node) as `plan` places it.
 fn base_row(
     campaign: &Campaign,
     machine: &Machine,
@@ -869,13 +1000,9 @@ fn base_row(
     run: &PlannedRun,
     plan: &RunPlan,
 ) -> Row {
-    let mut row = Row::planned(run.clone());
-    row.id.campaign_id = campaign.id.clone();
-    row.id.git_commit = git.commit.clone();
-    row.id.git_dirty = git.dirty;
+    let mut row = planned_row(campaign, git, solver, run);
     row.id.machine_id = fingerprint::fingerprint(machine);
-    row.id.binary_sha256 = short_hash(&solver.sha256);
-    row.id.seed = campaign.seed;
+    row.id.node = node_name();
     row.placement.requested_cpus = plan.requested().to_vec();
     row.placement.oversubscribed = plan.oversubscribed;
     row

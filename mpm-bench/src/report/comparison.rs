@@ -16,7 +16,7 @@ use super::report_figures;
 use crate::analysis::claims::{self, ClaimResult};
 use crate::analysis::hybrid::HybridAnalysis;
 use crate::analysis::ratio::{self, Comparison};
-use crate::analysis::results::{load_campaign, Campaign};
+use crate::analysis::results::{load_campaigns, Campaign};
 use crate::analysis::select::RowFilter;
 use crate::analysis::stats::{self, parallel_strategies, tag, Analysis, Compare, Estimate, Stage, StatsOptions};
 use crate::campaign::preset::OptLevel;
@@ -129,13 +129,16 @@ fn load_sets(args: &ReportArgs) -> Result<Vec<Set>> {
     }
     let mut sets = Vec::new();
     for d in &args.dirs {
-        let c = load_campaign(d, &RowFilter::analysis(args.include_noisy))
+        // A campaign of several machines (a cluster's node types): one set per machine.
+        let parts = load_campaigns(d, &RowFilter::analysis(args.include_noisy))
             .with_context(|| format!("reading results {}", d.display()))?;
-        c.note_left_out("report");
-        let an = c.analyse(args.pin.as_deref());
-        let hybrid = HybridAnalysis::from_rows(&c.rows, &c.hybrid, Some(&an.pin_policy), &StatsOptions::default());
-        let cl = claims::evaluate(&c, &an);
-        sets.push(Set { label: String::new(), campaign: c, analysis: an, hybrid, claims: cl });
+        for c in parts {
+            c.note_left_out("report");
+            let an = c.analyse(args.pin.as_deref());
+            let hybrid = HybridAnalysis::from_rows(&c.rows, &c.hybrid, Some(&an.pin_policy), &StatsOptions::default());
+            let cl = claims::evaluate(&c, &an);
+            sets.push(Set { label: String::new(), campaign: c, analysis: an, hybrid, claims: cl });
+        }
     }
     let fps: Vec<String> = sets.iter().map(|s| s.campaign.fingerprint()).collect();
     for (i, set) in sets.iter_mut().enumerate() {

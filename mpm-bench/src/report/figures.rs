@@ -18,7 +18,7 @@
 
 use super::plot::{write_png_svg, Line, Panel, PlotPoint};
 use crate::analysis::hybrid::HybridAnalysis;
-use crate::analysis::results::{load_campaign, Campaign};
+use crate::analysis::results::{load_campaigns, Campaign};
 use crate::analysis::select::RowFilter;
 use crate::analysis::stats::{parallel_strategies, tag, Analysis, CellKey, Point, Stage, StatsOptions};
 use anyhow::{Context, Result};
@@ -40,7 +40,8 @@ pub struct FiguresArgs {
     /// time) is used and named.
     #[arg(long)]
     pub results: PathBuf,
-    /// Output folder (created if needed).
+    /// Output folder (created if needed). A campaign with runs of several machines (a
+    /// cluster's node types) gets one sub-folder per machine fingerprint.
     #[arg(long, default_value = "paper-figures")]
     pub out: PathBuf,
     /// Pinning policy to plot when the campaign has several (default: close, else the first).
@@ -556,20 +557,24 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
 
 /// `mpm-bench figures`.
 pub fn run(args: FiguresArgs) -> Result<()> {
-    let c = load_campaign(&args.results, &RowFilter::analysis(args.include_noisy))?;
-    c.note_left_out("figures");
-    let an = c.analyse(args.pin.as_deref());
-    if an.points.is_empty() {
-        eprintln!("warning: campaign {} has no ok run: the figures will be empty", c.dir.display());
-    }
+    let parts = load_campaigns(&args.results, &RowFilter::analysis(args.include_noisy))?;
     let mut command = format!("mpm-bench figures --results {} --out {}", args.results.display(), args.out.display());
     if let Some(p) = &args.pin {
         let _ = write!(command, " --pin {p}");
     }
-    let files = write_all(&c, &an, &args.out, &command)?;
-    println!("campaign {} ({}): wrote {} files to {}", c.id(), c.dir.display(), files.len(), args.out.display());
-    for f in files {
-        println!("  {}", f.display());
+    for c in &parts {
+        // Runs of several machines: each machine's figures apart, never one line over both.
+        let out = if c.split { args.out.join(c.fingerprint()) } else { args.out.clone() };
+        c.note_left_out("figures");
+        let an = c.analyse(args.pin.as_deref());
+        if an.points.is_empty() {
+            eprintln!("warning: campaign {} has no ok run: the figures will be empty", c.label());
+        }
+        let files = write_all(c, &an, &out, &command)?;
+        println!("campaign {} ({}): wrote {} files to {}", c.label(), c.dir.display(), files.len(), out.display());
+        for f in files {
+            println!("  {}", f.display());
+        }
     }
     Ok(())
 }

@@ -220,6 +220,7 @@ pub fn write_manifest(dir: &Path, t: &str) {
             mpi_launcher: None,
         },
         sessions: vec![],
+        nodes: BTreeMap::new(),
     };
     manifest::write(&dir.join("manifest.json"), &m).unwrap();
 }

@@ -1,0 +1,368 @@
+//! `mpm-bench run --scheduler slurm` against a real Slurm: a one-node cluster (munged,
+//! slurmctld, slurmd) that this test starts with `scripts/slurm-local.sh` in a state folder,
+//! slurm.conf and ports of its own, and stops at its end, leaving no daemon behind.
+//!
+//! It needs root and the packages slurm-wlm and munge (`scripts/bootstrap.sh` installs them,
+//! and `scripts/test.sh` runs it first): without them it fails, it does not skip.
+//!
+//! One test, in order: the smoke preset through Slurm writes the configurations a local smoke
+//! campaign writes; jobs still pending are collected by a second invocation, never submitted
+//! twice, and a job someone else cancelled becomes a failed row with Slurm's state; Ctrl-C
+//! cancels the jobs of the invocation that got it, and no other.
+
+use mpm_bench::campaign::record::{read_rows, Row, Status};
+use mpm_bench::campaign::slurm::{JobRecord, JobsFile};
+use mpm_bench::machine::fingerprint;
+use mpm_bench::machine::topology::Machine;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/slurm-local.sh")
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+/// Two consecutive free TCP ports (slurmctld's and slurmd's).
+fn free_port_pair() -> u16 {
+    let free = |p: u16| std::net::TcpListener::bind(("0.0.0.0", p)).is_ok();
+    let start = 20_000 + (std::process::id() % 20_000) as u16;
+    (start..60_000).step_by(2).find(|&p| free(p) && free(p + 1)).expect("two free ports")
+}
+
+/// Whether process `pid` lives (not a zombie).
+fn alive(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .is_ok_and(|s| s.rsplit_once(')').is_some_and(|(_, rest)| !rest.trim_start().starts_with('Z')))
+}
+
+/// Processes whose command name is `comm`.
+fn processes(comm: &str) -> Vec<u32> {
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .flatten()
+        .filter_map(|e| e.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|pid| std::fs::read_to_string(format!("/proc/{pid}/comm")).is_ok_and(|c| c.trim() == comm))
+        .collect()
+}
+
+/// A one-node Slurm of this test's own, stopped when dropped (also when the test fails).
+struct LocalSlurm {
+    dir: PathBuf,
+    conf: PathBuf,
+    port: u16,
+    stopped: bool,
+}
+
+impl LocalSlurm {
+    fn start() -> Self {
+        let base = std::env::temp_dir().join(format!("mpm-slurm-test-{}", std::process::id()));
+        let s = Self { conf: base.with_extension("conf"), dir: base, port: free_port_pair(), stopped: false };
+        let out = s.script("start");
+        assert!(
+            out.status.success(),
+            "scripts/slurm-local.sh start failed (it needs root and the packages slurm-wlm and munge, which \
+             scripts/bootstrap.sh installs): {}",
+            text(&out)
+        );
+        s
+    }
+
+    fn script(&self, what: &str) -> Output {
+        Command::new("bash")
+            .arg(script())
+            .arg(what)
+            .env("MPM_SLURM_DIR", &self.dir)
+            .env("SLURM_CONF", &self.conf)
+            .env("MPM_SLURM_PORT", self.port.to_string())
+            .output()
+            .unwrap()
+    }
+
+    /// The daemons `status` names: `(name, pid)`.
+    fn daemons(&self) -> Vec<(String, u32)> {
+        let out = self.script("status");
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .filter_map(|l| {
+                let (name, pid) = l.split_once(' ')?;
+                Some((name.to_string(), pid.trim().parse().ok()?))
+            })
+            .collect()
+    }
+
+    /// A Slurm command (or `mpm-bench`) talking to this cluster.
+    fn command(&self, program: &str) -> Command {
+        let mut c = Command::new(program);
+        c.env("SLURM_CONF", &self.conf);
+        c
+    }
+
+    fn bench(&self) -> Command {
+        self.command(env!("CARGO_BIN_EXE_mpm-bench"))
+    }
+
+    /// `sbatch --parsable` of a job that is not the harness's (someone else's).
+    fn foreign_job(&self, args: &[&str]) -> String {
+        let out = self.command("sbatch").args(["--parsable", "-o", "/dev/null"]).args(args).output().unwrap();
+        assert!(out.status.success(), "{}", text(&out));
+        String::from_utf8_lossy(&out.stdout).trim().to_string()
+    }
+
+    /// Every job's state, by id.
+    fn states(&self) -> BTreeMap<String, String> {
+        let out = self.command("squeue").args(["-h", "--states=all", "-o", "%i|%T"]).output().unwrap();
+        assert!(out.status.success(), "{}", text(&out));
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .filter_map(|l| l.split_once('|').map(|(i, s)| (i.trim().to_string(), s.trim().to_string())))
+            .collect()
+    }
+
+    fn state(&self, id: &str) -> String {
+        self.states().get(id).cloned().unwrap_or_default()
+    }
+
+    fn scancel(&self, id: &str) {
+        assert!(self.command("scancel").arg(id).status().unwrap().success());
+    }
+
+    fn stop(&mut self) -> Output {
+        self.stopped = true;
+        self.script("stop")
+    }
+}
+
+impl Drop for LocalSlurm {
+    fn drop(&mut self) {
+        if !self.stopped {
+            let _ = self.script("stop");
+        }
+    }
+}
+
+/// Wait up to `secs` for `cond`.
+fn wait_for(secs: u64, what: &str, mut cond: impl FnMut() -> bool) {
+    let t = Instant::now();
+    while !cond() {
+        assert!(t.elapsed() < Duration::from_secs(secs), "waited {secs} s for {what}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+/// The campaign folder an `mpm-bench run` printed.
+fn folder(o: &Output) -> PathBuf {
+    let out = String::from_utf8_lossy(&o.stdout);
+    let line = out.lines().find_map(|l| l.strip_prefix("campaign folder: ")).unwrap_or_else(|| panic!("{}", text(o)));
+    PathBuf::from(line.trim())
+}
+
+fn jobs(dir: &Path) -> Vec<JobRecord> {
+    JobsFile::load(dir).unwrap().jobs
+}
+
+fn hostname() -> String {
+    let o = Command::new("hostname").arg("-s").output().unwrap();
+    String::from_utf8_lossy(&o.stdout).trim().to_string()
+}
+
+/// `scontrol show job`'s `key=` time of job `id` (`2026-11-26T16:12:14`: sorts as it reads).
+fn job_time(slurm: &LocalSlurm, id: &str, key: &str) -> String {
+    let o = slurm.command("scontrol").args(["show", "job", "-o", id]).output().unwrap();
+    let line = String::from_utf8_lossy(&o.stdout).into_owned();
+    let v = line.split_whitespace().find_map(|w| w.strip_prefix(key)?.strip_prefix('=').map(str::to_string));
+    v.unwrap_or_else(|| panic!("no {key} in {line}"))
+}
+
+/// The smoke preset through Slurm, at most two jobs in the queue at once: its rows are a
+/// local smoke campaign's configurations (the same planned runs, keys and requested CPUs),
+/// each ok, verified on the CPUs placed, from a job of its own on this node, with the node's
+/// machine in the manifest; no job was submitted while two others were still out.
+fn smoke_through_slurm_is_the_local_smoke(slurm: &LocalSlurm, out: &Path) {
+    let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--max-jobs", "2", "--out"];
+    let o = slurm.bench().args(args).arg(out).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let dir = folder(&o);
+    assert!(dir.starts_with(out.join("slurm-mpmlocal")), "{}", dir.display());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("[8/8]") && err.contains("done: 8 rows written (8 ok"), "{err}");
+    let rows = read_rows(&dir.join("runs.csv")).unwrap();
+    let local = slurm
+        .bench()
+        .args(["run", "--preset", "smoke", "--mock", "--quiet", "--out"])
+        .arg(out.join("local"))
+        .output()
+        .unwrap();
+    assert!(local.status.success(), "{}", text(&local));
+    let local_rows = read_rows(&folder(&local).join("runs.csv")).unwrap();
+    // The key is the hash of the whole planned run (spec, opt level, pinning, repetition).
+    let configuration = |rows: &[Row]| -> BTreeSet<(String, String, Vec<usize>)> {
+        rows.iter()
+            .inspect(|r| assert_eq!(r.run.key().0, r.id.run_key))
+            .map(|r| (r.id.run_key.clone(), r.run.describe(), r.placement.requested_cpus.clone()))
+            .collect()
+    };
+    assert_eq!(rows.len(), local_rows.len());
+    assert_eq!(configuration(&rows), configuration(&local_rows));
+    let fp = fingerprint::fingerprint(&Machine::detect().unwrap());
+    let node = hostname();
+    for r in &rows {
+        assert_eq!(r.outcome.status, Status::Ok, "{}: {}", r.id.run_id, r.outcome.reason);
+        assert!(!r.placement.observed_cpus.is_empty() && r.placement.observed_cpus == r.placement.requested_cpus);
+        assert_eq!((r.id.machine_id.as_str(), r.id.node.as_str()), (fp.as_str(), node.as_str()));
+        assert!(r.measured.steady_s_per_step.is_some_and(|t| t > 0.0));
+    }
+    let ids: BTreeSet<u64> = rows.iter().filter_map(|r| r.id.job_id.parse().ok()).collect();
+    assert_eq!(ids.len(), rows.len(), "one job per run");
+    let times: Vec<(String, String)> = ids
+        .iter()
+        .map(|id| (job_time(slurm, &id.to_string(), "SubmitTime"), job_time(slurm, &id.to_string(), "EndTime")))
+        .collect();
+    for (i, (submit, _)) in times.iter().enumerate() {
+        let out_then = times[..i].iter().filter(|(_, end)| end > submit).count();
+        assert!(out_then < 2, "job {i} submitted while {out_then} others were out: {times:?}");
+    }
+    let man = mpm_bench::campaign::manifest::read(&dir.join("manifest.json")).unwrap();
+    let n = &man.nodes[&fp];
+    assert_eq!((n.node.as_str(), n.machine.fingerprint.as_str()), (node.as_str(), fp.as_str()));
+    assert!(dir.join(&n.topology).is_file());
+    assert!(man.sessions[0].scheduler.as_deref().is_some_and(|s| s.starts_with("slurm cluster mpmlocal")));
+    assert!(jobs(&dir).is_empty(), "every job collected");
+}
+
+/// Jobs still pending when the command runs again are collected, not submitted twice; a job
+/// someone else cancelled is a failed row with Slurm's state; the next run redoes it.
+fn pending_jobs_are_collected_not_submitted_twice(slurm: &LocalSlurm, out: &Path) {
+    // Someone else's job holds the only node: the campaign's jobs wait behind it.
+    let blocker = slurm.foreign_job(&["--exclusive", "--wrap", "sleep 600"]);
+    wait_for(30, "the blocking job to run", || slurm.state(&blocker) == "RUNNING");
+    let run = |extra: &[&str]| {
+        let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3"];
+        let args2 = ["--threads", "1", "--strategies", "dd", "--reps", "3", "--out"];
+        slurm.bench().args(args).args(args2).arg(out).args(extra).output().unwrap()
+    };
+    let first = run(&["--detach"]);
+    assert!(first.status.success(), "{}", text(&first));
+    let dir = folder(&first);
+    let submitted = jobs(&dir);
+    assert_eq!(submitted.len(), 3, "{}", text(&first));
+    assert!(text(&first).contains("3 run(s) in the Slurm queue"), "{}", text(&first));
+    for j in &submitted {
+        assert_eq!(slurm.state(&j.job_id), "PENDING");
+    }
+    let jobs_before = slurm.states().len();
+    let again = run(&["--detach"]);
+    assert!(again.status.success(), "{}", text(&again));
+    assert!(text(&again).contains("3 run(s) were submitted by an earlier invocation"), "{}", text(&again));
+    assert_eq!(jobs(&dir), submitted, "nothing submitted twice");
+    assert_eq!(slurm.states().len(), jobs_before, "no new job in Slurm");
+    // Someone cancels one of the campaign's jobs; the node frees.
+    let cancelled = submitted[1].job_id.clone();
+    slurm.scancel(&cancelled);
+    slurm.scancel(&blocker);
+    let collect = run(&[]);
+    assert_eq!(collect.status.code(), Some(1), "a failed run: {}", text(&collect));
+    let rows = read_rows(&dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 3);
+    let ids: BTreeSet<&str> = submitted.iter().map(|j| j.job_id.as_str()).collect();
+    assert!(rows.iter().all(|r| ids.contains(r.id.job_id.as_str())), "only the jobs first submitted");
+    let failed: Vec<&Row> = rows.iter().filter(|r| r.outcome.status == Status::Failed).collect();
+    assert_eq!(failed.len(), 1);
+    assert_eq!(failed[0].id.job_id, cancelled);
+    assert!(
+        failed[0].outcome.reason.starts_with(&format!("Slurm job {cancelled} CANCELLED")),
+        "{}",
+        failed[0].outcome.reason
+    );
+    assert_eq!(rows.iter().filter(|r| r.outcome.status == Status::Ok).count(), 2);
+    assert!(jobs(&dir).is_empty());
+    // A failure is not a result: the next invocation submits that run again.
+    let redo = run(&[]);
+    assert!(redo.status.success(), "{}", text(&redo));
+    let rows = read_rows(&dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 4);
+    let last = rows.last().unwrap();
+    assert_eq!((last.outcome.status, last.id.run_key.as_str()), (Status::Ok, failed[0].id.run_key.as_str()));
+    assert!(!ids.contains(last.id.job_id.as_str()));
+}
+
+/// Ctrl-C (SIGINT to the harness) cancels the jobs that invocation submitted, and only those:
+/// a job an earlier invocation submitted and someone else's job are left alone.
+fn ctrl_c_cancels_only_this_invocations_jobs(slurm: &LocalSlurm, out: &Path) {
+    let held = slurm.foreign_job(&["--hold", "--wrap", "true"]);
+    let args = [
+        "run",
+        "--preset",
+        "smoke",
+        "--scheduler",
+        "slurm",
+        "--no-build",
+        "--opt",
+        "o3",
+        "--threads",
+        "1",
+        "--strategies",
+        "dd",
+        "--reps",
+        "2",
+        "--steps",
+        "100000",
+    ];
+    // An earlier invocation submitted the first run (a long one) and left.
+    let earlier = slurm.bench().args(args).args(["--detach", "--max-jobs", "1", "--out"]).arg(out).output().unwrap();
+    assert!(earlier.status.success(), "{}", text(&earlier));
+    let dir = folder(&earlier);
+    let first = jobs(&dir);
+    assert_eq!(first.len(), 1);
+    let j1 = first[0].job_id.clone();
+    wait_for(30, "the earlier job to run", || slurm.state(&j1) == "RUNNING");
+    let log = std::fs::File::create(out.join("ctrl-c.log")).unwrap();
+    let mut child = slurm.bench().args(args).arg("--out").arg(out).stdout(Stdio::null()).stderr(log).spawn().unwrap();
+    wait_for(30, "the second job to be submitted", || jobs(&dir).len() == 2);
+    let j2 = jobs(&dir)[1].job_id.clone();
+    assert!(Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap().success());
+    let status = child.wait().unwrap();
+    let said = std::fs::read_to_string(out.join("ctrl-c.log")).unwrap();
+    assert_eq!(status.code(), Some(130), "{said}");
+    assert!(said.contains(&format!("cancelling this invocation's jobs {j2}")), "{said}");
+    wait_for(15, "the cancelled job to end", || slurm.state(&j2) == "CANCELLED");
+    assert_eq!(slurm.state(&j1), "RUNNING", "the earlier invocation's job runs on");
+    assert_eq!(slurm.state(&held), "PENDING", "someone else's job is left alone");
+    assert_eq!(jobs(&dir).iter().map(|j| j.job_id.clone()).collect::<Vec<_>>(), [j1], "still to collect");
+    assert!(read_rows(&dir.join("runs.csv")).unwrap().is_empty(), "an interrupted run is not recorded");
+}
+
+#[test]
+fn campaigns_through_a_one_node_slurm() {
+    let t0 = Instant::now();
+    let mut slurm = LocalSlurm::start();
+    let daemons = slurm.daemons();
+    let names: BTreeSet<&str> = daemons.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, BTreeSet::from(["munged", "slurmctld", "slurmd"]), "{daemons:?}");
+    let tmp = tempfile::tempdir().unwrap();
+    smoke_through_slurm_is_the_local_smoke(&slurm, &tmp.path().join("smoke"));
+    pending_jobs_are_collected_not_submitted_twice(&slurm, &tmp.path().join("pending"));
+    ctrl_c_cancels_only_this_invocations_jobs(&slurm, &tmp.path().join("ctrl-c"));
+    // Jobs still run (the earlier invocation's, someone else's held one): stop takes them too.
+    let steps: Vec<u32> = processes("slurmstepd");
+    assert!(!steps.is_empty(), "a job step runs");
+    let stopped = slurm.stop();
+    assert!(stopped.status.success(), "{}", text(&stopped));
+    for (name, pid) in &daemons {
+        assert!(!alive(*pid), "{name} (pid {pid}) outlived stop");
+    }
+    for pid in steps {
+        assert!(!alive(pid), "slurmstepd {pid} outlived stop");
+    }
+    assert!(processes("mpm").iter().all(|p| {
+        !std::fs::read_to_string(format!("/proc/{p}/cmdline"))
+            .unwrap_or_default()
+            .contains(tmp.path().to_str().unwrap())
+    }));
+    assert!(!slurm.dir.exists() && !slurm.conf.exists(), "stop removes the state and the configuration");
+    eprintln!("Slurm tests: {:.0} s", t0.elapsed().as_secs_f64());
+}
