@@ -5,6 +5,7 @@ use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use mpm_bench::analysis::{claims, imbalance, paired, regress};
 use mpm_bench::campaign::matrix::{Campaign, Overrides};
+use mpm_bench::campaign::paired as paired_measure;
 use mpm_bench::campaign::preset::{self, OptLevel};
 use mpm_bench::campaign::process::{MockRunner, ProcessRunner};
 use mpm_bench::campaign::runner::{self, ExecOptions};
@@ -132,7 +133,7 @@ enum Cmd {
             mpm-bench paired --model 2 --strategies dd,dd-balanced --blocks 21   # cost of balanced cuts\n  \
             mpm-bench paired --model 1 --threads 4 --pin 0-3 --block-steps 10"
     )]
-    Paired(paired::PairedArgs),
+    Paired(paired_measure::PairedArgs),
     /// Predicted DD work imbalance of uniform and balanced cuts over a run (no timing).
     #[command(
         long_about = "Predicted work imbalance of DD's patches, uniform cuts (dd) against balanced \
@@ -313,7 +314,12 @@ fn main() {
         Cmd::Bandwidth(a) => {
             measure_and_report(a.out.as_deref(), "--out", || bandwidth::measure_all(&a), bandwidth::table)
         }
-        Cmd::Paired(a) => measure_and_report(a.json.as_deref(), "--json", || paired::measure(&a), paired::table),
+        Cmd::Paired(a) => measure_and_report(
+            a.json.as_deref(),
+            "--json",
+            || Ok(paired::report(paired_measure::measure(&a)?)),
+            paired::table,
+        ),
         Cmd::Imbalance(a) => cmd_imbalance(&a),
     };
     if let Err(e) = result {

@@ -27,6 +27,7 @@ use crate::exchange::{reduce_partial, Exchange, SingleProcess};
 use crate::grid::{
     GridGeom, GridMode, GridSpec, NodeArrays, NodeIndex, Records, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH,
 };
+use crate::inject::Injection;
 use crate::material::{BulkViscosity, Eos, Material, PointConsts};
 use crate::math::{norm, Vec3};
 use crate::parallel::{Exec, RegionError, Team};
@@ -36,6 +37,7 @@ use crate::simd::SimdLevel;
 use crate::strategy::{DomainDecomposition, Engine, Strategy};
 use crate::timers::{Lap, StageTimes, Substage};
 use crate::transfer;
+use crate::work::{WorkCounts, WorkMeter};
 use rayon::ThreadPool;
 use serde::Serialize;
 use std::sync::Arc;
@@ -77,6 +79,12 @@ pub struct SimConfig {
     /// The instruction-set level of the particle kernels ([`crate::simd`]); `None` (the
     /// default): the widest this CPU has. Every level gives bitwise the same results.
     pub simd: Option<SimdLevel>,
+    /// A test knob, 0 (off) by default: every worker but the first does extra work in the
+    /// grid-node stage of every step, so that the parallel efficiency drops by about this
+    /// fraction (in [0, 1)); a one-thread run is unchanged. Results are bitwise those
+    /// without it; only the time changes. Such a run is never a result (see
+    /// `mpm run --inject-slowdown`).
+    pub inject_slowdown: f64,
 }
 
 impl Default for SimConfig {
@@ -92,6 +100,7 @@ impl Default for SimConfig {
             bulk_viscosity: BulkViscosity::default(),
             max_nodes: 1 << 26,
             simd: None,
+            inject_slowdown: 0.0,
         }
     }
 }
@@ -165,6 +174,10 @@ pub struct Simulation {
     /// Shared (`Arc`) only so that a step can hold the team while it borrows the rest of
     /// the simulation mutably.
     team: Option<Arc<Team>>,
+    /// The work counters of every worker and sub-stage ([`crate::work`]).
+    work: WorkMeter,
+    /// The injected slowdown, when asked for and there is more than one worker.
+    inject: Option<Injection>,
 }
 
 impl Simulation {
@@ -195,6 +208,12 @@ impl Simulation {
             )));
         }
         config.bulk_viscosity.validate()?;
+        if !(0.0..1.0).contains(&config.inject_slowdown) {
+            return Err(SimError::Config(format!(
+                "the injected slowdown must be a fraction in [0, 1) (0 = off), got {}",
+                config.inject_slowdown
+            )));
+        }
         setup.material.validate()?;
         let simd = config.simd.unwrap_or_else(SimdLevel::detected);
         if !simd.is_available() {
@@ -304,6 +323,9 @@ impl Simulation {
             released: false,
             simd,
             team: config.strategy.is_parallel().then(|| Arc::new(Team::new(config.threads))),
+            work: WorkMeter::new(config.threads),
+            inject: (config.inject_slowdown > 0.0 && config.strategy.is_parallel() && config.threads > 1)
+                .then(|| Injection::new(config.inject_slowdown)),
             config,
         })
     }
@@ -455,6 +477,18 @@ impl Simulation {
         self.team.as_ref().map(|team| team.busy_seconds().collect())
     }
 
+    /// What each worker did in each sub-stage over the steps taken ([`crate::work`]): the
+    /// deterministic counts, the same on any machine.
+    pub fn work(&self) -> WorkCounts {
+        self.work.counts()
+    }
+
+    /// Seconds of injected extra work over the steps taken (`None` when no slowdown is
+    /// injected: [`SimConfig::inject_slowdown`] is 0, or the run has one worker).
+    pub fn injected_seconds(&self) -> Option<f64> {
+        self.inject.as_ref().map(|i| i.total_seconds)
+    }
+
     /// Domain-decomposition state, if the strategy is DD.
     pub fn domain_decomposition(&self) -> Option<&DomainDecomposition> {
         self.engine.domain_decomposition()
@@ -521,7 +555,9 @@ impl Simulation {
     fn step_inner(&mut self, exec: &Exec<'_>, dt_max: f64) -> Result<(), SimError> {
         let step_no = self.steps + 1;
         let dt = self.dt_next.min(dt_max);
-        let mut lap = Lap::start();
+        // The shares count their work ([`crate::work`]); each lap books it to its sub-stage.
+        let exec = &exec.counting(self.work.pending());
+        let mut lap = Lap::start(&self.work);
 
         // ---- grid-node stage -------------------------------------------------------
         if self.config.grid_mode.is_adaptive() {
@@ -569,6 +605,10 @@ impl Simulation {
         lap.lap(&mut self.times, Substage::Assembly);
         transfer::grid_update(exec, &geom, &index, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::GridUpdate);
+        if let Some(inject) = &mut self.inject {
+            inject.run(exec, self.times.total());
+            lap.lap(&mut self.times, Substage::GridUpdate);
+        }
 
         // ---- particle stage --------------------------------------------------------
         // The gather (Eqs. 8, 10) runs inside the re-map scatter (Eq. 11), particle by

@@ -557,6 +557,7 @@ impl RunContext<'_> {
             if let (Some(w), Some(b)) = (watch, before) {
                 row.set_host(&w.after_run(&probe_cpus, b), self.machine.usable_pus().len());
             }
+            row.flag_low_cpu_share();
         }
         row.id.run_id = run_id;
         row.id.timestamp = now_rfc3339();

@@ -10,6 +10,7 @@
 mod cli;
 mod human;
 mod output;
+mod paired;
 mod progress;
 mod ranks;
 mod run;

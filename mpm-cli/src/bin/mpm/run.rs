@@ -11,13 +11,14 @@ use crate::ranks::Ranks;
 use anyhow::{bail, Context, Result};
 use mpm_cli::pinning::{self, PinnedPool};
 use mpm_cli::summary::{self, HistoryRecorder, RunContext, Timing};
+use mpm_cli::usage::UsageMeter;
 use mpm_core::scenario::impact::{self, CloudFigures, History, ImpactGeometry, DEFAULT_HISTORY_INTERVAL};
 use mpm_core::scenario::plate::{PlateGeometry, PlateResult, ShockTracker};
 use mpm_core::scenario::taylor::{self, TaylorFigures};
 use mpm_core::{Collectives, SimConfig, Simulation};
 use mpm_spec::scenario::Prepared;
 use mpm_spec::spec::Budget;
-use mpm_spec::summary::{EndReason, HistoryPoint, RankReport};
+use mpm_spec::summary::{EndReason, HistoryPoint, RankReport, MIN_CPU_SHARE};
 use mpm_spec::RunSpec;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -27,7 +28,7 @@ use std::time::Instant;
 /// Raised when the user interrupts the run.
 #[derive(Debug, thiserror::Error)]
 #[error("interrupted at step {0} (Ctrl-C); no summary written")]
-pub struct Interrupted(u64);
+pub struct Interrupted(pub u64);
 
 /// Worker threads per core beyond which a run is refused: more is not a measurement, and
 /// `--threads 100000` would only bring the machine to its knees.
@@ -134,21 +135,28 @@ fn start_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool> {
     Ok(pool)
 }
 
-/// The simulation of a built scenario as the spec asks: strategy, threads, grid, physics.
-fn simulation(
-    spec: &RunSpec,
-    setup: mpm_core::Setup,
-    exchange: Option<Box<dyn mpm_core::Exchange>>,
-) -> Result<Simulation> {
-    let config = SimConfig {
+/// The solver settings the spec asks for: strategy, threads, grid, physics, the injected
+/// slowdown.
+fn sim_config(spec: &RunSpec) -> SimConfig {
+    SimConfig {
         strategy: spec.strategy,
         threads: spec.threads,
         grid_mode: spec.grid,
         cfl: spec.physics.cfl,
         bulk_viscosity: spec.physics.q,
         energy_rise_limit: spec.physics.energy_rise_limit.as_f64(),
+        inject_slowdown: spec.inject_slowdown.unwrap_or(0.0),
         ..SimConfig::default()
-    };
+    }
+}
+
+/// The simulation of a built scenario as the spec asks ([`sim_config`]).
+fn simulation(
+    spec: &RunSpec,
+    setup: mpm_core::Setup,
+    exchange: Option<Box<dyn mpm_core::Exchange>>,
+) -> Result<Simulation> {
+    let config = sim_config(spec);
     match exchange {
         Some(exchange) => Simulation::with_exchange(setup, config, exchange),
         None => Simulation::new(setup, config),
@@ -412,6 +420,8 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
         ranks.build(&spec.scenario, spec.physics.eos, spec.rank_layout, spec.split_wait)?;
     let taylor = matches!(spec.scenario, mpm_spec::Scenario::Taylor(_));
     let model_name = setup.model.clone();
+    // A paired run builds its one-thread reference from the same set-up.
+    let reference_setup = spec.paired.map(|_| setup.clone());
     let mut sim = simulation(&spec, setup, exchange)?;
     let (cells, nodes) = (sim.global_geom().num_cells(), sim.global_geom().num_nodes());
     let warmup = spec.budget.warmup.unwrap_or_else(|| spec.default_warmup(sim.dt_first()));
@@ -433,8 +443,24 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
         progress: progress.as_ref(),
         geometry: impact.as_ref(),
     };
-    let (end_reason, mut timing) =
-        step_loop(&ctx, &mut sim, &mut outputs, &mut history, &mut tracking, ranks.collectives())?;
+    let (end_reason, mut timing, noise, paired) = match reference_setup {
+        Some(setup) => {
+            let (s, out) = crate::paired::run(&spec, sim, &pool, setup, sim_config(&spec), warmup, &interrupted)?;
+            sim = s;
+            record(&mut history, &sim);
+            tracking.observe(&sim, ranks.collectives())?;
+            (out.end_reason, out.timing, out.noise, Some(out.report))
+        }
+        None => {
+            // What each worker got of the loop's wall time (the noise a run can see).
+            let mut usage = UsageMeter::new(spec.threads, &pool.observed_cpus());
+            usage.begin(&pool.pool);
+            let (end_reason, timing) =
+                step_loop(&ctx, &mut sim, &mut outputs, &mut history, &mut tracking, ranks.collectives())?;
+            usage.end(&pool.pool);
+            (end_reason, timing, usage.report(MIN_CPU_SHARE), None)
+        }
+    };
     // The final figures, measured once: the summary's, and the history's last sample.
     let figures = FinalFigures::measure(&sim, taylor, &tracking, ranks.collectives())?;
     tracking.finish(&sim, &figures);
@@ -483,6 +509,8 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
     };
     let Some(mut summary) = summary else { return Ok(()) };
     summary.ranks = reports;
+    summary.noise = noise;
+    summary.paired = paired;
     summary.peak_rss_bytes = mpm_cli::summary::peak_rss_bytes();
     outputs.commit_json(&summary)?;
     if !quiet {
