@@ -118,6 +118,17 @@ impl<'p> Contender<'p> {
     }
 }
 
+/// The largest difference of any particle coordinate between two solvers of the same set-up
+/// (m): round-off only when they ran the same steps.
+pub fn max_position_difference(a: &Simulation, b: &Simulation) -> f64 {
+    a.particles()
+        .x
+        .iter()
+        .zip(&b.particles().x)
+        .flat_map(|(p, q)| (0..3).map(move |k| (p[k] - q[k]).abs()))
+        .fold(0.0, f64::max)
+}
+
 /// `blocks` rounds of one timed block of `block_steps` steps per contender, round `b` in the
 /// order `b, b + 1, ...` (mod the count), so that every contender runs first, second, ... as
 /// often as the others. Stops early after a round in which a contender reached its end

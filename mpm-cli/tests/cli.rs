@@ -491,23 +491,25 @@ fn dd_on_two_pinned_workers_reports_their_cpus_and_stage_times() {
 /// that does not divide into the blocks is refused before anything runs.
 #[test]
 fn paired_run_reports_its_blocks_work_and_injected_slowdown() {
-    let (v, _) = run_json(&[
-        "--model",
-        "1",
-        "--strategy",
-        "dd",
-        "--threads",
-        "2",
-        "--steps",
-        "7",
-        "--warmup",
-        "1",
-        "--paired-blocks",
-        "3",
-        "--inject-slowdown",
-        "0.2",
-        "--quiet",
-    ]);
+    let paired = |steps: &'static str| {
+        [
+            "--model",
+            "1",
+            "--strategy",
+            "dd",
+            "--threads",
+            "2",
+            "--steps",
+            steps,
+            "--warmup",
+            "1",
+            "--paired-blocks",
+            "3",
+        ]
+    };
+    let mut args = paired("7").to_vec();
+    args.extend(["--inject-slowdown", "0.2", "--quiet"]);
+    let (v, _) = run_json(&args);
     let p = &v["paired"];
     assert_eq!((u(p, "blocks"), u(p, "block_steps"), u(&v, "steps")), (3, 2, 7));
     let list = |k: &str| p[k].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect::<Vec<f64>>();
@@ -528,22 +530,9 @@ fn paired_run_reports_its_blocks_work_and_injected_slowdown() {
     assert_eq!(v["noise"]["workers"].as_array().unwrap().len(), 2);
     assert_eq!(p["reference_noise"]["workers"].as_array().unwrap().len(), 1);
 
-    let bad = mpm(&[
-        "run",
-        "taylor",
-        "--model",
-        "1",
-        "--strategy",
-        "dd",
-        "--threads",
-        "2",
-        "--steps",
-        "8",
-        "--warmup",
-        "1",
-        "--paired-blocks",
-        "3",
-    ]);
+    let mut args = vec!["run", "taylor"];
+    args.extend(paired("8"));
+    let bad = mpm(&args);
     assert_eq!(bad.status.code(), Some(1));
     let err = text(&bad.stderr);
     assert!(err.contains("not a multiple of 3") && err.contains("--steps 7"), "{err}");

@@ -39,7 +39,7 @@ use crate::machine::topology::{human_bytes, Machine};
 use crate::util::now_rfc3339;
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use mpm_cli::paired::{alternate, unlimited, Contender};
+use mpm_cli::paired::{alternate, max_position_difference, unlimited, Contender};
 use mpm_cli::pinning::{self, PinnedPool};
 use mpm_core::scenario::taylor::TaylorBar;
 use mpm_core::{SimConfig, Simulation, Strategy};
@@ -301,14 +301,7 @@ pub fn measure(a: &PairedArgs) -> Result<PairedMeasurement> {
         .enumerate()
         .map(|(i, &s)| {
             let (one, many) = (&solvers[1 + 2 * i], &solvers[2 + 2 * i]);
-            let dx = one
-                .sim
-                .particles()
-                .x
-                .iter()
-                .zip(&many.sim.particles().x)
-                .flat_map(|(p, q)| (0..3).map(move |k| (p[k] - q[k]).abs()))
-                .fold(0.0, f64::max);
+            let dx = max_position_difference(&one.sim, &many.sim);
             StrategyBlocks {
                 strategy: s,
                 t1_s_per_step: one.seconds.clone(),

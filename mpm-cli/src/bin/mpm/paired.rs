@@ -8,7 +8,7 @@
 
 use crate::run::Interrupted;
 use anyhow::{Context, Result};
-use mpm_cli::paired::{alternate, Contender};
+use mpm_cli::paired::{alternate, max_position_difference, Contender};
 use mpm_cli::pinning::{self, PinnedPool};
 use mpm_cli::summary::Timing;
 use mpm_core::{SimConfig, Simulation};
@@ -80,15 +80,7 @@ pub fn run(
     let t = spec.threads as f64;
     let block_efficiency: Vec<f64> = one.seconds.iter().zip(&many.seconds).map(|(a, b)| a / (t * b)).collect();
     let scale = many.sim.geom().dx * many.sim.geom().cells.iter().copied().max().unwrap_or(1) as f64;
-    let max_position_difference = one
-        .sim
-        .particles()
-        .x
-        .iter()
-        .zip(&many.sim.particles().x)
-        .flat_map(|(a, b)| (0..3).map(move |k| (a[k] - b[k]).abs()))
-        .fold(0.0, f64::max)
-        / scale;
+    let max_position_difference = max_position_difference(&one.sim, &many.sim) / scale;
     let report = PairedReport {
         reference_threads: 1,
         blocks,
