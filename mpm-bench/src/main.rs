@@ -283,6 +283,20 @@ struct RunArgs {
     /// No progress bar or per-run lines (the closing summary still prints).
     #[arg(long, short = 'q')]
     quiet: bool,
+    /// Measure the cells of two or more threads in the paired design with N timed blocks per
+    /// run: each run is one process in which the T-thread solver and a 1-thread solver of the
+    /// same strategy alternate, (steps - warmup) / N steps a block; the repetitions are the
+    /// processes of a cell, whose spread the analyses' intervals cover. 0 turns a preset's
+    /// paired design off.
+    #[arg(long, value_name = "N")]
+    paired_blocks: Option<u64>,
+    /// TEST KNOB, never for results: every run's workers but the first do extra work so that
+    /// its parallel efficiency drops by about the fraction F (`mpm run --inject-slowdown`).
+    /// Recorded in every row (`inject_slowdown`) and in the campaign's name; figures, claims
+    /// and report refuse such rows unless --include-injected, regress says so in its verdict.
+    /// What `mpm-bench calibrate` measures the gate's detection with.
+    #[arg(long, value_name = "F")]
+    inject_slowdown: Option<f64>,
     /// Use a fake solver (testing the harness itself).
     #[arg(long, hide = true)]
     mock: bool,
@@ -439,6 +453,8 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         grid: a.grid.as_deref().map(str::parse::<mpm_core::GridMode>).transpose().map_err(anyhow::Error::msg)?,
         mem_limit: a.mem_limit.as_deref().map(preset::parse_size).transpose()?,
         seed: a.seed,
+        paired_blocks: a.paired_blocks,
+        inject_slowdown: a.inject_slowdown,
     })
 }
 

@@ -75,7 +75,14 @@ fn figures_are_written_as_png_and_svg() {
     let results = tmp.path().join("results");
     write_campaign(&results.join("fp").join("camp"), &Craft { cores: 2, ..Craft::default() });
     let out = tmp.path().join("figs");
-    figures::run(FiguresArgs { results: results.clone(), out: out.clone(), pin: None, include_noisy: false }).unwrap();
+    figures::run(FiguresArgs {
+        results: results.clone(),
+        out: out.clone(),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    })
+    .unwrap();
     for stem in ["fig07", "fig08", "fig09", "fig10", "fig11", "fig12", "fig13", "fig14", "fig_memory"] {
         let png = std::fs::read(out.join(format!("{stem}.png"))).unwrap();
         assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "{stem}.png");
@@ -98,19 +105,32 @@ fn figures_report_clear_errors() {
         out: tmp.path().join("o"),
         pin: None,
         include_noisy: false,
+        include_injected: false,
     })
     .unwrap_err();
     assert!(format!("{err:#}").contains("does not exist"), "{err:#}");
     let empty = tmp.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();
-    let err = figures::run(FiguresArgs { results: empty, out: tmp.path().join("o"), pin: None, include_noisy: false })
-        .unwrap_err();
+    let err = figures::run(FiguresArgs {
+        results: empty,
+        out: tmp.path().join("o"),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    })
+    .unwrap_err();
     assert!(format!("{err:#}").contains("no runs.csv"), "{err:#}");
     let bad = tmp.path().join("bad");
     std::fs::create_dir_all(&bad).unwrap();
     std::fs::write(bad.join("runs.csv"), "model,threads\n1,1\n").unwrap();
-    let err = figures::run(FiguresArgs { results: bad, out: tmp.path().join("o"), pin: None, include_noisy: false })
-        .unwrap_err();
+    let err = figures::run(FiguresArgs {
+        results: bad,
+        out: tmp.path().join("o"),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    })
+    .unwrap_err();
     assert!(format!("{err:#}").contains("missing column"), "{err:#}");
 }
 
@@ -269,6 +289,8 @@ fn regress_args(base: &Path, cur: &Path) -> RegressArgs {
         pin: None,
         include_noisy: false,
         allow_missing: false,
+        metrics: vec!["efficiency".into(), "time".into(), "work".into()],
+        markdown: None,
     }
 }
 
@@ -590,7 +612,14 @@ fn stage_speedups_are_steady_state_and_impossible_ones_flagged() {
     assert!(p3.flags[0].contains("above the 2 core(s)"), "{:?}", p3.flags);
     assert!(!p3.is_real_parallel(), "a flagged point is no evidence of scaling");
     let out = tmp.path().join("figs");
-    figures::run(FiguresArgs { results: dir.clone(), out: out.clone(), pin: None, include_noisy: false }).unwrap();
+    figures::run(FiguresArgs {
+        results: dir.clone(),
+        out: out.clone(),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    })
+    .unwrap();
     let mut rdr = csv::Reader::from_path(out.join("points.csv")).unwrap();
     let rows: Vec<std::collections::HashMap<String, String>> = rdr.deserialize().map(Result::unwrap).collect();
     let get = |fig: &str, panel: &str, model: &str| {

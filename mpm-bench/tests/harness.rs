@@ -377,12 +377,13 @@ fn pinning_none_passes_no_cpus() {
 /// readers would misread it). The spec's columns come from `mpm_spec::RunSpec` itself.
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 6);
+    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 7);
     let want = "schema_version,campaign_id,run_id,run_key,timestamp,git_commit,git_dirty,machine_id,binary_sha256,\
 seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,scenario.wall,\
 scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell,strategy,threads,\
 ranks,rank_layout,grid,physics.eos,physics.q.c1,physics.q.c2,physics.cfl,physics.energy_rise_limit,\
-budget.steps,budget.end_time_s,budget.warmup,split_wait,model,opt,pin,launcher,rep,requested_cpus,\
+budget.steps,budget.end_time_s,budget.warmup,split_wait,paired.blocks,inject_slowdown,model,opt,pin,launcher,\
+rep,requested_cpus,\
 observed_cpus,rank_cpus,oversubscribed,particles,cells,nodes,mean_nodes,steps,sim_time_s,end_reason,\
 dt_first_s,wall_s,grid_stage_s,particle_stage_s,substages.grid_fit,substages.binning,\
 substages.scatter,substages.assembly,substages.grid_update,substages.gather,substages.remap_scatter,\
@@ -401,7 +402,11 @@ worker_busy_s,load_imbalance,dd_work_imbalance,peak_rss_bytes,peak_rss_sum_bytes
 rank_busy_imbalance,migrated_particles,comm_s_per_step,comm_frac,wait_s_per_step,wait_frac,\
 comm_bytes_per_step,comm_messages_per_step,kinetic_energy_initial_j,kinetic_energy_j,\
 internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
-failed_particles,host_load1_before,host_load1_after,host_others_running_before,\
+failed_particles,paired_blocks,paired_block_steps,paired_t1_s,paired_tt_s,paired_efficiency,\
+paired_t1_grid_stage_s,paired_t1_particle_stage_s,cpu_share,cpu_share_min,involuntary_switches,\
+work_bytes.grid_fit,work_bytes.binning,work_bytes.scatter,work_bytes.assembly,work_bytes.grid_update,\
+work_bytes.gather,work_bytes.remap_scatter,work_bytes.remap_assembly,work_bytes.stress_update,\
+work_serial_bytes,work_bound,work_balance,work_overhead,injected_s,host_load1_before,host_load1_after,host_others_running_before,\
 host_others_running_after,host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,\
 calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,status,reason,exit_code,process_wall_s,\
 mem_estimate_bytes";

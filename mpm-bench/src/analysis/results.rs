@@ -1,7 +1,7 @@
 //! Campaign folders on disk: finding them under a results tree and reading one (its
 //! `runs.csv`, `manifest.json` and `bandwidth.json`) for the analysis commands.
 
-use super::select::{select, Configurations, LeftOut, RowFilter};
+use super::select::{select, Configurations, LeftOut, RowFilter, INJECTED_LEFT_OUT};
 use super::stats::{Analysis, StatsOptions};
 use crate::campaign::manifest::{self, Manifest};
 use crate::campaign::record::{read_rows, Row};
@@ -155,10 +155,19 @@ pub fn resolve_campaign(dir: &Path) -> Result<PathBuf> {
 
 /// Read the campaign `dir` names (see [`resolve_campaign`]): rows, manifest, bandwidth; the
 /// rows an analysis uses by the one rule of [`super::select`] with `filter`, and what it left
-/// out.
+/// out. A campaign whose every measured row ran with an injected slowdown is refused unless
+/// `filter` keeps them: its numbers are a test of the gate, never a result.
 pub fn load_campaign(dir: &Path, filter: &RowFilter) -> Result<Campaign> {
     let dir = resolve_campaign(dir)?;
     let (rows, left_out, configurations) = select(read_rows(&dir.join("runs.csv"))?, filter);
+    let injected = left_out.iter().find(|l| l.reason == INJECTED_LEFT_OUT).map_or(0, |l| l.rows);
+    if injected > 0 && !rows.iter().any(|r| r.outcome.status == crate::campaign::record::Status::Ok) {
+        bail!(
+            "{}: its {injected} measured row(s) all ran with an injected slowdown (`--inject-slowdown`, a test knob \
+             of the regression gate): their times are not results; pass --include-injected to look at them anyway",
+            dir.display()
+        );
+    }
     let mpath = dir.join("manifest.json");
     let manifest = if mpath.is_file() {
         match manifest::read(&mpath) {

@@ -49,6 +49,10 @@ pub struct ReportArgs {
     /// claims and regress, so the page's claims are `mpm-bench claims`'s.
     #[arg(long)]
     pub include_noisy: bool,
+    /// Also analyse rows that ran with an injected slowdown (`--inject-slowdown`, a test knob
+    /// of the regression gate): never results, refused by default.
+    #[arg(long)]
+    pub include_injected: bool,
 }
 
 /// One campaign with its analysis and claims.
@@ -129,7 +133,7 @@ fn load_sets(args: &ReportArgs) -> Result<Vec<Set>> {
     }
     let mut sets = Vec::new();
     for d in &args.dirs {
-        let c = load_campaign(d, &RowFilter::analysis(args.include_noisy))
+        let c = load_campaign(d, &RowFilter::analysis(args.include_noisy).with_injected(args.include_injected))
             .with_context(|| format!("reading results {}", d.display()))?;
         c.note_left_out("report");
         let an = c.analyse(args.pin.as_deref());

@@ -50,6 +50,10 @@ pub struct FiguresArgs {
     /// by claims, regress and report.
     #[arg(long)]
     pub include_noisy: bool,
+    /// Also analyse rows that ran with an injected slowdown (`--inject-slowdown`, a test knob
+    /// of the regression gate): never results, refused by default.
+    #[arg(long)]
+    pub include_injected: bool,
 }
 
 /// Speedup or efficiency.
@@ -161,8 +165,11 @@ pub struct FigurePoint {
     pub lo: f64,
     /// Its 95 % interval.
     pub hi: f64,
-    /// Repetitions behind it.
+    /// Repetitions behind it (processes, for a paired point).
     pub reps: usize,
+    /// Which design the speedup or efficiency comes from: `separate` runs, or `paired`
+    /// (1-thread and T-thread solvers in the same processes); `-` for memory.
+    pub design: String,
     /// Drawn hollow: more threads than cores.
     pub oversubscribed: bool,
     /// Drawn grey: measured on a busy host.
@@ -199,6 +206,7 @@ pub fn figure_points(an: &Analysis) -> Vec<FigurePoint> {
                         lo: e.lo,
                         hi: e.hi,
                         reps: e.reps,
+                        design: p.design.name().into(),
                         oversubscribed: p.oversubscribed,
                         noisy: p.noisy,
                         flags: p.flags.join("; "),
@@ -226,6 +234,7 @@ pub fn figure_points(an: &Analysis) -> Vec<FigurePoint> {
                         lo: e.lo,
                         hi: e.hi,
                         reps: e.reps,
+                        design: "-".into(),
                         oversubscribed: cell.oversubscribed,
                         noisy: cell.noisy > 0,
                         flags: String::new(),
@@ -556,7 +565,8 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
 
 /// `mpm-bench figures`.
 pub fn run(args: FiguresArgs) -> Result<()> {
-    let c = load_campaign(&args.results, &RowFilter::analysis(args.include_noisy))?;
+    let c =
+        load_campaign(&args.results, &RowFilter::analysis(args.include_noisy).with_injected(args.include_injected))?;
     c.note_left_out("figures");
     let an = c.analyse(args.pin.as_deref());
     if an.points.is_empty() {
