@@ -3,7 +3,7 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
-use mpm_bench::analysis::{claims, imbalance, paired, regress};
+use mpm_bench::analysis::{calibrate, claims, imbalance, paired, regress};
 use mpm_bench::campaign::matrix::{Campaign, Overrides};
 use mpm_bench::campaign::paired as paired_measure;
 use mpm_bench::campaign::preset::{self, OptLevel};
@@ -107,6 +107,27 @@ enum Cmd {
     Claims(claims::ClaimsArgs),
     /// Compare a campaign with a baseline: exit 0 pass, 1 regression or missing cell, 2 error or incomparable.
     Regress(regress::RegressArgs),
+    /// Measure the gate itself on this host: its false-alarm rate (A/A) and what it detects (an injected slowdown).
+    #[command(
+        long_about = "Measure the regression gate on this host: run its campaign (a preset, by default ci) \
+            --clean times with the same binary and --injected times with an injected slowdown of known size \
+            (--inject-slowdown F: every worker but the first does extra work so that the parallel efficiency \
+            drops by F), interleaved in one session; then regress (with --tolerance and --metrics, as the CI \
+            job) every pair of clean campaigns (A/A: a failure is a false alarm) and every clean campaign \
+            against every injected one (a failure is a detection). Prints and writes calibration.json: \
+            aa_comparisons, false_alarms, injected_slowdown, injected_comparisons, detected, \
+            min_detectable_change (the smallest efficiency loss detected with 90 % power in every cell, from \
+            the clean campaigns' spread), gate_wall_s (the longest campaign plus its regress), the \
+            recommended processes per cell and blocks per process, and the coverage of one campaign's \
+            intervals on the others. The comparisons reuse campaigns (7 clean give 21 A/A pairs): they are \
+            not independent, see the method in the JSON. Run it on a quiet machine of the kind the gate \
+            runs on; the same command resumes an interrupted calibration.",
+        after_help = "Examples:\n  \
+            mpm-bench calibrate                                  # ci preset, 7 clean + 3 injected (10 %) campaigns\n  \
+            mpm-bench calibrate --clean 7 --injected 3 --budget 100m --json results/<fp>/calibrate-ci/calibration.json\n  \
+            mpm-bench calibrate --preset configs/my-ci.toml --inject-slowdown 0.05 --tolerance 0.03"
+    )]
+    Calibrate(calibrate::CalibrateArgs),
     /// Hardware report (one HTML page, Markdown, JSON) of a campaign, or several compared with the first.
     Report(comparison::ReportArgs),
     /// Markdown table of the impact runs under a folder, from their JSON summaries.
@@ -324,6 +345,7 @@ fn main() {
             }
         },
         Cmd::Report(a) => comparison::run(a),
+        Cmd::Calibrate(a) => calibrate::run(a),
         Cmd::ImpactTable(a) => impact_table::run(a),
         Cmd::Bandwidth(a) => {
             measure_and_report(a.out.as_deref(), "--out", || bandwidth::measure_all(&a), bandwidth::table)

@@ -278,20 +278,7 @@ fn claims_that_the_data_contradict() {
 }
 
 fn regress_args(base: &Path, cur: &Path) -> RegressArgs {
-    RegressArgs {
-        baseline: base.to_path_buf(),
-        current: cur.to_path_buf(),
-        tolerance: 0.05,
-        force: false,
-        json: None,
-        stages: vec!["total".into()],
-        include_oversubscribed: false,
-        pin: None,
-        include_noisy: false,
-        allow_missing: false,
-        metrics: vec!["efficiency".into(), "time".into(), "work".into()],
-        markdown: None,
-    }
+    RegressArgs::new(base, cur)
 }
 
 #[test]

@@ -105,6 +105,26 @@ pub struct RegressArgs {
     pub markdown: Option<PathBuf>,
 }
 
+impl RegressArgs {
+    /// `regress --baseline BASELINE --current CURRENT` with every other option's default.
+    pub fn new(baseline: &Path, current: &Path) -> Self {
+        Self {
+            baseline: baseline.to_path_buf(),
+            current: current.to_path_buf(),
+            tolerance: 0.05,
+            force: false,
+            json: None,
+            stages: vec!["total".into()],
+            include_oversubscribed: false,
+            pin: None,
+            include_noisy: false,
+            allow_missing: false,
+            metrics: vec!["efficiency".into(), "time".into(), "work".into()],
+            markdown: None,
+        }
+    }
+}
+
 /// What `--metrics` asked to gate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Metrics {

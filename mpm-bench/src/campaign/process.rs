@@ -538,7 +538,8 @@ fn mock_noise_work_paired(req: &RunRequest, s: &mut Summary, low_cpu: bool, spre
     let warmup = spec.budget.warmup.unwrap_or(0);
     let Ok(block_steps) = spec.paired_block_steps(warmup) else { return };
     let mut rng = mock_rng(req);
-    let t1 = s.steady_s_per_step.unwrap_or(1e-3) * t as f64 * 0.9;
+    // The one-thread time: the mock's T-thread step (slowed by the injection) at 0.9.
+    let t1 = s.steady_s_per_step.unwrap_or(1e-3) * (1.0 - inject) * t as f64 * 0.9;
     let effect = (spread * mock_normal(&mut rng)).exp();
     let (mut t1s, mut tts) = (Vec::new(), Vec::new());
     for _ in 0..p.blocks {

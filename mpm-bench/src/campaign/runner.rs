@@ -115,7 +115,7 @@ impl ExecSummary {
     /// Closing summary lines.
     pub fn report(&self) -> String {
         format!(
-            "{}: {} rows written ({} ok, {} skipped, {} failed, {} invalid; {} oversubscribed), \
+            "{}: {} rows written ({} ok, {} skipped, {} failed, {} invalid; {} oversubscribed, {} flagged noisy), \
              {} already done of {} planned, wall time {}",
             if self.counts.interrupted { "interrupted" } else { "done" },
             self.counts.written,
@@ -124,6 +124,7 @@ impl ExecSummary {
             self.counts.failed,
             self.counts.invalid,
             self.counts.oversubscribed,
+            self.counts.noisy,
             self.counts.already_done,
             self.counts.planned,
             humantime::format_duration(Duration::from_secs(self.wall.as_secs()))
@@ -646,6 +647,9 @@ fn count(counts: &mut manifest::SessionCounts, row: &Row) {
     }
     if row.placement.oversubscribed {
         counts.oversubscribed += 1;
+    }
+    if row.host.host_noisy {
+        counts.noisy += 1;
     }
 }
 
