@@ -55,27 +55,28 @@ fn interrupted_after_3(c: &Campaign, m: &Machine, out: &Path) -> runner::ExecSum
 fn matrix_expansion_covers_every_cell() {
     let quick = campaign("quick", &Overrides::default());
     let runs = quick.expand();
-    assert_eq!(runs.len(), 4 * 5 * 2 * 2);
+    // Every cell but Model 4 at O0 (excluded: it alone would take the budget), 3 repetitions
+    // (what claims needs for intervals).
+    assert_eq!(quick.reps, 3);
+    assert_eq!(runs.len(), 3 * (4 * 5 * 2 * 2 - 5 * 2));
     let keys: HashSet<_> = runs.iter().map(|r| r.key()).collect();
     assert_eq!(keys.len(), runs.len(), "every run has its own key");
     for m in 1..=4 {
         for opt in [OptLevel::O3, OptLevel::O0] {
             for s in [Strategy::ArrayExpansion, Strategy::DomainDecomposition] {
                 for t in [1, 2, 4, 6, 8] {
-                    assert!(runs
-                        .iter()
-                        .any(|r| r.model == m && r.opt == opt && r.spec.strategy == s && r.spec.threads == t));
+                    let any =
+                        runs.iter().any(|r| r.model == m && r.opt == opt && r.spec.strategy == s && r.spec.threads == t);
+                    assert_eq!(any, !(m == 4 && opt == OptLevel::O0), "Model{m} {opt} {s} {t}");
                 }
             }
         }
     }
-    // Budgets: the most specific override wins; Model 4 at O0 gets the fewest steps.
-    let b40 = quick.budget_for(4, OptLevel::O0);
+    // Budgets: the most specific override wins; Model 4 gets the fewest steps.
     let b43 = quick.budget_for(4, OptLevel::O3);
     let b13 = quick.budget_for(1, OptLevel::O3);
-    assert!(b40.steps.unwrap() <= b43.steps.unwrap());
     assert!(b43.steps.unwrap() < b13.steps.unwrap());
-    assert!(b40.warmup.unwrap() < b40.steps.unwrap().max(1));
+    assert!(b43.warmup.unwrap() < b43.steps.unwrap().max(1));
 
     let paper = campaign("paper", &Overrides::default());
     assert_eq!(paper.expand().len(), 4 * 5 * 2 * 2 * paper.reps as usize);

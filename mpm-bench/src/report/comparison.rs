@@ -347,9 +347,14 @@ fn scaling_tables(sets: &[Set]) -> Vec<Block> {
                 let mut r = vec![format!("Model{m}"), set.label.clone()];
                 r.extend(threads.iter().map(|&n| match set.analysis.point(m, st, opt, n, Stage::Total) {
                     Some(p) => match (p.speedup, p.efficiency) {
-                        (Some(sp), Some(e)) => {
-                            format!("{} / {}{}", sp.show(2), e.show(2), if p.oversubscribed { " *" } else { "" })
-                        }
+                        (Some(sp), Some(e)) => format!(
+                            "{} / {}{}{}",
+                            sp.show(2),
+                            e.show(2),
+                            if p.oversubscribed { " *" } else { "" },
+                            // Which design the numbers come from (separate runs are the default).
+                            if p.design == crate::analysis::stats::Design::Paired { " (paired)" } else { "" }
+                        ),
                         _ => "no T1".into(),
                     },
                     None => "-".into(),

@@ -327,7 +327,17 @@ pub fn footnotes(c: &Campaign, an: &Analysis) -> Vec<String> {
     } else {
         ""
     };
-    vec![
+    let paired = an.points.iter().any(|p| p.design == crate::analysis::stats::Design::Paired);
+    let mut out = Vec::new();
+    if paired {
+        out.push(
+            "Paired cells (design `paired` in points.csv): speedup and efficiency from the 1-thread and T-thread \
+             solvers of the same processes, points the geometric mean over processes, bars the 95 % interval over \
+             processes (Student t)."
+                .to_string(),
+        );
+    }
+    out.extend([
         format!("{bars}{hollow} Missing points: no ok run (e.g. skipped by the memory guard)."),
         format!(
             "Campaign {} on machine {} ({} rows, pinning '{}'); T1 = the same strategy on 1 thread.",
@@ -336,7 +346,8 @@ pub fn footnotes(c: &Campaign, an: &Analysis) -> Vec<String> {
             c.rows.len(),
             an.pin_policy
         ),
-    ]
+    ]);
+    out
 }
 
 /// Bytes per GiB.
