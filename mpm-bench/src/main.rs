@@ -40,6 +40,7 @@ use std::time::Duration;
         mpm-bench figures --results results/     # Figures 7-14 of the newest campaign -> paper-figures/\n  \
         mpm-bench claims --results results/      # the paper's claims C1-C6 (and C7) on this machine\n  \
         mpm-bench regress --baseline A --current B   # CI gate on parallel efficiency\n  \
+        mpm-bench calibrate --preset ci          # the gate's false-alarm rate and detection power here\n  \
         mpm-bench report --results A --results B --out cmp   # cmp/index.html: B vs A\n  \
         mpm-bench impact-table --results results/impact   # table of the impact runs\n  \
         mpm-bench imbalance --scenario impact    # DD work imbalance, uniform vs balanced cuts\n\n\

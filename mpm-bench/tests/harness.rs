@@ -65,8 +65,9 @@ fn matrix_expansion_covers_every_cell() {
         for opt in [OptLevel::O3, OptLevel::O0] {
             for s in [Strategy::ArrayExpansion, Strategy::DomainDecomposition] {
                 for t in [1, 2, 4, 6, 8] {
-                    let any =
-                        runs.iter().any(|r| r.model == m && r.opt == opt && r.spec.strategy == s && r.spec.threads == t);
+                    let any = runs
+                        .iter()
+                        .any(|r| r.model == m && r.opt == opt && r.spec.strategy == s && r.spec.threads == t);
                     assert_eq!(any, !(m == 4 && opt == OptLevel::O0), "Model{m} {opt} {s} {t}");
                 }
             }

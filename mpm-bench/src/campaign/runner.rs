@@ -137,7 +137,9 @@ fn cost(run: &PlannedRun) -> u64 {
     let p = run.spec.scenario.size().particles;
     let steps = run.spec.budget.steps.unwrap_or(300) + 3; // + set-up, in step equivalents
     let f = if run.opt == OptLevel::O0 { 6 } else { 1 };
-    (p / 1000).max(1) * steps * f
+    // A paired run also steps its one-thread reference.
+    let paired = if run.spec.paired.is_some() { 2 } else { 1 };
+    (p / 1000).max(1) * steps * f * paired
 }
 
 /// The campaign folder: `<out_root>/<fingerprint>/<campaign id>` (before the resume rule
@@ -622,7 +624,9 @@ pub fn estimate_duration(
         };
         let workers = r.total_threads();
         let speed = if workers > 1 { 0.8 * workers.min(cores) as f64 } else { 1.0 };
-        total += p * setup + steps * p * ns * 1e-9 / speed;
+        // A paired run steps a one-thread reference beside it.
+        let reference = if r.spec.paired.is_some() { steps * p * ns * 1e-9 } else { 0.0 };
+        total += p * setup + steps * p * ns * 1e-9 / speed + reference;
     }
     let rates: Vec<String> =
         calib.iter().map(|(o, (ns, _, _))| format!("{ns:.0} ns per particle-step at {o}")).collect();
