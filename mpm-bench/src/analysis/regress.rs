@@ -853,10 +853,28 @@ pub fn markdown(r: &RegressReport) -> String {
     for m in &r.missing_in_current {
         let _ = writeln!(s, "- {} {}: {}", m.status.to_uppercase(), m.cell, m.reason);
     }
-    for n in &r.not_compared {
-        let _ = writeln!(s, "- not compared: {} {}: {}", n.cell, n.metric, n.reason);
+    for (what, cells) in grouped(&r.not_compared) {
+        let _ = writeln!(s, "- not compared: {what}: {cells}");
     }
     s
+}
+
+/// The cells not compared, one line per metric and reason: (`work: why`, the cells).
+fn grouped(n: &[NotCompared]) -> Vec<(String, String)> {
+    let mut g: std::collections::BTreeMap<String, Vec<&str>> = std::collections::BTreeMap::new();
+    for x in n {
+        g.entry(format!("{} ({})", x.metric, x.reason)).or_default().push(&x.cell);
+    }
+    g.into_iter()
+        .map(|(what, cells)| {
+            let list = if cells.len() > 3 {
+                format!("{} cells ({}, ...)", cells.len(), cells[..3].join(", "))
+            } else {
+                cells.join(", ")
+            };
+            (what, list)
+        })
+        .collect()
 }
 
 /// Append `text` to the file at `path` (created when absent).
@@ -971,8 +989,8 @@ pub fn lines(r: &RegressReport) -> String {
         let equal = r.work_checks.iter().filter(|w| w.outcome == Outcome::Unchanged).count();
         let _ = writeln!(s, "  {equal} cell(s) with exactly the baseline's work counters");
     }
-    for n in &r.not_compared {
-        let _ = writeln!(s, "  not compared: {} {}: {}", n.cell, n.metric, n.reason);
+    for (what, cells) in grouped(&r.not_compared) {
+        let _ = writeln!(s, "  not compared: {what}: {cells}");
     }
     for m in &r.missing_in_current {
         let effect = if !m.gated {
