@@ -3,8 +3,9 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
-use mpm_bench::analysis::{claims, imbalance, paired, regress};
+use mpm_bench::analysis::{calibrate, claims, imbalance, paired, regress};
 use mpm_bench::campaign::matrix::{Campaign, Overrides};
+use mpm_bench::campaign::paired as paired_measure;
 use mpm_bench::campaign::preset::{self, OptLevel};
 use mpm_bench::campaign::process::{MockRunner, ProcessRunner};
 use mpm_bench::campaign::runner::{self, ExecOptions};
@@ -40,6 +41,7 @@ use std::time::Duration;
         mpm-bench figures --results results/     # Figures 7-14 of the newest campaign -> paper-figures/\n  \
         mpm-bench claims --results results/      # the paper's claims C1-C6 (and C7) on this machine\n  \
         mpm-bench regress --baseline A --current B   # CI gate on parallel efficiency\n  \
+        mpm-bench calibrate --preset ci          # the gate's false-alarm rate and detection power here\n  \
         mpm-bench report --results A --results B --out cmp   # cmp/index.html: B vs A\n  \
         mpm-bench impact-table --results results/impact   # table of the impact runs\n  \
         mpm-bench imbalance --scenario impact    # DD work imbalance, uniform vs balanced cuts\n\n\
@@ -109,6 +111,27 @@ enum Cmd {
     Claims(claims::ClaimsArgs),
     /// Compare a campaign with a baseline: exit 0 pass, 1 regression or missing cell, 2 error or incomparable.
     Regress(regress::RegressArgs),
+    /// Measure the gate itself on this host: its false-alarm rate (A/A) and what it detects (an injected slowdown).
+    #[command(
+        long_about = "Measure the regression gate on this host: run its campaign (a preset, by default ci) \
+            --clean times with the same binary and --injected times with an injected slowdown of known size \
+            (--inject-slowdown F: every worker but the first does extra work so that the parallel efficiency \
+            drops by F), interleaved in one session; then regress (with --tolerance and --metrics, as the CI \
+            job) every pair of clean campaigns (A/A: a failure is a false alarm) and every clean campaign \
+            against every injected one (a failure is a detection). Prints and writes calibration.json: \
+            aa_comparisons, false_alarms, injected_slowdown, injected_comparisons, detected, \
+            min_detectable_change (the smallest efficiency loss detected with 90 % power in every cell, from \
+            the clean campaigns' spread), gate_wall_s (the longest campaign plus its regress), the \
+            recommended processes per cell and blocks per process, and the coverage of one campaign's \
+            intervals on the others. The comparisons reuse campaigns (7 clean give 21 A/A pairs): they are \
+            not independent, see the method in the JSON. Run it on a quiet machine of the kind the gate \
+            runs on; the same command resumes an interrupted calibration.",
+        after_help = "Examples:\n  \
+            mpm-bench calibrate                                  # ci preset, 7 clean + 3 injected (10 %) campaigns\n  \
+            mpm-bench calibrate --clean 7 --injected 3 --budget 100m --json results/<fp>/calibrate-ci/calibration.json\n  \
+            mpm-bench calibrate --preset configs/my-ci.toml --inject-slowdown 0.05 --tolerance 0.03"
+    )]
+    Calibrate(calibrate::CalibrateArgs),
     /// Hardware report (one HTML page, Markdown, JSON) of a campaign, or several compared with the first.
     Report(comparison::ReportArgs),
     /// Markdown table of the impact runs under a folder, from their JSON summaries.
@@ -135,7 +158,7 @@ enum Cmd {
             mpm-bench paired --model 2 --strategies dd,dd-balanced --blocks 21   # cost of balanced cuts\n  \
             mpm-bench paired --model 1 --threads 4 --pin 0-3 --block-steps 10"
     )]
-    Paired(paired::PairedArgs),
+    Paired(paired_measure::PairedArgs),
     /// Predicted DD work imbalance of uniform and balanced cuts over a run (no timing).
     #[command(
         long_about = "Predicted work imbalance of DD's patches, uniform cuts (dd) against balanced \
@@ -299,6 +322,20 @@ struct RunArgs {
     /// No progress bar or per-run lines (the closing summary still prints).
     #[arg(long, short = 'q')]
     quiet: bool,
+    /// Measure the cells of two or more threads in the paired design with N timed blocks per
+    /// run: each run is one process in which the T-thread solver and a 1-thread solver of the
+    /// same strategy alternate, (steps - warmup) / N steps a block; the repetitions are the
+    /// processes of a cell, whose spread the analyses' intervals cover. 0 turns a preset's
+    /// paired design off.
+    #[arg(long, value_name = "N")]
+    paired_blocks: Option<u64>,
+    /// TEST KNOB, never for results: every run's workers but the first do extra work so that
+    /// its parallel efficiency drops by about the fraction F (`mpm run --inject-slowdown`).
+    /// Recorded in every row (`inject_slowdown`) and in the campaign's name; figures, claims
+    /// and report refuse such rows unless --include-injected, regress says so in its verdict.
+    /// What `mpm-bench calibrate` measures the gate's detection with.
+    #[arg(long, value_name = "F")]
+    inject_slowdown: Option<f64>,
     /// Use a fake solver (testing the harness itself).
     #[arg(long, hide = true)]
     mock: bool,
@@ -362,11 +399,17 @@ fn main() {
             }
         },
         Cmd::Report(a) => comparison::run(a),
+        Cmd::Calibrate(a) => calibrate::run(a),
         Cmd::ImpactTable(a) => impact_table::run(a),
         Cmd::Bandwidth(a) => {
             measure_and_report(a.out.as_deref(), "--out", || bandwidth::measure_all(&a), bandwidth::table)
         }
-        Cmd::Paired(a) => measure_and_report(a.json.as_deref(), "--json", || paired::measure(&a), paired::table),
+        Cmd::Paired(a) => measure_and_report(
+            a.json.as_deref(),
+            "--json",
+            || Ok(paired::report(paired_measure::measure(&a)?)),
+            paired::table,
+        ),
         Cmd::Imbalance(a) => cmd_imbalance(&a),
         Cmd::Job { file } => match mpm_bench::campaign::job::run(&file) {
             Ok(code) => std::process::exit(code),
@@ -494,6 +537,8 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         mem_limit: a.mem_limit.as_deref().map(preset::parse_size).transpose()?,
         checkpoint_every: a.checkpoint_every,
         seed: a.seed,
+        paired_blocks: a.paired_blocks,
+        inject_slowdown: a.inject_slowdown,
     })
 }
 

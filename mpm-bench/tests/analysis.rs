@@ -75,7 +75,14 @@ fn figures_are_written_as_png_and_svg() {
     let results = tmp.path().join("results");
     write_campaign(&results.join("fp").join("camp"), &Craft { cores: 2, ..Craft::default() });
     let out = tmp.path().join("figs");
-    figures::run(FiguresArgs { results: results.clone(), out: out.clone(), pin: None, include_noisy: false }).unwrap();
+    figures::run(FiguresArgs {
+        results: results.clone(),
+        out: out.clone(),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    })
+    .unwrap();
     for stem in ["fig07", "fig08", "fig09", "fig10", "fig11", "fig12", "fig13", "fig14", "fig_memory"] {
         let png = std::fs::read(out.join(format!("{stem}.png"))).unwrap();
         assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "{stem}.png");
@@ -98,19 +105,32 @@ fn figures_report_clear_errors() {
         out: tmp.path().join("o"),
         pin: None,
         include_noisy: false,
+        include_injected: false,
     })
     .unwrap_err();
     assert!(format!("{err:#}").contains("does not exist"), "{err:#}");
     let empty = tmp.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();
-    let err = figures::run(FiguresArgs { results: empty, out: tmp.path().join("o"), pin: None, include_noisy: false })
-        .unwrap_err();
+    let err = figures::run(FiguresArgs {
+        results: empty,
+        out: tmp.path().join("o"),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    })
+    .unwrap_err();
     assert!(format!("{err:#}").contains("no runs.csv"), "{err:#}");
     let bad = tmp.path().join("bad");
     std::fs::create_dir_all(&bad).unwrap();
     std::fs::write(bad.join("runs.csv"), "model,threads\n1,1\n").unwrap();
-    let err = figures::run(FiguresArgs { results: bad, out: tmp.path().join("o"), pin: None, include_noisy: false })
-        .unwrap_err();
+    let err = figures::run(FiguresArgs {
+        results: bad,
+        out: tmp.path().join("o"),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    })
+    .unwrap_err();
     assert!(format!("{err:#}").contains("missing column"), "{err:#}");
 }
 
@@ -258,18 +278,7 @@ fn claims_that_the_data_contradict() {
 }
 
 fn regress_args(base: &Path, cur: &Path) -> RegressArgs {
-    RegressArgs {
-        baseline: base.to_path_buf(),
-        current: cur.to_path_buf(),
-        tolerance: 0.05,
-        force: false,
-        json: None,
-        stages: vec!["total".into()],
-        include_oversubscribed: false,
-        pin: None,
-        include_noisy: false,
-        allow_missing: false,
-    }
+    RegressArgs::new(base, cur)
 }
 
 #[test]
@@ -590,7 +599,14 @@ fn stage_speedups_are_steady_state_and_impossible_ones_flagged() {
     assert!(p3.flags[0].contains("above the 2 core(s)"), "{:?}", p3.flags);
     assert!(!p3.is_real_parallel(), "a flagged point is no evidence of scaling");
     let out = tmp.path().join("figs");
-    figures::run(FiguresArgs { results: dir.clone(), out: out.clone(), pin: None, include_noisy: false }).unwrap();
+    figures::run(FiguresArgs {
+        results: dir.clone(),
+        out: out.clone(),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    })
+    .unwrap();
     let mut rdr = csv::Reader::from_path(out.join("points.csv")).unwrap();
     let rows: Vec<std::collections::HashMap<String, String>> = rdr.deserialize().map(Result::unwrap).collect();
     let get = |fig: &str, panel: &str, model: &str| {
@@ -718,7 +734,14 @@ fn runs_of_several_machines_are_split_by_fingerprint() {
     assert!(err.contains("2 machines") && err.contains(&fa) && err.contains(&fb), "{err}");
 
     let out = tmp.path().join("figs");
-    figures::run(FiguresArgs { results: both.clone(), out: out.clone(), pin: None, include_noisy: false }).unwrap();
+    figures::run(FiguresArgs {
+        results: both.clone(),
+        out: out.clone(),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    })
+    .unwrap();
     for fp in [&fa, &fb] {
         assert!(out.join(fp).join("fig07.svg").is_file(), "figures of {fp}");
         assert!(std::fs::read_to_string(out.join(fp).join("README.md")).unwrap().contains(fp.as_str()));
@@ -726,8 +749,13 @@ fn runs_of_several_machines_are_split_by_fingerprint() {
     assert!(!out.join("fig07.svg").exists(), "no figure mixes the machines");
 
     let md = tmp.path().join("claims.md");
-    let args =
-        claims::ClaimsArgs { results: both.clone(), markdown: Some(md.clone()), pin: None, include_noisy: false };
+    let args = claims::ClaimsArgs {
+        results: both.clone(),
+        markdown: Some(md.clone()),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    };
     claims::run(args).unwrap();
     let text = std::fs::read_to_string(&md).unwrap();
     assert!(text.contains(&format!("## Machine `{fa}`")) && text.contains(&format!("## Machine `{fb}`")), "{text}");
@@ -737,6 +765,7 @@ fn runs_of_several_machines_are_split_by_fingerprint() {
         out: tmp.path().join("report"),
         pin: None,
         include_noisy: false,
+        include_injected: false,
     })
     .unwrap();
     assert_eq!(report.comparisons.len(), 1, "two sets, one comparison");

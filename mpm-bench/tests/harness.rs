@@ -55,27 +55,29 @@ fn interrupted_after_3(c: &Campaign, m: &Machine, out: &Path) -> runner::ExecSum
 fn matrix_expansion_covers_every_cell() {
     let quick = campaign("quick", &Overrides::default());
     let runs = quick.expand();
-    assert_eq!(runs.len(), 4 * 5 * 2 * 2);
+    // Every cell but Model 4 at O0 (excluded: it alone would take the budget), 3 repetitions
+    // (what claims needs for intervals).
+    assert_eq!(quick.reps, 3);
+    assert_eq!(runs.len(), 3 * (4 * 5 * 2 * 2 - 5 * 2));
     let keys: HashSet<_> = runs.iter().map(|r| r.key()).collect();
     assert_eq!(keys.len(), runs.len(), "every run has its own key");
     for m in 1..=4 {
         for opt in [OptLevel::O3, OptLevel::O0] {
             for s in [Strategy::ArrayExpansion, Strategy::DomainDecomposition] {
                 for t in [1, 2, 4, 6, 8] {
-                    assert!(runs
+                    let any = runs
                         .iter()
-                        .any(|r| r.model == m && r.opt == opt && r.spec.strategy == s && r.spec.threads == t));
+                        .any(|r| r.model == m && r.opt == opt && r.spec.strategy == s && r.spec.threads == t);
+                    assert_eq!(any, !(m == 4 && opt == OptLevel::O0), "Model{m} {opt} {s} {t}");
                 }
             }
         }
     }
-    // Budgets: the most specific override wins; Model 4 at O0 gets the fewest steps.
-    let b40 = quick.budget_for(4, OptLevel::O0);
+    // Budgets: the most specific override wins; Model 4 gets the fewest steps.
     let b43 = quick.budget_for(4, OptLevel::O3);
     let b13 = quick.budget_for(1, OptLevel::O3);
-    assert!(b40.steps.unwrap() <= b43.steps.unwrap());
     assert!(b43.steps.unwrap() < b13.steps.unwrap());
-    assert!(b40.warmup.unwrap() < b40.steps.unwrap().max(1));
+    assert!(b43.warmup.unwrap() < b43.steps.unwrap().max(1));
 
     let paper = campaign("paper", &Overrides::default());
     assert_eq!(paper.expand().len(), 4 * 5 * 2 * 2 * paper.reps as usize);
@@ -382,7 +384,8 @@ fn csv_header_snapshot() {
 binary_sha256,seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,scenario.wall,\
 scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell,strategy,threads,\
 ranks,rank_layout,grid,physics.eos,physics.q.c1,physics.q.c2,physics.cfl,physics.energy_rise_limit,\
-budget.steps,budget.end_time_s,budget.warmup,split_wait,model,opt,pin,launcher,rep,requested_cpus,\
+budget.steps,budget.end_time_s,budget.warmup,split_wait,paired.blocks,inject_slowdown,model,opt,pin,launcher,\
+rep,requested_cpus,\
 observed_cpus,rank_cpus,oversubscribed,particles,cells,nodes,mean_nodes,steps,sim_time_s,end_reason,\
 dt_first_s,wall_s,grid_stage_s,particle_stage_s,substages.reorder,substages.grid_fit,substages.binning,\
 substages.scatter,substages.assembly,substages.grid_update,substages.gather,substages.remap_scatter,\
@@ -401,7 +404,11 @@ worker_busy_s,load_imbalance,dd_work_imbalance,peak_rss_bytes,peak_rss_sum_bytes
 rank_busy_imbalance,migrated_particles,comm_s_per_step,comm_frac,wait_s_per_step,wait_frac,\
 comm_bytes_per_step,comm_messages_per_step,kinetic_energy_initial_j,kinetic_energy_j,\
 internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
-failed_particles,checkpoints_written,checkpoint_write_s,restarts,restart_setup_s,host_load1_before,host_load1_after,host_others_running_before,\
+failed_particles,checkpoints_written,checkpoint_write_s,restarts,restart_setup_s,paired_blocks,paired_block_steps,paired_t1_s,paired_tt_s,paired_efficiency,\
+paired_t1_grid_stage_s,paired_t1_particle_stage_s,cpu_share,cpu_share_min,involuntary_switches,\
+work_bytes.reorder,work_bytes.grid_fit,work_bytes.binning,work_bytes.scatter,work_bytes.assembly,work_bytes.grid_update,\
+work_bytes.gather,work_bytes.remap_scatter,work_bytes.remap_assembly,work_bytes.stress_update,\
+work_serial_bytes,work_bound,work_balance,work_overhead,injected_s,host_load1_before,host_load1_after,host_others_running_before,\
 host_others_running_after,host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,\
 calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,status,reason,exit_code,process_wall_s,\
 mem_estimate_bytes,lost_compute_s";
@@ -1267,4 +1274,231 @@ fn a_job_refuses_another_solver_binary_than_the_campaigns() {
     assert_eq!(started.fingerprint, fingerprint::fingerprint(&Machine::detect().unwrap()));
     assert!(dir.path().join("camp/nodes").join(format!("{}.json", started.fingerprint)).is_file());
     assert_eq!(job::read_row(&json, "r0").unwrap(), None);
+}
+
+/// `calibrate` on the mock runner: 3 clean and 2 injected campaigns of the ci preset (paired
+/// cells) give 3 A/A and 6 injected comparisons; a 30 % injected loss is detected every time
+/// (the mock's spread between processes is 3 %), no A/A pair fails, the smallest detectable
+/// change and the gate's wall time are measured, and calibration.json has its keys.
+#[test]
+fn calibrate_counts_false_alarms_and_detections_on_the_mock() {
+    use mpm_bench::analysis::calibrate::{calibrate, CalibrateArgs};
+    let dir = tempfile::tempdir().unwrap();
+    let args = CalibrateArgs {
+        preset: "ci".into(),
+        clean: 3,
+        injected: 2,
+        inject_slowdown: 0.3,
+        budget: None,
+        tolerance: 0.05,
+        metrics: vec!["efficiency".into(), "work".into()],
+        out: dir.path().to_path_buf(),
+        json: None,
+        no_build: true,
+        quiet: true,
+        mock: true,
+    };
+    let c = campaign("ci", &Overrides::default());
+    let flag = AtomicBool::new(false);
+    let cal = calibrate(&args, &laptop(), &mock_solvers(&c), &mut MockRunner::default(), None, &flag).unwrap();
+    assert_eq!((cal.aa_comparisons, cal.injected_comparisons), (3, 6));
+    assert_eq!((cal.false_alarms, cal.detected), (0, 6), "{:#?}", cal.comparisons);
+    assert_eq!(cal.campaigns.iter().filter(|c| c.kind == "injected").count(), 2);
+    let loss = cal.measured_injected_loss.unwrap();
+    assert!((loss - 0.3).abs() < 0.05, "the injected campaigns lost {loss}");
+    let mdc = cal.min_detectable_change.unwrap();
+    assert!(mdc > 0.05 && mdc < 0.3, "{mdc}");
+    assert!(cal.gate_wall_s > 0.0 && cal.recommended_reps.is_some());
+    assert_eq!(cal.cells.len(), 4, "Models 1-2 x AE, DD at 2 threads");
+    // Every injected comparison failed on efficiency, naming the injection.
+    for cmp in cal.comparisons.iter().filter(|c| c.kind == "injected") {
+        assert!(cmp.reason.contains("injected slowdown of 30 %"), "{}", cmp.reason);
+        assert!(cmp.efficiency_ratios.values().all(|r| *r < 0.8), "{:?}", cmp.efficiency_ratios);
+    }
+    let json = serde_json::to_value(&cal).unwrap();
+    for key in [
+        "aa_comparisons",
+        "false_alarms",
+        "injected_slowdown",
+        "injected_comparisons",
+        "detected",
+        "min_detectable_change",
+        "gate_wall_s",
+        "recommended_reps",
+        "recommended_blocks",
+        "method",
+    ] {
+        assert!(json.get(key).is_some(), "calibration.json lacks {key}");
+    }
+}
+
+/// The ci preset (paired, 8 blocks) on the mock, Model 1, 3 repetitions: every row of two
+/// threads is a paired run with its blocks; the analysis takes the cells' efficiencies from
+/// the paired design with an interval over the 3 processes; with one repetition the interval
+/// is the process's blocks' and is marked so.
+#[test]
+fn paired_cells_are_recorded_block_by_block_and_analysed_over_processes() {
+    use mpm_bench::analysis::results::load_campaign;
+    use mpm_bench::analysis::stats::{Design, Stage};
+    let dir = tempfile::tempdir().unwrap();
+    let ov = Overrides { models: Some(vec![1]), reps: Some(3), ..Overrides::default() };
+    let c = campaign("ci", &ov);
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &laptop(), dir.path(), &mut r);
+    assert!(r.calls.iter().all(|c| c.spec.paired == Some(mpm_spec::spec::Paired { blocks: 8 })));
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 6);
+    for row in &rows {
+        assert!(row.is_paired(), "{}", row.run.describe());
+        assert_eq!((row.measured.paired_blocks, row.measured.paired_block_steps), (Some(8), Some(10)));
+        assert_eq!(row.measured.paired_t1_s.len(), 8);
+        assert!(row.measured.work_bound.is_some() && !row.measured.work_bytes.is_empty());
+        assert_eq!(row.measured.cpu_share.len(), 2);
+    }
+    let an = load_campaign(&s.dir, &RowFilter::analysis(false)).unwrap().analyse(None);
+    let p = an.point(1, Strategy::ArrayExpansion, "o3", 2, Stage::Total).unwrap();
+    assert_eq!((p.design, p.within_process_only), (Design::Paired, false));
+    let e = p.efficiency.unwrap();
+    assert_eq!(e.reps, 3);
+    assert!(e.lo < e.value && e.value < e.hi && (e.value - 0.9).abs() < 0.1, "{e:?}");
+    assert_eq!(p.speedup.unwrap().value, 2.0 * e.value);
+    assert!(an.notes.iter().any(|n| n.contains("paired design")), "{:?}", an.notes);
+
+    let one = tempfile::tempdir().unwrap();
+    let c1 = campaign("ci", &Overrides { models: Some(vec![1]), reps: Some(1), ..Overrides::default() });
+    let s1 = run_mock(&c1, &laptop(), one.path(), &mut MockRunner::default());
+    let an = load_campaign(&s1.dir, &RowFilter::analysis(false)).unwrap().analyse(None);
+    let p = an.point(1, Strategy::DomainDecomposition, "o3", 2, Stage::Total).unwrap();
+    assert!(p.within_process_only && p.efficiency.unwrap().reps == 1);
+    assert!(an.notes.iter().any(|n| n.contains("one process only")), "{:?}", an.notes);
+    let w = mpm_bench::analysis::claims::few_repetitions(&an).unwrap();
+    assert!(w.contains("fewer than 3 repetitions") && w.contains("indicative"), "{w}");
+}
+
+/// A campaign with an injected slowdown: its name and every row say so, the rows carry the
+/// injected work's time; figures, claims and report refuse it unless --include-injected;
+/// regress compares it with a clean campaign and fails on the efficiency, naming the
+/// injection.
+#[test]
+fn injected_slowdown_is_marked_refused_and_caught_by_regress() {
+    use mpm_bench::analysis::claims::{self, ClaimsArgs};
+    use mpm_bench::analysis::regress::{self, RegressArgs};
+    use mpm_bench::report::comparison::{self, ReportArgs};
+    use mpm_bench::report::figures::{self, FiguresArgs};
+    let dir = tempfile::tempdir().unwrap();
+    let base = Overrides { models: Some(vec![1]), reps: Some(4), ..Overrides::default() };
+    let clean = run_mock(&campaign("ci", &base), &laptop(), dir.path(), &mut MockRunner::default());
+    let ov = Overrides { inject_slowdown: Some(0.2), ..base };
+    let c = campaign("ci", &ov);
+    assert!(c.id.contains("inject0.2"), "{}", c.id);
+    let s = run_mock(&c, &laptop(), dir.path(), &mut MockRunner::default());
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    assert!(rows.iter().all(|r| r.injected() == Some(0.2) && r.measured.injected_s.is_some_and(|t| t > 0.0)));
+    let header = std::fs::read_to_string(s.dir.join("runs.csv")).unwrap();
+    assert!(header.lines().next().unwrap().split(',').any(|c| c == "inject_slowdown"));
+
+    let out = dir.path().join("figs");
+    let fig = |include_injected| FiguresArgs {
+        results: s.dir.clone(),
+        out: out.clone(),
+        pin: None,
+        include_noisy: false,
+        include_injected,
+    };
+    let err = format!("{:#}", figures::run(fig(false)).unwrap_err());
+    assert!(err.contains("injected slowdown") && err.contains("--include-injected"), "{err}");
+    figures::run(fig(true)).unwrap();
+    let claims_args =
+        ClaimsArgs { results: s.dir.clone(), markdown: None, pin: None, include_noisy: false, include_injected: false };
+    assert!(format!("{:#}", claims::run(claims_args).unwrap_err()).contains("--include-injected"));
+    let rep = ReportArgs {
+        dirs: vec![s.dir.clone()],
+        out: dir.path().join("rep"),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    };
+    assert!(format!("{:#}", comparison::build(&rep).err().unwrap()).contains("--include-injected"));
+
+    let args =
+        RegressArgs { metrics: vec!["efficiency".into(), "work".into()], ..RegressArgs::new(&clean.dir, &s.dir) };
+    let r = regress::evaluate(&args).unwrap();
+    assert_eq!(r.verdict, "fail", "{}", r.reason);
+    assert_eq!(r.regressions.len(), 2, "both cells' paired efficiency: {:#?}", r.checks);
+    assert!(r.regressions.iter().all(|c| c.design == mpm_bench::analysis::stats::Design::Paired));
+    assert!(r.reason.contains("injected slowdown of 20 %"), "{}", r.reason);
+    assert_eq!(r.current_injected, Some(0.2));
+    assert!(r.work_checks.iter().all(|w| w.outcome == regress::Outcome::Unchanged), "injected work is not work");
+}
+
+/// A run whose worker got half the wall time as CPU time is flagged host_noisy with the
+/// share, counted in the session's summary, and left out of the analyses by default.
+#[test]
+fn a_worker_short_of_cpu_time_flags_the_row() {
+    let dir = tempfile::tempdir().unwrap();
+    let ov = Overrides { opt: Some(vec![OptLevel::O3]), ..Overrides::default() };
+    let c = campaign("smoke", &ov);
+    let mut r = MockRunner { low_cpu_when: Some(" dd ".into()), ..MockRunner::default() };
+    let s = run_mock(&c, &laptop(), dir.path(), &mut r);
+    let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
+    for row in &rows {
+        let dd = row.strategy() == Strategy::DomainDecomposition;
+        assert_eq!(row.host.host_noisy, dd, "{}", row.run.describe());
+        if dd {
+            assert!(row.host.host_noise.contains("50 % of the wall time as CPU time"), "{}", row.host.host_noise);
+            assert_eq!(row.measured.cpu_share_min, Some(0.5));
+        }
+    }
+    assert_eq!(s.counts.noisy, rows.iter().filter(|r| r.host.host_noisy).count());
+    assert!(s.report().contains(&format!("{} flagged noisy", s.counts.noisy)));
+}
+
+/// The work counters are gated exactly: one byte more in one worker's assembly of one cell
+/// fails the gate on any host, naming the sub-stage; less passes as an improvement. Through
+/// the binary: `--json -` puts the verdict on standard output (the lines for people on
+/// standard error) and `--markdown` appends the summary to a file.
+#[test]
+fn regress_gates_the_work_counters_exactly() {
+    use mpm_bench::campaign::record::CsvLog;
+    let dir = tempfile::tempdir().unwrap();
+    let ov = Overrides { models: Some(vec![1]), reps: Some(3), ..Overrides::default() };
+    let base = run_mock(&campaign("ci", &ov), &laptop(), &dir.path().join("a"), &mut MockRunner::default());
+    let cur = run_mock(&campaign("ci", &ov), &laptop(), &dir.path().join("b"), &mut MockRunner::default());
+    let edit = |delta: i64| {
+        let path = cur.dir.join("runs.csv");
+        let mut rows = read_rows(&path).unwrap();
+        for r in rows.iter_mut().filter(|r| r.strategy() == Strategy::DomainDecomposition) {
+            let v = r.measured.work_bytes.get_mut(&Substage::Assembly).unwrap();
+            v[1] = v[1].checked_add_signed(delta).unwrap();
+        }
+        std::fs::remove_file(&path).unwrap();
+        let mut log = CsvLog::open(&path).unwrap();
+        for r in &rows {
+            log.append(r).unwrap();
+        }
+    };
+    let gate = |extra: &[&str]| {
+        let md = dir.path().join("summary.md");
+        let mut cmd = bench();
+        cmd.args(["regress", "--baseline"]).arg(&base.dir).arg("--current").arg(&cur.dir);
+        cmd.args(["--metrics", "efficiency,work", "--json", "-", "--markdown"]).arg(&md).args(extra);
+        let out = cmd.output().unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("the JSON verdict on stdout");
+        (out.status.code(), v, std::fs::read_to_string(&md).unwrap(), String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    let (code, v, md, _) = gate(&[]);
+    assert_eq!(code, Some(0), "{v}");
+    assert!(md.contains("### Parallel-efficiency gate: PASS") && md.contains("| equal |"), "{md}");
+    edit(1);
+    let (code, v, md, err) = gate(&[]);
+    assert_eq!(code, Some(1), "{v}");
+    let w = &v["work_regressions"];
+    assert_eq!(w.as_array().unwrap().len(), 1, "{v}");
+    assert!(w[0]["changes"][0].as_str().unwrap().starts_with("assembly: busiest worker"), "{w}");
+    assert!(md.contains("### Parallel-efficiency gate: FAIL") && md.contains("**more work**"), "{md}");
+    assert!(err.contains("MORE WORK") && err.contains("verdict: fail"), "{err}");
+    edit(-2);
+    let (code, v, _, _) = gate(&[]);
+    assert_eq!(code, Some(0), "{v}");
+    assert_eq!(v["work_checks"].as_array().unwrap().iter().filter(|w| w["outcome"] == "improved").count(), 1);
 }

@@ -32,7 +32,8 @@ fn two_campaigns(root: &Path) -> (PathBuf, PathBuf) {
 fn write_report(root: &Path) -> (PathBuf, report::Report) {
     let (a, b) = two_campaigns(root);
     let out = root.join("rep");
-    let args = ReportArgs { dirs: vec![a, b], out: out.clone(), pin: None, include_noisy: false };
+    let args =
+        ReportArgs { dirs: vec![a, b], out: out.clone(), pin: None, include_noisy: false, include_injected: false };
     report::run(args.clone()).unwrap();
     (out, report::build(&args).unwrap())
 }
@@ -95,8 +96,14 @@ fn the_page_parses_and_has_its_sections_tables_and_inline_figures() {
 fn one_campaign_is_described_without_a_comparison() {
     let tmp = tempfile::tempdir().unwrap();
     let a = write_campaign(&tmp.path().join("a"), &Craft::default());
-    let r = report::build(&ReportArgs { dirs: vec![a], out: tmp.path().join("r"), pin: None, include_noisy: false })
-        .unwrap();
+    let r = report::build(&ReportArgs {
+        dirs: vec![a],
+        out: tmp.path().join("r"),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    })
+    .unwrap();
     assert!(r.comparisons.is_empty());
     assert!(r.page.sections.iter().all(|s| s.id != "headline"));
     assert!(r.page.sections.iter().any(|s| s.id == "machines"));
@@ -202,8 +209,13 @@ fn report_and_claims_agree_on_a_campaign_with_noisy_rows() {
 fn the_headline_says_when_the_software_differs() {
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = two_campaigns(tmp.path());
-    let args =
-        ReportArgs { dirs: vec![a.clone(), b.clone()], out: tmp.path().join("r"), pin: None, include_noisy: false };
+    let args = ReportArgs {
+        dirs: vec![a.clone(), b.clone()],
+        out: tmp.path().join("r"),
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    };
     let same = report::build(&args).unwrap();
     assert!(same.page.title.starts_with("Hardware comparison"), "{}", same.page.title);
     assert!(same.comparisons[0].software_differs.is_none());

@@ -495,7 +495,7 @@ impl Folder {
         match FolderLock::acquire(&self.dir, "mpm", Some(wait), waiting) {
             Ok(lock) => Ok(lock),
             Err(LockError::Busy(who)) => bail!(
-                "the checkpoint folder {} is in use by {who}: another run is writing checkpoints into it; wait for it                  to end, or give this run a folder of its own",
+                "the checkpoint folder {} is in use by {who}: another run is writing checkpoints into it; wait for it to end, or give this run a folder of its own",
                 self.dir.display()
             ),
             Err(e) => Err(e.into()),

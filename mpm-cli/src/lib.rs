@@ -17,6 +17,9 @@
 //! * [`lock`]: one writer per folder (`flock`): a campaign's, a run's checkpoints;
 //! * [`identity`]: the host's identity (CPU, caches, SMT, machine id) and the build's
 //!   provenance (commit, dirty flag, rustc, binary SHA-256);
+//! * [`usage`]: what each worker thread got of the wall time (its CPU time, context
+//!   switches, its CPU's steal), the noise a run can see;
+//! * [`paired`]: solvers advancing in alternating timed blocks (the paired design);
 //! * [`group_digits`]: counts printed for people (`1,234,567`).
 //!
 //! Pinning and measurement policy (affinity, `/proc/self/status`) live here; the solver crate
@@ -28,9 +31,11 @@ pub mod distributed;
 pub mod identity;
 pub mod lock;
 pub mod memory;
+pub mod paired;
 pub mod picture;
 pub mod pinning;
 pub mod summary;
+pub mod usage;
 pub mod vtk;
 
 /// `1234567` as `1,234,567`.

@@ -13,7 +13,7 @@ use mpm_core::scenario::taylor::TaylorFigures;
 use mpm_core::{Simulation, StageTimes};
 use mpm_spec::summary::{
     load_imbalance, CheckpointReport, EndReason, EnergyReport, EosKind, HistoryPoint, PatchCounts, StageRoofline,
-    StageSeconds, Summary, WallContact, LENGTH_CONVENTION, PLATE_CONFIGURATION,
+    StageSeconds, Summary, WallContact, WorkReport, LENGTH_CONVENTION, PLATE_CONFIGURATION,
 };
 use mpm_spec::{OptLevel, RunSpec};
 
@@ -227,6 +227,9 @@ fn configuration(sim: &Simulation, ctx: &RunContext<'_>) -> Summary {
         dd_layout: sim.domain_decomposition().map(|dd| dd.layout()),
         dd_patch_particles: sim.domain_decomposition().map(|dd| PatchCounts::from(dd.load())),
         started_unix_s: ctx.started_unix_s,
+        work: WorkReport::of(&sim.work()),
+        inject_slowdown: ctx.spec.inject_slowdown,
+        injected_s: sim.injected_seconds(),
         ..Summary::default()
     }
 }

@@ -106,6 +106,8 @@ fn help_teaches_the_commands_and_every_flag() {
         "--split-wait",
         "--checkpoint-dir",
         "--checkpoint-every",
+        "--paired-blocks",
+        "--inject-slowdown",
         "--dump-state",
         "--print-spec",
         "--force",
@@ -248,6 +250,8 @@ const REQUIRED_KEYS: &[&str] = &[
     "command_line",
     "started_unix_s",
     "provenance",
+    "work",
+    "noise",
 ];
 
 const SUBSTAGES: &[&str] = &[
@@ -488,6 +492,59 @@ fn dd_on_two_pinned_workers_reports_their_cpus_and_stage_times() {
     want.insert("dd_layout".into());
     want.insert("dd_patch_particles".into());
     assert_eq!(keys(&v), want);
+}
+
+/// A paired run: the 2-thread solver's summary with a `paired` section (the blocks of both
+/// solvers and their ratios), the injected slowdown recorded with the extra work's time,
+/// the work counters of both workers and their CPU time against the wall; a step budget
+/// that does not divide into the blocks is refused before anything runs.
+#[test]
+fn paired_run_reports_its_blocks_work_and_injected_slowdown() {
+    let paired = |steps: &'static str| {
+        [
+            "--model",
+            "1",
+            "--strategy",
+            "dd",
+            "--threads",
+            "2",
+            "--steps",
+            steps,
+            "--warmup",
+            "1",
+            "--paired-blocks",
+            "3",
+        ]
+    };
+    let mut args = paired("7").to_vec();
+    args.extend(["--inject-slowdown", "0.2", "--quiet"]);
+    let (v, _) = run_json(&args);
+    let p = &v["paired"];
+    assert_eq!((u(p, "blocks"), u(p, "block_steps"), u(&v, "steps")), (3, 2, 7));
+    let list = |k: &str| p[k].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect::<Vec<f64>>();
+    let (t1, tt, e) = (list("t1_s_per_step"), list("tt_s_per_step"), list("block_efficiency"));
+    assert_eq!((t1.len(), tt.len(), e.len()), (3, 3, 3));
+    for b in 0..3 {
+        assert!((e[b] - t1[b] / (2.0 * tt[b])).abs() < 1e-12 * e[b], "block {b}");
+    }
+    let geo = (e.iter().map(|x| x.ln()).sum::<f64>() / 3.0).exp();
+    assert!((f(p, "efficiency") - geo).abs() < 1e-12);
+    assert!(f(p, "max_position_difference") < 1e-9, "the two solvers ran the same steps");
+    assert_eq!(v["spec"]["paired"]["blocks"], 3);
+    assert_eq!((f(&v, "inject_slowdown"), v["spec"]["inject_slowdown"].as_f64()), (0.2, Some(0.2)));
+    assert!(f(&v, "injected_s") > 0.0);
+    let w = &v["work"];
+    assert_eq!(w["worker_bytes"].as_array().unwrap().len(), 2);
+    assert!(f(w, "efficiency_bound") > 0.0 && f(w, "efficiency_bound") <= 1.0, "{w}");
+    assert_eq!(v["noise"]["workers"].as_array().unwrap().len(), 2);
+    assert_eq!(p["reference_noise"]["workers"].as_array().unwrap().len(), 1);
+
+    let mut args = vec!["run", "taylor"];
+    args.extend(paired("8"));
+    let bad = mpm(&args);
+    assert_eq!(bad.status.code(), Some(1));
+    let err = text(&bad.stderr);
+    assert!(err.contains("not a multiple of 3") && err.contains("--steps 7"), "{err}");
 }
 
 /// Balanced cuts run as a strategy of their own and report their patch counts.

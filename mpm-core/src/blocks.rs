@@ -100,7 +100,9 @@ impl BlockMap {
         let (n, t) = (x.len(), exec.workers());
         let (marks, dims) = (&self.marks[..len], self.dims);
         let cells = geom.cells;
+        let tally = crate::work::Tally::of(exec);
         exec.run(|w| {
+            tally.particles(w, partition(n, t, w).len());
             // Neighbouring particles often share a cell: skip a repeat. (Compared as one
             // linear index: comparing the arrays went through the stack and stalled.)
             let mut last = usize::MAX;

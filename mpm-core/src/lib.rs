@@ -44,6 +44,7 @@ pub mod energy;
 pub mod error;
 pub mod exchange;
 pub mod grid;
+mod inject;
 pub mod material;
 pub mod math;
 pub mod order;
@@ -57,6 +58,7 @@ pub mod solver;
 pub mod strategy;
 pub mod timers;
 pub mod transfer;
+pub mod work;
 
 pub use error::SimError;
 pub use exchange::{Collectives, Exchange, OneProcess, RankBoxes, SingleProcess};
@@ -68,6 +70,7 @@ pub use simd::SimdLevel;
 pub use solver::{Diagnostics, SimConfig, SimState, Simulation, DEFAULT_CFL, DEFAULT_ENERGY_RISE_LIMIT};
 pub use strategy::{EngineState, MemoryModel, Strategy};
 pub use timers::{StageTimes, Substage};
+pub use work::{Work, WorkBound, WorkCounts};
 
 /// Bytes held by `v`'s allocation (its capacity, not its length).
 pub(crate) fn capacity_bytes<T>(v: &Vec<T>) -> usize {

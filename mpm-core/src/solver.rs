@@ -30,6 +30,7 @@ use crate::exchange::{reduce_partial, Exchange, ExchangeStats, OneProcess};
 use crate::grid::{
     GridGeom, GridMode, GridSpec, NodeArrays, NodeIndex, Records, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH,
 };
+use crate::inject::Injection;
 use crate::material::{BulkViscosity, Eos, Material, PointConsts};
 use crate::math::{norm, Vec3};
 use crate::order::{CellOrder, SORT_EVERY};
@@ -40,6 +41,7 @@ use crate::simd::SimdLevel;
 use crate::strategy::{DomainDecomposition, Engine, EngineState, Strategy};
 use crate::timers::{Lap, StageTimes, Substage};
 use crate::transfer;
+use crate::work::{WorkCounts, WorkMeter};
 use rayon::ThreadPool;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -85,6 +87,12 @@ pub struct SimConfig {
     /// then before every `sort_every`-th step; 0: never (the scenario's order stays).
     /// Default [`SORT_EVERY`].
     pub sort_every: u64,
+    /// A test knob, 0 (off) by default: every worker but the first does extra work in the
+    /// grid-node stage of every step, so that the parallel efficiency drops by about this
+    /// fraction (in [0, 1)); a one-thread run is unchanged. Results are bitwise those
+    /// without it; only the time changes. Such a run is never a result (see
+    /// `mpm run --inject-slowdown`).
+    pub inject_slowdown: f64,
 }
 
 impl Default for SimConfig {
@@ -101,6 +109,7 @@ impl Default for SimConfig {
             max_nodes: 1 << 26,
             simd: None,
             sort_every: SORT_EVERY,
+            inject_slowdown: 0.0,
         }
     }
 }
@@ -177,6 +186,9 @@ pub struct SimState {
     pub engine: EngineState,
     /// This rank's exchange traffic so far (zero for one process).
     pub exchange: ExchangeStats,
+    /// What each worker did in each sub-stage over the steps taken ([`crate::work`]).
+    #[serde(default)]
+    pub work: WorkCounts,
 }
 
 /// An explicit MPM simulation: particles, grid, material, strategy state and timers.
@@ -233,6 +245,10 @@ pub struct Simulation {
     /// Busy seconds of the workers before this process took over a saved run (same
     /// worker count), added to the team's own.
     busy_before: Option<Vec<f64>>,
+    /// The work counters of every worker and sub-stage ([`crate::work`]).
+    work: WorkMeter,
+    /// The injected slowdown, when asked for and there is more than one worker.
+    inject: Option<Injection>,
 }
 
 /// What a simulation takes from its set-up besides the particles.
@@ -256,6 +272,12 @@ fn check_config(config: &SimConfig, material: &Material) -> Result<SimdLevel, Si
         )));
     }
     config.bulk_viscosity.validate()?;
+    if !(0.0..1.0).contains(&config.inject_slowdown) {
+        return Err(SimError::Config(format!(
+            "the injected slowdown must be a fraction in [0, 1) (0 = off), got {}",
+            config.inject_slowdown
+        )));
+    }
     material.validate()?;
     let simd = config.simd.unwrap_or_else(SimdLevel::detected);
     if !simd.is_available() {
@@ -361,6 +383,7 @@ impl Simulation {
             engine: EngineState::default(),
             // The set-up's own reductions.
             exchange: exchange.stats(),
+            work: WorkCounts::default(),
         };
         Ok(Self::assemble(Parts { material, spec, walls, spacing }, config, exchange, particles, simd, state))
     }
@@ -432,6 +455,17 @@ impl Simulation {
             order: CellOrder::default(),
             team: config.strategy.is_parallel().then(|| Arc::new(Team::new(config.threads))),
             busy_before: state.busy.filter(|b| same && b.len() == config.threads),
+            work: {
+                // The counts go on with the workers they were counted on (a restart with
+                // another strategy or thread count counts afresh, like the busy time).
+                let meter = WorkMeter::new(config.threads);
+                if same {
+                    meter.restore(&state.work);
+                }
+                meter
+            },
+            inject: (config.inject_slowdown > 0.0 && config.strategy.is_parallel() && config.threads > 1)
+                .then(|| Injection::new(config.inject_slowdown)),
             config,
         }
     }
@@ -462,6 +496,7 @@ impl Simulation {
             busy: self.worker_busy(),
             engine: self.engine.state(),
             exchange: self.exchange.stats(),
+            work: self.work.counts(),
         }
     }
 
@@ -666,6 +701,18 @@ impl Simulation {
         })
     }
 
+    /// What each worker did in each sub-stage over the steps taken ([`crate::work`]): the
+    /// deterministic counts, the same on any machine.
+    pub fn work(&self) -> WorkCounts {
+        self.work.counts()
+    }
+
+    /// Seconds of injected extra work over the steps taken (`None` when no slowdown is
+    /// injected: [`SimConfig::inject_slowdown`] is 0, or the run has one worker).
+    pub fn injected_seconds(&self) -> Option<f64> {
+        self.inject.as_ref().map(|i| i.total_seconds)
+    }
+
     /// Domain-decomposition state, if the strategy is DD.
     pub fn domain_decomposition(&self) -> Option<&DomainDecomposition> {
         self.engine.domain_decomposition()
@@ -741,7 +788,9 @@ impl Simulation {
     fn step_inner(&mut self, exec: &Exec<'_>, dt_max: f64) -> Result<(), SimError> {
         let step_no = self.steps + 1;
         let dt = self.dt_next.min(dt_max);
-        let mut lap = Lap::start();
+        // The shares count their work ([`crate::work`]); each lap books it to its sub-stage.
+        let exec = &exec.counting(self.work.pending());
+        let mut lap = Lap::start(&self.work);
 
         // ---- grid-node stage -------------------------------------------------------
         if self.config.grid_mode.is_adaptive() {
@@ -789,6 +838,10 @@ impl Simulation {
         lap.lap(&mut self.times, Substage::Assembly);
         transfer::grid_update(exec, &geom, &index, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::GridUpdate);
+        if let Some(inject) = &mut self.inject {
+            inject.run(exec, self.times.total());
+            lap.lap(&mut self.times, Substage::GridUpdate);
+        }
 
         // ---- particle stage --------------------------------------------------------
         // The gather (Eqs. 8, 10) runs inside the re-map scatter (Eq. 11), particle by

@@ -149,20 +149,23 @@ impl<'de> Deserialize<'de> for StageTimes {
     }
 }
 
-/// A running stopwatch that charges elapsed time to sub-stages.
-pub(crate) struct Lap {
+/// A running stopwatch that charges elapsed time, and the work counted meanwhile, to
+/// sub-stages.
+pub(crate) struct Lap<'w> {
     last: Instant,
+    work: &'w crate::work::WorkMeter,
 }
 
-impl Lap {
-    pub fn start() -> Self {
-        Self { last: Instant::now() }
+impl<'w> Lap<'w> {
+    pub fn start(work: &'w crate::work::WorkMeter) -> Self {
+        Self { last: Instant::now(), work }
     }
 
-    /// Charge the time since the previous lap to `s`.
+    /// Charge the time since the previous lap, and the work counted since, to `s`.
     pub fn lap(&mut self, times: &mut StageTimes, s: Substage) {
         let now = Instant::now();
         times.add(s, (now - self.last).as_secs_f64());
+        self.work.close(s);
         self.last = now;
     }
 }

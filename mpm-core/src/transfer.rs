@@ -222,7 +222,9 @@ where
     F: Fn(usize, Vec3, &mut T) + Sync,
 {
     let t = exec.workers();
+    let tally = crate::work::Tally::of(exec);
     exec.for_each_chunk_mut(node_split(geom, index).of(out), |w, mine| {
+        tally.updated(w, mine.len());
         visit_nodes(geom, index, walls, w, t, |n, mask, local| f(n, mask, &mut mine[local]));
     });
 }
@@ -315,7 +317,9 @@ pub fn remap_velocity(
     let p2g = &p2g[..];
     let t = exec.workers();
     let split = node_split(geom, index);
+    let tally = crate::work::Tally::of(exec);
     exec.for_each_chunk_mut((split.of(remap), split.of(kin)), |w, (remap, kin)| {
+        tally.updated(w, remap.len());
         visit_nodes(geom, index, walls, w, t, |n, mask, local| {
             let (o, kn) = (&mut remap[local], &mut kin[local]);
             let m = p2g[n][0];
@@ -393,8 +397,10 @@ pub fn update<E: PressureModel + Sync>(
         Split::Even.of(failed),
         Split::Blocks(1).of(partials),
     );
+    let tally = crate::work::Tally::of(exec);
     exec.for_each_chunk_mut(chunks, |w, (x, rho, stress, eps_p, e_int, sound, failed, acc)| {
         let r = partition(n, t, w);
+        tally.particles(w, r.len());
         let mut chunk = UpdateChunk {
             geom,
             index: *index,

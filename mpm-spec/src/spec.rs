@@ -54,6 +54,17 @@ pub struct RunSpec {
     /// time apart from the communication.
     #[serde(default)]
     pub split_wait: bool,
+    /// Measure the parallel efficiency in the paired design ([`Paired`]): a one-thread
+    /// solver of the same strategy beside the `threads`-thread one, in the same process,
+    /// advancing in alternating timed blocks. Absent: one solver, as usual.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub paired: Option<Paired>,
+    /// A test knob, absent (off) by default: every worker but the first does extra work in
+    /// the grid-node stage, so that the parallel efficiency drops by about this fraction
+    /// (in (0, 1)). Such a run is never a result: the summary and the harness's rows record
+    /// it, and the analyses refuse it unless asked.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inject_slowdown: Option<f64>,
     /// What to write besides the run itself. Not part of [`RunSpec::key`].
     #[serde(default)]
     pub outputs: Outputs,
@@ -61,6 +72,19 @@ pub struct RunSpec {
 
 fn one() -> usize {
     1
+}
+
+/// The paired design of a run: the `threads`-thread solver and a one-thread solver of the
+/// same strategy, built from the same set-up in one process (the one-thread worker pinned to
+/// the first CPU of the placement), take their warm-up steps and then `blocks` timed blocks
+/// each, alternating (the first of each pair alternates too), every block the same number of
+/// steps: `(steps - warmup) / blocks`. Block `b` of both covers the same simulated steps, so
+/// the ratio of their times compares the same work under nearly the same host conditions.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Paired {
+    /// Timed blocks of each solver (at least 2).
+    pub blocks: u64,
 }
 
 /// The material model and the numerics of a run.
@@ -331,6 +355,8 @@ impl RunSpec {
             cpus: None,
             budget: Budget { steps: None, end_time_s: Some(end_time), warmup: None },
             split_wait: false,
+            paired: None,
+            inject_slowdown: None,
             outputs: Outputs::default(),
         })
     }
@@ -484,7 +510,85 @@ impl RunSpec {
         }
         self.check_physics()?;
         self.check_budget()?;
+        self.check_paired()?;
+        if let Some(f) = self.inject_slowdown {
+            if !(f > 0.0 && f < 1.0) {
+                return bad(
+                    "inject_slowdown",
+                    "--inject-slowdown",
+                    format!("the injected slowdown is a fraction in (0, 1) such as 0.1, got {f}"),
+                );
+            }
+        }
         self.check_outputs()
+    }
+
+    /// Steps per block of a paired run with `warmup` warm-up steps: `(steps - warmup) /
+    /// blocks`, which must be a whole number of at least one step.
+    pub fn paired_block_steps(&self, warmup: u64) -> Result<u64, SpecError> {
+        let Some(p) = self.paired else {
+            return Err(SpecError::Invalid { key: "paired", flag: "--paired-blocks", why: "not a paired run".into() });
+        };
+        let steps = self.budget.steps.unwrap_or(0);
+        let timed = steps.saturating_sub(warmup);
+        if p.blocks == 0 || timed < p.blocks || timed % p.blocks != 0 {
+            return Err(SpecError::Invalid {
+                key: "budget.steps",
+                flag: "--steps",
+                why: format!(
+                    "a paired run of {} blocks takes warm-up + blocks x steps per block steps: {steps} steps with {warmup} warm-up leave {timed}, not a multiple of {} (e.g. --steps {})",
+                    p.blocks,
+                    p.blocks,
+                    warmup + p.blocks * (timed / p.blocks).max(1)
+                ),
+            });
+        }
+        Ok(timed / p.blocks)
+    }
+
+    fn check_paired(&self) -> Result<(), SpecError> {
+        let Some(p) = self.paired else { return Ok(()) };
+        let bad = |key: &'static str, flag: &'static str, why: String| Err(SpecError::Invalid { key, flag, why });
+        if !self.strategy.is_parallel() || self.threads < 2 {
+            return bad(
+                "paired",
+                "--paired-blocks",
+                format!(
+                    "the paired design compares a parallel strategy's 1-thread and T-thread solvers: use ae, dd or dd-balanced with 2 or more threads (got {} with {})",
+                    self.strategy, self.threads
+                ),
+            );
+        }
+        if self.ranks > 1 {
+            return bad("paired", "--paired-blocks", "the paired design runs in one process, not over ranks".into());
+        }
+        if self.outputs.checkpoint.is_some() {
+            return bad(
+                "paired",
+                "--paired-blocks",
+                "a paired run is one measurement of alternating blocks and cannot be continued from a checkpoint: \
+                 leave out --checkpoint-dir"
+                    .into(),
+            );
+        }
+        if p.blocks < 2 {
+            return bad(
+                "paired.blocks",
+                "--paired-blocks",
+                format!("{} block(s) give no spread: use at least 2", p.blocks),
+            );
+        }
+        if self.budget.steps.is_none() {
+            return bad(
+                "budget.steps",
+                "--steps",
+                "a paired run needs a step budget (warm-up + blocks x steps per block)".into(),
+            );
+        }
+        if let Some(w) = self.budget.warmup {
+            self.paired_block_steps(w)?;
+        }
+        Ok(())
     }
 
     fn check_physics(&self) -> Result<(), SpecError> {
@@ -609,6 +713,34 @@ mod tests {
         RunSpec::new(Scenario::Taylor(TaylorSpec::model(model))).unwrap()
     }
 
+    /// A paired DD run on 2 threads of `blocks` blocks, `steps` steps (and no end time when
+    /// `steps` is given), `warmup` warm-up steps.
+    fn paired(blocks: u64, steps: u64, warmup: Option<u64>) -> RunSpec {
+        let mut s = taylor(1);
+        s.strategy = Strategy::DomainDecomposition;
+        s.threads = 2;
+        s.paired = Some(Paired { blocks });
+        s.budget = Budget { steps: (warmup.is_some()).then_some(steps), end_time_s: Some(4e-5), warmup };
+        s
+    }
+
+    /// A paired run's blocks: warm-up + blocks x steps per block; the new keys are absent
+    /// from a spec without them (its key is unchanged) and round-trip when present.
+    #[test]
+    fn paired_blocks_divide_the_steps() {
+        let s = paired(4, 14, Some(2));
+        s.check().unwrap();
+        assert_eq!(s.paired_block_steps(2).unwrap(), 3);
+        let err = s.paired_block_steps(3).unwrap_err().to_string();
+        assert!(err.contains("not a multiple of 4") && err.contains("--steps 11"), "{err}");
+        let plain = taylor(1);
+        assert!(!plain.to_json().contains("paired") && !plain.to_json().contains("inject"));
+        let mut knob = s.clone();
+        knob.inject_slowdown = Some(0.1);
+        assert_eq!(RunSpec::parse(&knob.to_toml(), SpecFormat::Toml).unwrap(), knob);
+        assert_ne!(knob.key(), s.key(), "an injected run is another computation's timing");
+    }
+
     #[test]
     fn defaults_are_the_scenarios() {
         let t = taylor(1);
@@ -696,6 +828,21 @@ mod tests {
                     ..taylor(1)
                 },
                 "--checkpoint-every",
+            ),
+            (RunSpec { inject_slowdown: Some(1.0), ..taylor(1) }, "--inject-slowdown"),
+            (RunSpec { paired: Some(Paired { blocks: 4 }), ..taylor(1) }, "--paired-blocks"),
+            (paired(4, 12, Some(2)), "--steps"),
+            (paired(1, 12, Some(2)), "--paired-blocks"),
+            (paired(4, 12, None), "--steps"),
+            (
+                RunSpec {
+                    outputs: Outputs {
+                        checkpoint: Some(CheckpointOutput { dir: "c".into(), every: CheckpointEvery::Steps(5) }),
+                        ..Outputs::default()
+                    },
+                    ..paired(4, 14, Some(2))
+                },
+                "--paired-blocks",
             ),
         ];
         for (spec, flag) in cases {

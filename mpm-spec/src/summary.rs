@@ -59,6 +59,14 @@
 //! * `spec` is the [`RunSpec`] the run ran, resolved (every default filled in, the warm-up
 //!   used): `mpm run --spec` of that spec repeats the run. `null` in summaries written
 //!   before it existed.
+//! * `work` ([`WorkReport`]) holds the deterministic work counters of every worker and
+//!   sub-stage ([`mpm_core::work`]) and the efficiency bound they give: the same on any
+//!   host. `noise` ([`NoiseReport`]) holds each worker's CPU time against the wall time,
+//!   its involuntary context switches and its CPU's steal, and flags a worker that got less
+//!   than a threshold share of the wall as CPU time. `paired` ([`PairedReport`]) holds a
+//!   paired run's block times (the summary's own times are the `threads`-thread solver's).
+//!   `inject_slowdown` and `injected_s` say that a test knob slowed the run on purpose: such
+//!   a summary is never a result. All four `null` in older summaries.
 
 use crate::build::OptLevel;
 use crate::identity::Provenance;
@@ -304,6 +312,145 @@ pub struct StageRoofline {
     pub gb_per_s: Option<f64>,
     /// Achieved rate, 10^9 flops per second.
     pub gflop_per_s: Option<f64>,
+}
+
+/// The work counters of a run ([`mpm_core::work`]) and the efficiency bound they give.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct WorkReport {
+    /// What each worker did in each sub-stage, over every step (worker order).
+    pub workers: Vec<BTreeMap<Substage, mpm_core::Work>>,
+    /// Per sub-stage, the bytes each worker's work stands for (worker order).
+    pub bytes: BTreeMap<Substage, Vec<u64>>,
+    /// `W_w`: each worker's bytes over every sub-stage.
+    pub worker_bytes: Vec<u64>,
+    /// `W_1`: the bytes the serial solver moves for the same steps.
+    pub serial_bytes: u64,
+    /// `mean W_w / max W_w`.
+    pub balance: f64,
+    /// `1 - W_1 / sum W_w`: the share of the traffic the strategy adds.
+    pub overhead: f64,
+    /// `W_1 / (T max W_w)`: the parallel efficiency the traffic allows on any host.
+    pub efficiency_bound: f64,
+}
+
+impl WorkReport {
+    /// The report of `counts` (`None` when nothing was counted, e.g. no step).
+    pub fn of(counts: &mpm_core::WorkCounts) -> Option<Self> {
+        let b = counts.bound()?;
+        Some(Self {
+            workers: counts.workers.clone(),
+            bytes: counts.bytes_by_stage(),
+            worker_bytes: b.worker_bytes,
+            serial_bytes: b.serial_bytes,
+            balance: b.balance,
+            overhead: b.overhead,
+            efficiency_bound: b.efficiency_bound,
+        })
+    }
+}
+
+/// What one worker thread got of the wall time.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct WorkerUsage {
+    /// CPU time of the thread (user and system) over the measured span (s).
+    pub cpu_s: f64,
+    /// `cpu_s` over the span's wall time: 1 for a worker that ran all the time.
+    pub cpu_share: f64,
+    /// Times the thread was switched out against its will (preempted).
+    pub involuntary_switches: u64,
+    /// Times it gave up its CPU (waiting, yielding).
+    pub voluntary_switches: u64,
+    /// Fraction of its CPU's time the hypervisor stole over the span (pinned workers only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steal_frac: Option<f64>,
+}
+
+/// Noise that can be seen: what each worker got of the wall time of the steps measured.
+/// Every worker is busy or spinning during a step, so a worker with much less CPU time than
+/// wall time was kept off its CPU by something else (another process, the hypervisor).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct NoiseReport {
+    /// Wall time of the span measured (s): the stepping loop, or a paired run's blocks of
+    /// this solver.
+    pub wall_s: f64,
+    /// One entry per worker, in worker order.
+    pub workers: Vec<WorkerUsage>,
+    /// The smallest `cpu_share`.
+    pub min_cpu_share: f64,
+    /// The share below which a run is flagged.
+    pub threshold: f64,
+    /// Some worker got less than `threshold` of the wall as CPU time.
+    pub low_cpu_share: bool,
+}
+
+impl NoiseReport {
+    /// The report of `workers` over `wall_s` with the flag at `threshold`.
+    pub fn new(wall_s: f64, workers: Vec<WorkerUsage>, threshold: f64) -> Self {
+        let min = workers.iter().map(|w| w.cpu_share).fold(f64::INFINITY, f64::min);
+        let min_cpu_share = if min.is_finite() { min } else { 1.0 };
+        Self { wall_s, workers, min_cpu_share, threshold, low_cpu_share: min_cpu_share < threshold }
+    }
+
+    /// Why the run is flagged, in words (`None` when it is not).
+    pub fn why(&self) -> Option<String> {
+        self.low_cpu_share.then(|| {
+            let (w, u) = self
+                .workers
+                .iter()
+                .enumerate()
+                .min_by(|a, b| a.1.cpu_share.total_cmp(&b.1.cpu_share))
+                .expect("a flagged report has workers");
+            format!(
+                "worker {w} got {:.0} % of the wall time as CPU time (below {:.0} %; {} involuntary context switches)",
+                100.0 * u.cpu_share,
+                100.0 * self.threshold,
+                u.involuntary_switches
+            )
+        })
+    }
+}
+
+/// The share of the wall time below which a worker's CPU time flags a run.
+pub const MIN_CPU_SHARE: f64 = 0.9;
+
+/// A paired run's measurement ([`crate::spec::Paired`]): per block, the seconds per step of
+/// the one-thread solver and of the `threads`-thread solver, and their ratio.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PairedReport {
+    /// Threads of the reference solver (1).
+    pub reference_threads: usize,
+    /// Timed blocks completed by both solvers.
+    pub blocks: u64,
+    /// Steps per block.
+    pub block_steps: u64,
+    /// CPU the reference solver's worker was observed on (empty when not pinned).
+    pub reference_cpus: Vec<usize>,
+    /// Seconds per step of the reference solver, per block.
+    pub t1_s_per_step: Vec<f64>,
+    /// Seconds per step of the `threads`-thread solver, per block.
+    pub tt_s_per_step: Vec<f64>,
+    /// Which ran first in each block: `true` for the reference.
+    pub reference_first: Vec<bool>,
+    /// `t1 / (T tT)` of each block.
+    pub block_efficiency: Vec<f64>,
+    /// The process's paired efficiency: the geometric mean of the blocks' (`exp` of their
+    /// mean logarithm).
+    pub efficiency: f64,
+    /// The reference solver's sub-stage seconds over its blocks (its warm-up left out).
+    pub reference_steady_substages: StageSeconds,
+    /// The reference worker's CPU time against the wall time of its blocks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_noise: Option<NoiseReport>,
+    /// Largest position difference between the two solvers at the end, over the bar's or
+    /// grid's size (round-off only: they run the same steps).
+    pub max_position_difference: f64,
+}
+
+impl PairedReport {
+    /// The geometric mean of block efficiencies (NaN when there are none).
+    pub fn geometric_mean(e: &[f64]) -> f64 {
+        (e.iter().map(|x| x.ln()).sum::<f64>() / e.len() as f64).exp()
+    }
 }
 
 /// Largest over mean of per-worker busy times; `None` when empty or all zero.
@@ -612,6 +759,21 @@ pub struct Summary {
     /// written before it existed.
     #[serde(default)]
     pub provenance: Option<Provenance>,
+    /// The deterministic work counters and their efficiency bound ([`WorkReport`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub work: Option<WorkReport>,
+    /// Each worker's CPU time against the wall time of the steps ([`NoiseReport`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise: Option<NoiseReport>,
+    /// A paired run's blocks ([`PairedReport`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub paired: Option<PairedReport>,
+    /// The injected slowdown this run was asked for (a test knob: never a result).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inject_slowdown: Option<f64>,
+    /// Seconds of injected extra work over the run (the `threads`-thread solver's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub injected_s: Option<f64>,
     /// Checkpoints written and restarts from them (absent when the run wrote none and was
     /// never continued from one). Their time is in none of the timings above.
     #[serde(default, skip_serializing_if = "Option::is_none")]

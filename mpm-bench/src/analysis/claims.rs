@@ -58,6 +58,10 @@ pub struct ClaimsArgs {
     /// Keep rows measured on a busy host (host_noisy), left out by default.
     #[arg(long)]
     pub include_noisy: bool,
+    /// Also analyse rows that ran with an injected slowdown (`--inject-slowdown`, a test knob
+    /// of the regression gate): never results, refused by default.
+    #[arg(long)]
+    pub include_injected: bool,
 }
 
 /// A claim's verdict.
@@ -475,12 +479,16 @@ fn c6(c: &Campaign, o: &StatsOptions) -> ClaimResult {
     let mut ev = Vec::new();
     let mem = c.manifest.as_ref().map(|m| m.machine.memory_bytes as f64);
     let (mut over, mut under, mut skipped) = (0, 0, 0);
+    let mut reps: Option<usize> = None;
     let an = Analysis::from_rows(&c.rows, None, o);
     for n in [4usize, 6, 8] {
         for opt in ["o3", "o0"] {
             let key = CellKey::new(4, AE, opt, n);
             let Some(cell) = an.cells.get(&key) else { continue };
-            let measured = an.memory(&key, o).map(|e| e.value);
+            let measured = an.memory(&key, o).map(|e| {
+                reps = Some(reps.map_or(e.reps, |r| r.min(e.reps)));
+                e.value
+            });
             let (bytes, how) = match measured {
                 Some(b) => (b, "measured peak"),
                 None if cell.mem_estimate > 0 => (cell.mem_estimate as f64, "guard estimate"),
@@ -534,7 +542,7 @@ fn c6(c: &Campaign, o: &StatsOptions) -> ClaimResult {
     } else {
         (Verdict::DoesNotHold, "every Model4 AE configuration at 4-8 threads fits in 8 GB".into())
     };
-    result("C6", v, reason, ev)
+    result("C6", v, reason, ev).with_reps(reps)
 }
 
 fn gb(b: f64) -> String {
@@ -583,10 +591,31 @@ pub fn markdown(results: &[ClaimResult], heading: &str) -> String {
     s
 }
 
+/// The warning when some measured cells have fewer than [`MIN_REPS`] repetitions (processes,
+/// for paired cells): their verdicts are indicative (`None` when every cell has enough).
+pub fn few_repetitions(an: &Analysis) -> Option<String> {
+    let few: Vec<(String, usize)> = an
+        .cells
+        .iter()
+        .map(|(k, c)| (k.to_string(), c.times[0].len()))
+        .filter(|&(_, n)| n > 0 && n < MIN_REPS)
+        .collect();
+    let least = few.iter().map(|(_, n)| *n).min()?;
+    Some(format!(
+        "{} of {} measured cell(s) have fewer than {MIN_REPS} repetitions (as few as {least}, e.g. {}): no interval covers \
+         the run-to-run spread there, and every verdict resting on them is marked indicative; run the campaign with \
+         --reps {MIN_REPS} or more",
+        few.len(),
+        an.cells.values().filter(|c| c.measured()).count(),
+        few[0].0
+    ))
+}
+
 /// `mpm-bench claims`: the claims of each machine's runs (a campaign of several machines,
 /// under a scheduler, gets a verdict per machine; with `--markdown`, one section each).
 pub fn run(args: ClaimsArgs) -> Result<()> {
-    let parts = load_campaigns(&args.results, &RowFilter::analysis(args.include_noisy))?;
+    let parts =
+        load_campaigns(&args.results, &RowFilter::analysis(args.include_noisy).with_injected(args.include_injected))?;
     let mut text = String::new();
     for c in &parts {
         c.note_left_out("claims");
@@ -596,6 +625,9 @@ pub fn run(args: ClaimsArgs) -> Result<()> {
         println!("Claims of the paper on campaign {} (machine {}, {})", c.id(), c.fingerprint(), c.dir.display());
         for n in &an.notes {
             println!("note: {n}");
+        }
+        if let Some(w) = few_repetitions(&an) {
+            eprintln!("warning: {w}");
         }
         print!("{}", table(&res));
         if parts.len() > 1 {
@@ -712,6 +744,6 @@ mod c7 {
                 (Verdict::CannotTell, format!("{imb}, but the time per step cannot tell: {treason}"))
             }
         };
-        result("C7", v, reason, ev)
+        result("C7", v, reason, ev).with_reps(time.min_reps)
     }
 }

@@ -2,17 +2,27 @@
 //!
 //! Compares a current campaign to a baseline campaign cell by cell, like with like: the same
 //! machine fingerprint (unless `--force`) and the same (model, strategy, optimisation level,
-//! threads) cells, for the stages asked (default: the total step). For each cell measured in
-//! both:
+//! threads) cells, for the stages asked (default: the total step) and the metrics asked
+//! (`--metrics`, default all three). For each cell measured in both:
 //!
-//! * time per step: the ratio `T_current / T_baseline` of medians;
-//! * parallel efficiency (cells with more than one thread): the ratio
-//!   `e_current / e_baseline`, each efficiency `T_1 / (n T_n)` from medians.
+//! * `time`: the ratio `T_current / T_baseline` of the median times per step;
+//! * `efficiency` (cells with more than one thread): the ratio `e_current / e_baseline`. In
+//!   the separate design each efficiency is `T_1 / (n T_n)` from medians, the ratio with a
+//!   percentile-bootstrap interval (every sample resampled independently,
+//!   [`super::stats::bootstrap_test`]) and one-sided bootstrap p-values of "worse" and
+//!   "better". In the paired design (both campaigns' cells measured by paired runs) it is
+//!   Welch's t on the processes' mean log efficiencies ([`super::paired::compare`]): an
+//!   interval over processes, which covers the spread between them; with fewer than two
+//!   processes a side there is no p-value (the tolerance alone decides, as with single
+//!   repetitions). A cell paired in one campaign and not in the other is not compared.
+//!   Every check names its design.
+//! * `work`: the deterministic work counters ([`mpm_core::work`]: bytes per sub-stage and
+//!   worker), compared exactly, beside the timing: equal passes; a worker or the total
+//!   moving more bytes in any sub-stage (a lost balance, a grown assembly) is a regression on
+//!   any host, however noisy, named by sub-stage; less is an improvement. No tolerance, no
+//!   p-value: the counts are the same on every run of the same code.
 //!
-//! Each ratio has a percentile-bootstrap interval (every sample involved resampled
-//! independently, [`super::stats::bootstrap_test`]) and one-sided bootstrap p-values of
-//! "worse" and "better". The p-values of the gated checks are Holm-adjusted
-//! ([`super::stats::holm`]) so that the chance of one false alarm over all cells stays at
+//! The p-values of the gated checks are Holm-adjusted ([`super::stats::holm`]) so that the chance of one false alarm over all cells stays at
 //! `(1 - confidence) / 2` = 2.5 % per direction (for a single check this is exactly "the 95 %
 //! interval excludes no change"). A check *regresses* when the change is worse than the
 //! tolerance (time ratio above `1 + tol`, efficiency ratio below `1 - tol`) **and** its
@@ -25,13 +35,18 @@
 //! Oversubscribed cells (more threads than cores) are time sharing and very noisy: they are
 //! compared and listed, but not gated unless `--include-oversubscribed`.
 //!
+//! Rows with an injected slowdown (`--inject-slowdown`, a test knob) are compared like any
+//! other (that is how `mpm-bench calibrate` measures the gate), and the verdict says so.
+//!
 //! Exit code: 0 pass, 1 regression (or a missing cell), 2 error or incomparable (unreadable
 //! input, different machines without `--force`, no cell in common). The JSON verdict
-//! (`--json FILE`) is written whenever both campaigns could be read.
+//! (`--json FILE`, `-` for standard output) is written whenever both campaigns could be
+//! read; `--markdown FILE` appends a Markdown summary (for `$GITHUB_STEP_SUMMARY` or a
+//! merge-request comment).
 
 use super::results::{load_campaign, Campaign};
 use super::select::{configuration_differences, RowFilter};
-use super::stats::{bootstrap_test, holm, Analysis, Cell, CellKey, Estimate, Stage, StatsOptions, Tails};
+use super::stats::{bootstrap_test, holm, Analysis, Cell, CellKey, Design, Estimate, Stage, StatsOptions, Tails};
 use crate::campaign::record::Status;
 use crate::util::median;
 use anyhow::{bail, Context, Result};
@@ -80,6 +95,67 @@ pub struct RegressArgs {
     /// campaign (such cells are still listed).
     #[arg(long)]
     pub allow_missing: bool,
+    /// What to gate, comma-separated: efficiency (parallel efficiency), time (time per
+    /// step), work (the work counters, exactly). Time per step follows the host's speed
+    /// from one day to the next; a CI gate on a shared runner gates efficiency and work.
+    #[arg(long, value_delimiter = ',', default_value = "efficiency,time,work")]
+    pub metrics: Vec<String>,
+    /// Append a Markdown summary of the verdict to FILE (e.g. "$GITHUB_STEP_SUMMARY").
+    #[arg(long, value_name = "FILE")]
+    pub markdown: Option<PathBuf>,
+}
+
+impl RegressArgs {
+    /// `regress --baseline BASELINE --current CURRENT` with every other option's default.
+    pub fn new(baseline: &Path, current: &Path) -> Self {
+        Self {
+            baseline: baseline.to_path_buf(),
+            current: current.to_path_buf(),
+            tolerance: 0.05,
+            force: false,
+            json: None,
+            stages: vec!["total".into()],
+            include_oversubscribed: false,
+            pin: None,
+            include_noisy: false,
+            allow_missing: false,
+            metrics: vec!["efficiency".into(), "time".into(), "work".into()],
+            markdown: None,
+        }
+    }
+}
+
+/// What `--metrics` asked to gate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Metrics {
+    /// Parallel efficiency.
+    pub efficiency: bool,
+    /// Time per step.
+    pub time: bool,
+    /// The work counters.
+    pub work: bool,
+}
+
+impl Metrics {
+    /// Every metric.
+    pub const ALL: Metrics = Metrics { efficiency: true, time: true, work: true };
+
+    /// Parse `--metrics`.
+    pub fn parse(list: &[String]) -> Result<Self> {
+        let mut m = Metrics { efficiency: false, time: false, work: false };
+        for s in list {
+            match s.trim().to_ascii_lowercase().as_str() {
+                "efficiency" => m.efficiency = true,
+                "time" => m.time = true,
+                "work" => m.work = true,
+                other => bail!("unknown metric '{other}' in --metrics: use efficiency, time and/or work"),
+            }
+        }
+        if m == (Metrics { efficiency: false, time: false, work: false }) {
+            bail!("--metrics is empty: give efficiency, time and/or work");
+        }
+        Ok(m)
+    }
 }
 
 /// What one check found.
@@ -126,12 +202,45 @@ pub struct Check {
     pub p_worse_holm: Option<f64>,
     /// `p_better` after Holm's correction over the gated checks.
     pub p_better_holm: Option<f64>,
+    /// Which design the values come from (`paired`: over processes; `separate`: medians of
+    /// separate runs); time per step is always the runs' own.
+    pub design: Design,
     /// Verdict of the check.
     pub outcome: Outcome,
     /// Whether the check counts for the gate (not oversubscribed, or forced in).
     pub gated: bool,
     /// The cell is oversubscribed in either campaign.
     pub oversubscribed: bool,
+}
+
+/// The work counters of one cell compared exactly.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct WorkCheck {
+    /// The cell.
+    pub cell: CellKey,
+    /// The baseline's work bound (`W_1 / (T max W_w)`).
+    pub baseline_bound: Option<f64>,
+    /// The current work bound.
+    pub current_bound: Option<f64>,
+    /// The baseline's bytes of the busiest worker, over every sub-stage.
+    pub baseline_max_worker_bytes: u64,
+    /// The current bytes of the busiest worker.
+    pub current_max_worker_bytes: u64,
+    /// What differs, sub-stage by sub-stage (empty: every count equal).
+    pub changes: Vec<String>,
+    /// Equal: unchanged; more bytes for a worker or in all: regressed; else improved.
+    pub outcome: Outcome,
+}
+
+/// A cell measured in both campaigns but not compared, and why.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NotCompared {
+    /// The cell.
+    pub cell: String,
+    /// The metric.
+    pub metric: &'static str,
+    /// Why not.
+    pub reason: String,
 }
 
 /// A baseline cell without a (complete) measurement in the current campaign.
@@ -189,6 +298,18 @@ pub struct RegressReport {
     pub missing_in_current: Vec<MissingCell>,
     /// `--allow-missing` was given: missing cells do not fail the gate.
     pub allow_missing: bool,
+    /// The metrics gated (`efficiency`, `time`, `work`).
+    pub metrics: Vec<&'static str>,
+    /// The work counters of every cell compared (with `work` among the metrics).
+    pub work_checks: Vec<WorkCheck>,
+    /// Work checks that regressed (they fail the gate).
+    pub work_regressions: Vec<WorkCheck>,
+    /// Cells and metrics not compared, and why.
+    pub not_compared: Vec<NotCompared>,
+    /// The largest injected slowdown among the baseline's rows (a test knob), if any.
+    pub baseline_injected: Option<f64>,
+    /// The largest injected slowdown among the current rows, if any.
+    pub current_injected: Option<f64>,
 }
 
 impl RegressReport {
@@ -245,19 +366,48 @@ fn check(
         p_better,
         p_worse_holm: None,
         p_better_holm: None,
+        design: Design::Separate,
         outcome: Outcome::Unchanged,
         gated,
         oversubscribed: over,
     }
 }
 
-/// The time and efficiency checks of one cell measured in both campaigns.
-fn cell_checks(base: &Analysis, cur: &Analysis, key: &CellKey, stages: &[Stage], include_over: bool) -> Vec<Check> {
+/// The paired efficiency check of one cell and stage: Welch's t on the processes' mean
+/// logs (`None` when a side has no process with the stage).
+fn paired_check(bcell: &Cell, ccell: &Cell, key: &CellKey, stage: Stage, flags: (bool, bool)) -> Option<Check> {
+    let (b, c) = (bcell.paired_logs(stage), ccell.paired_logs(stage));
+    if b.is_empty() || c.is_empty() {
+        return None;
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let (mb, mc) = (mean(&b), mean(&c));
+    let reps = (b.len(), c.len());
+    let (ratio, tails) = match super::paired::compare(&b, &c, StatsOptions::default().confidence) {
+        Some(w) => (w.ratio, Some(Tails { at_most: w.p_higher, at_least: w.p_lower })),
+        None => (Estimate::point((mc - mb).exp(), reps.0.min(reps.1)), None),
+    };
+    let mut ch = check((key, stage, "efficiency"), (mb.exp(), mc.exp()), (ratio, tails), reps, flags);
+    ch.design = Design::Paired;
+    Some(ch)
+}
+
+/// The time and efficiency checks of one cell measured in both campaigns, and the
+/// efficiency checks it could not make (designs that differ).
+fn cell_checks(
+    base: &Analysis,
+    cur: &Analysis,
+    key: &CellKey,
+    stages: &[Stage],
+    include_over: bool,
+    metrics: Metrics,
+) -> (Vec<Check>, Vec<NotCompared>) {
     let o = StatsOptions::default();
     let (bcell, ccell) = (&base.cells[key], &cur.cells[key]);
     let over = bcell.oversubscribed || ccell.oversubscribed;
     let flags = (over, include_over || !over);
     let mut out = Vec::new();
+    let mut skipped = Vec::new();
     for &stage in stages {
         let (bt, ct) = (bcell.times(stage), ccell.times(stage));
         if bt.is_empty() || ct.is_empty() {
@@ -265,10 +415,32 @@ fn cell_checks(base: &Analysis, cur: &Analysis, key: &CellKey, stages: &[Stage],
         }
         let label = format!("{key}/{stage}");
         let reps = (bt.len(), ct.len());
-        let t = bootstrap_test(&[ct, bt], &|m| m[0] / m[1], &o, &format!("{label}/time"), 1.0);
-        out.push(check((key, stage, "time_per_step"), (median(bt), median(ct)), t, reps, flags));
-        if key.threads <= 1 {
+        if metrics.time {
+            let t = bootstrap_test(&[ct, bt], &|m| m[0] / m[1], &o, &format!("{label}/time"), 1.0);
+            out.push(check((key, stage, "time_per_step"), (median(bt), median(ct)), t, reps, flags));
+        }
+        if key.threads <= 1 || !metrics.efficiency {
             continue;
+        }
+        match (bcell.design(), ccell.design()) {
+            (Design::Paired, Design::Paired) => {
+                out.extend(paired_check(bcell, ccell, key, stage, flags));
+                continue;
+            }
+            (Design::Separate, Design::Separate) => {}
+            (b, c) => {
+                skipped.push(NotCompared {
+                    cell: format!("{key} {stage}"),
+                    metric: "efficiency",
+                    reason: format!(
+                        "measured {} in the baseline and {} in the current campaign: the designs' intervals do not \
+                         compare (run both campaigns with the same preset)",
+                        b.name(),
+                        c.name()
+                    ),
+                });
+                continue;
+            }
         }
         let one = CellKey { threads: 1, ..key.clone() };
         let (Some(b1), Some(c1)) = (base.cells.get(&one), cur.cells.get(&one)) else { continue };
@@ -282,7 +454,75 @@ fn cell_checks(base: &Analysis, cur: &Analysis, key: &CellKey, stages: &[Stage],
         let values = (median(b1) / median(bt) / n, median(c1) / median(ct) / n);
         out.push(check((key, stage, "efficiency"), values, e, reps, flags));
     }
-    out
+    (out, skipped)
+}
+
+/// Each worker's bytes over every sub-stage of one row's counters.
+fn worker_totals(w: &std::collections::BTreeMap<mpm_core::Substage, Vec<u64>>) -> Vec<u64> {
+    let n = w.values().map(Vec::len).max().unwrap_or(0);
+    (0..n).map(|i| w.values().map(|v| v.get(i).copied().unwrap_or(0)).sum()).collect()
+}
+
+/// The work counters of a cell measured in both campaigns, compared exactly (`Err`: why
+/// they cannot be).
+fn work_check(key: &CellKey, bcell: &Cell, ccell: &Cell) -> Result<WorkCheck, String> {
+    let (Some(b), Some(c)) = (bcell.work.first(), ccell.work.first()) else {
+        return Err("no work counters on one side (CSV schema before 7, or a solver without them)".into());
+    };
+    for (side, cell) in [("baseline", bcell), ("current", ccell)] {
+        if cell.work.iter().any(|w| w != &cell.work[0]) {
+            return Err(format!(
+                "the {side}'s repetitions counted different work (the counters must repeat exactly: a solver bug?)"
+            ));
+        }
+    }
+    let (bw, cw) = (worker_totals(b), worker_totals(c));
+    let max = |v: &[u64]| v.iter().copied().max().unwrap_or(0);
+    let mut changes = Vec::new();
+    let (mut more, mut less) = (false, false);
+    for s in mpm_core::Substage::ALL {
+        let empty = Vec::new();
+        let (x, y) = (b.get(&s).unwrap_or(&empty), c.get(&s).unwrap_or(&empty));
+        if x == y {
+            continue;
+        }
+        let (mx, my, sx, sy) = (max(x), max(y), x.iter().sum::<u64>(), y.iter().sum::<u64>());
+        more |= my > mx || sy > sx;
+        less |= my < mx || sy < sx;
+        let pct = |a: u64, b: u64| {
+            if a > 0 {
+                format!("{:+.1} %", 100.0 * (b as f64 / a as f64 - 1.0))
+            } else {
+                "new".into()
+            }
+        };
+        changes.push(format!(
+            "{}: busiest worker {mx} -> {my} B ({}), all workers {sx} -> {sy} B ({})",
+            s.name(),
+            pct(mx, my),
+            pct(sx, sy)
+        ));
+    }
+    if bw.len() != cw.len() {
+        more = true;
+        changes.push(format!("{} workers counted, {} in the baseline", cw.len(), bw.len()));
+    }
+    let outcome = if more {
+        Outcome::Regressed
+    } else if less {
+        Outcome::Improved
+    } else {
+        Outcome::Unchanged
+    };
+    Ok(WorkCheck {
+        cell: key.clone(),
+        baseline_bound: bcell.work_bound.first().copied(),
+        current_bound: ccell.work_bound.first().copied(),
+        baseline_max_worker_bytes: max(&bw),
+        current_max_worker_bytes: max(&cw),
+        changes,
+        outcome,
+    })
 }
 
 /// Why a baseline cell is not (fully) measured in the current campaign, if it is not.
@@ -341,28 +581,49 @@ fn decide(checks: &mut [Check], tol: f64, a: f64) {
     }
 }
 
+/// What [`compare_analyses`] found.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Comparison {
+    /// Every timing check with its outcome.
+    pub checks: Vec<Check>,
+    /// The baseline cells not (fully) measured in the current campaign.
+    pub missing: Vec<MissingCell>,
+    /// The work counters of every cell measured in both (with `work` among the metrics).
+    pub work: Vec<WorkCheck>,
+    /// Cells and metrics not compared, and why.
+    pub not_compared: Vec<NotCompared>,
+}
+
 /// Compare two analyses (the core of `regress`, without file I/O): every check with its
-/// outcome, and the baseline cells not (fully) measured in the current campaign.
+/// outcome, the work counters, and the baseline cells not (fully) measured in the current
+/// campaign.
 pub fn compare_analyses(
     base: &Analysis,
     cur: &Analysis,
     stages: &[Stage],
     tol: f64,
     include_over: bool,
-) -> (Vec<Check>, Vec<MissingCell>) {
-    let mut checks = Vec::new();
-    let mut absent = Vec::new();
+    metrics: Metrics,
+) -> Comparison {
+    let mut out = Comparison::default();
     for (key, bcell) in base.cells.iter().filter(|(_, c)| c.measured()) {
         let ccell = cur.cells.get(key);
         if let Some(m) = missing(key, bcell, ccell, include_over) {
-            absent.push(m);
+            out.missing.push(m);
         }
-        if ccell.is_some_and(Cell::measured) {
-            checks.extend(cell_checks(base, cur, key, stages, include_over));
+        let Some(ccell) = ccell.filter(|c| c.measured()) else { continue };
+        let (checks, skipped) = cell_checks(base, cur, key, stages, include_over, metrics);
+        out.checks.extend(checks);
+        out.not_compared.extend(skipped);
+        if metrics.work {
+            match work_check(key, bcell, ccell) {
+                Ok(w) => out.work.push(w),
+                Err(reason) => out.not_compared.push(NotCompared { cell: key.to_string(), metric: "work", reason }),
+            }
         }
     }
-    decide(&mut checks, tol, alpha(&StatsOptions::default()));
-    (checks, absent)
+    decide(&mut out.checks, tol, alpha(&StatsOptions::default()));
+    out
 }
 
 fn side(c: &Campaign) -> Side {
@@ -375,7 +636,10 @@ pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
         bail!("--tolerance {} is out of range: give a fraction such as 0.05 for 5 %", args.tolerance);
     }
     let stages: Vec<Stage> = args.stages.iter().map(|s| Stage::parse(s)).collect::<Result<_>>()?;
-    let filter = RowFilter::analysis(args.include_noisy);
+    let metrics = Metrics::parse(&args.metrics)?;
+    // Rows with an injected slowdown are compared (that is how the gate is measured); the
+    // verdict says so.
+    let filter = RowFilter::analysis(args.include_noisy).with_injected(true);
     let base = load_campaign(&args.baseline, &filter).context("reading --baseline")?;
     let cur = load_campaign(&args.current, &filter).context("reading --current")?;
     for c in [&base, &cur] {
@@ -398,6 +662,15 @@ pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
         checks: vec![],
         missing_in_current: vec![],
         allow_missing: args.allow_missing,
+        metrics: [("efficiency", metrics.efficiency), ("time", metrics.time), ("work", metrics.work)]
+            .into_iter()
+            .filter_map(|(n, on)| on.then_some(n))
+            .collect(),
+        work_checks: vec![],
+        work_regressions: vec![],
+        not_compared: vec![],
+        baseline_injected: None,
+        current_injected: None,
     };
     if bs.fingerprint != cs.fingerprint {
         if !args.force {
@@ -420,13 +693,20 @@ pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
     }
     let ba = base.analyse(args.pin.as_deref());
     let ca = cur.analyse(args.pin.as_deref());
-    let (checks, absent) = compare_analyses(&ba, &ca, &stages, args.tolerance, args.include_oversubscribed);
-    report.missing_in_current = absent;
+    let injected = |a: &Analysis| a.cells.values().filter_map(|c| c.injected).reduce(f64::max);
+    report.baseline_injected = injected(&ba);
+    report.current_injected = injected(&ca);
+    let cmp = compare_analyses(&ba, &ca, &stages, args.tolerance, args.include_oversubscribed, metrics);
+    let checks = cmp.checks;
+    report.missing_in_current = cmp.missing;
     report.single_repetition = !checks.is_empty() && checks.iter().all(|c| c.p_worse.is_none());
     report.gated_checks = checks.iter().filter(|c| c.gated).count();
     report.regressions = checks.iter().filter(|c| c.gated && c.outcome == Outcome::Regressed).cloned().collect();
     report.improvements = checks.iter().filter(|c| c.gated && c.outcome == Outcome::Improved).cloned().collect();
     report.checks = checks;
+    report.work_regressions = cmp.work.iter().filter(|w| w.outcome == Outcome::Regressed).cloned().collect();
+    report.work_checks = cmp.work;
+    report.not_compared = cmp.not_compared;
     conclude(&mut report, &ba, &ca);
     Ok(report)
 }
@@ -440,7 +720,7 @@ fn conclude(r: &mut RegressReport, base: &Analysis, cur: &Analysis) {
         r.reason = "the baseline has no measured cell: nothing to compare against".into();
         return;
     }
-    if !in_common || (r.gated_checks == 0 && failing == 0) {
+    if !in_common || (r.gated_checks == 0 && r.work_checks.is_empty() && failing == 0) {
         r.reason =
             "no cell of the baseline was run in the current campaign (that is not oversubscribed): nothing to compare"
                 .into();
@@ -451,17 +731,22 @@ fn conclude(r: &mut RegressReport, base: &Analysis, cur: &Analysis) {
     } else {
         format!("Holm-corrected over {} checks at {:.1} % per direction", r.gated_checks, 100.0 * r.alpha)
     };
-    if !r.regressions.is_empty() || failing > 0 {
+    let work = if r.work_checks.is_empty() {
+        String::new()
+    } else {
+        format!("; work counters: {} of {} cell(s) moved more bytes", r.work_regressions.len(), r.work_checks.len())
+    };
+    if !r.regressions.is_empty() || failing > 0 || !r.work_regressions.is_empty() {
         r.verdict = "fail".into();
         r.reason = format!(
-            "{} of {} checks got worse by more than {tol:.1} % beyond the noise ({holm}); {failing} baseline cell(s) missing, failed or invalid in the current campaign",
+            "{} of {} checks got worse by more than {tol:.1} % beyond the noise ({holm}){work}; {failing} baseline cell(s) missing, failed or invalid in the current campaign",
             r.regressions.len(),
             r.gated_checks,
         );
     } else {
         r.verdict = "pass".into();
         r.reason = format!(
-            "no check got worse by more than {tol:.1} % beyond the noise ({} checks, {} improved; {holm})",
+            "no check got worse by more than {tol:.1} % beyond the noise ({} checks, {} improved; {holm}){work}",
             r.gated_checks,
             r.improvements.len()
         );
@@ -469,14 +754,141 @@ fn conclude(r: &mut RegressReport, base: &Analysis, cur: &Analysis) {
             r.reason.push_str(&format!("; {} baseline cell(s) not measured, allowed", r.missing_in_current.len()));
         }
     }
+    for (side, f) in [("baseline", r.baseline_injected), ("current", r.current_injected)] {
+        if let Some(f) = f {
+            r.reason.push_str(&format!(
+                "; the {side} ran with an injected slowdown of {:.0} % (a test knob: this verdict tests the gate, not \
+                 the code)",
+                100.0 * f
+            ));
+        }
+    }
 }
 
+/// Write the JSON verdict to `path`, or to standard output when `path` is `-`.
 fn write_json(path: &Path, r: &RegressReport) -> Result<()> {
+    let text = serde_json::to_string_pretty(r)?;
+    if path == Path::new("-") {
+        println!("{text}");
+        return Ok(());
+    }
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
     }
-    std::fs::write(path, serde_json::to_string_pretty(r)?)
+    std::fs::write(path, text)
         .with_context(|| format!("cannot write {}: choose a writable --json path", path.display()))
+}
+
+/// The verdict as Markdown: a heading with the verdict, the reason, a table of the checks
+/// that changed and of the work counters, what was not compared or is missing.
+pub fn markdown(r: &RegressReport) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let icon = match r.verdict.as_str() {
+        "pass" => "PASS",
+        "fail" => "FAIL",
+        _ => "INCOMPARABLE",
+    };
+    let _ = writeln!(s, "### Parallel-efficiency gate: {icon}\n");
+    let _ = writeln!(s, "{}\n", r.reason);
+    let _ = writeln!(
+        s,
+        "Baseline `{}` vs current `{}` (machine `{}`); metrics {}; tolerance {:.1} %, family-wise level {:.1} % per \
+         direction.\n",
+        r.baseline.campaign,
+        r.current.campaign,
+        r.current.fingerprint,
+        r.metrics.join(", "),
+        100.0 * r.tolerance,
+        100.0 * r.alpha
+    );
+    if !r.checks.is_empty() {
+        let _ = writeln!(
+            s,
+            "| cell | stage | metric | design | baseline | current | ratio [95 %] | p worse (Holm) | verdict |"
+        );
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+        for c in &r.checks {
+            let ratio = if c.ratio.lo == c.ratio.hi {
+                format!("{:.3}", c.ratio.value)
+            } else {
+                format!("{:.3} [{:.3}, {:.3}]", c.ratio.value, c.ratio.lo, c.ratio.hi)
+            };
+            let p = c.p_worse_holm.or(c.p_worse).map_or("-".into(), |p| format!("{p:.3}"));
+            let verdict = match (c.outcome, c.gated) {
+                (Outcome::Regressed, true) => "**regressed**",
+                (Outcome::Improved, true) => "improved",
+                (_, false) => "not gated",
+                _ => "unchanged",
+            };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} (n={}) | {} (n={}) | {ratio} | {p} | {verdict} |",
+                c.cell,
+                c.stage.name(),
+                c.metric,
+                if c.metric == "efficiency" { c.design.name() } else { "-" },
+                with_unit(c.baseline, c.unit),
+                c.baseline_reps,
+                with_unit(c.current, c.unit),
+                c.current_reps
+            );
+        }
+        s.push('\n');
+    }
+    if !r.work_checks.is_empty() {
+        let _ = writeln!(s, "| cell | work bound, baseline | current | work counters |");
+        let _ = writeln!(s, "|---|---|---|---|");
+        for w in &r.work_checks {
+            let bound = |b: Option<f64>| b.map_or("-".into(), |b| format!("{b:.3}"));
+            let what = match w.outcome {
+                Outcome::Unchanged => "equal".to_string(),
+                Outcome::Regressed => format!("**more work**: {}", w.changes.join("; ")),
+                Outcome::Improved => format!("less work: {}", w.changes.join("; ")),
+            };
+            let _ = writeln!(s, "| {} | {} | {} | {what} |", w.cell, bound(w.baseline_bound), bound(w.current_bound));
+        }
+        s.push('\n');
+    }
+    for m in &r.missing_in_current {
+        let _ = writeln!(s, "- {} {}: {}", m.status.to_uppercase(), m.cell, m.reason);
+    }
+    for (what, cells) in grouped(&r.not_compared) {
+        let _ = writeln!(s, "- not compared: {what}: {cells}");
+    }
+    s
+}
+
+/// The cells not compared, one line per metric and reason: (`work: why`, the cells).
+fn grouped(n: &[NotCompared]) -> Vec<(String, String)> {
+    let mut g: std::collections::BTreeMap<String, Vec<&str>> = std::collections::BTreeMap::new();
+    for x in n {
+        g.entry(format!("{} ({})", x.metric, x.reason)).or_default().push(&x.cell);
+    }
+    g.into_iter()
+        .map(|(what, cells)| {
+            let list = if cells.len() > 3 {
+                format!("{} cells ({}, ...)", cells.len(), cells[..3].join(", "))
+            } else {
+                cells.join(", ")
+            };
+            (what, list)
+        })
+        .collect()
+}
+
+/// Append `text` to the file at `path` (created when absent).
+fn append(path: &Path, text: &str) -> Result<()> {
+    use std::io::Write as _;
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+    }
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .with_context(|| format!("cannot open {}: choose a writable --markdown path", path.display()))?;
+    f.write_all(text.as_bytes()).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// A value with its unit: time per step in s / ms / µs, efficiency as a plain number.
@@ -496,7 +908,11 @@ fn check_line(c: &Check) -> String {
         Outcome::Improved => "improved",
         Outcome::Unchanged => "unchanged",
     };
-    let what = if c.unit == "s" { "time/step" } else { "efficiency" };
+    let what = match (c.unit == "s", c.design) {
+        (true, _) => "time/step",
+        (false, Design::Paired) => "efficiency (paired)",
+        (false, Design::Separate) => "efficiency",
+    };
     let p = c.p_worse_holm.or(c.p_worse).zip(c.p_better_holm.or(c.p_better));
     let change = 100.0 * c.worse_by.abs();
     let words = match (c.unit == "s", c.worse_by > 0.0) {
@@ -511,7 +927,7 @@ fn check_line(c: &Check) -> String {
         format!("{:.3} [{:.3}, {:.3}]", c.ratio.value, c.ratio.lo, c.ratio.hi)
     };
     format!(
-        "  {tag:<10} {:<20} {:<8} {what:<10} baseline {} (n={}) current {} (n={}) ratio {ratio} x ({words}){}{}",
+        "  {tag:<10} {:<20} {:<8} {what:<19} baseline {} (n={}) current {} (n={}) ratio {ratio} x ({words}){}{}",
         c.cell.to_string(),
         c.stage.name(),
         with_unit(c.baseline, c.unit),
@@ -528,10 +944,27 @@ fn check_line(c: &Check) -> String {
 /// error (the CLI exits 2).
 pub fn run(args: RegressArgs) -> Result<i32> {
     let r = evaluate(&args)?;
+    if let Some(p) = &args.markdown {
+        append(p, &markdown(&r))?;
+    }
     if let Some(p) = &args.json {
         write_json(p, &r)?;
+        if p == Path::new("-") {
+            // The JSON is the standard output: the lines for people go to standard error.
+            eprint!("{}", lines(&r));
+            return Ok(r.exit_code());
+        }
     }
-    println!(
+    print!("{}", lines(&r));
+    Ok(r.exit_code())
+}
+
+/// The verdict for people, line by line.
+pub fn lines(r: &RegressReport) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
         "regress: baseline {} ({}) vs current {} ({}), tolerance {:.1} %, family-wise level {:.1} % per direction",
         r.baseline.campaign,
         r.baseline.fingerprint,
@@ -541,13 +974,24 @@ pub fn run(args: RegressArgs) -> Result<i32> {
         100.0 * r.alpha
     );
     if r.forced {
-        println!("warning: different machines compared (--force)");
+        let _ = writeln!(s, "warning: different machines compared (--force)");
     }
     for c in r.checks.iter().filter(|c| c.outcome != Outcome::Unchanged) {
-        println!("{}", check_line(c));
+        let _ = writeln!(s, "{}", check_line(c));
     }
     let unchanged = r.checks.iter().filter(|c| c.outcome == Outcome::Unchanged).count();
-    println!("  {unchanged} check(s) unchanged within {:.1} % or the noise", 100.0 * r.tolerance);
+    let _ = writeln!(s, "  {unchanged} check(s) unchanged within {:.1} % or the noise", 100.0 * r.tolerance);
+    for w in r.work_checks.iter().filter(|w| w.outcome != Outcome::Unchanged) {
+        let tag = if w.outcome == Outcome::Regressed { "MORE WORK" } else { "less work" };
+        let _ = writeln!(s, "  {tag:<10} {:<20} work counters: {}", w.cell.to_string(), w.changes.join("; "));
+    }
+    if !r.work_checks.is_empty() {
+        let equal = r.work_checks.iter().filter(|w| w.outcome == Outcome::Unchanged).count();
+        let _ = writeln!(s, "  {equal} cell(s) with exactly the baseline's work counters");
+    }
+    for (what, cells) in grouped(&r.not_compared) {
+        let _ = writeln!(s, "  not compared: {what}: {cells}");
+    }
     for m in &r.missing_in_current {
         let effect = if !m.gated {
             "oversubscribed: not gated"
@@ -556,8 +1000,8 @@ pub fn run(args: RegressArgs) -> Result<i32> {
         } else {
             "FAILS the gate"
         };
-        println!("  {:<10} {:<20} {} ({effect})", m.status.to_uppercase(), m.cell, m.reason);
+        let _ = writeln!(s, "  {:<10} {:<20} {} ({effect})", m.status.to_uppercase(), m.cell, m.reason);
     }
-    println!("verdict: {} — {}", r.verdict, r.reason);
-    Ok(r.exit_code())
+    let _ = writeln!(s, "verdict: {} — {}", r.verdict, r.reason);
+    s
 }

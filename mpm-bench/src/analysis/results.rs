@@ -7,7 +7,7 @@
 //! take each apart), and [`load_campaign`] refuses a folder of several (`regress` compares
 //! one machine with itself).
 
-use super::select::{select, Configurations, LeftOut, RowFilter};
+use super::select::{select, Configurations, LeftOut, RowFilter, INJECTED_LEFT_OUT};
 use super::stats::{Analysis, StatsOptions};
 use crate::campaign::manifest::{self, Manifest};
 use crate::campaign::record::{read_rows, Row};
@@ -251,6 +251,7 @@ pub fn load_campaigns(dir: &Path, filter: &RowFilter) -> Result<Vec<Campaign>> {
         .into_iter()
         .map(|(fp, rows)| {
             let (rows, mut left_out, configurations) = select(rows, filter);
+            refuse_only_injected(&dir, &rows, &left_out)?;
             left_out.extend(unplaced.clone());
             let mut manifest = manifest.clone();
             if let (Some(m), Some(fp)) = (manifest.as_mut(), fp.as_deref()) {
@@ -261,7 +262,7 @@ pub fn load_campaigns(dir: &Path, filter: &RowFilter) -> Result<Vec<Campaign>> {
             // bandwidth.json is measured on one machine: it belongs to that machine's part.
             let bandwidth = bandwidth.clone().filter(|b| !split || fp.as_deref().is_none_or(|f| b.machine_id == f));
             let (rows, hybrid) = Campaign::split(rows);
-            Campaign {
+            Ok(Campaign {
                 dir: dir.clone(),
                 rows,
                 hybrid,
@@ -271,8 +272,23 @@ pub fn load_campaigns(dir: &Path, filter: &RowFilter) -> Result<Vec<Campaign>> {
                 configurations,
                 machine: fp,
                 split,
-            }
+            })
         })
-        .collect();
+        .collect::<Result<Vec<_>>>()?;
     Ok(parts)
+}
+
+/// A campaign (or a machine's part of it) whose every measured row ran with an injected
+/// slowdown is refused unless the filter kept them: its numbers are a test of the gate,
+/// never a result.
+fn refuse_only_injected(dir: &Path, rows: &[Row], left_out: &[LeftOut]) -> Result<()> {
+    let injected = left_out.iter().find(|l| l.reason == INJECTED_LEFT_OUT).map_or(0, |l| l.rows);
+    if injected > 0 && !rows.iter().any(|r| r.outcome.status == crate::campaign::record::Status::Ok) {
+        bail!(
+            "{}: its {injected} measured row(s) all ran with an injected slowdown (`--inject-slowdown`, a test knob \
+             of the regression gate): their times are not results; pass --include-injected to look at them anyway",
+            dir.display()
+        );
+    }
+    Ok(())
 }

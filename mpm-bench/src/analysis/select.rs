@@ -4,13 +4,19 @@
 //! The rule, in order:
 //! * rows that did not finish (`failed`, `invalid`, `skipped`) are kept as context only: an
 //!   analysis takes no measurement from them, but says why their configuration has none;
-//! * rows measured on a busy host (`host_noisy`) are left out unless asked
-//!   (`--include-noisy`; figures then draw them grey);
+//! * rows that ran with an injected slowdown (`inject_slowdown`, a test knob of `mpm-bench
+//!   run` and `calibrate`) are never results: left out unless asked (`--include-injected`;
+//!   `regress`, which compares them to test the gate, keeps them and says so), and a
+//!   campaign of nothing else is refused ([`super::results::load_campaign`]);
+//! * rows measured on a busy host (`host_noisy`: the host watch, or a worker that got less
+//!   than 90 % of the wall time as CPU time) are left out unless asked (`--include-noisy`;
+//!   figures then draw them grey);
 //! * oversubscribed rows (more workers than cores: time sharing, not scaling) are left out
 //!   unless the command asks for them (figures and the report draw them hollow, claims use
 //!   them only to say "cannot tell");
 //! * within one model and optimisation level every row must be the same run but for its
-//!   strategy, threads and ranks (scenario, grid, physics, budget): rows of another
+//!   strategy, threads, ranks, design (paired or not) and injected slowdown (scenario, grid,
+//!   physics, budget): rows of another
 //!   configuration than the one most rows of that model and level have (a resumed campaign
 //!   with another step budget, say) are left out, with the keys that differ. Speedups never
 //!   divide times of different budgets.
@@ -27,7 +33,13 @@ pub struct RowFilter {
     pub include_noisy: bool,
     /// Keep oversubscribed rows.
     pub include_oversubscribed: bool,
+    /// Keep rows that ran with an injected slowdown (a test knob).
+    pub include_injected: bool,
 }
+
+/// Why a row that ran with an injected slowdown is left out.
+pub const INJECTED_LEFT_OUT: &str =
+    "ran with an injected slowdown (inject_slowdown, a test knob: never a result; --include-injected keeps them)";
 
 /// Rows the rule left out for one reason.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
@@ -42,7 +54,12 @@ impl RowFilter {
     /// What every analysis command keeps: oversubscribed rows (drawn hollow, never counted
     /// as scaling, not gated), and noisy ones when `include_noisy`.
     pub fn analysis(include_noisy: bool) -> Self {
-        Self { include_noisy, include_oversubscribed: true }
+        Self { include_noisy, include_oversubscribed: true, include_injected: false }
+    }
+
+    /// [`RowFilter::analysis`] that also keeps (`true`) rows with an injected slowdown.
+    pub fn with_injected(self, include_injected: bool) -> Self {
+        Self { include_injected, ..self }
     }
 }
 
@@ -78,6 +95,8 @@ fn configuration(r: &Row) -> BTreeMap<String, Value> {
     spec.split_wait = false;
     spec.cpus = None;
     spec.outputs = Default::default();
+    spec.paired = None;
+    spec.inject_slowdown = None;
     let mut out = BTreeMap::new();
     leaves(&serde_json::to_value(&spec).unwrap_or(Value::Null), "", &mut out);
     out
@@ -120,6 +139,8 @@ pub fn select(rows: Vec<Row>, f: &RowFilter) -> (Vec<Row>, Vec<LeftOut>, Configu
         let ok = r.outcome.status == Status::Ok;
         let why = if !ok {
             None
+        } else if r.injected().is_some() && !f.include_injected {
+            Some(INJECTED_LEFT_OUT.to_string())
         } else if r.host.host_noisy && !f.include_noisy {
             Some("measured on a busy host (host_noisy; --include-noisy keeps them)".to_string())
         } else if r.placement.oversubscribed && !f.include_oversubscribed {
@@ -205,8 +226,27 @@ mod tests {
         assert!(left.iter().any(|l| l.reason.contains("oversubscribed")));
         let budget = left.iter().find(|l| l.reason.contains("another configuration")).unwrap();
         assert!(budget.reason.contains("budget.steps 20 instead of 10"), "{}", budget.reason);
-        let all = RowFilter { include_noisy: true, include_oversubscribed: true };
+        let all = RowFilter { include_noisy: true, include_oversubscribed: true, include_injected: true };
         let (kept, left, _) = select(rows, &all);
         assert_eq!((kept.len(), left.len()), (5, 1));
+    }
+
+    /// A row with an injected slowdown is never a result: left out, with its reason, unless
+    /// asked for; it is not "another configuration" (the injection and the paired design are
+    /// not part of it), so a campaign with it compares with one without.
+    #[test]
+    fn injected_rows_are_left_out_unless_asked() {
+        let mut inj = row(2, 10);
+        inj.run.spec.inject_slowdown = Some(0.1);
+        let mut paired = row(2, 10);
+        paired.run.spec.paired = Some(mpm_spec::spec::Paired { blocks: 4 });
+        let rows = vec![row(1, 10), inj.clone(), paired];
+        let (kept, left, configs) = select(rows.clone(), &RowFilter::analysis(false));
+        assert_eq!(kept.len(), 2);
+        assert_eq!(left, vec![LeftOut { reason: INJECTED_LEFT_OUT.into(), rows: 1 }]);
+        let (kept, left, _) = select(rows, &RowFilter::analysis(false).with_injected(true));
+        assert_eq!((kept.len(), left.len()), (3, 0));
+        let (_, _, alone) = select(vec![inj], &RowFilter::analysis(false).with_injected(true));
+        assert!(configuration_differences(&configs, &alone).is_empty());
     }
 }

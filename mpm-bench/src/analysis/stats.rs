@@ -36,6 +36,19 @@
 //!
 //! A point is *oversubscribed* when any of its repetitions ran more threads than usable
 //! cores: its time is time sharing, not scaling, and the figures draw it hollow.
+//!
+//! # Two designs
+//!
+//! Every point says which [`Design`] its speedup and efficiency come from. *Separate*: the
+//! medians of separate processes of one and of `n` threads, as above. *Paired*: the cell's
+//! rows are paired runs ([`Row::is_paired`]): each process timed its `n`-thread solver and a
+//! one-thread solver of the same strategy in alternating blocks, and the efficiency is
+//! [`super::paired::two_stage`]'s over the processes (the mean log efficiency of each
+//! process, a Student-t interval over processes); the grid-node and particle stages the same
+//! from each process's stage seconds; speedup `= n x efficiency`; `T_1` the reference's time
+//! per step (median over processes, bootstrap interval). A paired cell measured by one
+//! process only has its blocks' interval, which does not cover the spread between processes:
+//! [`Point::within_process_only`], and the claims call it indicative (one repetition).
 
 use crate::campaign::record::{Row, Status};
 use crate::util::{median, SplitMix64};
@@ -44,6 +57,82 @@ use mpm_core::Strategy;
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
+
+/// Which design a point's speedup and efficiency come from (see the module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Design {
+    /// Medians of separate processes of one and of `n` threads.
+    #[default]
+    Separate,
+    /// One-thread and `n`-thread solvers in the same processes, alternating blocks; the
+    /// interval over processes.
+    Paired,
+}
+
+impl Design {
+    /// `separate` or `paired`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Design::Separate => "separate",
+            Design::Paired => "paired",
+        }
+    }
+}
+
+/// One process of a paired cell (a paired row).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct PairedProcess {
+    /// Its blocks' efficiencies `t1 / (n tT)`.
+    pub ratios: Vec<f64>,
+    /// The one-thread reference's median seconds per step.
+    pub t1: f64,
+    /// The grid-node and particle stages' efficiencies over its blocks, `t1 / (n tT)` of the
+    /// stage seconds (rows without them: `None`).
+    pub stages: [Option<f64>; 2],
+}
+
+impl PairedProcess {
+    /// The process of a paired row (`None` when the row is not one).
+    pub fn of(r: &Row) -> Option<Self> {
+        if !r.is_paired() {
+            return None;
+        }
+        let m = &r.measured;
+        let n = r.threads() as f64;
+        let ratios = m.paired_t1_s.iter().zip(&m.paired_tt_s).map(|(a, b)| a / (n * b)).collect();
+        let stage = |t1: Option<f64>, tt: Option<f64>| {
+            t1.zip(tt).map(|(a, b)| a / (n * b)).filter(|e| e.is_finite() && *e > 0.0)
+        };
+        Some(Self {
+            ratios,
+            t1: median(&m.paired_t1_s),
+            stages: [
+                stage(m.paired_t1_grid_stage_s, m.steady_grid_stage_s),
+                stage(m.paired_t1_particle_stage_s, m.steady_particle_stage_s),
+            ],
+        })
+    }
+
+    /// The process's mean log efficiency of `stage` (the blocks' for the total).
+    pub fn log_mean(&self, stage: Stage) -> Option<f64> {
+        match stage {
+            Stage::Total => super::paired::process_log_mean(&self.ratios),
+            Stage::Grid => self.stages[0].map(f64::ln),
+            Stage::Particle => self.stages[1].map(f64::ln),
+        }
+    }
+
+    /// The values [`super::paired::two_stage`] takes for `stage`: the blocks for the total,
+    /// the process's one stage efficiency otherwise.
+    fn samples(&self, stage: Stage) -> Vec<f64> {
+        match stage {
+            Stage::Total => self.ratios.clone(),
+            Stage::Grid => self.stages[0].into_iter().collect(),
+            Stage::Particle => self.stages[1].into_iter().collect(),
+        }
+    }
+}
 
 /// Which time of a step.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
@@ -396,6 +485,15 @@ pub struct Cell {
     pub no_steady_stages: usize,
     /// Mean grid nodes over the steps (median over `ok` rows).
     pub mean_nodes: Option<f64>,
+    /// The processes of the paired rows among the measured ones (empty: separate design).
+    pub paired: Vec<PairedProcess>,
+    /// The work counters of each measured row that has them (bytes per sub-stage and
+    /// worker): deterministic, so equal between repetitions.
+    pub work: Vec<std::collections::BTreeMap<mpm_core::Substage, Vec<u64>>>,
+    /// The work bound of each measured row that has one.
+    pub work_bound: Vec<f64>,
+    /// The largest injected slowdown among the measured rows (a test knob).
+    pub injected: Option<f64>,
 }
 
 impl Cell {
@@ -435,7 +533,30 @@ impl Cell {
         if let Some(b) = r.measured.peak_rss_bytes {
             self.peak_rss.push(b as f64);
         }
+        self.paired.extend(PairedProcess::of(r));
+        if !r.measured.work_bytes.is_empty() {
+            self.work.push(r.measured.work_bytes.clone());
+        }
+        self.work_bound.extend(r.measured.work_bound);
+        if let Some(f) = r.injected() {
+            self.injected = Some(self.injected.map_or(f, |g: f64| g.max(f)));
+        }
         true
+    }
+
+    /// The design of the cell's speedups and efficiencies: paired when its measured rows
+    /// are paired runs.
+    pub fn design(&self) -> Design {
+        if self.paired.is_empty() {
+            Design::Separate
+        } else {
+            Design::Paired
+        }
+    }
+
+    /// The paired processes' mean log efficiencies of `stage` (one per process that has it).
+    pub fn paired_logs(&self, stage: Stage) -> Vec<f64> {
+        self.paired.iter().filter_map(|p| p.log_mean(stage)).collect()
     }
 }
 
@@ -470,6 +591,11 @@ pub struct Point {
     /// Why the point is not plain data (a speedup above the cores the run had, beyond
     /// [`SUPERLINEAR_MARGIN`]); empty when it is.
     pub flags: Vec<String>,
+    /// Which design the speedup and efficiency come from.
+    pub design: Design,
+    /// A paired point measured by one process: its interval is that process's blocks' and
+    /// does not cover the spread between processes.
+    pub within_process_only: bool,
 }
 
 impl Point {
@@ -589,6 +715,24 @@ impl Analysis {
             }
         }
         self.points.extend(points);
+        let total = |p: &&Point| p.stage == Stage::Total && p.design == Design::Paired;
+        let paired = self.points.iter().filter(total).count();
+        if paired > 0 {
+            self.notes.push(format!(
+                "{paired} cell(s) measured in the paired design: their speedups and efficiencies come from the \
+                 1-thread and T-thread solvers of the same processes (alternating blocks), with intervals over \
+                 processes; the others' from separate runs"
+            ));
+        }
+        let single: Vec<String> =
+            self.points.iter().filter(total).filter(|p| p.within_process_only).map(|p| p.key.to_string()).collect();
+        if !single.is_empty() {
+            self.notes.push(format!(
+                "paired cell(s) measured by one process only ({}): their intervals are its blocks' and do not cover \
+                 the spread between processes (indicative; run 3 or more repetitions)",
+                single.join(", ")
+            ));
+        }
         let old: usize = self.cells.values().map(|c| c.no_steady_stages).sum();
         if old > 0 {
             self.notes.push(format!(
@@ -638,7 +782,29 @@ impl Analysis {
             }
             None => (None, None),
         };
-        let efficiency = speedup.map(|s| s.scale(1.0 / key.threads as f64));
+        let mut efficiency = speedup.map(|s| s.scale(1.0 / key.threads as f64));
+        let (mut base, mut speedup) = (base, speedup);
+        let mut within_process_only = false;
+        let paired = (key.threads > 1)
+            .then(|| {
+                let samples: Vec<Vec<f64>> = cell.paired.iter().map(|p| p.samples(stage)).collect();
+                super::paired::two_stage(&samples, opts.confidence)
+            })
+            .flatten();
+        let design = if let Some(iv) = paired {
+            let n = key.threads as f64;
+            let t1s: Vec<f64> = cell.paired.iter().map(|p| p.t1).collect();
+            within_process_only = iv.within_process_only;
+            efficiency = Some(iv.estimate);
+            speedup = Some(iv.estimate.scale(n));
+            base = Some(Base {
+                strategy: key.strategy,
+                t1: bootstrap(&[&t1s], &|m| m[0], opts, &format!("{label}/paired-t1")),
+            });
+            Design::Paired
+        } else {
+            Design::Separate
+        };
         let cores = cell.cores.max(1);
         let flags = speedup
             .filter(|s| s.value > SUPERLINEAR_MARGIN * cores as f64)
@@ -661,6 +827,8 @@ impl Analysis {
             oversubscribed: cell.oversubscribed,
             noisy,
             flags,
+            design,
+            within_process_only,
         }
     }
 

@@ -96,6 +96,9 @@ pub struct SessionCounts {
     pub invalid: usize,
     /// Oversubscribed rows written.
     pub oversubscribed: usize,
+    /// Rows written flagged `host_noisy` (a busy host, or a worker short of CPU time).
+    #[serde(default)]
+    pub noisy: usize,
     /// Stopped by Ctrl-C / SIGTERM.
     pub interrupted: bool,
     /// Under a scheduler: runs left in its queue (submitted, not yet collected) at the end.

@@ -63,6 +63,11 @@ pub struct Overrides {
     pub seed: Option<u64>,
     /// `--checkpoint-every` (how runs survive, not what runs: not part of the campaign id).
     pub checkpoint_every: Option<CheckpointEvery>,
+    /// `--paired-blocks`: the cells of two or more threads in the paired design with this
+    /// many blocks (replaces the preset's `paired`; 0 turns it off).
+    pub paired_blocks: Option<u64>,
+    /// `--inject-slowdown`: the test knob of every run (never a result).
+    pub inject_slowdown: Option<f64>,
 }
 
 impl Overrides {
@@ -129,6 +134,12 @@ impl Overrides {
         }
         if let Some(m) = self.mem_limit {
             parts.push(format!("mem{}M", m >> 20));
+        }
+        if let Some(b) = self.paired_blocks {
+            parts.push(format!("paired{b}"));
+        }
+        if let Some(f) = self.inject_slowdown {
+            parts.push(format!("inject{f}"));
         }
         parts.join("_")
     }
@@ -266,6 +277,10 @@ pub struct Campaign {
     pub checkpoint_every: Option<CheckpointEvery>,
     /// Budget section after CLI overrides.
     pub budget: BudgetSpec,
+    /// The paired design of the cells of two or more threads (`None`: separate runs).
+    pub paired: Option<mpm_spec::spec::Paired>,
+    /// The injected slowdown of every run (a test knob; `None`: off).
+    pub inject_slowdown: Option<f64>,
 }
 
 /// The preset's pinning policies with the places asked (`--places`, else the preset's
@@ -303,6 +318,12 @@ impl Campaign {
             timeout: None,
             checkpoint_every: overrides.checkpoint_every.or(preset.checkpoint_every),
             budget: overrides.budget_of(&preset.budget),
+            paired: match overrides.paired_blocks {
+                Some(0) => None,
+                Some(blocks) => Some(mpm_spec::spec::Paired { blocks }),
+                None => preset.paired.map(|p| mpm_spec::spec::Paired { blocks: p.blocks }),
+            },
+            inject_slowdown: overrides.inject_slowdown,
             preset,
         };
         c.check_matrix()?;
@@ -427,6 +448,10 @@ impl Campaign {
         // Each rank's waiting for the others apart from its communication (the row's wait_*
         // and comm_* columns); the solver refuses it at one rank.
         spec.split_wait = ranks > 1;
+        // The paired design compares a cell's T-thread solver with a one-thread one: cells of
+        // one thread (and the serial strategy) stay separate runs.
+        spec.paired = self.paired.filter(|_| strategy.is_parallel() && threads > 1 && ranks == 1);
+        spec.inject_slowdown = self.inject_slowdown;
         Ok(spec)
     }
 
@@ -443,7 +468,9 @@ impl Campaign {
                     for &strategy in &self.strategies {
                         for &ranks in &self.ranks {
                             for &threads in &self.threads {
-                                if strategy.check_threads(threads).is_err() {
+                                if strategy.check_threads(threads).is_err()
+                                    || self.preset.exclude.iter().any(|e| e.matches(model, opt, strategy, threads))
+                                {
                                     continue;
                                 }
                                 let spec = self.spec_of(model, opt, strategy, ranks, threads)?;

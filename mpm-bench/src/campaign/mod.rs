@@ -5,6 +5,7 @@
 //! * [`memory`]: the memory guard (sizes and estimates from `mpm-core`);
 //! * [`solver`]: building, locating and hashing the `mpm` binaries;
 //! * [`process`]: one run as a child process (and the mock runner for tests);
+//! * [`paired`]: `mpm-bench paired`, the paired design measured in the harness's own process;
 //! * [`launcher`]: the MPI launcher template of runs with several ranks;
 //! * [`runner`]: the loop over the runs, with resume and Ctrl-C;
 //! * [`scheduler`]: where the runs run: here, or as Slurm batch jobs ([`slurm`]: submit,
@@ -24,6 +25,7 @@ pub mod lock;
 pub mod manifest;
 pub mod matrix;
 pub mod memory;
+pub mod paired;
 pub mod preset;
 pub mod process;
 pub mod record;

@@ -41,6 +41,14 @@
 //! opt = "o0"
 //! steps = 1
 //! warmup = 0
+//!
+//! # paired = { blocks = 8 }  # cells of 2+ threads in the paired design (each run: a one-thread
+//! #                          # solver beside the T-thread one, 8 alternating timed blocks of
+//! #                          # (steps - warmup) / 8 steps; repetitions = processes per cell)
+//!
+//! # [[exclude]]             # cells of the matrix not run (every given key must match)
+//! # model = 4
+//! # opt = "o0"
 //! ```
 //!
 //! [`crate::campaign::matrix`] resolves a preset and the command-line overrides into runs.
@@ -56,8 +64,9 @@ use std::path::{Path, PathBuf};
 
 /// Presets shipped with the harness (embedded; `configs/<name>.toml` in the workspace wins
 /// when present, so edits there apply without rebuilding).
-pub const BUILTIN_PRESETS: [(&str, &str); 6] = [
+pub const BUILTIN_PRESETS: [(&str, &str); 7] = [
     ("smoke", include_str!("../../../configs/smoke.toml")),
+    ("ci", include_str!("../../../configs/ci.toml")),
     ("quick", include_str!("../../../configs/quick.toml")),
     ("paper", include_str!("../../../configs/paper.toml")),
     ("impact", include_str!("../../../configs/impact.toml")),
@@ -152,6 +161,38 @@ pub struct BudgetSpec {
     pub overrides: Vec<BudgetOverride>,
 }
 
+/// The paired design of a preset's cells of two or more threads ([`mpm_spec::spec::Paired`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PairedPreset {
+    /// Timed blocks of each solver per run.
+    pub blocks: u64,
+}
+
+/// Cells of the matrix a preset leaves out: those matching every key given.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Exclude {
+    /// Model.
+    pub model: Option<u32>,
+    /// Optimisation level.
+    pub opt: Option<OptLevel>,
+    /// Strategy.
+    pub strategy: Option<Strategy>,
+    /// Threads (per rank).
+    pub threads: Option<usize>,
+}
+
+impl Exclude {
+    /// Whether the cell (model, opt, strategy, threads) is left out by this entry.
+    pub fn matches(&self, model: u32, opt: OptLevel, strategy: Strategy, threads: usize) -> bool {
+        self.model.is_none_or(|m| m == model)
+            && self.opt.is_none_or(|o| o == opt)
+            && self.strategy.is_none_or(|s| s == strategy)
+            && self.threads.is_none_or(|t| t == threads)
+    }
+}
+
 /// A preset as written in TOML.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -210,6 +251,12 @@ pub struct Preset {
     pub checkpoint_every: Option<mpm_spec::spec::CheckpointEvery>,
     /// Step budget.
     pub budget: BudgetSpec,
+    /// Measure the cells of two or more threads in the paired design.
+    #[serde(default)]
+    pub paired: Option<PairedPreset>,
+    /// Cells of the matrix not run.
+    #[serde(default)]
+    pub exclude: Vec<Exclude>,
 }
 
 fn one() -> u32 {

@@ -16,7 +16,9 @@ use super::launcher::Launcher;
 use super::matrix::PlannedRun;
 use super::preset::OptLevel;
 use mpm_core::{Strategy, Substage};
-use mpm_spec::summary::{EndReason, RankReport, StageSeconds, Summary};
+use mpm_spec::summary::{
+    EndReason, NoiseReport, PairedReport, RankReport, StageSeconds, Summary, WorkReport, WorkerUsage, MIN_CPU_SHARE,
+};
 use mpm_spec::RunSpec;
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -386,6 +388,12 @@ pub struct MockRunner {
     pub interrupt_after: Option<(usize, Arc<AtomicBool>)>,
     /// Sleep this long per run.
     pub delay: Duration,
+    /// Report a worker with half the wall time as CPU time for runs whose description
+    /// contains this.
+    pub low_cpu_when: Option<String>,
+    /// Standard deviation of the mock's process effect on a paired run's efficiency (in
+    /// logs; `None`: 0.03): the spread between processes that the blocks do not show.
+    pub process_spread: Option<f64>,
 }
 
 impl Runner for MockRunner {
@@ -422,6 +430,8 @@ impl Runner for MockRunner {
         let wrong = self.wrong_cpus_when.as_ref().is_some_and(|f| desc.contains(f.as_str()));
         let observed: Vec<usize> = if wrong { requested.iter().map(|c| c + 1).collect() } else { requested.clone() };
         let mut summary = mock_summary(req, requested, observed);
+        let low_cpu = self.low_cpu_when.as_ref().is_some_and(|f| desc.contains(f.as_str()));
+        mock_noise_work_paired(req, &mut summary, low_cpu, self.process_spread.unwrap_or(0.03));
         if req.spec.ranks > 1 {
             summary.ranks = Some(mock_ranks(req, &summary, wrong, split_wait));
         }
@@ -477,6 +487,95 @@ fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool, split_wait: bool) -> V
         .collect()
 }
 
+/// A generator seeded by the run's summary path (unique per run and campaign), so that the
+/// mock's noise differs between runs but repeats for the same run.
+fn mock_rng(req: &RunRequest) -> crate::util::SplitMix64 {
+    let key = req.json_path.display().to_string();
+    crate::util::SplitMix64(
+        key.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)),
+    )
+}
+
+/// A standard normal variate (Box-Muller).
+fn mock_normal(rng: &mut crate::util::SplitMix64) -> f64 {
+    let u = |r: &mut crate::util::SplitMix64| ((r.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+    let (a, b) = (u(rng), u(rng));
+    (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+}
+
+/// The mock's workers' CPU time (all of the wall, or half for one worker when `low_cpu`),
+/// its work counters (the serial traffic of the model, AE's copies and DD's faces on top,
+/// split evenly; independent of the host and of an injected slowdown), and for a paired
+/// spec its blocks: the one-thread time, and the `T`-thread time at an efficiency of 0.9
+/// times a process effect (`spread`, in logs) times block noise (1 %), slowed by an injected
+/// slowdown `F` to `1 / (1 - F)`.
+fn mock_noise_work_paired(req: &RunRequest, s: &mut Summary, low_cpu: bool, spread: f64) {
+    let spec = &req.spec;
+    let t = spec.threads;
+    let share = |w: usize| if low_cpu && w + 1 == t { 0.5 } else { 0.99 };
+    let workers = (0..t)
+        .map(|w| WorkerUsage { cpu_s: share(w) * s.wall_s, cpu_share: share(w), ..WorkerUsage::default() })
+        .collect();
+    s.noise = Some(NoiseReport::new(s.wall_s, workers, MIN_CPU_SHARE));
+    let serial = (s.particles as u64) * s.steps * 1000;
+    let extra = match spec.strategy {
+        Strategy::Serial => 0,
+        Strategy::ArrayExpansion => serial / 10 * t as u64,
+        Strategy::DomainDecomposition | Strategy::DdBalanced => serial / 20,
+    };
+    let per = (serial + extra) / t as u64;
+    let bytes: std::collections::BTreeMap<Substage, Vec<u64>> =
+        [(Substage::Scatter, 0.4), (Substage::Assembly, 0.1), (Substage::StressUpdate, 0.5)]
+            .into_iter()
+            .map(|(k, f)| (k, vec![(per as f64 * f) as u64; t]))
+            .collect();
+    let worker_bytes: Vec<u64> = (0..t).map(|w| bytes.values().map(|v| v[w]).sum()).collect();
+    let max = worker_bytes.iter().copied().max().unwrap_or(1).max(1);
+    s.work = Some(WorkReport {
+        workers: Vec::new(),
+        bytes,
+        serial_bytes: serial,
+        balance: 1.0,
+        overhead: 1.0 - serial as f64 / worker_bytes.iter().sum::<u64>() as f64,
+        efficiency_bound: serial as f64 / (t as f64 * max as f64),
+        worker_bytes,
+    });
+    let inject = spec.inject_slowdown.unwrap_or(0.0);
+    s.inject_slowdown = spec.inject_slowdown;
+    if inject > 0.0 && t > 1 {
+        s.injected_s = Some(inject * s.wall_s);
+    }
+    let Some(p) = spec.paired else { return };
+    let warmup = spec.budget.warmup.unwrap_or(0);
+    let Ok(block_steps) = spec.paired_block_steps(warmup) else { return };
+    let mut rng = mock_rng(req);
+    // The one-thread time: the mock's T-thread step (slowed by the injection) at 0.9.
+    let t1 = s.steady_s_per_step.unwrap_or(1e-3) * (1.0 - inject) * t as f64 * 0.9;
+    let effect = (spread * mock_normal(&mut rng)).exp();
+    let (mut t1s, mut tts) = (Vec::new(), Vec::new());
+    for _ in 0..p.blocks {
+        t1s.push(t1 * (0.01 * mock_normal(&mut rng)).exp());
+        let e = 0.9 * effect * (0.01 * mock_normal(&mut rng)).exp();
+        tts.push(t1 / (t as f64 * e) / (1.0 - inject));
+    }
+    let eff: Vec<f64> = t1s.iter().zip(&tts).map(|(a, b)| a / (t as f64 * b)).collect();
+    s.steady_s_per_step = Some(crate::util::median(&tts));
+    s.paired = Some(PairedReport {
+        reference_threads: 1,
+        blocks: p.blocks,
+        block_steps,
+        reference_cpus: s.requested_cpus.first().copied().into_iter().collect(),
+        efficiency: PairedReport::geometric_mean(&eff),
+        block_efficiency: eff,
+        reference_first: (0..p.blocks).map(|b| b % 2 == 0).collect(),
+        t1_s_per_step: t1s,
+        tt_s_per_step: tts,
+        reference_steady_substages: s.steady_substages.clone(),
+        reference_noise: None,
+        max_position_difference: 0.0,
+    });
+}
+
 /// A plausible summary of `req`: times from the model size, strategy, threads and
 /// optimisation level; the CPUs as given.
 fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -> Summary {
@@ -488,7 +587,11 @@ fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -
         Strategy::DomainDecomposition | Strategy::DdBalanced => 0.9,
         Strategy::Serial | Strategy::ArrayExpansion => 0.8,
     } * (s.total_workers().min(2) as f64);
-    let per_step = size.particles as f64 * 50e-9 * if req.planned.opt == OptLevel::O0 { 8.0 } else { 1.0 } / speed;
+    // An injected slowdown F slows every run of more than one worker to 1 / (1 - F).
+    let inject = if s.total_workers() > 1 { s.inject_slowdown.unwrap_or(0.0) } else { 0.0 };
+    let per_step = size.particles as f64 * 50e-9 * if req.planned.opt == OptLevel::O0 { 8.0 } else { 1.0 }
+        / speed
+        / (1.0 - inject);
     let wall = per_step * steps as f64;
     let steady = per_step * (steps - warmup) as f64;
     let split = |total: f64| {

@@ -45,9 +45,12 @@ use std::sync::OnceLock;
 /// planned run's spec flattened (`scenario.kind`, `physics.cfl`, `budget.steps`, ...), the
 /// resume key `run_key`, lists as lists, sub-stages by the solver's names
 /// (`substages.scatter`), and the steady-state stage times (`steady_*`). Schema 7 adds the
-/// node the run ran on (`node`) and its Slurm job (`job_id`), and the checkpoints and
-/// restarts (`checkpoints_written`, `checkpoint_write_s`, `restarts`, `restart_setup_s`,
-/// `lost_compute_s`); schema-6 files read with them empty.
+/// node the run ran on (`node`) and its Slurm job (`job_id`), the checkpoints and restarts
+/// (`checkpoints_written`, `checkpoint_write_s`, `restarts`, `restart_setup_s`,
+/// `lost_compute_s`), the paired design (`paired.blocks` planned, `paired_*` measured: the
+/// blocks' times), the workers' CPU time against the wall (`cpu_share_*`,
+/// `involuntary_switches`), the work counters (`work_bytes.<stage>`, `work_*`) and the
+/// injected slowdown (`inject_slowdown`, `injected_s`); schema-6 files read with these empty.
 pub const SCHEMA_VERSION: u32 = 7;
 
 /// Outcome of one run.
@@ -260,6 +263,44 @@ pub struct Measured {
     pub restarts: Option<u32>,
     /// Seconds the restarts spent before their first step (in none of the timings above).
     pub restart_setup_s: Option<f64>,
+    /// A paired run's timed blocks completed by both solvers (schema 7).
+    pub paired_blocks: Option<u64>,
+    /// Its steps per block.
+    pub paired_block_steps: Option<u64>,
+    /// Seconds per step of the one-thread reference solver, per block.
+    #[serde(default)]
+    pub paired_t1_s: Vec<f64>,
+    /// Seconds per step of the `threads`-thread solver, per block.
+    #[serde(default)]
+    pub paired_tt_s: Vec<f64>,
+    /// The process's paired efficiency: the geometric mean of its blocks' `t1 / (T tT)`.
+    pub paired_efficiency: Option<f64>,
+    /// The reference solver's grid-node stage over its blocks (s).
+    pub paired_t1_grid_stage_s: Option<f64>,
+    /// The reference solver's particle stage over its blocks (s).
+    pub paired_t1_particle_stage_s: Option<f64>,
+    /// Each worker's CPU time over the wall time of the steps (1: it ran all the time;
+    /// a paired run: over its blocks).
+    #[serde(default)]
+    pub cpu_share: Vec<f64>,
+    /// The smallest `cpu_share`, the paired reference's included.
+    pub cpu_share_min: Option<f64>,
+    /// Each worker's involuntary context switches over the same span.
+    #[serde(default)]
+    pub involuntary_switches: Vec<u64>,
+    /// Per sub-stage, the bytes each worker's counted work stands for (worker order; see
+    /// `mpm_core::work`): deterministic, the same on any host.
+    pub work_bytes: BTreeMap<Substage, Vec<u64>>,
+    /// `W_1`: the bytes the serial solver moves for the same steps.
+    pub work_serial_bytes: Option<u64>,
+    /// The parallel efficiency the counted traffic allows, `W_1 / (T max W_w)`.
+    pub work_bound: Option<f64>,
+    /// `mean W_w / max W_w`.
+    pub work_balance: Option<f64>,
+    /// `1 - W_1 / sum W_w`: the share of the traffic the strategy adds.
+    pub work_overhead: Option<f64>,
+    /// Seconds of injected extra work (a test knob: such a row is never a result).
+    pub injected_s: Option<f64>,
 }
 
 impl Measured {
@@ -320,6 +361,7 @@ impl Measured {
             restart_setup_s: s.checkpoint.as_ref().map(|c| c.restart_setup_s),
             ..Measured::default()
         };
+        m.add_paired_noise_work(s);
         if let Some(ranks) = s.ranks.as_deref().filter(|r| !r.is_empty()) {
             m.rank_particles = ranks.iter().map(|r| r.particles as u64).collect();
             m.rank_busy_imbalance = load_imbalance(&ranks.iter().map(|r| r.busy_s).collect::<Vec<_>>());
@@ -347,6 +389,36 @@ impl Measured {
             m.comm_messages_per_step = Some(messages as f64 / steps);
         }
         m
+    }
+}
+
+impl Measured {
+    /// The summary's paired blocks, the workers' CPU time, the work counters and the
+    /// injected work (schema 7).
+    fn add_paired_noise_work(&mut self, s: &Summary) {
+        if let Some(p) = &s.paired {
+            self.paired_blocks = Some(p.blocks);
+            self.paired_block_steps = Some(p.block_steps);
+            self.paired_t1_s = p.t1_s_per_step.clone();
+            self.paired_tt_s = p.tt_s_per_step.clone();
+            self.paired_efficiency = p.efficiency.is_finite().then_some(p.efficiency);
+            self.paired_t1_grid_stage_s = p.reference_steady_substages.grid_stage();
+            self.paired_t1_particle_stage_s = p.reference_steady_substages.particle_stage();
+        }
+        if let Some(n) = &s.noise {
+            self.cpu_share = n.workers.iter().map(|w| w.cpu_share).collect();
+            self.involuntary_switches = n.workers.iter().map(|w| w.involuntary_switches).collect();
+        }
+        let reference = s.paired.as_ref().and_then(|p| p.reference_noise.as_ref());
+        self.cpu_share_min = s.noise.iter().chain(reference).map(|n| n.min_cpu_share).reduce(f64::min);
+        if let Some(w) = &s.work {
+            self.work_bytes = w.bytes.clone();
+            self.work_serial_bytes = Some(w.serial_bytes);
+            self.work_bound = Some(w.efficiency_bound);
+            self.work_balance = Some(w.balance);
+            self.work_overhead = Some(w.overhead);
+        }
+        self.injected_s = s.injected_s;
     }
 }
 
@@ -503,6 +575,8 @@ impl Row {
                 spec.rank_layout = Some([1, 1, 1]);
                 spec.budget.steps = Some(1);
                 spec.budget.warmup = Some(0);
+                spec.paired = Some(mpm_spec::spec::Paired { blocks: 0 });
+                spec.inject_slowdown = Some(0.0);
                 let run = PlannedRun {
                     spec,
                     model: 1,
@@ -572,6 +646,22 @@ impl Row {
                         checkpoint_write_s: Some(0.0),
                         restarts: Some(0),
                         restart_setup_s: Some(0.0),
+                        paired_blocks: Some(0),
+                        paired_block_steps: Some(0),
+                        paired_t1_s: vec![0.0],
+                        paired_tt_s: vec![0.0],
+                        paired_efficiency: Some(0.0),
+                        paired_t1_grid_stage_s: Some(0.0),
+                        paired_t1_particle_stage_s: Some(0.0),
+                        cpu_share: vec![0.0],
+                        cpu_share_min: Some(0.0),
+                        involuntary_switches: vec![0],
+                        work_bytes: Substage::ALL.iter().map(|&s| (s, vec![0])).collect(),
+                        work_serial_bytes: Some(0),
+                        work_bound: Some(0.0),
+                        work_balance: Some(0.0),
+                        work_overhead: Some(0.0),
+                        injected_s: Some(0.0),
                     },
                     host: HostColumns {
                         host_load1_before: Some(0.0),
@@ -668,6 +758,36 @@ impl Row {
     /// `pus` usable PUs (every worker of the run counted).
     pub fn set_host(&mut self, h: &HostReading, pus: usize) {
         self.host = HostColumns::of(h, self.threads(), pus);
+    }
+
+    /// Flag the row `host_noisy` when a worker got less than
+    /// [`mpm_spec::summary::MIN_CPU_SHARE`] of the wall time as CPU time (the solver's own
+    /// measurement of each worker thread), saying which share in `host_noise`. Oversubscribed
+    /// runs share their CPUs by design and are not flagged for it.
+    pub fn flag_low_cpu_share(&mut self) {
+        let threshold = mpm_spec::summary::MIN_CPU_SHARE;
+        let Some(min) = self.measured.cpu_share_min.filter(|&m| m < threshold) else { return };
+        if self.placement.oversubscribed {
+            return;
+        }
+        let why = format!(
+            "a worker got {:.0} % of the wall time as CPU time (below {:.0} %: something else ran on its CPU)",
+            100.0 * min,
+            100.0 * threshold
+        );
+        self.host.host_noisy = true;
+        self.host.host_noise =
+            if self.host.host_noise.is_empty() { why } else { format!("{}; {why}", self.host.host_noise) };
+    }
+
+    /// The injected slowdown the row ran with (a test knob), if any.
+    pub fn injected(&self) -> Option<f64> {
+        self.run.spec.inject_slowdown.filter(|&f| f > 0.0)
+    }
+
+    /// Whether the row measured a paired cell (its blocks are in `paired_t1_s`, `paired_tt_s`).
+    pub fn is_paired(&self) -> bool {
+        !self.measured.paired_t1_s.is_empty() && self.measured.paired_t1_s.len() == self.measured.paired_tt_s.len()
     }
 
     /// The row's cells, in column order.

@@ -128,7 +128,7 @@ impl ExecSummary {
     /// Closing summary lines.
     pub fn report(&self) -> String {
         format!(
-            "{}: {} rows written ({} ok, {} skipped, {} failed, {} invalid; {} oversubscribed), \
+            "{}: {} rows written ({} ok, {} skipped, {} failed, {} invalid; {} oversubscribed, {} flagged noisy), \
              {} already done of {} planned, wall time {}",
             if self.counts.interrupted {
                 "interrupted"
@@ -143,6 +143,7 @@ impl ExecSummary {
             self.counts.failed,
             self.counts.invalid,
             self.counts.oversubscribed,
+            self.counts.noisy,
             self.counts.already_done,
             self.counts.planned,
             humantime::format_duration(Duration::from_secs(self.wall.as_secs()))
@@ -170,7 +171,9 @@ fn cost(run: &PlannedRun) -> u64 {
     let p = run.spec.scenario.size().particles;
     let steps = run.spec.budget.steps.unwrap_or(300) + 3; // + set-up, in step equivalents
     let f = if run.opt == OptLevel::O0 { 6 } else { 1 };
-    (p / 1000).max(1) * steps * f
+    // A paired run also steps its one-thread reference.
+    let paired = if run.spec.paired.is_some() { 2 } else { 1 };
+    (p / 1000).max(1) * steps * f * paired
 }
 
 /// The campaign folder: `<out_root>/<fingerprint>/<campaign id>` (before the resume rule
@@ -756,6 +759,7 @@ impl RunContext<'_> {
             if let (Some(w), Some(b)) = (watch, before) {
                 row.set_host(&w.after_run(&probe_cpus, b), self.machine.usable_pus().len());
             }
+            row.flag_low_cpu_share();
         }
         row.id.run_id = run_id;
         row.id.timestamp = now_rfc3339();
@@ -819,7 +823,9 @@ pub fn estimate_duration(
         };
         let workers = r.total_threads();
         let speed = if workers > 1 { 0.8 * workers.min(cores) as f64 } else { 1.0 };
-        total += p * setup + steps * p * ns * 1e-9 / speed;
+        // A paired run steps a one-thread reference beside it.
+        let reference = if r.spec.paired.is_some() { steps * p * ns * 1e-9 } else { 0.0 };
+        total += p * setup + steps * p * ns * 1e-9 / speed + reference;
     }
     let rates: Vec<String> =
         calib.iter().map(|(o, (ns, _, _))| format!("{ns:.0} ns per particle-step at {o}")).collect();
@@ -844,6 +850,9 @@ fn count(counts: &mut manifest::SessionCounts, row: &Row) {
     }
     if row.placement.oversubscribed {
         counts.oversubscribed += 1;
+    }
+    if row.host.host_noisy {
+        counts.noisy += 1;
     }
 }
 

@@ -17,7 +17,6 @@
 //! campaign's own previous runs.
 
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
@@ -28,80 +27,9 @@ pub const STEAL_MAX: f64 = 0.05;
 /// Largest calibration time over the session start's of a quiet host.
 pub const CALIBRATION_MAX: f64 = 1.25;
 
-/// Accumulated CPU time of one CPU (or all), in clock ticks.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct CpuTimes {
-    /// Not idle and not waiting for I/O.
-    pub busy: u64,
-    /// Everything (steal included).
-    pub total: u64,
-    /// Stolen by the hypervisor.
-    pub steal: u64,
-}
-
-/// One reading of `/proc/stat`: CPU times of all CPUs and of each, runnable tasks.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct StatSnapshot {
-    /// The `cpu` line.
-    pub all: CpuTimes,
-    /// The `cpuN` lines.
-    pub cpus: BTreeMap<usize, CpuTimes>,
-    /// `procs_running`: runnable tasks, the reader included.
-    pub procs_running: u32,
-}
-
-/// Parse `/proc/stat` (`None` when it has no `cpu` line).
-pub fn parse_proc_stat(text: &str) -> Option<StatSnapshot> {
-    let mut snap = StatSnapshot::default();
-    let mut seen_all = false;
-    for line in text.lines() {
-        let mut it = line.split_whitespace();
-        let Some(name) = it.next() else { continue };
-        if name == "procs_running" {
-            snap.procs_running = it.next().and_then(|v| v.parse().ok()).unwrap_or(0);
-        } else if let Some(id) = name.strip_prefix("cpu") {
-            // user nice system idle iowait irq softirq steal (guest time is inside user).
-            let v: Vec<u64> = it.take(8).map(|x| x.parse().unwrap_or(0)).collect();
-            let get = |i: usize| v.get(i).copied().unwrap_or(0);
-            let total: u64 = v.iter().sum();
-            let t = CpuTimes { busy: total.saturating_sub(get(3) + get(4)), total, steal: get(7) };
-            if id.is_empty() {
-                snap.all = t;
-                seen_all = true;
-            } else if let Ok(n) = id.parse() {
-                snap.cpus.insert(n, t);
-            }
-        }
-    }
-    seen_all.then_some(snap)
-}
-
-impl StatSnapshot {
-    /// This host now (`None` without `/proc/stat`).
-    pub fn read() -> Option<Self> {
-        parse_proc_stat(&std::fs::read_to_string("/proc/stat").ok()?)
-    }
-
-    /// Fraction of the CPU time that the hypervisor stole between `self` and `later`.
-    pub fn steal_since(&self, later: &Self) -> Option<f64> {
-        let dt = later.all.total.checked_sub(self.all.total)?;
-        (dt > 0).then(|| later.all.steal.saturating_sub(self.all.steal) as f64 / dt as f64)
-    }
-
-    /// Mean busy fraction of `cpus` (all CPUs when empty) between `self` and `later`.
-    pub fn busy_since(&self, later: &Self, cpus: &[usize]) -> Option<f64> {
-        let ids: Vec<usize> = if cpus.is_empty() { self.cpus.keys().copied().collect() } else { cpus.to_vec() };
-        let fr: Vec<f64> = ids
-            .iter()
-            .filter_map(|c| {
-                let (a, b) = (self.cpus.get(c)?, later.cpus.get(c)?);
-                let dt = b.total.checked_sub(a.total)?;
-                (dt > 0).then(|| b.busy.saturating_sub(a.busy) as f64 / dt as f64)
-            })
-            .collect();
-        (!fr.is_empty()).then(|| fr.iter().sum::<f64>() / fr.len() as f64)
-    }
-}
+/// `/proc/stat` and its reader live with the solver program's own measurement of noise
+/// (`mpm_cli::usage`), which reads the steal of each worker's CPU.
+pub use mpm_cli::usage::{parse_proc_stat, CpuTimes, StatSnapshot};
 
 /// The 1-minute load average (`/proc/loadavg`).
 pub fn load1() -> Option<f64> {
@@ -241,27 +169,6 @@ impl HostReading {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    const STAT: &str = "cpu  100 0 50 800 10 0 0 40 0 0\ncpu0 60 0 30 400 5 0 0 20 0 0\n\
-        cpu1 40 0 20 400 5 0 0 20 0 0\nintr 1 2 3\nprocs_running 3\nprocs_blocked 0\n";
-
-    #[test]
-    fn proc_stat_is_parsed() {
-        let s = parse_proc_stat(STAT).unwrap();
-        assert_eq!(s.all, CpuTimes { busy: 190, total: 1000, steal: 40 });
-        assert_eq!(s.cpus[&0], CpuTimes { busy: 110, total: 515, steal: 20 });
-        assert_eq!(s.procs_running, 3);
-        assert!(parse_proc_stat("intr 1\n").is_none());
-        let mut later = s.clone();
-        later.all = CpuTimes { busy: 290, total: 1200, steal: 60 };
-        later.cpus.insert(0, CpuTimes { busy: 210, total: 615, steal: 20 });
-        later.cpus.insert(1, CpuTimes { busy: 80, total: 585, steal: 20 });
-        assert_eq!(s.steal_since(&later), Some(0.1));
-        assert_eq!(s.busy_since(&later, &[0]), Some(1.0));
-        assert_eq!(s.busy_since(&later, &[]), Some(0.5));
-        assert_eq!(s.busy_since(&later, &[7]), None);
-        assert_eq!(s.steal_since(&s), None, "no time passed");
-    }
 
     fn quiet() -> HostReading {
         let p = Probe { load1: Some(0.2), others_running: Some(0), cpus_busy: Some(0.02) };

@@ -49,6 +49,10 @@ pub struct ReportArgs {
     /// claims and regress, so the page's claims are `mpm-bench claims`'s.
     #[arg(long)]
     pub include_noisy: bool,
+    /// Also analyse rows that ran with an injected slowdown (`--inject-slowdown`, a test knob
+    /// of the regression gate): never results, refused by default.
+    #[arg(long)]
+    pub include_injected: bool,
 }
 
 /// One campaign with its analysis and claims.
@@ -130,7 +134,7 @@ fn load_sets(args: &ReportArgs) -> Result<Vec<Set>> {
     let mut sets = Vec::new();
     for d in &args.dirs {
         // A campaign of several machines (a cluster's node types): one set per machine.
-        let parts = load_campaigns(d, &RowFilter::analysis(args.include_noisy))
+        let parts = load_campaigns(d, &RowFilter::analysis(args.include_noisy).with_injected(args.include_injected))
             .with_context(|| format!("reading results {}", d.display()))?;
         for c in parts {
             c.note_left_out("report");
@@ -346,9 +350,14 @@ fn scaling_tables(sets: &[Set]) -> Vec<Block> {
                 let mut r = vec![format!("Model{m}"), set.label.clone()];
                 r.extend(threads.iter().map(|&n| match set.analysis.point(m, st, opt, n, Stage::Total) {
                     Some(p) => match (p.speedup, p.efficiency) {
-                        (Some(sp), Some(e)) => {
-                            format!("{} / {}{}", sp.show(2), e.show(2), if p.oversubscribed { " *" } else { "" })
-                        }
+                        (Some(sp), Some(e)) => format!(
+                            "{} / {}{}{}",
+                            sp.show(2),
+                            e.show(2),
+                            if p.oversubscribed { " *" } else { "" },
+                            // Which design the numbers come from (separate runs are the default).
+                            if p.design == crate::analysis::stats::Design::Paired { " (paired)" } else { "" }
+                        ),
                         _ => "no T1".into(),
                     },
                     None => "-".into(),

@@ -51,6 +51,10 @@ pub struct FiguresArgs {
     /// by claims, regress and report.
     #[arg(long)]
     pub include_noisy: bool,
+    /// Also analyse rows that ran with an injected slowdown (`--inject-slowdown`, a test knob
+    /// of the regression gate): never results, refused by default.
+    #[arg(long)]
+    pub include_injected: bool,
 }
 
 /// Speedup or efficiency.
@@ -162,8 +166,11 @@ pub struct FigurePoint {
     pub lo: f64,
     /// Its 95 % interval.
     pub hi: f64,
-    /// Repetitions behind it.
+    /// Repetitions behind it (processes, for a paired point).
     pub reps: usize,
+    /// Which design the speedup or efficiency comes from: `separate` runs, or `paired`
+    /// (1-thread and T-thread solvers in the same processes); `-` for memory.
+    pub design: String,
     /// Drawn hollow: more threads than cores.
     pub oversubscribed: bool,
     /// Drawn grey: measured on a busy host.
@@ -200,6 +207,7 @@ pub fn figure_points(an: &Analysis) -> Vec<FigurePoint> {
                         lo: e.lo,
                         hi: e.hi,
                         reps: e.reps,
+                        design: p.design.name().into(),
                         oversubscribed: p.oversubscribed,
                         noisy: p.noisy,
                         flags: p.flags.join("; "),
@@ -227,6 +235,7 @@ pub fn figure_points(an: &Analysis) -> Vec<FigurePoint> {
                         lo: e.lo,
                         hi: e.hi,
                         reps: e.reps,
+                        design: "-".into(),
                         oversubscribed: cell.oversubscribed,
                         noisy: cell.noisy > 0,
                         flags: String::new(),
@@ -319,7 +328,17 @@ pub fn footnotes(c: &Campaign, an: &Analysis) -> Vec<String> {
     } else {
         ""
     };
-    vec![
+    let paired = an.points.iter().any(|p| p.design == crate::analysis::stats::Design::Paired);
+    let mut out = Vec::new();
+    if paired {
+        out.push(
+            "Paired cells (design `paired` in points.csv): speedup and efficiency from the 1-thread and T-thread \
+             solvers of the same processes, points the geometric mean over processes, bars the 95 % interval over \
+             processes (Student t)."
+                .to_string(),
+        );
+    }
+    out.extend([
         format!("{bars}{hollow} Missing points: no ok run (e.g. skipped by the memory guard)."),
         format!(
             "Campaign {} on machine {} ({} rows, pinning '{}'); T1 = the same strategy on 1 thread.",
@@ -328,7 +347,8 @@ pub fn footnotes(c: &Campaign, an: &Analysis) -> Vec<String> {
             c.rows.len(),
             an.pin_policy
         ),
-    ]
+    ]);
+    out
 }
 
 /// Bytes per GiB.
@@ -557,7 +577,8 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
 
 /// `mpm-bench figures`.
 pub fn run(args: FiguresArgs) -> Result<()> {
-    let parts = load_campaigns(&args.results, &RowFilter::analysis(args.include_noisy))?;
+    let parts =
+        load_campaigns(&args.results, &RowFilter::analysis(args.include_noisy).with_injected(args.include_injected))?;
     let mut command = format!("mpm-bench figures --results {} --out {}", args.results.display(), args.out.display());
     if let Some(p) = &args.pin {
         let _ = write!(command, " --pin {p}");

@@ -2,6 +2,7 @@
 //! the current parallel region.
 
 use super::disjoint::ChunkSet;
+use super::tally::{Counters, Tally};
 use super::team::Team;
 use std::marker::PhantomData;
 
@@ -15,6 +16,8 @@ use std::marker::PhantomData;
 pub struct Exec<'a> {
     kind: Kind<'a>,
     workers: usize,
+    /// Where the shares' [`Tally`] adds (none: the tally counts nothing).
+    counters: Option<&'a Counters>,
     _driver_only: PhantomData<*const ()>,
 }
 
@@ -27,7 +30,7 @@ enum Kind<'a> {
 impl Exec<'static> {
     /// One share, run on the calling thread.
     pub fn serial() -> Self {
-        Self { kind: Kind::Serial, workers: 1, _driver_only: PhantomData }
+        Self { kind: Kind::Serial, workers: 1, counters: None, _driver_only: PhantomData }
     }
 }
 
@@ -35,7 +38,24 @@ impl<'a> Exec<'a> {
     /// The executor of `team`'s current region: only [`Team::region`] makes one, on the
     /// region's driver.
     pub(super) fn team(team: &'a Team) -> Self {
-        Self { kind: Kind::Team(team), workers: team.workers(), _driver_only: PhantomData }
+        Self { kind: Kind::Team(team), workers: team.workers(), counters: None, _driver_only: PhantomData }
+    }
+
+    /// This executor with its shares' tallies adding to `counters` (one row per worker).
+    pub fn counting<'b>(&'b self, counters: &'b Counters) -> Exec<'b> {
+        assert!(
+            counters.workers() >= self.workers,
+            "{} worker(s) counted by {} row(s) of counters",
+            self.workers,
+            counters.workers()
+        );
+        Exec { kind: self.kind, workers: self.workers, counters: Some(counters), _driver_only: PhantomData }
+    }
+
+    /// What a share adds its counts to: this executor's counters, if it has any. `Copy` and
+    /// `Sync`, so a phase's closure captures it.
+    pub fn tally(&self) -> Tally<'a> {
+        Tally::of(self.counters)
     }
 
     /// Number of workers (shares per phase).

@@ -17,6 +17,8 @@
 //!   in any share is re-raised on the caller after the other shares finished.
 //! * [`Exec::for_each_chunk_mut`] checks the split once per phase and hands each worker its
 //!   own `&mut` part; no caller needs `unsafe`.
+//! * [`Exec::tally`] gives the shares per-worker [`Counters`] to add their work to (once per
+//!   share, on lines the worker owns; [`crate::work`] says what is counted).
 //!
 //! The unsafe code lives in `team.rs` (the phase closure is shared with the workers through a
 //! raw pointer; its lifetime is guarded by the barrier) and in `disjoint.rs` (a slice shared
@@ -27,11 +29,13 @@
 mod disjoint;
 mod exec;
 mod sync;
+mod tally;
 mod team;
 
 pub(crate) use disjoint::DisjointSlice;
 pub use disjoint::{ChunkSet, Parts, Split};
 pub use exec::Exec;
+pub use tally::{Counters, Tally, LANES};
 pub use team::{RegionError, Team};
 
 use std::ops::Range;

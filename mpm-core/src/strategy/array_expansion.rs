@@ -9,6 +9,8 @@ use crate::blocks::BlockMap;
 use crate::grid::{GridGeom, NodeIndex, Records};
 use crate::math::Vec3;
 use crate::parallel::{partition, Exec, Split};
+use crate::work::Tally;
+use std::mem::size_of;
 
 /// The array-expansion strategy for `threads` threads (one copy of the arrays per thread).
 #[derive(Clone, Copy, Debug)]
@@ -37,10 +39,14 @@ pub fn scatter<const K: usize, F>(
 {
     let t = exec.workers();
     columns.resize(nn * t);
+    let tally = Tally::of(exec);
     exec.for_each_chunk_mut(Split::Blocks(nn).of(columns), |j, column| {
         column.fill([0.0; K]);
         let mut nodes = Cursors::global(*index);
-        kernel.scatter_all(partition(n, t, j), &mut nodes, column);
+        let mine = partition(n, t, j);
+        tally.particles(j, mine.len());
+        tally.scattered(j, column.len(), size_of::<[f64; K]>(), true);
+        kernel.scatter_all(mine, &mut nodes, column);
     });
 }
 
@@ -48,8 +54,10 @@ pub fn scatter<const K: usize, F>(
 pub fn assemble<const K: usize>(exec: &Exec<'_>, global: &mut [[f64; K]], columns: &[[f64; K]]) {
     let nn = global.len();
     let t = exec.workers();
+    let tally = Tally::of(exec);
     exec.for_each_chunk_mut(Split::Even.of(global), |w, dst| {
         let r = partition(nn, t, w);
+        tally.assembled(w, dst.len(), t * dst.len(), size_of::<[f64; K]>());
         dst.copy_from_slice(&columns[r.clone()]);
         for j in 1..t {
             let src = &columns[j * nn + r.start..j * nn + r.end];

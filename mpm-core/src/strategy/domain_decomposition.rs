@@ -53,6 +53,7 @@ use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
 use crate::grid::{GridGeom, NodeIndex, Records};
 use crate::math::Vec3;
 use crate::parallel::{partition, DisjointSlice, Exec, Split};
+use crate::work::Tally;
 use std::mem::size_of;
 
 /// The patch layout `[px, py, pz]` for `threads` patches over a grid of `cells`.
@@ -173,7 +174,9 @@ where
     F: Fn(usize) -> (S, usize) + Sync,
 {
     let (n, t) = (labels.len(), exec.workers());
+    let tally = Tally::of(exec);
     exec.for_each_chunk_mut((Split::Even.of(labels), Split::Blocks(stride).of(hist)), |w, (mine, row)| {
+        tally.particles(w, mine.len());
         let row = &mut row[..bins];
         row.fill(0);
         for (slot, p) in mine.iter_mut().zip(partition(n, t, w)) {
@@ -249,7 +252,9 @@ impl Binning {
         // advancing its own row of write cursors.
         let pindex = DisjointSlice::new(&mut self.pindex);
         let patch_of = &self.patch_of;
+        let tally = Tally::of(exec);
         exec.for_each_chunk_mut(Split::Blocks(stride).of(&mut self.cursor), |w, cur| {
+            tally.particles(w, partition(n, t, w).len());
             for p in partition(n, t, w) {
                 let j = patch_of[p] as usize;
                 let slot = j * rows + cur[j] as usize;
@@ -440,7 +445,9 @@ impl DomainDecomposition {
         self.cell_of.resize(n, [0; 3]);
         self.hist.resize(t * stride, 0);
         let cells = &mut self.cell_of;
+        let tally = Tally::of(exec);
         exec.for_each_chunk_mut((Split::Even.of(cells), Split::Blocks(stride).of(&mut self.hist)), |w, (mine, row)| {
+            tally.particles(w, mine.len());
             let row = &mut row[..nx + ny + nz];
             row.fill(0);
             for (slot, p) in mine.iter_mut().zip(partition(n, t, w)) {
@@ -470,6 +477,7 @@ impl DomainDecomposition {
             self.hist.resize(t * stride, 0);
             let (cuts, cell_of) = (&self.cuts, &self.cell_of);
             exec.for_each_chunk_mut(Split::Blocks(stride).of(&mut self.hist[..t * stride]), |w, row| {
+                tally.particles(w, partition(n, t, w).len());
                 let row = &mut row[..len];
                 row.fill(0);
                 for p in partition(n, t, w) {
@@ -545,10 +553,12 @@ impl DomainDecomposition {
     ) {
         let t = exec.workers();
         let out = DisjointSlice::new(global);
+        let tally = Tally::of(exec);
         for (j, (patch, map)) in self.patches.iter().zip(&self.patch_blocks).enumerate() {
             let sub = &subgrids[self.offsets[j]..self.offsets[j + 1]];
             let (lo, hi) = (patch.cell_lo, patch.node_hi());
             exec.run(|w| {
+                let mut nodes = 0;
                 for s in partition(map.len(), t, w) {
                     let b = map.block(s);
                     let g = grid.slot(b).expect("a patch's blocks are stored in the grid's map");
@@ -562,6 +572,7 @@ impl DomainDecomposition {
                     BlockMap::rows_in(b, lo, hi, |[a0, bb, c], locals| {
                         // The node's position in the patch, as `is_first_holder` takes it.
                         let (py, pz) = (b[1] * BLOCK[1] + bb - lo[1], b[2] * BLOCK[2] + c - lo[2]);
+                        nodes += locals.len();
                         for (a, l) in (a0..).zip(locals) {
                             if patch.is_first_holder([b[0] * BLOCK[0] + a - lo[0], py, pz]) {
                                 dst[l] = src[l];
@@ -573,6 +584,7 @@ impl DomainDecomposition {
                         }
                     });
                 }
+                tally.assembled(w, nodes, nodes, std::mem::size_of::<[f64; K]>());
             });
         }
     }
@@ -626,10 +638,14 @@ impl ScatterStrategy for DomainDecomposition {
         F: Kernel<K>,
     {
         subgrids.resize(self.subgrid_nodes());
+        let tally = Tally::of(exec);
         exec.for_each_chunk_mut(Split::Offsets(&self.offsets).of(subgrids), |j, sub| {
             sub.fill([0.0; K]);
             let mut nodes = Cursors::split(self.subgrid_index(j), *index);
-            kernel.scatter_all(self.binning.column(j).iter().map(|&id| id as usize - 1), &mut nodes, sub);
+            let column = self.binning.column(j);
+            tally.particles(j, column.len());
+            tally.scattered(j, sub.len(), size_of::<[f64; K]>(), true);
+            kernel.scatter_all(column.iter().map(|&id| id as usize - 1), &mut nodes, sub);
         });
     }
 
@@ -663,12 +679,15 @@ impl ScatterStrategy for DomainDecomposition {
         }
         let t = exec.workers();
         let out = DisjointSlice::new(global);
+        let tally = Tally::of(exec);
         for (j, patch) in self.patches.iter().enumerate() {
             let d = patch.node_dims();
             let rows = d[1] * d[2];
             let sub = &subgrids[self.offsets[j]..self.offsets[j + 1]];
             exec.run(|w| {
-                for r in partition(rows, t, w) {
+                let mine = partition(rows, t, w);
+                tally.assembled(w, mine.len() * d[0], mine.len() * d[0], size_of::<[f64; K]>());
+                for r in mine {
                     let (lj, lk) = (r % d[1], r / d[1]);
                     let g0 = geom.node_index(patch.cell_lo[0], patch.cell_lo[1] + lj, patch.cell_lo[2] + lk);
                     // SAFETY: the patches were cut for `geom` and lie inside it (both asserted

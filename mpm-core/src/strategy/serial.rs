@@ -6,6 +6,7 @@ use crate::blocks::BlockMap;
 use crate::grid::{GridGeom, NodeIndex, Records};
 use crate::math::Vec3;
 use crate::parallel::Exec;
+use crate::work::Tally;
 
 /// The serial strategy: no state, no scatter buffer, no assembly.
 #[derive(Clone, Copy, Debug, Default)]
@@ -30,7 +31,7 @@ impl ScatterStrategy for Serial {
 
     fn scatter<const K: usize, F>(
         &self,
-        _exec: &Exec<'_>,
+        exec: &Exec<'_>,
         _geom: &GridGeom,
         index: &NodeIndex<'_>,
         n: usize,
@@ -40,6 +41,9 @@ impl ScatterStrategy for Serial {
     ) where
         F: Kernel<K>,
     {
+        let tally = Tally::of(exec);
+        tally.particles(0, n);
+        tally.scattered(0, global.len(), std::mem::size_of::<[f64; K]>(), false);
         scatter(index, n, global, kernel);
     }
 

@@ -8,7 +8,8 @@ use mpm_core::scenario::{impact, plate};
 use mpm_core::{BulkViscosity, GridMode, MgForm, Strategy, DEFAULT_ENERGY_RISE_LIMIT};
 use mpm_spec::scenario::{Contact, ImpactSpec, PlateSpec, TaylorSpec};
 use mpm_spec::spec::{
-    Budget, CheckpointEvery, CheckpointOutput, Outputs, Physics, RadiographOutput, RiseLimit, VtkEncoding, VtkOutput,
+    Budget, CheckpointEvery, CheckpointOutput, Outputs, Paired, Physics, RadiographOutput, RiseLimit, VtkEncoding,
+    VtkOutput,
 };
 use mpm_spec::{RunSpec, SpecError};
 use std::path::PathBuf;
@@ -451,6 +452,24 @@ pub struct RunOptions {
           value_parser = CheckpointEvery::parse)]
     pub checkpoint_every: CheckpointEvery,
 
+    /// Measure the parallel efficiency in the paired design: beside the --threads solver, a
+    /// one-thread solver of the same strategy runs in this process (its worker on the first
+    /// of --cpus), both take the warm-up steps and then N timed blocks of (steps - warmup) / N
+    /// steps each, alternating. The summary's `paired` section holds both solvers' seconds
+    /// per step per block and the block efficiencies t1 / (T tT). Needs --steps with a whole
+    /// number of steps per block, --warmup, ae/dd/dd-balanced and 2 or more threads.
+    #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_count)]
+    pub paired_blocks: Option<u64>,
+
+    /// TEST KNOB, never for results: every worker but the first does extra work in the
+    /// grid-node stage of every step, so that the parallel efficiency drops by about the
+    /// fraction F (0 < F < 1; a one-thread run is unchanged). The results are bitwise those
+    /// without it. Recorded in the summary (`inject_slowdown`, `injected_s`); the harness's
+    /// rows record it and its analyses refuse such runs unless asked. What `mpm-bench
+    /// calibrate` uses to measure whether the regression gate sees a known slowdown.
+    #[arg(long, value_name = "F", allow_hyphen_values = true, value_parser = parse_f64)]
+    pub inject_slowdown: Option<f64>,
+
     /// Write the final particle state to FILE (binary, little-endian, sorted by particle id:
     /// per particle the id as u64, then position, velocity and stress as 12 f64). Used to
     /// compare runs over different rank and thread counts.
@@ -674,6 +693,8 @@ impl Scenario {
             warmup: o.warmup,
         };
         spec.split_wait = o.split_wait;
+        spec.paired = o.paired_blocks.map(|blocks| Paired { blocks });
+        spec.inject_slowdown = o.inject_slowdown;
         spec.outputs = Outputs {
             json: o.json.clone(),
             quiet: o.quiet,

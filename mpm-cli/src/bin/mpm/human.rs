@@ -131,6 +131,37 @@ fn timing(s: &Summary) -> Vec<String> {
             mpm_cli::memory::human_bytes(c.last_bytes)
         ));
     }
+    if let Some(w) = s.work.as_ref().filter(|w| w.worker_bytes.len() > 1) {
+        lines.push(format!(
+            "work counters: efficiency bound {:.3} from the traffic alone (balance {:.3}, the strategy's overhead {:.1} %)",
+            w.efficiency_bound,
+            w.balance,
+            100.0 * w.overhead
+        ));
+    }
+    if let Some(p) = &s.paired {
+        let lo = p.block_efficiency.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = p.block_efficiency.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        lines.push(format!(
+            "paired: efficiency {:.3} over {} blocks of {} step(s) against 1 thread (blocks {lo:.3} to {hi:.3}; \
+             one process: its spread is not the run-to-run spread)",
+            p.efficiency, p.blocks, p.block_steps
+        ));
+    }
+    for (who, n) in
+        [("", s.noise.as_ref()), ("paired reference: ", s.paired.as_ref().and_then(|p| p.reference_noise.as_ref()))]
+    {
+        if let Some(why) = n.and_then(|n| n.why()) {
+            lines.push(format!("warning: {who}{why}: something else took its CPU; the timing is not this code's"));
+        }
+    }
+    if let Some(f) = s.inject_slowdown {
+        lines.push(format!(
+            "TEST KNOB: an injected slowdown of {:.0} % ({:.3} s of extra work): these times are not a result",
+            100.0 * f,
+            s.injected_s.unwrap_or(0.0)
+        ));
+    }
     lines
 }
 

@@ -13,6 +13,7 @@ mod checkpointing;
 mod cli;
 mod human;
 mod output;
+mod paired;
 mod progress;
 mod ranks;
 mod resume;

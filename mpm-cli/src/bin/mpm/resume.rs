@@ -290,6 +290,7 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
         model_name,
         checkpoints,
         restart: Some(t0),
+        reference_setup: None,
     };
     go(run, &mut ranks)
 }

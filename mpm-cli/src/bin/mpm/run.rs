@@ -14,13 +14,14 @@ use anyhow::{bail, Context, Result};
 use mpm_cli::checkpoint::Folder;
 use mpm_cli::pinning::{self, PinnedPool};
 use mpm_cli::summary::{self, HistoryRecorder, RunContext, Timing};
+use mpm_cli::usage::UsageMeter;
 use mpm_core::scenario::impact::{self, CloudFigures, History, ImpactGeometry, DEFAULT_HISTORY_INTERVAL};
 use mpm_core::scenario::plate::{PlateGeometry, PlateResult, ShockTracker};
 use mpm_core::scenario::taylor::{self, TaylorFigures};
 use mpm_core::{Collectives, SimConfig, Simulation};
 use mpm_spec::scenario::Prepared;
 use mpm_spec::spec::Budget;
-use mpm_spec::summary::{CheckpointReport, EndReason, HistoryPoint, RankReport};
+use mpm_spec::summary::{CheckpointReport, EndReason, HistoryPoint, RankReport, MIN_CPU_SHARE};
 use mpm_spec::RunSpec;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -30,7 +31,7 @@ use std::time::{Duration, Instant};
 /// Raised when the user interrupts the run.
 #[derive(Debug, thiserror::Error)]
 #[error("interrupted at step {0} (Ctrl-C); no summary written")]
-pub struct Interrupted(u64);
+pub struct Interrupted(pub u64);
 
 /// Worker threads per core beyond which a run is refused: more is not a measurement, and
 /// `--threads 100000` would only bring the machine to its knees.
@@ -137,7 +138,8 @@ pub fn start_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool> 
     Ok(pool)
 }
 
-/// The solver settings of the spec: strategy, threads, grid, physics.
+/// The solver settings the spec asks for: strategy, threads, grid, physics, the injected
+/// slowdown.
 pub fn sim_config(spec: &RunSpec) -> SimConfig {
     SimConfig {
         strategy: spec.strategy,
@@ -146,11 +148,12 @@ pub fn sim_config(spec: &RunSpec) -> SimConfig {
         cfl: spec.physics.cfl,
         bulk_viscosity: spec.physics.q,
         energy_rise_limit: spec.physics.energy_rise_limit.as_f64(),
+        inject_slowdown: spec.inject_slowdown.unwrap_or(0.0),
         ..SimConfig::default()
     }
 }
 
-/// The simulation of a built scenario as the spec asks: strategy, threads, grid, physics.
+/// The simulation of a built scenario as the spec asks ([`sim_config`]).
 fn simulation(
     spec: &RunSpec,
     setup: mpm_core::Setup,
@@ -543,6 +546,8 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
         ranks.build(&spec.scenario, spec.physics.eos, spec.rank_layout, spec.split_wait, false)?;
     let taylor = matches!(spec.scenario, mpm_spec::Scenario::Taylor(_));
     let model_name = setup.model.clone();
+    // A paired run builds its one-thread reference from the same set-up.
+    let reference_setup = spec.paired.map(|_| setup.clone());
     let sim = simulation(&spec, setup, exchange)?;
     let (cells, nodes) = (sim.global_geom().num_cells(), sim.global_geom().num_nodes());
     let warmup = spec.budget.warmup.unwrap_or_else(|| spec.default_warmup(sim.dt_first()));
@@ -588,6 +593,7 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
         model_name,
         checkpoints,
         restart: None,
+        reference_setup,
     };
     go(run, &mut ranks)
 }
@@ -622,6 +628,8 @@ pub struct Ready {
     /// A restart: when this process started (its set-up until the loop is booked as the
     /// restart's).
     pub restart: Option<Instant>,
+    /// A paired run ([`RunSpec::paired`]): the set-up of its one-thread reference.
+    pub reference_setup: Option<mpm_core::Setup>,
 }
 
 /// Step a ready run to its end, then measure, write and print its summary.
@@ -640,6 +648,7 @@ pub fn go(run: Ready, ranks: &mut Ranks) -> Result<()> {
         model_name,
         mut checkpoints,
         restart,
+        reference_setup,
     } = run;
     let lead = ranks.rank() == 0;
     let quiet = spec.outputs.quiet;
@@ -655,7 +664,26 @@ pub fn go(run: Ready, ranks: &mut Ranks) -> Result<()> {
     if let Some(t0) = restart {
         carry.log.report.restart_setup_s += t0.elapsed().as_secs_f64();
     }
-    let end_reason = step_loop(&ctx, &mut sim, &mut outputs, &mut carry, checkpoints.as_mut(), ranks.collectives())?;
+    let (end_reason, noise, paired) = match reference_setup {
+        Some(setup) => {
+            let warmup = carry.log.timing.warmup_steps;
+            let (s, out) = crate::paired::run(&spec, sim, &pool, setup, sim_config(&spec), warmup, &interrupted)?;
+            sim = s;
+            record(&mut carry.log.history, &sim);
+            carry.tracking.observe(&sim, ranks.collectives())?;
+            carry.log.timing = out.timing;
+            (out.end_reason, out.noise, Some(out.report))
+        }
+        None => {
+            // What each worker got of the loop's wall time (the noise a run can see).
+            let mut usage = UsageMeter::new(spec.threads, &pool.observed_cpus());
+            usage.begin(&pool.pool);
+            let end_reason =
+                step_loop(&ctx, &mut sim, &mut outputs, &mut carry, checkpoints.as_mut(), ranks.collectives())?;
+            usage.end(&pool.pool);
+            (end_reason, usage.report(MIN_CPU_SHARE), None)
+        }
+    };
     // The final figures, measured once: the summary's, and the history's last sample.
     let figures = FinalFigures::measure(&sim, taylor, &carry.tracking, ranks.collectives())?;
     carry.tracking.finish(&sim, &figures);
@@ -706,6 +734,8 @@ pub fn go(run: Ready, ranks: &mut Ranks) -> Result<()> {
     };
     let Some(mut summary) = summary else { return Ok(()) };
     summary.ranks = reports;
+    summary.noise = noise;
+    summary.paired = paired;
     summary.peak_rss_bytes = mpm_cli::summary::peak_rss_bytes();
     outputs.commit_json(&summary)?;
     if !quiet {

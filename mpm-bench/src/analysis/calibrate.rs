@@ -1,0 +1,653 @@
+//! `mpm-bench calibrate`: the regression gate measures itself on the host that runs it.
+//!
+//! A gate that fails on noise is switched off; one that passes a 20 % loss is useless; and
+//! neither figure can be known without measuring it where the gate runs. `calibrate` runs
+//! the gate's own campaign (a preset, by default `ci`) several times with the same binary and
+//! several times with an injected slowdown of known size (`--inject-slowdown F`: every
+//! worker but the first does extra work so that the parallel efficiency drops by `F`; the
+//! rows say so and no analysis takes them for results), interleaved in one session so that
+//! the host's drift spreads over both kinds. Then it runs `regress` (the same settings a CI
+//! job uses: `--tolerance`, `--metrics`) on
+//!
+//! * every pair of clean campaigns, the earlier as the baseline (A/A: any failure is a false
+//!   alarm), and
+//! * every clean campaign as the baseline against every injected one (a failure is a
+//!   detection),
+//!
+//! and writes `calibration.json` ([`Calibration`]): the counts of both, the smallest change
+//! the gate detects with 90 % power on this host at this budget, the longest gate run (one
+//! campaign plus its `regress`), the repetitions and blocks it recommends, and the coverage
+//! of the campaigns' intervals on each other (each clean campaign's 95 % interval of a cell
+//! against the mean of the other clean campaigns).
+//!
+//! # How the comparisons are formed, and what that does to the estimates
+//!
+//! `N` clean campaigns give `N (N - 1) / 2` A/A comparisons (7 give 21) and, with `K`
+//! injected ones, `N K` injected comparisons (7 x 3 = 21). They reuse campaigns, so they are
+//! not independent: a clean campaign that happened to run slow takes part in `N - 1` A/A
+//! comparisons, and its false alarms come in clusters. The counts are therefore unbiased
+//! estimates of the per-comparison rates, but their spread is wider than a binomial over the
+//! number of comparisons would say: with 7 campaigns the evidence is closer to 7 independent
+//! observations than to 21. The smallest detectable change does not rest on the pairs: it
+//! comes from the spread of the clean campaigns' cell means (`sd_campaign_log`), which
+//! contains whatever drifts from one campaign to the next, and the t quantile of the gate's
+//! Holm level over its checks; see [`Calibration::min_detectable_change`].
+
+use super::paired::{student_t_quantile, two_stage};
+use super::regress::{self, Metrics, RegressArgs, RegressReport};
+use super::results::load_campaign;
+use super::select::RowFilter;
+use super::stats::{CellKey, Stage, StatsOptions};
+use crate::campaign::matrix::{Campaign, Overrides};
+use crate::campaign::preset;
+use crate::campaign::process::Runner;
+use crate::campaign::runner::{self, ExecOptions};
+use crate::campaign::solver::Solver;
+use crate::campaign::watch::WatchSettings;
+use crate::machine::fingerprint;
+use crate::machine::topology::Machine;
+use crate::util::now_rfc3339;
+use anyhow::{bail, Context, Result};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+/// Measure the gate's false-alarm rate and detection power on this host.
+#[derive(clap::Args, Debug, Clone)]
+pub struct CalibrateArgs {
+    /// The preset of every gate run: a name (ci, quick, ...) or a TOML file.
+    #[arg(long, default_value = "ci")]
+    pub preset: String,
+    /// Clean campaigns (the same binary, nothing injected); every pair is an A/A comparison.
+    #[arg(long, default_value_t = 7)]
+    pub clean: usize,
+    /// Campaigns with the injected slowdown; each is compared with every clean one.
+    #[arg(long, default_value_t = 3)]
+    pub injected: usize,
+    /// The injected efficiency loss, a fraction (0.1: the T-thread efficiency drops by 10 %).
+    #[arg(long, default_value_t = 0.1)]
+    pub inject_slowdown: f64,
+    /// Stop starting campaigns when the next would likely end after this much time (e.g.
+    /// 90m); the comparisons are made with the campaigns done.
+    #[arg(long, value_name = "DURATION")]
+    pub budget: Option<String>,
+    /// The gate's tolerance, as `regress --tolerance`.
+    #[arg(long, default_value_t = 0.05)]
+    pub tolerance: f64,
+    /// The gate's metrics, as `regress --metrics` (the CI recipe gates efficiency and work).
+    #[arg(long, value_delimiter = ',', default_value = "efficiency,work")]
+    pub metrics: Vec<String>,
+    /// Root of the results tree: the campaigns go to
+    /// <out>/<fingerprint>/calibrate-<preset>-{clean,inject<F>}-<i>/.
+    #[arg(long, default_value = "results/local")]
+    pub out: PathBuf,
+    /// Where to write calibration.json (default: <out>/<fingerprint>/calibrate-<preset>/calibration.json).
+    #[arg(long, value_name = "FILE")]
+    pub json: Option<PathBuf>,
+    /// Do not build the solver; use the existing target/o3/mpm (and target/o0/mpm).
+    #[arg(long)]
+    pub no_build: bool,
+    /// No progress lines.
+    #[arg(long, short = 'q')]
+    pub quiet: bool,
+    /// Use a fake solver (testing the harness itself).
+    #[arg(long, hide = true)]
+    pub mock: bool,
+}
+
+/// One campaign of the calibration.
+#[derive(Clone, Debug, Serialize)]
+pub struct CalibrationCampaign {
+    /// `clean` or `injected`.
+    pub kind: &'static str,
+    /// Its folder.
+    pub dir: PathBuf,
+    /// Its wall time (s).
+    pub wall_s: f64,
+}
+
+/// One `regress` of the calibration.
+#[derive(Clone, Debug, Serialize)]
+pub struct CalibrationComparison {
+    /// `aa` (clean against clean) or `injected` (clean baseline, injected current).
+    pub kind: &'static str,
+    /// Index of the baseline among the campaigns.
+    pub baseline: usize,
+    /// Index of the current campaign.
+    pub current: usize,
+    /// `pass`, `fail` or `incomparable`.
+    pub verdict: String,
+    /// The gate's reason.
+    pub reason: String,
+    /// Per efficiency check: `cell`, the ratio current / baseline.
+    pub efficiency_ratios: BTreeMap<String, f64>,
+    /// Seconds the gate's comparison took.
+    pub regress_s: f64,
+}
+
+/// What the clean campaigns say about one cell's noise.
+#[derive(Clone, Debug, Serialize)]
+pub struct CellNoise {
+    /// The cell.
+    pub cell: String,
+    /// Processes per campaign (the smallest).
+    pub processes: usize,
+    /// Blocks per process (the smallest).
+    pub blocks: usize,
+    /// Standard deviation of a block's log efficiency within a process (pooled).
+    pub sd_block_log: f64,
+    /// Standard deviation of a process's mean log efficiency within a campaign (pooled).
+    pub sd_process_log: f64,
+    /// Standard deviation of a campaign's mean log efficiency: the spread of the clean
+    /// campaigns' means, or the processes' spread over their count when that is larger
+    /// (what a comparison of two campaigns sees).
+    pub sd_campaign_log: f64,
+    /// The smallest efficiency loss the gate detects in this cell with 90 % power.
+    pub min_detectable_change: f64,
+}
+
+/// `calibration.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct Calibration {
+    /// A/A comparisons made.
+    pub aa_comparisons: usize,
+    /// Of those, how many the gate failed.
+    pub false_alarms: usize,
+    /// The injected efficiency loss (fraction).
+    pub injected_slowdown: f64,
+    /// Comparisons of a clean baseline with an injected campaign.
+    pub injected_comparisons: usize,
+    /// Of those, how many the gate failed.
+    pub detected: usize,
+    /// The smallest efficiency loss (fraction) detected with 90 % power in every cell, from
+    /// the clean campaigns' spread (the largest of the cells'); `null` with fewer than two
+    /// clean campaigns.
+    pub min_detectable_change: Option<f64>,
+    /// The longest gate run: one campaign and its `regress` (s).
+    pub gate_wall_s: f64,
+    /// `false_alarms / aa_comparisons`.
+    pub false_alarm_rate: Option<f64>,
+    /// `detected / injected_comparisons`.
+    pub detection_rate: Option<f64>,
+    /// The efficiency loss the injected campaigns showed: `1 -` the median efficiency ratio
+    /// of the injected comparisons' checks.
+    pub measured_injected_loss: Option<f64>,
+    /// Processes (repetitions) per cell for 90 % power at the injected size, with this
+    /// noise; `null` when the drift between campaigns alone is too large for any count.
+    pub recommended_reps: Option<u64>,
+    /// Blocks per process past which more blocks buy little (the within-process noise under
+    /// a tenth of the process-to-process spread).
+    pub recommended_blocks: Option<u64>,
+    /// Per cell, the noise behind these figures.
+    pub cells: Vec<CellNoise>,
+    /// Each clean campaign's 95 % interval of each cell against the mean of the other clean
+    /// campaigns: (intervals, covering).
+    pub interval_coverage: (usize, usize),
+    /// The gate's settings.
+    pub tolerance: f64,
+    /// The gate's metrics.
+    pub metrics: Vec<String>,
+    /// The preset.
+    pub preset: String,
+    /// The campaigns, in the order they ran.
+    pub campaigns: Vec<CalibrationCampaign>,
+    /// Every comparison.
+    pub comparisons: Vec<CalibrationComparison>,
+    /// How the comparisons were formed and what that does to the estimates.
+    pub method: &'static str,
+    /// Machine fingerprint.
+    pub machine: String,
+    /// When it finished (RFC 3339).
+    pub timestamp: String,
+    /// The command line.
+    pub command_line: String,
+}
+
+/// How the comparisons are formed (written into calibration.json).
+pub const METHOD: &str = "A/A: every pair of clean campaigns, the earlier as the baseline; injected: every clean \
+    campaign as the baseline against every injected one. The campaigns ran interleaved in one session. Pairs reuse \
+    campaigns, so the comparisons are not independent: the rates are unbiased per comparison but scatter more than a \
+    binomial over the comparisons (about as much as over the campaigns). min_detectable_change comes from the spread \
+    of the clean campaigns' cell means, not from the pairs.";
+
+/// The order of `clean` clean and `injected` injected campaigns: the injected ones spread
+/// evenly among the clean ones (`false`: clean, `true`: injected).
+pub fn schedule(clean: usize, injected: usize) -> Vec<bool> {
+    let n = clean + injected;
+    let mut out = vec![false; n];
+    for j in 0..injected {
+        // The middle of the j-th of `injected` equal stretches.
+        out[((2 * j + 1) * n) / (2 * injected)] = true;
+    }
+    out
+}
+
+/// Parse a duration such as `90m`.
+fn parse_budget(s: &str) -> Result<Duration> {
+    let d = humantime::parse_duration(s.trim()).map_err(|e| anyhow::anyhow!("bad --budget '{s}': {e} (e.g. 90m)"))?;
+    if d.is_zero() {
+        bail!("--budget {s} leaves no time for a campaign: give e.g. 90m");
+    }
+    Ok(d)
+}
+
+fn check_args(a: &CalibrateArgs) -> Result<()> {
+    if a.clean < 2 {
+        bail!("--clean {} gives no A/A comparison: use at least 2 (7 give 21 comparisons)", a.clean);
+    }
+    if !(a.inject_slowdown > 0.0 && a.inject_slowdown < 1.0) {
+        bail!(
+            "--inject-slowdown {} is not a fraction in (0, 1): e.g. 0.1 for a 10 % efficiency loss",
+            a.inject_slowdown
+        );
+    }
+    if !(a.tolerance >= 0.0 && a.tolerance < 1.0) {
+        bail!("--tolerance {} is out of range: give a fraction such as 0.05", a.tolerance);
+    }
+    Metrics::parse(&a.metrics)?;
+    Ok(())
+}
+
+/// The campaign of the `i`-th calibration run: the preset, with the injected slowdown when
+/// `injected`, its own id and seed.
+fn campaign_of(a: &CalibrateArgs, injected: bool, i: usize) -> Result<Campaign> {
+    let ws = crate::campaign::solver::workspace_root();
+    let (p, src) = preset::load_preset(&a.preset, ws.as_deref())?;
+    let name = p.name.clone();
+    let seed = p.seed;
+    let ov = Overrides { inject_slowdown: injected.then_some(a.inject_slowdown), ..Overrides::default() };
+    let mut c = Campaign::resolve(p, src, &ov)?;
+    c.id = if injected {
+        format!("calibrate-{name}-inject{}-{i}", a.inject_slowdown)
+    } else {
+        format!("calibrate-{name}-clean-{i}")
+    };
+    c.seed = seed.wrapping_add(i as u64 + if injected { 1000 } else { 0 });
+    Ok(c)
+}
+
+/// The gate's comparison of two campaign folders, with the calibration's settings.
+fn gate(a: &CalibrateArgs, baseline: &Path, current: &Path) -> Result<(RegressReport, f64)> {
+    let t0 = Instant::now();
+    let r = regress::evaluate(&RegressArgs {
+        tolerance: a.tolerance,
+        metrics: a.metrics.clone(),
+        ..RegressArgs::new(baseline, current)
+    })?;
+    Ok((r, t0.elapsed().as_secs_f64()))
+}
+
+/// Run the calibration's campaigns on `machine` with `solvers` through `runner`, then its
+/// comparisons; returns the result (nothing printed but progress lines unless quiet).
+pub fn calibrate(
+    a: &CalibrateArgs,
+    machine: &Machine,
+    solvers: &[Solver],
+    runner: &mut dyn Runner,
+    watch: Option<WatchSettings>,
+    interrupted: &AtomicBool,
+) -> Result<Calibration> {
+    check_args(a)?;
+    let budget = a.budget.as_deref().map(parse_budget).transpose()?;
+    let start = Instant::now();
+    let mut campaigns: Vec<CalibrationCampaign> = Vec::new();
+    let order = schedule(a.clean, a.injected);
+    let (mut nc, mut ni) = (0, 0);
+    for (k, &injected) in order.iter().enumerate() {
+        if interrupted.load(Ordering::SeqCst) {
+            bail!("interrupted after {k} campaign(s); run the same command again to resume");
+        }
+        let longest = campaigns.iter().map(|c| c.wall_s).fold(0.0, f64::max);
+        if let Some(b) = budget {
+            if k > 0 && start.elapsed().as_secs_f64() + longest > b.as_secs_f64() {
+                eprintln!(
+                    "note: --budget {}: stopping after {k} of {} campaigns (the next would end after it)",
+                    humantime::format_duration(b),
+                    order.len()
+                );
+                break;
+            }
+        }
+        let i = if injected { ni } else { nc };
+        let c = campaign_of(a, injected, i)?;
+        if !a.quiet {
+            eprintln!("calibrate: campaign {} of {}: {}", k + 1, order.len(), c.id);
+        }
+        let opts = ExecOptions {
+            out_root: a.out.clone(),
+            quiet: true,
+            watch,
+            command: std::env::args().collect::<Vec<_>>().join(" "),
+            ..ExecOptions::default()
+        };
+        let s = runner::execute(&c, machine, solvers, runner, &opts, interrupted)
+            .with_context(|| format!("calibration campaign {}", c.id))?;
+        if s.counts.interrupted {
+            bail!("interrupted in campaign {}; run the same command again to resume", c.id);
+        }
+        campaigns.push(CalibrationCampaign {
+            kind: if injected { "injected" } else { "clean" },
+            dir: s.dir.clone(),
+            wall_s: s.wall.as_secs_f64(),
+        });
+        if injected {
+            ni += 1;
+        } else {
+            nc += 1;
+        }
+    }
+    let clean: Vec<usize> = (0..campaigns.len()).filter(|&i| campaigns[i].kind == "clean").collect();
+    let inj: Vec<usize> = (0..campaigns.len()).filter(|&i| campaigns[i].kind == "injected").collect();
+    if clean.len() < 2 {
+        bail!("only {} clean campaign(s) fit the budget: no A/A comparison; give a larger --budget", clean.len());
+    }
+    let mut comparisons = Vec::new();
+    let pairs = clean
+        .iter()
+        .enumerate()
+        .flat_map(|(x, &i)| clean[x + 1..].iter().map(move |&j| ("aa", i, j)))
+        .chain(clean.iter().flat_map(|&i| inj.iter().map(move |&j| ("injected", i, j))));
+    let mut gate_wall: f64 = 0.0;
+    for (kind, b, c) in pairs.collect::<Vec<_>>() {
+        let (r, secs) = gate(a, &campaigns[b].dir, &campaigns[c].dir)?;
+        gate_wall = gate_wall.max(campaigns[c].wall_s + secs);
+        comparisons.push(CalibrationComparison {
+            kind,
+            baseline: b,
+            current: c,
+            efficiency_ratios: r
+                .checks
+                .iter()
+                .filter(|x| x.metric == "efficiency")
+                .map(|x| (format!("{} {}", x.cell, x.stage.name()), x.ratio.value))
+                .collect(),
+            verdict: r.verdict,
+            reason: r.reason,
+            regress_s: secs,
+        });
+    }
+    let noise = cell_noise(a, &campaigns, &clean)?;
+    Ok(summarise(a, machine, campaigns, comparisons, noise, gate_wall))
+}
+
+/// Per cell: the clean campaigns' processes' and blocks' spread, and the interval coverage.
+struct Noise {
+    cells: Vec<CellNoise>,
+    coverage: (usize, usize),
+    /// Per cell, the pooled process SD and the campaign SD (for the recommendations).
+    parts: Vec<(f64, f64, f64, usize, usize)>,
+    /// Gated efficiency checks per comparison (Holm's family).
+    checks: usize,
+}
+
+/// The pooled standard deviation of groups of values (`None` without any degree of freedom).
+fn pooled_sd(groups: &[Vec<f64>]) -> Option<f64> {
+    let (mut ss, mut df) = (0.0, 0usize);
+    for g in groups.iter().filter(|g| g.len() > 1) {
+        let m = g.iter().sum::<f64>() / g.len() as f64;
+        ss += g.iter().map(|v| (v - m).powi(2)).sum::<f64>();
+        df += g.len() - 1;
+    }
+    (df > 0).then(|| (ss / df as f64).sqrt())
+}
+
+fn cell_noise(a: &CalibrateArgs, campaigns: &[CalibrationCampaign], clean: &[usize]) -> Result<Noise> {
+    let filter = RowFilter::analysis(false);
+    let analyses = clean
+        .iter()
+        .map(|&i| Ok(load_campaign(&campaigns[i].dir, &filter)?.analyse(None)))
+        .collect::<Result<Vec<_>>>()?;
+    let keys: Vec<CellKey> = analyses[0]
+        .cells
+        .iter()
+        .filter(|(k, c)| k.threads > 1 && !c.paired.is_empty() && !c.oversubscribed)
+        .map(|(k, _)| k.clone())
+        .collect();
+    let z90 = student_t_quantile(0.9, 1e9);
+    let alpha = (1.0 - StatsOptions::default().confidence) / 2.0;
+    let checks = keys.len().max(1);
+    let tol_log = -(1.0 - a.tolerance).ln();
+    let (mut cells, mut parts) = (Vec::new(), Vec::new());
+    let mut coverage = (0, 0);
+    for key in &keys {
+        let per: Vec<&crate::analysis::stats::Cell> = analyses.iter().filter_map(|an| an.cells.get(key)).collect();
+        if per.len() < 2 {
+            continue;
+        }
+        let blocks: Vec<Vec<f64>> =
+            per.iter().flat_map(|c| c.paired.iter().map(|p| p.ratios.iter().map(|r| r.ln()).collect())).collect();
+        let processes: Vec<Vec<f64>> = per.iter().map(|c| c.paired_logs(Stage::Total)).collect();
+        let means: Vec<f64> = processes.iter().map(|p| p.iter().sum::<f64>() / p.len() as f64).collect();
+        let (Some(sd_block), Some(sd_process), Some(sd_means)) =
+            (pooled_sd(&blocks), pooled_sd(&processes), pooled_sd(std::slice::from_ref(&means)))
+        else {
+            continue;
+        };
+        let m = processes.iter().map(Vec::len).min().unwrap_or(0);
+        // A campaign mean varies at least as its processes say (a few campaigns can show
+        // less by chance), more when something drifts from one campaign to the next.
+        let sd_campaign = sd_means.max(sd_process / (m.max(1) as f64).sqrt());
+        let n = per.iter().flat_map(|c| c.paired.iter().map(|p| p.ratios.len())).min().unwrap_or(0);
+        // A comparison of two campaigns: the difference of two campaign means. The gate's
+        // first Holm step tests at alpha / checks with about 2 (m - 1) degrees of freedom.
+        let se = std::f64::consts::SQRT_2 * sd_campaign;
+        let t = student_t_quantile(1.0 - alpha / checks as f64, (2 * m).saturating_sub(2).max(1) as f64);
+        let delta = tol_log.max(t * se) + z90 * se;
+        cells.push(CellNoise {
+            cell: key.to_string(),
+            processes: m,
+            blocks: n,
+            sd_block_log: sd_block,
+            sd_process_log: sd_process,
+            sd_campaign_log: sd_campaign,
+            min_detectable_change: 1.0 - (-delta).exp(),
+        });
+        parts.push((sd_block, sd_process, sd_campaign, m, n));
+        // Each campaign's interval against the other campaigns' mean.
+        for (x, c) in per.iter().enumerate() {
+            let samples: Vec<Vec<f64>> = c.paired.iter().map(|p| p.ratios.clone()).collect();
+            let others: Vec<f64> = means.iter().enumerate().filter(|&(y, _)| y != x).map(|(_, v)| *v).collect();
+            let target = (others.iter().sum::<f64>() / others.len() as f64).exp();
+            if let Some(iv) = two_stage(&samples, StatsOptions::default().confidence) {
+                coverage.0 += 1;
+                coverage.1 += usize::from(iv.estimate.lo <= target && target <= iv.estimate.hi);
+            }
+        }
+    }
+    Ok(Noise { cells, coverage, parts, checks })
+}
+
+/// The figures of calibration.json from the campaigns, comparisons and noise.
+fn summarise(
+    a: &CalibrateArgs,
+    machine: &Machine,
+    campaigns: Vec<CalibrationCampaign>,
+    comparisons: Vec<CalibrationComparison>,
+    noise: Noise,
+    gate_wall_s: f64,
+) -> Calibration {
+    let count = |kind: &str, fail: bool| {
+        comparisons.iter().filter(|c| c.kind == kind && (!fail || c.verdict == "fail")).count()
+    };
+    let (aa, alarms, inj, detected) =
+        (count("aa", false), count("aa", true), count("injected", false), count("injected", true));
+    let rate = |x: usize, n: usize| (n > 0).then(|| x as f64 / n as f64);
+    let mut inj_ratios: Vec<f64> = comparisons
+        .iter()
+        .filter(|c| c.kind == "injected")
+        .flat_map(|c| c.efficiency_ratios.values().copied())
+        .collect();
+    inj_ratios.sort_by(f64::total_cmp);
+    let measured_injected_loss = (!inj_ratios.is_empty()).then(|| 1.0 - crate::util::median(&inj_ratios));
+    let (recommended_reps, recommended_blocks) = recommend(a, &noise);
+    Calibration {
+        aa_comparisons: aa,
+        false_alarms: alarms,
+        injected_slowdown: a.inject_slowdown,
+        injected_comparisons: inj,
+        detected,
+        min_detectable_change: noise.cells.iter().map(|c| c.min_detectable_change).reduce(f64::max),
+        gate_wall_s,
+        false_alarm_rate: rate(alarms, aa),
+        detection_rate: rate(detected, inj),
+        measured_injected_loss,
+        recommended_reps,
+        recommended_blocks,
+        cells: noise.cells,
+        interval_coverage: noise.coverage,
+        tolerance: a.tolerance,
+        metrics: a.metrics.clone(),
+        preset: a.preset.clone(),
+        campaigns,
+        comparisons,
+        method: METHOD,
+        machine: fingerprint::fingerprint(machine),
+        timestamp: now_rfc3339(),
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+    }
+}
+
+/// The repetitions for 90 % power at the injected size and the blocks past which more buy
+/// little, from the worst cell's noise. A campaign mean's variance is modelled as
+/// `s_d^2 + s_p^2 / m`: the process spread `s_p` over `m` processes and a drift `s_d` between
+/// campaigns that more processes cannot average away (the part of the campaign spread the
+/// processes do not explain).
+fn recommend(a: &CalibrateArgs, noise: &Noise) -> (Option<u64>, Option<u64>) {
+    let target = -(1.0 - a.inject_slowdown).ln();
+    let tol_log = -(1.0 - a.tolerance).ln();
+    let alpha = (1.0 - StatsOptions::default().confidence) / 2.0;
+    let z = |p: f64| student_t_quantile(p, 1e9);
+    let (za, zb) = (z(1.0 - alpha / noise.checks as f64), z(0.9));
+    let mut reps: Option<u64> = Some(2);
+    let mut blocks: Option<u64> = Some(2);
+    for &(sd_block, sd_process, sd_campaign, m, n) in &noise.parts {
+        let drift = (sd_campaign.powi(2) - sd_process.powi(2) / m.max(1) as f64).max(0.0);
+        // Detected when the loss beats the tolerance and the test: target >= max(tol, za se) + zb se.
+        let need = (2..=200u64).find(|&k| {
+            let se = (2.0 * (drift + sd_process.powi(2) / k as f64)).sqrt();
+            tol_log.max(za * se) + zb * se <= target
+        });
+        reps = match (reps, need) {
+            (Some(r), Some(k)) => Some(r.max(k)),
+            _ => None,
+        };
+        let between = (sd_process.powi(2) - sd_block.powi(2) / n.max(1) as f64).max(1e-12);
+        let b = (sd_block.powi(2) / (0.1 * between)).ceil().clamp(2.0, 50.0) as u64;
+        blocks = blocks.map(|x| x.max(b));
+    }
+    (reps, blocks.filter(|_| !noise.parts.is_empty()))
+}
+
+/// The result for people.
+pub fn table(c: &Calibration) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let pct = |x: Option<f64>| x.map_or("-".into(), |v| format!("{:.1} %", 100.0 * v));
+    let _ = writeln!(
+        s,
+        "calibration of the gate (preset {}, tolerance {:.1} %, metrics {}) on machine {}:",
+        c.preset,
+        100.0 * c.tolerance,
+        c.metrics.join(","),
+        c.machine
+    );
+    let _ = writeln!(
+        s,
+        "  A/A: {} false alarm(s) in {} comparisons ({})",
+        c.false_alarms,
+        c.aa_comparisons,
+        pct(c.false_alarm_rate)
+    );
+    let _ = writeln!(
+        s,
+        "  injected {:.0} % efficiency loss: detected in {} of {} comparisons ({}); the injected campaigns measured a loss of {}",
+        100.0 * c.injected_slowdown,
+        c.detected,
+        c.injected_comparisons,
+        pct(c.detection_rate),
+        pct(c.measured_injected_loss)
+    );
+    let _ = writeln!(s, "  smallest loss detected with 90 % power in every cell: {}", pct(c.min_detectable_change));
+    let _ = writeln!(s, "  longest gate run (campaign + regress): {:.0} s", c.gate_wall_s);
+    let _ = writeln!(
+        s,
+        "  intervals of one campaign covering the other campaigns' mean: {} of {}",
+        c.interval_coverage.1, c.interval_coverage.0
+    );
+    let _ = writeln!(
+        s,
+        "  recommended: {} processes per cell, {} blocks per process",
+        c.recommended_reps
+            .map_or("no count suffices (the drift between campaigns alone exceeds the loss)".into(), |r| r.to_string()),
+        c.recommended_blocks.map_or("-".into(), |b| b.to_string())
+    );
+    for n in &c.cells {
+        let _ = writeln!(
+            s,
+            "  {:<18} {} processes x {} blocks: sd (log) block {:.3}, process {:.3}, campaign {:.3}; detects {}",
+            n.cell,
+            n.processes,
+            n.blocks,
+            n.sd_block_log,
+            n.sd_process_log,
+            n.sd_campaign_log,
+            pct(Some(n.min_detectable_change))
+        );
+    }
+    let _ = writeln!(s, "  how: {}", c.method);
+    s
+}
+
+/// `mpm-bench calibrate`: build (unless --no-build or --mock), run, print, write the JSON.
+pub fn run(a: CalibrateArgs) -> Result<()> {
+    check_args(&a)?;
+    let machine = Machine::detect()?;
+    let interrupted = runner::install_interrupt_handler();
+    let c = if a.mock {
+        let mut r = crate::campaign::process::MockRunner::default();
+        let solvers = mock_solvers();
+        calibrate(&a, &machine, &solvers, &mut r, None, &interrupted)?
+    } else {
+        let opts = campaign_of(&a, false, 0)?.opts;
+        let solvers = crate::campaign::solver::prepare_solvers(&opts, !a.no_build, a.quiet)?;
+        let mut r = crate::campaign::process::ProcessRunner::new(interrupted.clone());
+        calibrate(&a, &machine, &solvers, &mut r, Some(WatchSettings::default()), &interrupted)?
+    };
+    print!("{}", table(&c));
+    let path = a.json.clone().unwrap_or_else(|| {
+        let name =
+            std::path::Path::new(&a.preset).file_stem().map_or("preset".into(), |s| s.to_string_lossy().into_owned());
+        a.out.join(fingerprint::fingerprint(&machine)).join(format!("calibrate-{name}")).join("calibration.json")
+    });
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+    }
+    mpm_cli::atomic::write_atomic(&path, serde_json::to_string_pretty(&c)?.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+/// The mock runner's stand-in solvers.
+fn mock_solvers() -> Vec<Solver> {
+    [crate::campaign::preset::OptLevel::O3, crate::campaign::preset::OptLevel::O0]
+        .into_iter()
+        .map(|opt| Solver { opt, path: "mock".into(), sha256: "mock".into() })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn injected_campaigns_spread_among_the_clean() {
+        let s = schedule(7, 3);
+        assert_eq!(s.iter().filter(|&&x| x).count(), 3);
+        assert_eq!(s, [false, true, false, false, false, true, false, false, true, false]);
+        assert_eq!(schedule(2, 0), [false, false]);
+        assert_eq!(schedule(1, 1), [false, true]);
+    }
+}

@@ -1,0 +1,131 @@
+//! The work counters on a case small enough to count by hand: a confined column of 1,024
+//! particles (8 x 8 x 16, two per cell along each axis) on a fixed grid of 4 x 4 x 12 cells
+//! (5 x 5 x 13 = 325 nodes), two steps. Every expected value below is worked out from the
+//! strategies' splits, not from the code under test.
+
+mod common;
+
+use common::{confined_column, elastic_copper, pool};
+use mpm_core::{SimConfig, Simulation, Strategy, Substage, Work};
+
+const STEPS: u64 = 2;
+const PARTICLES: u64 = 1024;
+const NODES: u64 = 325;
+
+fn run(strategy: Strategy, threads: usize, inject: f64) -> Simulation {
+    let dx = 1e-3;
+    let setup = confined_column(elastic_copper(), 4.0 * dx, 8.0 * dx, dx, |_| [0.0, 0.0, -50.0]);
+    assert_eq!(setup.particles.len() as u64, PARTICLES);
+    let config = SimConfig { strategy, threads, inject_slowdown: inject, ..SimConfig::default() };
+    let mut sim = Simulation::new(setup, config).unwrap();
+    assert_eq!(sim.stored_nodes() as u64, NODES);
+    let pool = pool(threads);
+    for _ in 0..STEPS {
+        sim.step(&pool, f64::INFINITY).unwrap();
+    }
+    sim
+}
+
+fn w(particles: u64, scattered: u64, assembled: u64, updated: u64, part_bytes: u64) -> Work {
+    Work { particles, nodes_scattered: scattered, nodes_assembled: assembled, nodes_updated: updated, part_bytes }
+}
+
+/// Array expansion on 2 workers: each scatters its half of the particles into a whole copy
+/// of the 325 nodes (64-byte P2G and 32-byte re-map records); the assembly splits the 325
+/// nodes 162 / 163 and reads both copies of its range; the node passes split the 65 node
+/// rows of 5 nodes 32 / 33 (160 / 165 nodes).
+#[test]
+fn array_expansion_counts_by_hand() {
+    let c = run(Strategy::ArrayExpansion, 2, 0.0).work();
+    assert_eq!(c.threads(), 2);
+    let s = STEPS;
+    for (worker, asm, upd) in [(0, 162, 160), (1, 163, 165)] {
+        let want = [
+            (Substage::Scatter, w(512 * s, NODES * s, 0, 0, NODES * s * 64)),
+            (Substage::Assembly, w(0, 0, asm * s, 0, 2 * asm * s * 64)),
+            (Substage::GridUpdate, w(0, 0, 0, upd * s, 0)),
+            (Substage::RemapScatter, w(512 * s, NODES * s, 0, 0, NODES * s * 32)),
+            (Substage::RemapAssembly, w(0, 0, asm * s, upd * s, 2 * asm * s * 32)),
+            (Substage::StressUpdate, w(512 * s, 0, 0, 0, 0)),
+        ];
+        assert_eq!(c.workers[worker], want.into_iter().collect(), "worker {worker}");
+    }
+}
+
+/// Domain decomposition on 2 workers: layout 2 x 1 x 1 cuts the 4 cells along x in two, so
+/// each patch holds 512 particles and a sub-grid of 3 x 5 x 13 = 195 nodes (the face at x = 2
+/// in both); the binning goes over each worker's 512-particle chunk twice (count, write);
+/// each patch's 65 rows of 3 nodes are assembled 32 / 33 rows per worker (96 / 99 nodes,
+/// twice: one phase per patch).
+#[test]
+fn domain_decomposition_counts_by_hand() {
+    let c = run(Strategy::DomainDecomposition, 2, 0.0).work();
+    let s = STEPS;
+    let sub = 195;
+    for (worker, asm, upd) in [(0, 2 * 96, 160), (1, 2 * 99, 165)] {
+        let want = [
+            (Substage::Binning, w(2 * 512 * s, 0, 0, 0, 0)),
+            (Substage::Scatter, w(512 * s, sub * s, 0, 0, sub * s * 64)),
+            (Substage::Assembly, w(0, 0, asm * s, 0, asm * s * 64)),
+            (Substage::GridUpdate, w(0, 0, 0, upd * s, 0)),
+            (Substage::RemapScatter, w(512 * s, sub * s, 0, 0, sub * s * 32)),
+            (Substage::RemapAssembly, w(0, 0, asm * s, upd * s, asm * s * 32)),
+            (Substage::StressUpdate, w(512 * s, 0, 0, 0, 0)),
+        ];
+        assert_eq!(c.workers[worker], want.into_iter().collect(), "worker {worker}");
+    }
+    // The patches' shared face: 390 sub-grid nodes against 325, so the traffic bound is
+    // below 1 although both workers are loaded alike.
+    let b = c.bound().unwrap();
+    assert!(b.overhead > 0.0 && b.efficiency_bound < 1.0 && b.balance > 0.97, "{b:?}");
+}
+
+/// The serial strategy's counts are exactly the serial traffic `W_1` (bound 1); array
+/// expansion on one worker pays its copy and assembly; every count is the same however often
+/// the run is repeated, and the injected slowdown changes neither the counts nor a bit of
+/// the state.
+#[test]
+fn serial_counts_are_the_reference_and_counts_repeat() {
+    let serial = run(Strategy::Serial, 1, 0.0).work();
+    let s = STEPS;
+    let want = [
+        (Substage::Scatter, w(PARTICLES * s, NODES * s, 0, 0, 0)),
+        (Substage::GridUpdate, w(0, 0, 0, NODES * s, 0)),
+        (Substage::RemapScatter, w(PARTICLES * s, NODES * s, 0, 0, 0)),
+        (Substage::RemapAssembly, w(0, 0, 0, NODES * s, 0)),
+        (Substage::StressUpdate, w(PARTICLES * s, 0, 0, 0, 0)),
+    ];
+    assert_eq!(serial.workers, vec![want.into_iter().collect()]);
+    let b = serial.bound().unwrap();
+    assert_eq!(b.worker_bytes, vec![b.serial_bytes]);
+    assert_eq!(b.efficiency_bound, 1.0);
+    let ae1 = run(Strategy::ArrayExpansion, 1, 0.0).work().bound().unwrap();
+    assert_eq!(ae1.serial_bytes, b.serial_bytes, "W_1 follows from any strategy's counts");
+    assert!(ae1.efficiency_bound < 1.0 && ae1.overhead > 0.0, "{ae1:?}");
+
+    let plain = run(Strategy::DomainDecomposition, 2, 0.0);
+    let injected = run(Strategy::DomainDecomposition, 2, 0.3);
+    assert_eq!(plain.work(), injected.work(), "injected work is not counted");
+    assert_eq!(plain.particles().x, injected.particles().x, "the state is bitwise the same");
+    assert_eq!(plain.particles().stress, injected.particles().stress);
+    assert!(injected.injected_seconds().is_some_and(|t| t > 0.0));
+    assert_eq!(plain.injected_seconds(), None);
+    assert_eq!(run(Strategy::DomainDecomposition, 1, 0.3).injected_seconds(), None, "one worker: nothing to add");
+}
+
+/// An injected slowdown outside [0, 1) is refused.
+#[test]
+fn a_bad_injection_is_refused() {
+    let dx = 1e-3;
+    for f in [1.0, -0.1, f64::NAN] {
+        let setup = confined_column(elastic_copper(), 4.0 * dx, 8.0 * dx, dx, |_| [0.0; 3]);
+        let config = SimConfig {
+            strategy: Strategy::DomainDecomposition,
+            threads: 2,
+            inject_slowdown: f,
+            ..SimConfig::default()
+        };
+        let err = Simulation::new(setup, config).err().unwrap().to_string();
+        assert!(err.contains("injected slowdown"), "{err}");
+    }
+}
