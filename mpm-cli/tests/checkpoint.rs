@@ -33,8 +33,9 @@ fn path(p: &Path) -> &str {
 
 /// Keys of a summary measured by a clock or of the process (its memory, its command line,
 /// the checkpoints it wrote), not of the run's state.
-const PROCESS_KEYS: [&str; 20] = [
+const PROCESS_KEYS: [&str; 21] = [
     "wall_s",
+    "noise",
     "output_s",
     "grid_stage_s",
     "particle_stage_s",
