@@ -15,7 +15,7 @@ use mpm_bench::campaign::watch::WatchSettings;
 use mpm_bench::machine::placement::{PinPolicy, Places, PAPER_THREADS};
 use mpm_bench::machine::topology::{self, Machine};
 use mpm_bench::machine::{bandwidth, fingerprint};
-use mpm_bench::report::{comparison, figures, imbalance as imbalance_figure, impact_table};
+use mpm_bench::report::{comparison, figures, imbalance as imbalance_figure, impact_table, roofline_table};
 use mpm_cli::atomic::write_atomic;
 use mpm_core::Strategy;
 use std::path::{Path, PathBuf};
@@ -44,6 +44,7 @@ use std::time::Duration;
         mpm-bench calibrate --preset ci          # the gate's false-alarm rate and detection power here\n  \
         mpm-bench report --results A --results B --out cmp   # cmp/index.html: B vs A\n  \
         mpm-bench impact-table --results results/impact   # table of the impact runs\n  \
+        mpm-bench roofline-table --summary m1.json --bandwidth bw.json   # each sub-stage against its limits\n  \
         mpm-bench imbalance --scenario impact    # DD work imbalance, uniform vs balanced cuts\n\n\
         Run `mpm-bench <command> --help` for every flag of a command."
 )]
@@ -136,6 +137,8 @@ enum Cmd {
     Report(comparison::ReportArgs),
     /// Markdown table of the impact runs under a folder, from their JSON summaries.
     ImpactTable(impact_table::ImpactTableArgs),
+    /// Markdown roofline table of runs (each sub-stage's bytes, flops and rates), from their JSON summaries.
+    RooflineTable(roofline_table::RooflineTableArgs),
     /// Measure the memory-bandwidth ceiling (STREAM triad) per thread count and pinning.
     Bandwidth(bandwidth::BandwidthArgs),
     /// Parallel efficiency as paired ratios of interleaved blocks in one process (noisy hosts).
@@ -401,6 +404,7 @@ fn main() {
         Cmd::Report(a) => comparison::run(a),
         Cmd::Calibrate(a) => calibrate::run(a),
         Cmd::ImpactTable(a) => impact_table::run(a),
+        Cmd::RooflineTable(a) => roofline_table::run(&a),
         Cmd::Bandwidth(a) => {
             measure_and_report(a.out.as_deref(), "--out", || bandwidth::measure_all(&a), bandwidth::table)
         }

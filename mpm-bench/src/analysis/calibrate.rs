@@ -576,13 +576,16 @@ pub fn table(c: &Calibration) -> String {
         "  intervals of one campaign covering the other campaigns' mean: {} of {}",
         c.interval_coverage.1, c.interval_coverage.0
     );
-    let _ = writeln!(
-        s,
-        "  recommended: {} processes per cell, {} blocks per process",
-        c.recommended_reps
-            .map_or("no count suffices (the drift between campaigns alone exceeds the loss)".into(), |r| r.to_string()),
-        c.recommended_blocks.map_or("-".into(), |b| b.to_string())
-    );
+    let blocks = c.recommended_blocks.map_or("-".into(), |b| b.to_string());
+    let _ = match c.recommended_reps {
+        Some(r) => writeln!(s, "  recommended: {r} processes per cell, {blocks} blocks per process"),
+        None => writeln!(
+            s,
+            "  recommended: {blocks} blocks per process; no number of processes per cell detects the injected \
+             loss with 90 % power (the drift between campaigns alone is too large: gate on a larger loss, or \
+             compare campaigns run interleaved)"
+        ),
+    };
     for n in &c.cells {
         let _ = writeln!(
             s,

@@ -32,7 +32,6 @@
 //! `j`-th CPU). Build the harness optimised (`--profile o3`): the solver runs in this
 //! process, so this binary's optimisation level is the one measured.
 
-use crate::campaign::manifest::git_info;
 use crate::campaign::memory::{available_memory, estimate_memory};
 use crate::machine::placement::PinPolicy;
 use crate::machine::topology::{human_bytes, Machine};
@@ -137,9 +136,10 @@ pub struct PairedMeasurement {
     pub strategies: Vec<StrategyBlocks>,
     /// This binary was built with debug assertions (its timings mean little).
     pub debug_build: bool,
-    /// Git commit of the working directory, if any.
+    /// Git commit this binary (whose solver ran the blocks) was built from.
     pub git_commit: String,
-    /// The working tree had uncommitted changes.
+    /// Its sources had uncommitted changes when it was built (`true` also when unknown): the
+    /// build's state, not the state of whatever folder the command runs in.
     pub git_dirty: bool,
     /// When the measurement ended (RFC 3339, UTC).
     pub timestamp: String,
@@ -311,7 +311,6 @@ pub fn measure(a: &PairedArgs) -> Result<PairedMeasurement> {
             }
         })
         .collect();
-    let git = git_info(None);
     Ok(PairedMeasurement {
         model: a.model,
         particles,
@@ -326,8 +325,8 @@ pub fn measure(a: &PairedArgs) -> Result<PairedMeasurement> {
         serial_s_per_step: serial,
         strategies: out,
         debug_build: cfg!(debug_assertions),
-        git_commit: git.commit,
-        git_dirty: git.dirty,
+        git_commit: mpm_cli::identity::GIT_COMMIT.to_string(),
+        git_dirty: mpm_cli::identity::GIT_DIRTY != "false",
         timestamp: now_rfc3339(),
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
     })

@@ -338,10 +338,19 @@ pub fn footnotes(c: &Campaign, an: &Analysis) -> Vec<String> {
                 .to_string(),
         );
     }
+    let missing = if c.left_out.is_empty() {
+        "no ok run (e.g. skipped by the memory guard)".to_string()
+    } else {
+        "no ok run kept (skipped by the memory guard, or every repetition left out)".to_string()
+    };
+    // `44 measured on a busy host`: the reason without its remedy, which the command prints.
+    let left: Vec<String> =
+        c.left_out.iter().map(|l| format!("{} {}", l.rows, l.reason.split(" (").next().unwrap_or(&l.reason))).collect();
+    let left = if left.is_empty() { String::new() } else { format!("; left out: {}", left.join(", ")) };
     out.extend([
-        format!("{bars}{hollow} Missing points: no ok run (e.g. skipped by the memory guard)."),
+        format!("{bars}{hollow} Missing points: {missing}."),
         format!(
-            "Campaign {} on machine {} ({} rows, pinning '{}'); T1 = the same strategy on 1 thread.",
+            "Campaign {} on machine {} ({} rows drawn{left}, pinning '{}'); T1 = the same strategy on 1 thread.",
             c.id(),
             c.fingerprint(),
             c.rows.len(),

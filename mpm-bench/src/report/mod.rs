@@ -6,6 +6,7 @@
 //! * [`comparison`]: the hardware report over one or more campaigns (one page as HTML,
 //!   Markdown and JSON), built on [`doc`], the page model and its renderings;
 //! * [`impact_table`]: the table of the committed impact runs;
+//! * [`roofline_table`]: the roofline table of single runs, from their summaries;
 //! * [`imbalance`]: the figure of predicted DD work imbalance, uniform vs balanced cuts.
 
 pub mod comparison;
@@ -17,3 +18,4 @@ pub mod impact_table;
 mod machines;
 pub mod plot;
 mod report_figures;
+pub mod roofline_table;
