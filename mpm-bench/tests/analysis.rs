@@ -365,6 +365,10 @@ fn noisy_rows_are_excluded_unless_asked_and_grey_in_figures() {
     let pts = points(&all);
     assert!(pts.iter().any(|p| p.grey) && pts.iter().any(|p| !p.grey));
     assert!(pts.iter().all(|p| p.grey == (p.x > 1.0)), "grey exactly where noisy rows are");
+    // The figures' footnote says how many rows were left out and why.
+    let notes = figures::footnotes(&quiet, &quiet.analyse(None)).join(" ");
+    assert!(notes.contains(&format!("left out: {} measured on a busy host", extra.len())), "{notes}");
+    assert!(notes.contains("every repetition left out"), "{notes}");
 }
 
 #[test]

@@ -520,8 +520,20 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
     let mut s = String::new();
     let _ = writeln!(s, "# Figures 7-14 of the paper, regenerated\n");
     let _ = writeln!(s, "Made from campaign `{}` on machine `{}`:", c.id(), c.fingerprint());
-    let _ =
-        writeln!(s, "`{}` ({} rows, pinning `{}`).\n", c.dir.join("runs.csv").display(), c.rows.len(), an.pin_policy);
+    let _ = writeln!(
+        s,
+        "`{}` ({} rows drawn, pinning `{}`).\n",
+        c.dir.join("runs.csv").display(),
+        c.rows.len(),
+        an.pin_policy
+    );
+    if !c.left_out.is_empty() {
+        let _ = writeln!(s, "Rows left out by the analysis (the same rule as `claims`, `regress` and `report`):\n");
+        for l in &c.left_out {
+            let _ = writeln!(s, "- {}", l.describe());
+        }
+        let _ = writeln!(s);
+    }
     let _ = writeln!(s, "Command:\n\n```sh\n{command}\n```\n");
     if let Some(m) = &c.manifest {
         let _ = writeln!(
