@@ -68,6 +68,12 @@ impl LeftOut {
     pub fn describe(&self) -> String {
         format!("{} row(s) {}", self.rows, self.reason)
     }
+
+    /// `3 measured on a busy host`: the count and the reason without its remedy in
+    /// parentheses, for a figure's footnote (the command prints the remedy).
+    pub fn brief(&self) -> String {
+        format!("{} {}", self.rows, self.reason.split(" (").next().unwrap_or(&self.reason))
+    }
 }
 
 /// The leaves of `v` by their dotted path.

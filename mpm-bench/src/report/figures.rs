@@ -19,7 +19,7 @@
 use super::plot::{write_png_svg, Line, Panel, PlotPoint};
 use crate::analysis::hybrid::HybridAnalysis;
 use crate::analysis::results::{load_campaigns, Campaign};
-use crate::analysis::select::RowFilter;
+use crate::analysis::select::{LeftOut, RowFilter};
 use crate::analysis::stats::{parallel_strategies, tag, Analysis, CellKey, Point, Stage, StatsOptions};
 use anyhow::{Context, Result};
 use mpm_core::Strategy;
@@ -343,9 +343,7 @@ pub fn footnotes(c: &Campaign, an: &Analysis) -> Vec<String> {
     } else {
         "no ok run kept (skipped by the memory guard, or every repetition left out)".to_string()
     };
-    // `44 measured on a busy host`: the reason without its remedy, which the command prints.
-    let left: Vec<String> =
-        c.left_out.iter().map(|l| format!("{} {}", l.rows, l.reason.split(" (").next().unwrap_or(&l.reason))).collect();
+    let left: Vec<String> = c.left_out.iter().map(LeftOut::brief).collect();
     let left = if left.is_empty() { String::new() } else { format!("; left out: {}", left.join(", ")) };
     out.extend([
         format!("{bars}{hollow} Missing points: {missing}."),

@@ -122,9 +122,7 @@ pub fn table(runs: &[(String, Summary)], stream: &dyn Fn(usize) -> Option<f64>) 
 pub fn run(a: &RooflineTableArgs) -> Result<()> {
     let runs = a.summaries.iter().map(|s| load(s)).collect::<Result<Vec<_>>>()?;
     let bw = a.bandwidth.as_deref().map(bandwidth::read).transpose()?;
-    let stream = |threads: usize| {
-        bw.as_ref()?.results.iter().filter(|p| p.threads == threads).map(|p| p.best_gb_s).reduce(f64::max)
-    };
+    let stream = |threads: usize| Some(bw.as_ref()?.ceiling(threads, "close")?.best_gb_s);
     let text = table(&runs, &stream);
     match &a.out {
         Some(path) => write_atomic(path, text.as_bytes()).with_context(|| format!("cannot write {}", path.display())),
