@@ -1308,6 +1308,11 @@ fn calibrate_counts_false_alarms_and_detections_on_the_mock() {
     assert!((loss - 0.3).abs() < 0.05, "the injected campaigns lost {loss}");
     let mdc = cal.min_detectable_change.unwrap();
     assert!(mdc > 0.05 && mdc < 0.3, "{mdc}");
+    // A loss in every cell at once is found by the mean over the four cells: smaller, but
+    // never below the tolerance.
+    let pooled = cal.min_detectable_change_pooled.unwrap();
+    assert!(pooled >= 0.05 && pooled < mdc, "pooled {pooled} vs one cell {mdc}");
+    assert!(cal.comparisons.iter().all(|c| c.pooled_ratio.is_some() && c.efficiency_ratios.len() == 4));
     assert!(cal.gate_wall_s > 0.0 && cal.recommended_reps.is_some());
     assert_eq!(cal.cells.len(), 4, "Models 1-2 x AE, DD at 2 threads");
     // Every injected comparison failed on efficiency, naming the injection.
@@ -1323,6 +1328,7 @@ fn calibrate_counts_false_alarms_and_detections_on_the_mock() {
         "injected_comparisons",
         "detected",
         "min_detectable_change",
+        "min_detectable_change_pooled",
         "gate_wall_s",
         "recommended_reps",
         "recommended_blocks",
@@ -1424,8 +1430,13 @@ fn injected_slowdown_is_marked_refused_and_caught_by_regress() {
         RegressArgs { metrics: vec!["efficiency".into(), "work".into()], ..RegressArgs::new(&clean.dir, &s.dir) };
     let r = regress::evaluate(&args).unwrap();
     assert_eq!(r.verdict, "fail", "{}", r.reason);
-    assert_eq!(r.regressions.len(), 2, "both cells' paired efficiency: {:#?}", r.checks);
+    assert_eq!(r.regressions.len(), 3, "both cells' paired efficiency and their mean: {:#?}", r.checks);
     assert!(r.regressions.iter().all(|c| c.design == mpm_bench::analysis::stats::Design::Paired));
+    let pooled = r.regressions.iter().find(|c| c.cell.key().is_none()).expect("the pooled check");
+    assert_eq!(pooled.cell.to_string(), "mean of 2 cells");
+    assert_eq!((pooled.baseline_reps, pooled.current_reps), (8, 8), "4 processes a cell, 2 cells");
+    assert!((pooled.ratio.value - 0.8).abs() < 0.05, "{:?}", pooled.ratio);
+    assert_eq!(r.gated_checks, 3);
     assert!(r.reason.contains("injected slowdown of 20 %"), "{}", r.reason);
     assert_eq!(r.current_injected, Some(0.2));
     assert!(r.work_checks.iter().all(|w| w.outcome == regress::Outcome::Unchanged), "injected work is not work");

@@ -31,7 +31,10 @@
 //! observations than to 21. The smallest detectable change does not rest on the pairs: it
 //! comes from the spread of the clean campaigns' cell means (`sd_campaign_log`), which
 //! contains whatever drifts from one campaign to the next, and the t quantile of the gate's
-//! Holm level over its checks; see [`Calibration::min_detectable_change`].
+//! Holm level over its checks (the cells and their mean); see
+//! [`Calibration::min_detectable_change`] (a loss in one cell) and
+//! [`Calibration::min_detectable_change_pooled`] (a loss in every cell, which the gate's
+//! pooled check finds with half a cell's standard error at four cells).
 
 use super::paired::{student_t_quantile, two_stage};
 use super::regress::{self, Metrics, RegressArgs, RegressReport};
@@ -121,8 +124,10 @@ pub struct CalibrationComparison {
     pub verdict: String,
     /// The gate's reason.
     pub reason: String,
-    /// Per efficiency check: `cell`, the ratio current / baseline.
+    /// Per efficiency check of one cell: `cell stage`, the ratio current / baseline.
     pub efficiency_ratios: BTreeMap<String, f64>,
+    /// The pooled efficiency check's ratio (the mean change over the cells, total step).
+    pub pooled_ratio: Option<f64>,
     /// Seconds the gate's comparison took.
     pub regress_s: f64,
 }
@@ -163,8 +168,12 @@ pub struct Calibration {
     pub detected: usize,
     /// The smallest efficiency loss (fraction) detected with 90 % power in every cell, from
     /// the clean campaigns' spread (the largest of the cells'); `null` with fewer than two
-    /// clean campaigns.
+    /// clean campaigns. This is a loss in that one cell only.
     pub min_detectable_change: Option<f64>,
+    /// The smallest efficiency loss (fraction) in every cell at once detected with 90 %
+    /// power by the pooled check (the mean over the cells), from the same spread; `null`
+    /// with fewer than two cells.
+    pub min_detectable_change_pooled: Option<f64>,
     /// The longest gate run: one campaign and its `regress` (s).
     pub gate_wall_s: f64,
     /// `false_alarms / aa_comparisons`.
@@ -174,8 +183,9 @@ pub struct Calibration {
     /// The efficiency loss the injected campaigns showed: `1 -` the median efficiency ratio
     /// of the injected comparisons' checks.
     pub measured_injected_loss: Option<f64>,
-    /// Processes (repetitions) per cell for 90 % power at the injected size, with this
-    /// noise; `null` when the drift between campaigns alone is too large for any count.
+    /// Processes (repetitions) per cell with which the gate detects the injected loss (in
+    /// every cell) with 90 % power at this noise, by its pooled check; `null` when the drift
+    /// between campaigns alone is too large for any count.
     pub recommended_reps: Option<u64>,
     /// Blocks per process past which more blocks buy little (the within-process noise under
     /// a tenth of the process-to-process spread).
@@ -209,7 +219,8 @@ pub struct Calibration {
 pub const METHOD: &str = "A/A: every pair of clean campaigns, the earlier as the baseline; injected: every clean \
     campaign as the baseline against every injected one. The campaigns ran interleaved in one session. Pairs reuse \
     campaigns, so the comparisons are not independent: the rates are unbiased per comparison but scatter more than a \
-    binomial over the comparisons (about as much as over the campaigns). min_detectable_change comes from the spread \
+    binomial over the comparisons (about as much as over the campaigns). min_detectable_change (a loss in one cell) and \
+    min_detectable_change_pooled (a loss in every cell, found by the gate's mean over the cells) come from the spread \
     of the clean campaigns' cell means, not from the pairs.";
 
 /// The order of `clean` clean and `injected` injected campaigns: the injected ones spread
@@ -360,9 +371,14 @@ pub fn calibrate(
             efficiency_ratios: r
                 .checks
                 .iter()
-                .filter(|x| x.metric == "efficiency")
+                .filter(|x| x.metric == "efficiency" && x.cell.key().is_some())
                 .map(|x| (format!("{} {}", x.cell, x.stage.name()), x.ratio.value))
                 .collect(),
+            pooled_ratio: r
+                .checks
+                .iter()
+                .find(|x| x.metric == "efficiency" && x.cell.key().is_none() && x.stage == Stage::Total)
+                .map(|x| x.ratio.value),
             verdict: r.verdict,
             reason: r.reason,
             regress_s: secs,
@@ -378,8 +394,10 @@ struct Noise {
     coverage: (usize, usize),
     /// Per cell, the pooled process SD and the campaign SD (for the recommendations).
     parts: Vec<(f64, f64, f64, usize, usize)>,
-    /// Gated efficiency checks per comparison (Holm's family).
+    /// Gated efficiency checks per comparison (Holm's family: the cells and the pooled check).
     checks: usize,
+    /// The smallest loss in every cell the pooled check detects with 90 % power.
+    pooled_mdc: Option<f64>,
 }
 
 /// The pooled standard deviation of groups of values (`None` without any degree of freedom).
@@ -407,7 +425,8 @@ fn cell_noise(a: &CalibrateArgs, campaigns: &[CalibrationCampaign], clean: &[usi
         .collect();
     let z90 = student_t_quantile(0.9, 1e9);
     let alpha = (1.0 - StatsOptions::default().confidence) / 2.0;
-    let checks = keys.len().max(1);
+    // The cells' checks and, with two or more cells, the pooled check.
+    let checks = (keys.len() + usize::from(keys.len() >= 2)).max(1);
     let tol_log = -(1.0 - a.tolerance).ln();
     let (mut cells, mut parts) = (Vec::new(), Vec::new());
     let mut coverage = (0, 0);
@@ -456,7 +475,15 @@ fn cell_noise(a: &CalibrateArgs, campaigns: &[CalibrationCampaign], clean: &[usi
             }
         }
     }
-    Ok(Noise { cells, coverage, parts, checks })
+    // The pooled check: the mean of the cells' differences, variance sum(2 sd_k^2) / K^2.
+    let pooled_mdc = (parts.len() >= 2).then(|| {
+        let k = parts.len() as f64;
+        let se = (parts.iter().map(|p| 2.0 * p.2 * p.2).sum::<f64>()).sqrt() / k;
+        let m = parts.iter().map(|p| p.3).min().unwrap_or(2);
+        let t = student_t_quantile(1.0 - alpha / checks as f64, (k as usize * (2 * m).saturating_sub(2)).max(1) as f64);
+        1.0 - (-(tol_log.max(t * se) + z90 * se)).exp()
+    });
+    Ok(Noise { cells, coverage, parts, checks, pooled_mdc })
 }
 
 /// The figures of calibration.json from the campaigns, comparisons and noise.
@@ -489,6 +516,7 @@ fn summarise(
         injected_comparisons: inj,
         detected,
         min_detectable_change: noise.cells.iter().map(|c| c.min_detectable_change).reduce(f64::max),
+        min_detectable_change_pooled: noise.pooled_mdc,
         gate_wall_s,
         false_alarm_rate: rate(alarms, aa),
         detection_rate: rate(detected, inj),
@@ -510,34 +538,40 @@ fn summarise(
 }
 
 /// The repetitions for 90 % power at the injected size and the blocks past which more buy
-/// little, from the worst cell's noise. A campaign mean's variance is modelled as
-/// `s_d^2 + s_p^2 / m`: the process spread `s_p` over `m` processes and a drift `s_d` between
-/// campaigns that more processes cannot average away (the part of the campaign spread the
-/// processes do not explain).
+/// little. A campaign mean's variance is modelled per cell as `s_d^2 + s_p^2 / m`: the
+/// process spread `s_p` over `m` processes and a drift `s_d` between campaigns that more
+/// processes cannot average away (the part of the campaign spread the processes do not
+/// explain). The injected loss hits every cell, so the repetitions are those with which the
+/// gate's pooled check (the mean over the cells, variance `sum_k 2 var_k / K^2`) detects it;
+/// with one cell, that cell's check.
 fn recommend(a: &CalibrateArgs, noise: &Noise) -> (Option<u64>, Option<u64>) {
     let target = -(1.0 - a.inject_slowdown).ln();
     let tol_log = -(1.0 - a.tolerance).ln();
     let alpha = (1.0 - StatsOptions::default().confidence) / 2.0;
     let z = |p: f64| student_t_quantile(p, 1e9);
     let (za, zb) = (z(1.0 - alpha / noise.checks as f64), z(0.9));
-    let mut reps: Option<u64> = Some(2);
-    let mut blocks: Option<u64> = Some(2);
-    for &(sd_block, sd_process, sd_campaign, m, n) in &noise.parts {
-        let drift = (sd_campaign.powi(2) - sd_process.powi(2) / m.max(1) as f64).max(0.0);
+    let k = noise.parts.len() as f64;
+    let reps = (2..=200u64).find(|&r| {
+        let var: f64 = noise
+            .parts
+            .iter()
+            .map(|&(_, sd_process, sd_campaign, m, _)| {
+                let drift = (sd_campaign.powi(2) - sd_process.powi(2) / m.max(1) as f64).max(0.0);
+                2.0 * (drift + sd_process.powi(2) / r as f64)
+            })
+            .sum();
+        let se = var.sqrt() / k;
         // Detected when the loss beats the tolerance and the test: target >= max(tol, za se) + zb se.
-        let need = (2..=200u64).find(|&k| {
-            let se = (2.0 * (drift + sd_process.powi(2) / k as f64)).sqrt();
-            tol_log.max(za * se) + zb * se <= target
-        });
-        reps = match (reps, need) {
-            (Some(r), Some(k)) => Some(r.max(k)),
-            _ => None,
-        };
+        tol_log.max(za * se) + zb * se <= target
+    });
+    let mut blocks: Option<u64> = Some(2);
+    for &(sd_block, sd_process, _, _, n) in &noise.parts {
         let between = (sd_process.powi(2) - sd_block.powi(2) / n.max(1) as f64).max(1e-12);
         let b = (sd_block.powi(2) / (0.1 * between)).ceil().clamp(2.0, 50.0) as u64;
         blocks = blocks.map(|x| x.max(b));
     }
-    (reps, blocks.filter(|_| !noise.parts.is_empty()))
+    let found = !noise.parts.is_empty();
+    (reps.filter(|_| found), blocks.filter(|_| found))
 }
 
 /// The result for people.
@@ -569,7 +603,12 @@ pub fn table(c: &Calibration) -> String {
         pct(c.detection_rate),
         pct(c.measured_injected_loss)
     );
-    let _ = writeln!(s, "  smallest loss detected with 90 % power in every cell: {}", pct(c.min_detectable_change));
+    let _ = writeln!(
+        s,
+        "  smallest loss detected with 90 % power: in any one cell {}; in every cell at once (the pooled check) {}",
+        pct(c.min_detectable_change),
+        pct(c.min_detectable_change_pooled)
+    );
     let _ = writeln!(s, "  longest gate run (campaign + regress): {:.0} s", c.gate_wall_s);
     let _ = writeln!(
         s,

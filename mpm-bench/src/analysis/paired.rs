@@ -46,6 +46,18 @@
 //! Welch's t on the two campaigns' `y_i`: `d = ybar_cur - ybar_base`, standard error
 //! `sqrt(s_c^2/m_c + s_b^2/m_b)`, Welch-Satterthwaite degrees of freedom; the ratio of
 //! efficiencies `exp(d)` with its interval, and one-sided p-values of "lower" and "higher".
+//!
+//! # Pooling cells ([`compare_pooled`])
+//!
+//! A change of the code that costs every cell a little (a slower assembly, a lost
+//! overlap) moves each cell by less than its own noise: on the development VM a 10 %
+//! injected loss, measured by 12 processes a cell, was found in no single cell of 3 of 21
+//! comparisons, although every cell was 3-13 % down. The mean of the cells' changes,
+//! `d = (1/K) sum_k d_k`, has the variance `(1/K^2) sum_k se_k^2` when the cells are measured
+//! by separate processes (their errors independent), so over K = 4 cells its standard error
+//! is half a cell's: the gate tests it beside the cells (`regress`: one more check in the
+//! Holm family, so the family-wise level holds). Degrees of freedom: Welch-Satterthwaite over
+//! all `2K` samples, `(sum v)^2 / sum v^2 / (m - 1)`.
 
 use super::stats::{bootstrap, Estimate, StatsOptions};
 use crate::campaign::paired::PairedMeasurement;
@@ -269,34 +281,46 @@ pub struct Comparison {
 /// both sides have at least two processes (one process says nothing of the spread between
 /// processes).
 pub fn compare(base: &[f64], cur: &[f64], confidence: f64) -> Option<Comparison> {
-    if base.len() < 2 || cur.len() < 2 {
+    compare_pooled(&[(base, cur)], confidence)
+}
+
+/// The mean change over several cells (module docs, "Pooling cells"): `d = mean_k d_k` of
+/// each cell's difference of mean logs, standard error `sqrt(sum_k se_k^2) / K`,
+/// Welch-Satterthwaite degrees of freedom over every cell's two samples. The cells must be
+/// measured by separate processes (they are: every process measures one cell). `None`
+/// without cells or when a cell has fewer than two processes a side. One cell is
+/// [`compare`].
+pub fn compare_pooled(cells: &[(&[f64], &[f64])], confidence: f64) -> Option<Comparison> {
+    if cells.is_empty() || cells.iter().any(|(b, c)| b.len() < 2 || c.len() < 2) {
         return None;
     }
-    let ((mb, sb), (mc, sc)) = (mean_sd(base), mean_sd(cur));
-    let (vb, vc) = (sb * sb / base.len() as f64, sc * sc / cur.len() as f64);
-    let se = (vb + vc).sqrt();
-    let d = mc - mb;
+    let k = cells.len() as f64;
+    let (mut d, mut var, mut df_den) = (0.0, 0.0, 0.0);
+    for (base, cur) in cells {
+        let ((mb, sb), (mc, sc)) = (mean_sd(base), mean_sd(cur));
+        let (vb, vc) = (sb * sb / base.len() as f64, sc * sc / cur.len() as f64);
+        d += (mc - mb) / k;
+        var += vb + vc;
+        df_den += vb * vb / (base.len() as f64 - 1.0) + vc * vc / (cur.len() as f64 - 1.0);
+    }
+    let reps = cells.iter().map(|(b, c)| b.len().min(c.len())).min().unwrap_or(0);
+    // The 1/K^2 of the mean's variance cancels in the degrees of freedom.
+    let se = var.sqrt() / k;
     if se == 0.0 {
         let p = |x: bool| if x { 0.0 } else { 1.0 };
         return Some(Comparison {
-            ratio: Estimate { value: d.exp(), lo: d.exp(), hi: d.exp(), reps: base.len().min(cur.len()) },
+            ratio: Estimate { value: d.exp(), lo: d.exp(), hi: d.exp(), reps },
             se_log: 0.0,
             df: f64::INFINITY,
             p_lower: p(d < 0.0),
             p_higher: p(d > 0.0),
         });
     }
-    let df = (vb + vc).powi(2)
-        / (vb * vb / (base.len() as f64 - 1.0) + vc * vc / (cur.len() as f64 - 1.0)).max(f64::MIN_POSITIVE);
+    let df = var * var / df_den.max(f64::MIN_POSITIVE);
     let t = student_t_quantile(0.5 + 0.5 * confidence, df);
     let z = d / se;
     Some(Comparison {
-        ratio: Estimate {
-            value: d.exp(),
-            lo: (d - t * se).exp(),
-            hi: (d + t * se).exp(),
-            reps: base.len().min(cur.len()),
-        },
+        ratio: Estimate { value: d.exp(), lo: (d - t * se).exp(), hi: (d + t * se).exp(), reps },
         se_log: se,
         df,
         p_lower: student_t_cdf(z, df),
@@ -562,6 +586,38 @@ mod tests {
         let c = compare(&a, &b, 0.95).unwrap();
         assert!(c.p_lower < 1e-6 && c.ratio.hi < 0.95 && c.ratio.lo > 0.85, "{c:?}");
         assert!(compare(&a[..1], &b, 0.95).is_none());
+    }
+
+    /// Pooling: over many A/A pairs of four cells the mean change is called lower at about
+    /// its level (the variance of a mean of independent cells is right); a 10 % loss in
+    /// every cell at the development VM's noise (process sd 0.12, 12 processes a cell) is
+    /// found by the pooled test far more often than by the best single cell at the Holm
+    /// level over five checks; one cell pooled is [`compare`].
+    #[test]
+    fn pooled_cells_keep_their_level_and_find_a_loss_spread_over_cells() {
+        let mut rng = SplitMix64(26);
+        let logs = |rng: &mut SplitMix64, e: f64| -> Vec<f64> {
+            cell(rng, e, 12, 8, 0.11, 0.14).iter().filter_map(|p| process_log_mean(p)).collect()
+        };
+        let trials = 2000;
+        let (mut alarms, mut pooled_found, mut cell_found) = (0, 0, 0);
+        for _ in 0..trials {
+            let aa: Vec<(Vec<f64>, Vec<f64>)> = (0..4).map(|_| (logs(&mut rng, 0.9), logs(&mut rng, 0.9))).collect();
+            let pairs: Vec<(&[f64], &[f64])> = aa.iter().map(|(a, b)| (a.as_slice(), b.as_slice())).collect();
+            alarms += usize::from(compare_pooled(&pairs, 0.95).unwrap().p_lower <= 0.025);
+            let lost: Vec<(Vec<f64>, Vec<f64>)> = (0..4).map(|_| (logs(&mut rng, 0.9), logs(&mut rng, 0.81))).collect();
+            let pairs: Vec<(&[f64], &[f64])> = lost.iter().map(|(a, b)| (a.as_slice(), b.as_slice())).collect();
+            pooled_found += usize::from(compare_pooled(&pairs, 0.95).unwrap().p_lower <= 0.025 / 5.0);
+            cell_found += usize::from(pairs.iter().any(|(a, b)| compare(a, b, 0.95).unwrap().p_lower <= 0.025 / 5.0));
+        }
+        let rate = alarms as f64 / trials as f64;
+        assert!((0.015..=0.035).contains(&rate), "one-sided level 2.5 %, got {rate}");
+        let (pooled, single) = (pooled_found as f64 / trials as f64, cell_found as f64 / trials as f64);
+        assert!(pooled > 0.9 && pooled > single + 0.2, "pooled finds {pooled}, the best single cell {single}");
+        let (a, b) = (logs(&mut rng, 0.9), logs(&mut rng, 0.8));
+        assert_eq!(compare_pooled(&[(&a, &b)], 0.95), compare(&a, &b, 0.95));
+        assert!(compare_pooled(&[(&a, &b), (&a[..1], &b)], 0.95).is_none(), "one process a side: no test");
+        assert!(compare_pooled(&[], 0.95).is_none());
     }
 
     /// One process: the blocks' interval, marked as such; no block: nothing.
