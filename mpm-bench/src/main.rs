@@ -121,8 +121,9 @@ enum Cmd {
             job) every pair of clean campaigns (A/A: a failure is a false alarm) and every clean campaign \
             against every injected one (a failure is a detection). Prints and writes calibration.json: \
             aa_comparisons, false_alarms, injected_slowdown, injected_comparisons, detected, \
-            min_detectable_change (the smallest efficiency loss detected with 90 % power in every cell, from \
-            the clean campaigns' spread), gate_wall_s (the longest campaign plus its regress), the \
+            min_detectable_change (the smallest efficiency loss in one cell detected with 90 % power, from \
+            the clean campaigns' spread), min_detectable_change_pooled (the same for a loss in every cell, \
+            found by the gate's mean over the cells), gate_wall_s (the longest campaign plus its regress), the \
             recommended processes per cell and blocks per process, and the coverage of one campaign's \
             intervals on the others. The comparisons reuse campaigns (7 clean give 21 A/A pairs): they are \
             not independent, see the method in the JSON. Run it on a quiet machine of the kind the gate \

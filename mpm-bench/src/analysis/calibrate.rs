@@ -279,12 +279,14 @@ fn campaign_of(a: &CalibrateArgs, injected: bool, i: usize) -> Result<Campaign> 
     Ok(c)
 }
 
-/// The gate's comparison of two campaign folders, with the calibration's settings.
+/// The gate's comparison of two campaign folders, with the calibration's settings (its notes
+/// on the rows left out said once per campaign by [`calibrate`]).
 fn gate(a: &CalibrateArgs, baseline: &Path, current: &Path) -> Result<(RegressReport, f64)> {
     let t0 = Instant::now();
     let r = regress::evaluate(&RegressArgs {
         tolerance: a.tolerance,
         metrics: a.metrics.clone(),
+        quiet_notes: true,
         ..RegressArgs::new(baseline, current)
     })?;
     Ok((r, t0.elapsed().as_secs_f64()))
@@ -361,6 +363,13 @@ pub fn calibrate(
         .flat_map(|(x, &i)| clean[x + 1..].iter().map(move |&j| ("aa", i, j)))
         .chain(clean.iter().flat_map(|&i| inj.iter().map(move |&j| ("injected", i, j))));
     let mut gate_wall: f64 = 0.0;
+    // Each campaign's rows left out (noisy, ...) are said once here, not at every comparison.
+    if !a.quiet {
+        let filter = RowFilter::analysis(false).with_injected(true);
+        for c in &campaigns {
+            load_campaign(&c.dir, &filter)?.note_left_out("regress");
+        }
+    }
     for (kind, b, c) in pairs.collect::<Vec<_>>() {
         let (r, secs) = gate(a, &campaigns[b].dir, &campaigns[c].dir)?;
         gate_wall = gate_wall.max(campaigns[c].wall_s + secs);

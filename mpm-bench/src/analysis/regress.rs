@@ -111,6 +111,10 @@ pub struct RegressArgs {
     /// Append a Markdown summary of the verdict to FILE (e.g. "$GITHUB_STEP_SUMMARY").
     #[arg(long, value_name = "FILE")]
     pub markdown: Option<PathBuf>,
+    /// No notes on standard error about rows left out (`calibrate` says them once per
+    /// campaign, not once per comparison).
+    #[arg(skip)]
+    pub quiet_notes: bool,
 }
 
 impl RegressArgs {
@@ -129,6 +133,7 @@ impl RegressArgs {
             allow_missing: false,
             metrics: vec!["efficiency".into(), "time".into(), "work".into()],
             markdown: None,
+            quiet_notes: false,
         }
     }
 }
@@ -723,7 +728,7 @@ pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
     let filter = RowFilter::analysis(args.include_noisy).with_injected(true);
     let base = load_campaign(&args.baseline, &filter).context("reading --baseline")?;
     let cur = load_campaign(&args.current, &filter).context("reading --current")?;
-    for c in [&base, &cur] {
+    for c in [&base, &cur].into_iter().filter(|_| !args.quiet_notes) {
         c.note_left_out("regress");
         c.note_hybrid_left_out("regress");
     }
