@@ -16,7 +16,7 @@ use crate::math::{Sym, Vec3};
 use crate::parallel::{partition, DisjointSlice, Exec, Split};
 use crate::particles::Particles;
 use crate::shape;
-use crate::simd::{array, Real, SimdLevel, F4, LANES, M4};
+use crate::simd::{array, Block, Real, SimdLevel, F4, F8, LANES, LANES8};
 use crate::strategy::{Cursors, Kernel};
 
 /// `kernel`'s loop over the particles `ids` at the level `simd`: the copy of the loop compiled
@@ -29,8 +29,9 @@ fn scatter_at<const K: usize, Kn: Kernel<K>>(
     nodes: &mut Cursors<'_>,
     data: &mut [[f64; K]],
 ) {
+    // The scatters add 4-lane records: AVX-512 runs them at AVX2.
     #[cfg(target_arch = "x86_64")]
-    if simd == SimdLevel::Avx2 {
+    if simd >= SimdLevel::Avx2 {
         assert!(SimdLevel::Avx2.is_available(), "AVX2 asked for on a CPU without it");
         // SAFETY: `scatter_avx2` is compiled with AVX2 enabled, and the line above has just
         // checked (through `is_x86_feature_detected!`) that this CPU executes AVX2. The test
@@ -423,6 +424,10 @@ pub fn update<E: PressureModel + Sync>(
     });
 }
 
+/// Placeholders of the per-lane node records of a block before they are looked up.
+static NO_KIN: [f64; KIN_WIDTH] = [0.0; KIN_WIDTH];
+static NO_REMAP: [f64; REMAP_WIDTH] = [0.0; REMAP_WIDTH];
+
 /// One worker's particles in [`update`]: the shared node arrays and its own particle parts.
 struct UpdateChunk<'a, E> {
     geom: &'a GridGeom,
@@ -449,6 +454,22 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
         let linear = self.consts.hardening.n == 1.0;
         match simd {
             #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => {
+                assert!(SimdLevel::Avx512.is_available(), "AVX-512 asked for on a CPU without it");
+                // SAFETY: `run_avx512` is compiled with AVX-512F enabled, and the line above
+                // has just checked (through `is_x86_feature_detected!`) that this CPU executes
+                // it. The test `dispatch_levels_agree_bitwise` runs every level the CPU has; a
+                // call on a CPU without AVX-512F would stop at the assertion, not at an
+                // illegal instruction.
+                unsafe {
+                    if linear {
+                        self.run_avx512::<true>()
+                    } else {
+                        self.run_avx512::<false>()
+                    }
+                }
+            }
+            #[cfg(target_arch = "x86_64")]
             SimdLevel::Avx2 => {
                 assert!(SimdLevel::Avx2.is_available(), "AVX2 asked for on a CPU without it");
                 // SAFETY: `run_avx2` is compiled with AVX2 enabled, and the line above has just
@@ -463,29 +484,39 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
                     }
                 }
             }
-            _ if linear => self.run_lanes::<true>(),
-            _ => self.run_lanes::<false>(),
+            _ if linear => self.run_lanes::<F4, LANES, true>(),
+            _ => self.run_lanes::<F4, LANES, false>(),
         }
     }
 
-    /// [`UpdateChunk::run_lanes`] compiled for AVX2.
+    /// [`UpdateChunk::run_lanes`] in blocks of 4 compiled for AVX2.
     ///
     /// # Safety
     /// The CPU must execute AVX2 (`SimdLevel::Avx2.is_available()`).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn run_avx2<const LINEAR: bool>(&mut self) -> Partial {
-        self.run_lanes::<LINEAR>()
+        self.run_lanes::<F4, LANES, LINEAR>()
     }
 
-    /// The chunk in blocks of [`LANES`] particles (the last block's unused lanes repeat its
-    /// last particle and are not written back). Every quantity of a block is one [`F4`],
-    /// lane `l` particle `l`: the shape functions, the sums over the 8 nodes (the nodes'
+    /// [`UpdateChunk::run_lanes`] in blocks of 8 compiled for AVX-512F.
+    ///
+    /// # Safety
+    /// The CPU must execute AVX-512F (`SimdLevel::Avx512.is_available()`).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx2")]
+    unsafe fn run_avx512<const LINEAR: bool>(&mut self) -> Partial {
+        self.run_lanes::<F8, LANES8, LINEAR>()
+    }
+
+    /// The chunk in blocks of `N` particles (the last block's unused lanes repeat its
+    /// last particle and are not written back). Every quantity of a block is one `R`
+    /// ([`F4`] or [`F8`]), lane `l` particle `l`: the shape functions, the sums over the 8 nodes (the nodes'
     /// values gathered lane by lane), the increments, the material update; then positions
     /// and sums particle by particle, in order. Each lane computes its particle's values with
     /// the operations, in the order, of `shape::evaluate` and the scalar sums.
     #[inline(always)]
-    fn run_lanes<const LINEAR: bool>(&mut self) -> Partial {
+    fn run_lanes<R: Block<N>, const N: usize, const LINEAR: bool>(&mut self) -> Partial {
         let dt = self.dt;
         let n = self.x.len();
         let g = self.geom;
@@ -493,12 +524,12 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
         let mut nodes = CellNodes::new(self.index);
         let mut start = 0;
         while start < n {
-            let len = LANES.min(n - start);
-            let k: [usize; LANES] = array(|l| start + l.min(len - 1));
+            let len = N.min(n - start);
+            let k: [usize; N] = array(|l| start + l.min(len - 1));
             // Shape functions (shape::evaluate), the cell per lane, the rest on all lanes.
-            let mut r = [[0.0; LANES]; 3];
-            let mut idx = [[0usize; 8]; LANES];
-            for l in 0..LANES {
+            let mut r = [[0.0; N]; 3];
+            let mut idx = [[0usize; 8]; N];
+            for l in 0..N {
                 let mut cell = [0usize; 3];
                 for d in 0..3 {
                     let xi = (self.x[k[l]][d] - g.origin[d]) * g.inv_dx;
@@ -507,26 +538,20 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
                 }
                 idx[l] = nodes.get(cell);
             }
-            let one = F4::splat(1.0);
-            let n1: [F4; 3] = array(|d| F4(r[d]));
-            let n0: [F4; 3] = array(|d| one - n1[d]);
-            let grad = [F4::splat(-g.inv_dx), F4::splat(g.inv_dx)];
+            let one = R::splat(1.0);
+            let n1: [R; 3] = array(|d| R::from_array(r[d]));
+            let n0: [R; 3] = array(|d| one - n1[d]);
+            let grad = [R::splat(-g.inv_dx), R::splat(g.inv_dx)];
             let nx = [n0[0], n1[0]];
             let ny = [n0[1], n1[1]];
             let nz = [n0[2], n1[2]];
-            let kin = [
-                records(self.kin, &idx[0]),
-                records(self.kin, &idx[1]),
-                records(self.kin, &idx[2]),
-                records(self.kin, &idx[3]),
-            ];
-            let remap = [
-                records(self.remap, &idx[0]),
-                records(self.remap, &idx[1]),
-                records(self.remap, &idx[2]),
-                records(self.remap, &idx[3]),
-            ];
-            let zero = F4::splat(0.0);
+            let mut kin = [[&NO_KIN; 8]; N];
+            let mut remap = [[&NO_REMAP; 8]; N];
+            for l in 0..N {
+                kin[l] = records(self.kin, &idx[l]);
+                remap[l] = records(self.remap, &idx[l]);
+            }
+            let zero = R::splat(0.0);
             let mut vx = [zero; 3];
             let mut lv = [[zero; 3]; 3];
             let mut lm = [[zero; 3]; 3];
@@ -537,8 +562,8 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
                         let nyz = ny[b] * nz[c];
                         let w = nx[a] * nyz;
                         let gq = [grad[a] * nyz, nx[a] * grad[b] * nz[c], nx[a] * ny[b] * grad[c]];
-                        let kin_q: [F4; KIN_WIDTH] = array(|i| F4::from_lanes(|l| kin[l][q][i]));
-                        let remap_q: [F4; 3] = array(|i| F4::from_lanes(|l| remap[l][q][i]));
+                        let kin_q: [R; KIN_WIDTH] = array(|i| R::from_lanes(|l| kin[l][q][i]));
+                        let remap_q: [R; 3] = array(|i| R::from_lanes(|l| remap[l][q][i]));
                         for i in 0..3 {
                             // Eq. 7's velocity, Eq. 12's gradient, the mid-step gradient.
                             vx[i] = vx[i] + w * kin_q[i];
@@ -551,31 +576,31 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
                 }
             }
             let de = strain_increment(&lv, dt);
-            let half_dt = F4::splat(0.5 * dt);
+            let half_dt = R::splat(0.5 * dt);
             let dw =
                 [half_dt * (lv[1][2] - lv[2][1]), half_dt * (lv[2][0] - lv[0][2]), half_dt * (lv[0][1] - lv[1][0])];
             let de_mid = strain_increment(&lm, dt);
             let state = LaneState {
-                stress: array(|i| F4::from_lanes(|l| self.stress[k[l]][i])),
-                eps_p: F4::from_lanes(|l| self.eps_p[k[l]]),
-                e_int: F4::from_lanes(|l| self.e_int[k[l]]),
-                rho: F4::from_lanes(|l| self.rho[k[l]]),
-                sound: F4::from_lanes(|l| self.sound[k[l]]),
-                failed: M4::from_bools(array(|l| self.failed[k[l]])),
+                stress: array(|i| R::from_lanes(|l| self.stress[k[l]][i])),
+                eps_p: R::from_lanes(|l| self.eps_p[k[l]]),
+                e_int: R::from_lanes(|l| self.e_int[k[l]]),
+                rho: R::from_lanes(|l| self.rho[k[l]]),
+                sound: R::from_lanes(|l| self.sound[k[l]]),
+                failed: R::mask_from(|l| self.failed[k[l]]),
             };
-            let (out, signal, floor) = update_block::<F4, E, LINEAR>(self.consts, self.eos, dt, de, de_mid, dw, state);
+            let (out, signal, floor) = update_block::<R, E, LINEAR>(self.consts, self.eos, dt, de, de_mid, dw, state);
             for l in 0..len {
                 let k = start + l;
-                self.stress[k] = array(|i| out.stress[i].0[l]);
-                let e = out.e_int.0[l];
-                self.eps_p[k] = out.eps_p.0[l];
+                self.stress[k] = array(|i| out.stress[i].lane(l));
+                let e = out.e_int.lane(l);
+                self.eps_p[k] = out.eps_p.lane(l);
                 self.e_int[k] = e;
-                self.rho[k] = out.rho.0[l];
-                self.sound[k] = out.sound.0[l];
-                self.failed[k] = out.failed.get(l);
+                self.rho[k] = out.rho.lane(l);
+                self.sound[k] = out.sound.lane(l);
+                self.failed[k] = R::mask_lane(out.failed, l);
                 let xp = &mut self.x[k];
                 for a in 0..3 {
-                    xp[a] += dt * vx[a].0[l];
+                    xp[a] += dt * vx[a].lane(l);
                 }
                 let vp = self.v[k];
                 let m = self.mass[k];
@@ -583,16 +608,16 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
                 sum.kinetic += 0.5 * m * v2;
                 sum.internal += m * e;
                 sum.negative_internal += u64::from(e < -self.consts.energy_tolerance);
-                if floor.0[l] > 0.0 {
+                if floor.lane(l) > 0.0 {
                     sum.failed_floors += 1;
-                    sum.failed_floor_energy += m * floor.0[l];
+                    sum.failed_floor_energy += m * floor.lane(l);
                 }
                 for a in 0..3 {
                     sum.momentum[a] += m * vp[a];
                     sum.lo[a] = sum.lo[a].min(xp[a]);
                     sum.hi[a] = sum.hi[a].max(xp[a]);
                 }
-                sum.max_speed = sum.max_speed.max(signal.0[l] + v2.sqrt());
+                sum.max_speed = sum.max_speed.max(signal.lane(l) + v2.sqrt());
                 let st = &self.stress[k];
                 let finite = (xp[0] + xp[1] + xp[2] + v2 + st[0] + st[1] + st[2] + e).is_finite();
                 if !finite {

@@ -22,7 +22,7 @@ pub use viscosity::{BulkViscosity, ViscosityTerms};
 
 use crate::error::SimError;
 use crate::math::{ddot, deviator, Sym, Vec3};
-use crate::simd::{array, Real, F4, LANES, M4};
+use crate::simd::{array, Real, F4, LANES, LANES8, M4};
 use serde::Serialize;
 
 /// A material: elastic constants, hardening, EOS and optional failure.
@@ -425,8 +425,8 @@ pub(crate) fn update_block<R: Real, E: PressureModel, const LINEAR: bool>(
         let elastic = j.le(y0);
         (array(|i| R::select(elastic, trial[i], trial[i] * scale)), R::select(elastic, st.eps_p, st.eps_p + d))
     } else {
-        let mut s = [[0.0; LANES]; 6];
-        let mut e = [0.0; LANES];
+        let mut s = [[0.0; LANES8]; 6];
+        let mut e = [0.0; LANES8];
         for l in 0..R::WIDTH {
             let (sl, el) = j2::radial_return(array(|i| trial[i].lane(l)), st.eps_p.lane(l), c.g, &c.hardening);
             for i in 0..6 {
@@ -704,31 +704,39 @@ mod tests {
         }
     }
 
+    /// A block of random states: strains over three and a half decades, stresses up to
+    /// 2 GPa of either sign, some plastic strain, energies slightly negative to large,
+    /// densities 0.7-2.3 times the reference, a fifth of the lanes failed.
+    fn random_block(m: &Material, mut u: &mut impl FnMut() -> f64) -> Lanes {
+        let signed = |scale: f64, u: &mut dyn FnMut() -> f64| (2.0 * u() - 1.0) * scale * 10f64.powf(-3.0 * u());
+        let mut b = Lanes::default();
+        for l in 0..LANES {
+            let strain = 10f64.powf(-5.0 + 3.5 * u());
+            for i in 0..6 {
+                b.de[i][l] = signed(strain, &mut u);
+                b.de_mid[i][l] = signed(strain, &mut u);
+                b.stress[i][l] = signed(2.0e9, &mut u);
+            }
+            for i in 0..3 {
+                b.dw[i][l] = signed(strain, &mut u);
+            }
+            b.eps_p[l] = if u() < 0.3 { 0.0 } else { 3.2 * u() };
+            b.e_int[l] = -3.0e3 + 1.0e5 * u() * u();
+            b.rho[l] = m.density * (0.7 + 1.6 * u());
+            b.sound[l] = m.reference_sound_speed() * (0.5 + u());
+            b.failed[l] = u() < 0.2;
+        }
+        b
+    }
+
     /// Blocks of random states through `update_lanes` and, lane by lane, through
     /// `update_point`: every output bitwise equal.
     fn check_lanes<E: PressureModel, const LINEAR: bool>(m: &Material, c: &PointConsts, eos: &E, seed: u64) {
         let mut u = unit_stream(seed);
-        let signed = |scale: f64, u: &mut dyn FnMut() -> f64| (2.0 * u() - 1.0) * scale * 10f64.powf(-3.0 * u());
         let mut yielded = 0;
         let mut failures = 0;
         for _ in 0..3000 {
-            let mut b = Lanes::default();
-            for l in 0..LANES {
-                let strain = 10f64.powf(-5.0 + 3.5 * u());
-                for i in 0..6 {
-                    b.de[i][l] = signed(strain, &mut u);
-                    b.de_mid[i][l] = signed(strain, &mut u);
-                    b.stress[i][l] = signed(2.0e9, &mut u);
-                }
-                for i in 0..3 {
-                    b.dw[i][l] = signed(strain, &mut u);
-                }
-                b.eps_p[l] = if u() < 0.3 { 0.0 } else { 3.2 * u() };
-                b.e_int[l] = -3.0e3 + 1.0e5 * u() * u();
-                b.rho[l] = m.density * (0.7 + 1.6 * u());
-                b.sound[l] = m.reference_sound_speed() * (0.5 + u());
-                b.failed[l] = u() < 0.2;
-            }
+            let mut b = random_block(m, &mut u);
             let before = b;
             update_lanes::<E, LINEAR>(c, eos, DT, &mut b);
             for l in 0..LANES {
@@ -772,6 +780,45 @@ mod tests {
         assert!(m.failure.is_none() || failures > 100, "{}: {failures} lanes failed", m.name);
     }
 
+    /// The 8-lane block (the AVX-512 level's) against two 4-lane blocks of the same states
+    /// (checked against `update_point` by `check_lanes`): every output bitwise equal.
+    fn check_block8<E: PressureModel, const LINEAR: bool>(m: &Material, c: &PointConsts, eos: &E, seed: u64) {
+        use crate::simd::F8;
+        let mut u = unit_stream(seed);
+        for _ in 0..1000 {
+            let halves = [random_block(m, &mut u), random_block(m, &mut u)];
+            let f8 = |f: &dyn Fn(&Lanes, usize) -> f64| F8(std::array::from_fn(|l| f(&halves[l / LANES], l % LANES)));
+            let state = LaneState {
+                stress: std::array::from_fn(|i| f8(&|b, l| b.stress[i][l])),
+                eps_p: f8(&|b, l| b.eps_p[l]),
+                e_int: f8(&|b, l| b.e_int[l]),
+                rho: f8(&|b, l| b.rho[l]),
+                sound: f8(&|b, l| b.sound[l]),
+                failed: <F8 as crate::simd::Block<8>>::mask_from(|l| halves[l / LANES].failed[l % LANES]),
+            };
+            let de = std::array::from_fn(|i| f8(&|b, l| b.de[i][l]));
+            let de_mid = std::array::from_fn(|i| f8(&|b, l| b.de_mid[i][l]));
+            let dw = std::array::from_fn(|i| f8(&|b, l| b.dw[i][l]));
+            let (out, signal, floor) = update_block::<F8, E, LINEAR>(c, eos, DT, de, de_mid, dw, state);
+            for (h, half) in halves.iter().enumerate() {
+                let mut b = *half;
+                update_lanes::<E, LINEAR>(c, eos, DT, &mut b);
+                for l in 0..LANES {
+                    let w = h * LANES + l;
+                    let got = [out.eps_p.0[w], out.e_int.0[w], out.rho.0[w], out.sound.0[w], signal.0[w], floor.0[w]];
+                    let want = [b.eps_p[l], b.e_int[l], b.rho[l], b.sound[l], b.signal[l], b.floor[l]];
+                    for (i, (g, x)) in got.iter().zip(&want).enumerate() {
+                        assert_eq!(g.to_bits(), x.to_bits(), "{}: value {i} of lane {w}: {g} vs {x}", m.name);
+                    }
+                    for i in 0..6 {
+                        assert_eq!(out.stress[i].0[w].to_bits(), b.stress[i][l].to_bits(), "{}: stress {i}", m.name);
+                    }
+                    assert_eq!(out.failed.0[w] != 0, b.failed[l], "{}: failure flag of lane {w}", m.name);
+                }
+            }
+        }
+    }
+
     #[test]
     fn lanes_are_bitwise_update_point() {
         let q = BulkViscosity::default();
@@ -780,12 +827,14 @@ mod tests {
                 let eos = mg(&m);
                 check_lanes::<_, true>(&m, &m.consts(), &eos, 1);
                 check_lanes::<_, true>(&m, &m.consts().with_viscosity(q, 1e-3), &eos, 2);
+                check_block8::<_, true>(&m, &m.consts().with_viscosity(q, 1e-3), &eos, 5);
             }
         }
         // Power-law hardening: the lanes take the Newton return one by one.
         let m =
             Material { hardening: Hardening { a: 90e6, b: 292e6, n: 0.31 }, ..Material::ofhc_copper(MgForm::Hugoniot) };
         check_lanes::<_, false>(&m, &m.consts().with_viscosity(q, 1e-3), &mg(&m), 3);
+        check_block8::<_, false>(&m, &m.consts().with_viscosity(q, 1e-3), &mg(&m), 6);
         let e = Material::elastic("e", 8930.0, 117e9, 0.35);
         let Eos::Linear(lin) = e.eos else { unreachable!() };
         // An elastic material never yields: check only the bits.
