@@ -162,6 +162,34 @@ fn table2_counts_of_models_1_to_3() {
     }
 }
 
+/// The summary's roofline charges bytes and rates only to the sub-stages that did work: a
+/// serial run on the fixed grid bins nothing and re-fits no grid (their timers read a few
+/// picoseconds, which with the cost table's bytes gave thousands of GB/s), DD on 2 threads
+/// bins every particle; the particle loops have rates in both.
+#[test]
+fn the_roofline_charges_only_the_sub_stages_that_ran() {
+    let stage = |v: &Value, s: &str| v["roofline"][s].clone();
+    let (serial, _) = run_json(&["--model", "1", "--steps", "8", "--warmup", "2", "--quiet"]);
+    for s in ["binning", "grid_fit", "assembly", "gather"] {
+        let r = stage(&serial, s);
+        assert_eq!(r["bytes_per_particle_step"].as_f64(), Some(0.0), "serial {s}: {r}");
+        assert!(r["gb_per_s"].is_null() && r["gflop_per_s"].is_null(), "serial {s}: {r}");
+    }
+    let (dd, _) =
+        run_json(&["--model", "1", "--steps", "8", "--warmup", "2", "--strategy", "dd", "--threads", "2", "--quiet"]);
+    for (v, what) in [(&serial, "serial"), (&dd, "dd")] {
+        for s in ["scatter", "remap_scatter", "stress_update"] {
+            let gb = stage(v, s)["gb_per_s"].as_f64().unwrap_or_else(|| panic!("{what} {s}: {}", stage(v, s)));
+            assert!(gb > 0.0 && gb < 1000.0, "{what} {s}: {gb} GB/s");
+        }
+    }
+    let b = stage(&dd, "binning");
+    assert!(
+        b["bytes_per_particle_step"].as_f64().unwrap() > 0.0 && b["gb_per_s"].as_f64().is_some(),
+        "dd binning: {b}"
+    );
+}
+
 /// Model 4 builds in about 9 s and 2.7 GB here.
 #[test]
 fn table2_counts_of_model_4() {
