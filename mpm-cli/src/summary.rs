@@ -266,21 +266,17 @@ fn fill_timing(s: &mut Summary, sim: &Simulation, t: &Timing) {
     s.roofline = (steady_steps > 0).then(|| {
         let nodes = sim.mean_nodes();
         let work = sim.work();
-        mpm_core::roofline::achieved(&steady_times, particles as u64, nodes, steady_steps)
+        let ran = |st| !work.stage_total(st).is_zero();
+        mpm_core::roofline::achieved(&steady_times, particles as u64, nodes, steady_steps, ran)
             .iter()
             .zip(mpm_core::Substage::ALL)
             .map(|(a, st)| {
-                // A sub-stage that handled no particle and no node in this run moved nothing:
-                // the binning and the grid's re-fit of a serial run on a fixed grid are timed
-                // around nothing (a few picoseconds per particle-step), and charging them the
-                // cost table's bytes gave thousands of GB/s.
-                let ran = !work.stage_total(st).is_zero();
                 let r = StageRoofline {
-                    bytes_per_particle_step: if ran { a.bytes_per_particle_step } else { 0.0 },
-                    flops_per_particle_step: if ran { a.flops_per_particle_step } else { 0.0 },
+                    bytes_per_particle_step: a.bytes_per_particle_step,
+                    flops_per_particle_step: a.flops_per_particle_step,
                     ns_per_particle_step: a.ns_per_particle_step,
-                    gb_per_s: a.gb_per_s.filter(|_| ran),
-                    gflop_per_s: a.gflop_per_s.filter(|_| ran),
+                    gb_per_s: a.gb_per_s,
+                    gflop_per_s: a.gflop_per_s,
                 };
                 (st, r)
             })

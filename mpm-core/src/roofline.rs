@@ -198,13 +198,24 @@ pub struct Achieved {
 
 /// The rates of every sub-stage of a run of `particles` particles over `steps` steps with
 /// `nodes` stored nodes on average, from its sub-stage seconds `times` (the whole run's or
-/// the steady steps', matching `steps`). Pure: the same inputs give the same figures.
-pub fn achieved(times: &StageTimes, particles: u64, nodes: f64, steps: u64) -> [Achieved; 10] {
+/// the steady steps', matching `steps`). `ran(s)` says whether the sub-stage did work in
+/// the run (its [`crate::work`] counters are not zero): one that did not moved nothing, and
+/// gets no bytes, no flops and no rates (the binning and the grid's re-fit of a serial run on
+/// a fixed grid are timed around nothing, a few picoseconds per particle-step, and the cost
+/// table's bytes over that time gave thousands of GB/s). Pure: the same inputs give the same
+/// figures.
+pub fn achieved(
+    times: &StageTimes,
+    particles: u64,
+    nodes: f64,
+    steps: u64,
+    ran: impl Fn(Substage) -> bool,
+) -> [Achieved; 10] {
     let particle_steps = particles as f64 * steps as f64;
     let per_particle = if particles > 0 { nodes / particles as f64 } else { 0.0 };
     std::array::from_fn(|i| {
         let s = Substage::ALL[i];
-        let (bytes, flops) = COSTS[i].per_particle_step(per_particle);
+        let (bytes, flops) = if ran(s) { COSTS[i].per_particle_step(per_particle) } else { (0.0, 0.0) };
         let seconds = times.get(s);
         let rate = |per: f64| (seconds > 0.0 && per > 0.0).then(|| per * particle_steps / seconds / 1e9);
         Achieved {
@@ -368,7 +379,7 @@ mod tests {
         let mut t = StageTimes::default();
         t.add(Substage::Scatter, 2.0);
         t.add(Substage::GridUpdate, 0.5);
-        let a = achieved(&t, 1000, 500.0, 100);
+        let a = achieved(&t, 1000, 500.0, 100, |_| true);
         let scatter = &a[Substage::Scatter as usize];
         let c = cost(Substage::Scatter);
         let bytes = c.particle_bytes + c.node_bytes * 0.5;

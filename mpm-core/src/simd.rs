@@ -112,68 +112,14 @@ pub fn array<T: Copy + Default, const N: usize>(mut f: impl FnMut(usize) -> T) -
     a
 }
 
-/// `[e(0), e(1), e(2), e(3)]` for the expression `e` of the lane `l`, written out: no
-/// closure, so that the arithmetic costs little in the unoptimised build (o0) too.
-macro_rules! each_lane {
-    ($l:ident => $e:expr) => {
-        [
-            {
-                let $l = 0;
-                $e
-            },
-            {
-                let $l = 1;
-                $e
-            },
-            {
-                let $l = 2;
-                $e
-            },
-            {
-                let $l = 3;
-                $e
-            },
-        ]
-    };
-}
-
-/// [`each_lane`] for the 8 lanes of [`F8`].
-macro_rules! each_lane8 {
-    ($l:ident => $e:expr) => {
-        [
-            {
-                let $l = 0;
-                $e
-            },
-            {
-                let $l = 1;
-                $e
-            },
-            {
-                let $l = 2;
-                $e
-            },
-            {
-                let $l = 3;
-                $e
-            },
-            {
-                let $l = 4;
-                $e
-            },
-            {
-                let $l = 5;
-                $e
-            },
-            {
-                let $l = 6;
-                $e
-            },
-            {
-                let $l = 7;
-                $e
-            },
-        ]
+/// `[e(0), e(1), ..]` for the expression `e` of the lane `l` over the lanes listed, written
+/// out: no closure, so that the arithmetic costs little in the unoptimised build (o0) too.
+macro_rules! lanes {
+    ($l:ident => $e:expr; $($i:literal)*) => {
+        [$({
+            let $l = $i;
+            $e
+        }),*]
     };
 }
 
@@ -274,6 +220,124 @@ impl Real for f64 {
     }
 }
 
+/// The operations of a block type `$f` of `$n` `f64` lanes and its mask `$m`, every one its
+/// `f64` operation lane by lane (IEEE arithmetic, correctly rounded `sqrt`, `f64::max`,
+/// selects by bits), over the lanes listed: [`Real`], [`Block`], the arithmetic and mask
+/// operators, and the mask's `get` and `from_bools`.
+macro_rules! lane_block {
+    ($f:ident, $m:ident, $n:expr, [$($i:literal)*]) => {
+        impl $m {
+            /// Lane `l` as a `bool`.
+            #[inline(always)]
+            pub fn get(self, l: usize) -> bool {
+                self.0[l] != 0
+            }
+
+            /// From one `bool` per lane.
+            #[inline(always)]
+            pub fn from_bools(b: [bool; $n]) -> Self {
+                $m(lanes!(l => if b[l] { u64::MAX } else { 0 }; $($i)*))
+            }
+        }
+
+        lane_block!(@op $f, Add, add, +, [$($i)*]);
+        lane_block!(@op $f, Sub, sub, -, [$($i)*]);
+        lane_block!(@op $f, Mul, mul, *, [$($i)*]);
+        lane_block!(@op $f, Div, div, /, [$($i)*]);
+        lane_block!(@op $m, BitAnd, bitand, &, [$($i)*]);
+        lane_block!(@op $m, BitOr, bitor, |, [$($i)*]);
+
+        impl std::ops::Neg for $f {
+            type Output = $f;
+            #[inline(always)]
+            fn neg(self) -> $f {
+                $f(lanes!(l => -self.0[l]; $($i)*))
+            }
+        }
+
+        impl std::ops::Not for $m {
+            type Output = $m;
+            #[inline(always)]
+            fn not(self) -> $m {
+                $m(lanes!(l => !self.0[l]; $($i)*))
+            }
+        }
+
+        impl Real for $f {
+            type Mask = $m;
+            #[inline(always)]
+            fn splat(v: f64) -> Self {
+                $f([v; $n])
+            }
+            #[inline(always)]
+            fn sqrt(self) -> Self {
+                $f(lanes!(l => self.0[l].sqrt(); $($i)*))
+            }
+            #[inline(always)]
+            fn max(self, o: Self) -> Self {
+                $f(lanes!(l => self.0[l].max(o.0[l]); $($i)*))
+            }
+            #[inline(always)]
+            fn le(self, o: Self) -> $m {
+                $m(lanes!(l => if self.0[l] <= o.0[l] { u64::MAX } else { 0 }; $($i)*))
+            }
+            #[inline(always)]
+            fn lt(self, o: Self) -> $m {
+                $m(lanes!(l => if self.0[l] < o.0[l] { u64::MAX } else { 0 }; $($i)*))
+            }
+            #[inline(always)]
+            fn ge(self, o: Self) -> $m {
+                $m(lanes!(l => if self.0[l] >= o.0[l] { u64::MAX } else { 0 }; $($i)*))
+            }
+            #[inline(always)]
+            fn gt(self, o: Self) -> $m {
+                $m(lanes!(l => if self.0[l] > o.0[l] { u64::MAX } else { 0 }; $($i)*))
+            }
+            #[inline(always)]
+            fn select(m: $m, a: Self, b: Self) -> Self {
+                $f(lanes!(l => f64::from_bits((m.0[l] & a.0[l].to_bits()) | (!m.0[l] & b.0[l].to_bits())); $($i)*))
+            }
+            #[inline(always)]
+            fn mask(v: bool) -> $m {
+                $m([if v { u64::MAX } else { 0 }; $n])
+            }
+            const WIDTH: usize = $n;
+            #[inline(always)]
+            fn lane(self, l: usize) -> f64 {
+                self.0[l]
+            }
+            #[inline(always)]
+            fn from_lanes(f: impl FnMut(usize) -> f64) -> Self {
+                $f(array(f))
+            }
+        }
+
+        impl Block<$n> for $f {
+            #[inline(always)]
+            fn from_array(a: [f64; $n]) -> Self {
+                $f(a)
+            }
+            #[inline(always)]
+            fn mask_lane(m: $m, l: usize) -> bool {
+                m.get(l)
+            }
+            #[inline(always)]
+            fn mask_from(mut f: impl FnMut(usize) -> bool) -> $m {
+                $m(array(|l| if f(l) { u64::MAX } else { 0 }))
+            }
+        }
+    };
+    (@op $t:ident, $trait:ident, $method:ident, $op:tt, [$($i:literal)*]) => {
+        impl std::ops::$trait for $t {
+            type Output = $t;
+            #[inline(always)]
+            fn $method(self, o: $t) -> $t {
+                $t(lanes!(l => self.0[l] $op o.0[l]; $($i)*))
+            }
+        }
+    };
+}
+
 /// [`LANES`] `f64` lanes, one operation for all (a 256-bit register where AVX2 is on).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[repr(C, align(32))]
@@ -284,109 +348,7 @@ pub struct F4(pub [f64; LANES]);
 #[repr(C, align(32))]
 pub struct M4(pub [u64; LANES]);
 
-impl M4 {
-    /// Lane `l` as a `bool`.
-    #[inline(always)]
-    pub fn get(self, l: usize) -> bool {
-        self.0[l] != 0
-    }
-
-    /// From one `bool` per lane.
-    #[inline(always)]
-    pub fn from_bools(b: [bool; LANES]) -> Self {
-        M4(array(|l| if b[l] { u64::MAX } else { 0 }))
-    }
-}
-
-macro_rules! lane_op {
-    ($t:ident, $trait:ident, $method:ident, $op:tt) => {
-        impl std::ops::$trait for $t {
-            type Output = $t;
-            #[inline(always)]
-            fn $method(self, o: $t) -> $t {
-                $t(each_lane!(l => self.0[l] $op o.0[l]))
-            }
-        }
-    };
-}
-lane_op!(F4, Add, add, +);
-lane_op!(F4, Sub, sub, -);
-lane_op!(F4, Mul, mul, *);
-lane_op!(F4, Div, div, /);
-lane_op!(M4, BitAnd, bitand, &);
-lane_op!(M4, BitOr, bitor, |);
-
-impl std::ops::Neg for F4 {
-    type Output = F4;
-    #[inline(always)]
-    fn neg(self) -> F4 {
-        F4(array(|l| -self.0[l]))
-    }
-}
-
-impl std::ops::Not for M4 {
-    type Output = M4;
-    #[inline(always)]
-    fn not(self) -> M4 {
-        M4(array(|l| !self.0[l]))
-    }
-}
-
-impl F4 {
-    #[inline(always)]
-    fn compare(self, o: F4, f: impl Fn(f64, f64) -> bool) -> M4 {
-        M4(each_lane!(l => if f(self.0[l], o.0[l]) { u64::MAX } else { 0 }))
-    }
-}
-
-impl Real for F4 {
-    type Mask = M4;
-    #[inline(always)]
-    fn splat(v: f64) -> Self {
-        F4([v; LANES])
-    }
-    #[inline(always)]
-    fn sqrt(self) -> Self {
-        F4(array(|l| self.0[l].sqrt()))
-    }
-    #[inline(always)]
-    fn max(self, o: Self) -> Self {
-        F4(array(|l| self.0[l].max(o.0[l])))
-    }
-    #[inline(always)]
-    fn le(self, o: Self) -> M4 {
-        self.compare(o, |a, b| a <= b)
-    }
-    #[inline(always)]
-    fn lt(self, o: Self) -> M4 {
-        self.compare(o, |a, b| a < b)
-    }
-    #[inline(always)]
-    fn ge(self, o: Self) -> M4 {
-        self.compare(o, |a, b| a >= b)
-    }
-    #[inline(always)]
-    fn gt(self, o: Self) -> M4 {
-        self.compare(o, |a, b| a > b)
-    }
-    #[inline(always)]
-    fn select(m: M4, a: Self, b: Self) -> Self {
-        F4(each_lane!(l => f64::from_bits((m.0[l] & a.0[l].to_bits()) | (!m.0[l] & b.0[l].to_bits()))))
-    }
-    #[inline(always)]
-    fn mask(v: bool) -> M4 {
-        M4([if v { u64::MAX } else { 0 }; LANES])
-    }
-    const WIDTH: usize = LANES;
-    #[inline(always)]
-    fn lane(self, l: usize) -> f64 {
-        self.0[l]
-    }
-    #[inline(always)]
-    fn from_lanes(f: impl FnMut(usize) -> f64) -> Self {
-        F4(array(f))
-    }
-}
+lane_block!(F4, M4, LANES, [0 1 2 3]);
 
 /// [`LANES8`] `f64` lanes, one operation for all (a 512-bit register where AVX-512 is on):
 /// [`F4`] twice as wide, each operation its `f64` operation lane by lane.
@@ -399,88 +361,7 @@ pub struct F8(pub [f64; LANES8]);
 #[repr(C, align(64))]
 pub struct M8(pub [u64; LANES8]);
 
-macro_rules! lane_op8 {
-    ($t:ident, $trait:ident, $method:ident, $op:tt) => {
-        impl std::ops::$trait for $t {
-            type Output = $t;
-            #[inline(always)]
-            fn $method(self, o: $t) -> $t {
-                $t(each_lane8!(l => self.0[l] $op o.0[l]))
-            }
-        }
-    };
-}
-lane_op8!(F8, Add, add, +);
-lane_op8!(F8, Sub, sub, -);
-lane_op8!(F8, Mul, mul, *);
-lane_op8!(F8, Div, div, /);
-lane_op8!(M8, BitAnd, bitand, &);
-lane_op8!(M8, BitOr, bitor, |);
-
-impl std::ops::Neg for F8 {
-    type Output = F8;
-    #[inline(always)]
-    fn neg(self) -> F8 {
-        F8(each_lane8!(l => -self.0[l]))
-    }
-}
-
-impl std::ops::Not for M8 {
-    type Output = M8;
-    #[inline(always)]
-    fn not(self) -> M8 {
-        M8(each_lane8!(l => !self.0[l]))
-    }
-}
-
-impl Real for F8 {
-    type Mask = M8;
-    #[inline(always)]
-    fn splat(v: f64) -> Self {
-        F8([v; LANES8])
-    }
-    #[inline(always)]
-    fn sqrt(self) -> Self {
-        F8(each_lane8!(l => self.0[l].sqrt()))
-    }
-    #[inline(always)]
-    fn max(self, o: Self) -> Self {
-        F8(each_lane8!(l => self.0[l].max(o.0[l])))
-    }
-    #[inline(always)]
-    fn le(self, o: Self) -> M8 {
-        M8(each_lane8!(l => if self.0[l] <= o.0[l] { u64::MAX } else { 0 }))
-    }
-    #[inline(always)]
-    fn lt(self, o: Self) -> M8 {
-        M8(each_lane8!(l => if self.0[l] < o.0[l] { u64::MAX } else { 0 }))
-    }
-    #[inline(always)]
-    fn ge(self, o: Self) -> M8 {
-        M8(each_lane8!(l => if self.0[l] >= o.0[l] { u64::MAX } else { 0 }))
-    }
-    #[inline(always)]
-    fn gt(self, o: Self) -> M8 {
-        M8(each_lane8!(l => if self.0[l] > o.0[l] { u64::MAX } else { 0 }))
-    }
-    #[inline(always)]
-    fn select(m: M8, a: Self, b: Self) -> Self {
-        F8(each_lane8!(l => f64::from_bits((m.0[l] & a.0[l].to_bits()) | (!m.0[l] & b.0[l].to_bits()))))
-    }
-    #[inline(always)]
-    fn mask(v: bool) -> M8 {
-        M8([if v { u64::MAX } else { 0 }; LANES8])
-    }
-    const WIDTH: usize = LANES8;
-    #[inline(always)]
-    fn lane(self, l: usize) -> f64 {
-        self.0[l]
-    }
-    #[inline(always)]
-    fn from_lanes(f: impl FnMut(usize) -> f64) -> Self {
-        F8(array(f))
-    }
-}
+lane_block!(F8, M8, LANES8, [0 1 2 3 4 5 6 7]);
 
 /// A block of particles in the blocked update: [`F4`] or [`F8`] with its width `N` as a
 /// type parameter, so that the per-lane arrays of a block (`[_; N]`) can be sized by it.
@@ -491,36 +372,6 @@ pub trait Block<const N: usize>: Real {
     fn mask_lane(m: Self::Mask, l: usize) -> bool;
     /// The mask whose lane `l` is `f(l)`.
     fn mask_from(f: impl FnMut(usize) -> bool) -> Self::Mask;
-}
-
-impl Block<LANES> for F4 {
-    #[inline(always)]
-    fn from_array(a: [f64; LANES]) -> Self {
-        F4(a)
-    }
-    #[inline(always)]
-    fn mask_lane(m: M4, l: usize) -> bool {
-        m.get(l)
-    }
-    #[inline(always)]
-    fn mask_from(mut f: impl FnMut(usize) -> bool) -> M4 {
-        M4(array(|l| if f(l) { u64::MAX } else { 0 }))
-    }
-}
-
-impl Block<LANES8> for F8 {
-    #[inline(always)]
-    fn from_array(a: [f64; LANES8]) -> Self {
-        F8(a)
-    }
-    #[inline(always)]
-    fn mask_lane(m: M8, l: usize) -> bool {
-        m.0[l] != 0
-    }
-    #[inline(always)]
-    fn mask_from(mut f: impl FnMut(usize) -> bool) -> M8 {
-        M8(array(|l| if f(l) { u64::MAX } else { 0 }))
-    }
 }
 
 #[cfg(test)]

@@ -452,40 +452,29 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
     /// The chunk's update at level `simd` (checked available by [`update`]); its sums.
     fn run(&mut self, simd: SimdLevel) -> Partial {
         let linear = self.consts.hardening.n == 1.0;
-        match simd {
-            #[cfg(target_arch = "x86_64")]
-            SimdLevel::Avx512 => {
-                assert!(SimdLevel::Avx512.is_available(), "AVX-512 asked for on a CPU without it");
-                // SAFETY: `run_avx512` is compiled with AVX-512F enabled, and the line above
-                // has just checked (through `is_x86_feature_detected!`) that this CPU executes
-                // it. The test `dispatch_levels_agree_bitwise` runs every level the CPU has; a
-                // call on a CPU without AVX-512F would stop at the assertion, not at an
-                // illegal instruction.
-                unsafe {
-                    if linear {
-                        self.run_avx512::<true>()
-                    } else {
-                        self.run_avx512::<false>()
-                    }
+        #[cfg(target_arch = "x86_64")]
+        if simd >= SimdLevel::Avx2 {
+            assert!(simd.is_available(), "SIMD level {simd} asked for on a CPU without it");
+            // SAFETY: `run_avx2` and `run_avx512` are compiled with AVX2, resp. AVX-512F,
+            // enabled, and the line above has just checked (through
+            // `is_x86_feature_detected!`) that this CPU executes the level called. The test
+            // `dispatch_levels_agree_bitwise` runs every level the CPU has; a call on a CPU
+            // without it would stop at the assertion, not at an illegal instruction.
+            return unsafe {
+                match (simd, linear) {
+                    (SimdLevel::Avx512, true) => self.run_avx512::<true>(),
+                    (SimdLevel::Avx512, false) => self.run_avx512::<false>(),
+                    (_, true) => self.run_avx2::<true>(),
+                    (_, false) => self.run_avx2::<false>(),
                 }
-            }
-            #[cfg(target_arch = "x86_64")]
-            SimdLevel::Avx2 => {
-                assert!(SimdLevel::Avx2.is_available(), "AVX2 asked for on a CPU without it");
-                // SAFETY: `run_avx2` is compiled with AVX2 enabled, and the line above has just
-                // checked (through `is_x86_feature_detected!`) that this CPU executes AVX2.
-                // The test `dispatch_levels_agree_bitwise` runs both levels; a call on a CPU
-                // without AVX2 would stop at the assertion, not at an illegal instruction.
-                unsafe {
-                    if linear {
-                        self.run_avx2::<true>()
-                    } else {
-                        self.run_avx2::<false>()
-                    }
-                }
-            }
-            _ if linear => self.run_lanes::<F4, LANES, true>(),
-            _ => self.run_lanes::<F4, LANES, false>(),
+            };
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = simd;
+        if linear {
+            self.run_lanes::<F4, LANES, true>()
+        } else {
+            self.run_lanes::<F4, LANES, false>()
         }
     }
 

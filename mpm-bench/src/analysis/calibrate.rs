@@ -38,7 +38,7 @@
 
 use super::paired::{student_t_quantile, two_stage};
 use super::regress::{self, Metrics, RegressArgs, RegressReport};
-use super::results::load_campaign;
+use super::results::{load_campaign, Campaign as Loaded};
 use super::select::RowFilter;
 use super::stats::{CellKey, Stage, StatsOptions};
 use crate::campaign::matrix::{Campaign, Overrides};
@@ -53,7 +53,7 @@ use crate::util::now_rfc3339;
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -279,17 +279,18 @@ fn campaign_of(a: &CalibrateArgs, injected: bool, i: usize) -> Result<Campaign> 
     Ok(c)
 }
 
-/// The gate's comparison of two campaign folders, with the calibration's settings (its notes
-/// on the rows left out said once per campaign by [`calibrate`]).
-fn gate(a: &CalibrateArgs, baseline: &Path, current: &Path) -> Result<(RegressReport, f64)> {
+/// The gate's comparison of two loaded campaigns, with the calibration's settings; the
+/// seconds it took (reading both campaigns, as a CI job's `regress` would, plus the
+/// comparison: `load_s` is the reading's share, measured once per campaign).
+fn gate(a: &CalibrateArgs, baseline: &Loaded, current: &Loaded, load_s: f64) -> Result<(RegressReport, f64)> {
     let t0 = Instant::now();
-    let r = regress::evaluate(&RegressArgs {
+    let args = RegressArgs {
         tolerance: a.tolerance,
         metrics: a.metrics.clone(),
-        quiet_notes: true,
-        ..RegressArgs::new(baseline, current)
-    })?;
-    Ok((r, t0.elapsed().as_secs_f64()))
+        ..RegressArgs::new(&baseline.dir, &current.dir)
+    };
+    let r = regress::compare_campaigns(&args, baseline, current)?;
+    Ok((r, load_s + t0.elapsed().as_secs_f64()))
 }
 
 /// Run the calibration's campaigns on `machine` with `solvers` through `runner`, then its
@@ -363,15 +364,20 @@ pub fn calibrate(
         .flat_map(|(x, &i)| clean[x + 1..].iter().map(move |&j| ("aa", i, j)))
         .chain(clean.iter().flat_map(|&i| inj.iter().map(move |&j| ("injected", i, j))));
     let mut gate_wall: f64 = 0.0;
-    // Each campaign's rows left out (noisy, ...) are said once here, not at every comparison.
-    if !a.quiet {
-        let filter = RowFilter::analysis(false).with_injected(true);
-        for c in &campaigns {
-            load_campaign(&c.dir, &filter)?.note_left_out("regress");
+    // Each campaign is read once (with the rows regress keeps) and its rows left out (noisy,
+    // ...) said once, not at every comparison.
+    let filter = RowFilter::analysis(false).with_injected(true);
+    let mut loaded = Vec::new();
+    for c in &campaigns {
+        let t0 = Instant::now();
+        let l = load_campaign(&c.dir, &filter)?;
+        if !a.quiet {
+            l.note_left_out("regress");
         }
+        loaded.push((l, t0.elapsed().as_secs_f64()));
     }
     for (kind, b, c) in pairs.collect::<Vec<_>>() {
-        let (r, secs) = gate(a, &campaigns[b].dir, &campaigns[c].dir)?;
+        let (r, secs) = gate(a, &loaded[b].0, &loaded[c].0, loaded[b].1 + loaded[c].1)?;
         gate_wall = gate_wall.max(campaigns[c].wall_s + secs);
         comparisons.push(CalibrationComparison {
             kind,

@@ -111,10 +111,6 @@ pub struct RegressArgs {
     /// Append a Markdown summary of the verdict to FILE (e.g. "$GITHUB_STEP_SUMMARY").
     #[arg(long, value_name = "FILE")]
     pub markdown: Option<PathBuf>,
-    /// No notes on standard error about rows left out (`calibrate` says them once per
-    /// campaign, not once per comparison).
-    #[arg(skip)]
-    pub quiet_notes: bool,
 }
 
 impl RegressArgs {
@@ -133,7 +129,6 @@ impl RegressArgs {
             allow_missing: false,
             metrics: vec!["efficiency".into(), "time".into(), "work".into()],
             markdown: None,
-            quiet_notes: false,
         }
     }
 }
@@ -718,21 +713,36 @@ fn side(c: &Campaign) -> Side {
 
 /// Build the verdict for two results folders (no printing). Unreadable input is an error.
 pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
+    settings(args)?;
+    let (base, cur) = load(args)?;
+    compare_campaigns(args, &base, &cur)
+}
+
+/// The stages and metrics of `args`, checked with its tolerance (bad input is an error
+/// before any campaign is read).
+fn settings(args: &RegressArgs) -> Result<(Vec<Stage>, Metrics)> {
     if !(args.tolerance >= 0.0 && args.tolerance < 1.0) {
         bail!("--tolerance {} is out of range: give a fraction such as 0.05 for 5 %", args.tolerance);
     }
     let stages: Vec<Stage> = args.stages.iter().map(|s| Stage::parse(s)).collect::<Result<_>>()?;
-    let metrics = Metrics::parse(&args.metrics)?;
-    // Rows with an injected slowdown are compared (that is how the gate is measured); the
-    // verdict says so.
+    Ok((stages, Metrics::parse(&args.metrics)?))
+}
+
+/// The two campaigns of `args`, with the rows `regress` keeps: injected rows are compared
+/// (that is how the gate is measured; the verdict says so).
+pub fn load(args: &RegressArgs) -> Result<(Campaign, Campaign)> {
     let filter = RowFilter::analysis(args.include_noisy).with_injected(true);
     let base = load_campaign(&args.baseline, &filter).context("reading --baseline")?;
     let cur = load_campaign(&args.current, &filter).context("reading --current")?;
-    for c in [&base, &cur].into_iter().filter(|_| !args.quiet_notes) {
-        c.note_left_out("regress");
-        c.note_hybrid_left_out("regress");
-    }
-    let (bs, cs) = (side(&base), side(&cur));
+    Ok((base, cur))
+}
+
+/// The verdict on two loaded campaigns with the settings of `args` (its paths unused; no
+/// printing): what [`evaluate`] does after reading them, for callers that compare the same
+/// campaigns many times (`calibrate`).
+pub fn compare_campaigns(args: &RegressArgs, base: &Campaign, cur: &Campaign) -> Result<RegressReport> {
+    let (stages, metrics) = settings(args)?;
+    let (bs, cs) = (side(base), side(cur));
     let mut report = RegressReport {
         verdict: "incomparable".into(),
         reason: String::new(),
@@ -1029,7 +1039,13 @@ fn check_line(c: &Check) -> String {
 /// code (0 pass, 1 regression or missing cell, 2 incomparable). Unreadable input is an
 /// error (the CLI exits 2).
 pub fn run(args: RegressArgs) -> Result<i32> {
-    let r = evaluate(&args)?;
+    settings(&args)?;
+    let (base, cur) = load(&args)?;
+    for c in [&base, &cur] {
+        c.note_left_out("regress");
+        c.note_hybrid_left_out("regress");
+    }
+    let r = compare_campaigns(&args, &base, &cur)?;
     if let Some(p) = &args.markdown {
         append(p, &markdown(&r))?;
     }
