@@ -17,7 +17,8 @@
 use crate::blocks::BlockMap;
 use crate::capacity_bytes;
 use crate::math::Vec3;
-use crate::shape::{self, Shape};
+use crate::shape::{self, BlockShape, Shape};
+use crate::simd::Block;
 use serde::{Deserialize, Serialize};
 
 /// Values per node of the P2G scatter (Eqs. 1-5): mass, momentum (3), force (3), and one
@@ -159,6 +160,12 @@ impl GridGeom {
     #[inline(always)]
     pub fn shape(&self, x: Vec3) -> Shape {
         shape::evaluate(x, self.origin, self.inv_dx, self.cells)
+    }
+
+    /// [`GridGeom::shape`] of `N` points at once, a lane each ([`shape::evaluate_block`]).
+    #[inline(always)]
+    pub fn shape_block<R: Block<N>, const N: usize>(&self, x: impl Fn(usize) -> Vec3) -> BlockShape<R, N> {
+        shape::evaluate_block(x, self.origin, self.inv_dx, self.cells)
     }
 
     /// The cell containing `x` (clamped like [`GridGeom::shape`]).

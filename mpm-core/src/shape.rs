@@ -6,6 +6,7 @@
 //! the cell's lowest corner. Every scatter and gather in the crate uses this order.
 
 use crate::math::Vec3;
+use crate::simd::{array, Block, Real};
 
 /// Shape function values and gradients of one particle at its 8 cell nodes.
 #[derive(Clone, Copy, Debug)]
@@ -32,31 +33,74 @@ pub fn evaluate(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> Shape 
     for d in 0..3 {
         let xi = (x[d] - origin[d]) * inv_dx;
         let c = axis_cell(xi, cells[d]);
-        let r = xi - c as f64;
+        let r = xi - cell_f64(c);
         cell[d] = c;
         n0[d] = 1.0 - r;
         n1[d] = r;
     }
-    let (gx, gy, gz) = (inv_dx, inv_dx, inv_dx);
-    let nx = [n0[0], n1[0]];
-    let ny = [n0[1], n1[1]];
-    let nz = [n0[2], n1[2]];
-    let dx = [-gx, gx];
-    let dy = [-gy, gy];
-    let dz = [-gz, gz];
-    let mut w = [0.0; 8];
-    let mut g = [[0.0; 3]; 8];
+    let (w, g) = weights(n0, n1, inv_dx);
+    Shape { cell, w, g }
+}
+
+/// The 8 weights and gradients from the local coordinates `n1 = r` and `n0 = 1 - r` per
+/// axis: `S_q = N_a(r_x) N_b(r_y) N_c(r_z)`, `q = a + 2 b + 4 c`, and its gradient, each
+/// product in the order written (so one point and a block's lanes get the same bits).
+#[inline(always)]
+fn weights<R: Real>(n0: [R; 3], n1: [R; 3], inv_dx: f64) -> ([R; 8], [[R; 3]; 8]) {
+    let grad = [R::splat(-inv_dx), R::splat(inv_dx)];
+    let (nx, ny, nz) = ([n0[0], n1[0]], [n0[1], n1[1]], [n0[2], n1[2]]);
+    let zero = R::splat(0.0);
+    let mut w = [zero; 8];
+    let mut g = [[zero; 3]; 8];
     for c in 0..2 {
         for b in 0..2 {
             for a in 0..2 {
                 let q = a + 2 * b + 4 * c;
                 let nyz = ny[b] * nz[c];
                 w[q] = nx[a] * nyz;
-                g[q] = [dx[a] * nyz, nx[a] * dy[b] * nz[c], nx[a] * ny[b] * dz[c]];
+                g[q] = [grad[a] * nyz, nx[a] * grad[b] * nz[c], nx[a] * ny[b] * grad[c]];
             }
         }
     }
-    Shape { cell, w, g }
+    (w, g)
+}
+
+/// The shape functions of a block of `N` particles at once ([`evaluate_block`]): lane `l`
+/// of every value is particle `l`'s.
+#[derive(Clone, Copy, Debug)]
+pub struct BlockShape<R, const N: usize> {
+    /// Each particle's cell, as [`Shape::cell`].
+    pub cell: [[usize; 3]; N],
+    /// `S_ip` for the 8 nodes, a lane per particle.
+    pub w: [R; 8],
+    /// `G_ip` for the 8 nodes, a lane per particle.
+    pub g: [[R; 3]; 8],
+}
+
+/// [`evaluate`] for the `N` points `x(0), .., x(N - 1)` at once: the cells lane by lane,
+/// the weights and gradients as vectors of `N` lanes, each lane computed with
+/// [`evaluate`]'s operations in its order, so lane `l` holds bitwise [`evaluate`]`(x(l))`'s
+/// values. One evaluation serves a block of particles in the scatters and the update, at
+/// the vector width of the caller's level instead of one particle at a time.
+#[inline(always)]
+pub fn evaluate_block<R: Block<N>, const N: usize>(
+    x: impl Fn(usize) -> Vec3,
+    origin: Vec3,
+    inv_dx: f64,
+    cells: [usize; 3],
+) -> BlockShape<R, N> {
+    let xi: [R; 3] = array(|d| (R::from_lanes(|l| x(l)[d]) - R::splat(origin[d])) * R::splat(inv_dx));
+    let mut cell = [[0usize; 3]; N];
+    for (l, c) in cell.iter_mut().enumerate() {
+        for d in 0..3 {
+            c[d] = axis_cell(xi[d].lane(l), cells[d]);
+        }
+    }
+    let one = R::splat(1.0);
+    let n1: [R; 3] = array(|d| xi[d] - R::from_lanes(|l| cell[l][d] as f64));
+    let n0: [R; 3] = array(|d| one - n1[d]);
+    let (w, g) = weights(n0, n1, inv_dx);
+    BlockShape { cell, w, g }
 }
 
 /// Indices of the 8 nodes of `cell` in a box of nodes numbered `i + dims[0] (j + dims[1] k)`
@@ -75,10 +119,20 @@ pub fn cell_nodes(dims: [usize; 3], cell: [usize; 3]) -> [usize; 8] {
 /// truncates a non-negative number, which is its floor (and saturates above `usize::MAX`).
 /// The result equals `xi.floor().max(0.0) as usize` for every `xi`; the baseline x86-64
 /// target has no rounding instruction, so `floor` was a libm call, four times a step
-/// for every particle and axis (12 % of the instructions of a Taylor bar step).
+/// for every particle and axis (12 % of the instructions of a Taylor bar step). The cast
+/// goes through `i64` (one conversion instruction and a saturation check; a direct cast to
+/// `usize` also handles 2^63 to 2^64, in seven more): the two agree below 2^63, and above
+/// it both reach `cells - 1` through the `min` (any grid has fewer than 2^63 cells).
 #[inline(always)]
 pub fn axis_cell(xi: f64, cells: usize) -> usize {
-    (xi.max(0.0) as usize).min(cells - 1)
+    (xi.max(0.0) as i64 as usize).min(cells - 1)
+}
+
+/// A cell index as `f64`, exactly `c as f64`: through `i64` (one conversion instruction;
+/// from `usize` the compiler adds the unsigned case's five), as a cell index is below 2^63.
+#[inline(always)]
+fn cell_f64(c: usize) -> f64 {
+    c as i64 as f64
 }
 
 /// The cell containing `x` (same clamping as [`evaluate`]).
@@ -100,6 +154,74 @@ mod tests {
         for d in 0..3 {
             let gs: f64 = s.g.iter().map(|g| g[d]).sum();
             assert!(gs.abs() < 1e-12);
+        }
+    }
+
+    /// Every lane of a block evaluation is bitwise the one-point evaluation of its point,
+    /// for points inside the grid, on cell faces and clamped from outside it, at 4 and 8
+    /// lanes.
+    #[test]
+    fn block_lanes_are_bitwise_the_one_point_evaluation() {
+        use crate::simd::{F4, F8};
+        let (origin, inv_dx, cells) = ([-0.3, 0.1, 2.0], 7.0, [5, 6, 9]);
+        let mut s = 7u64;
+        let mut unit = move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        // Inside, on the lattice (r = 0), and up to a cell outside on every side (clamped).
+        let mut points: Vec<Vec3> = (0..200)
+            .map(|_| std::array::from_fn(|d| origin[d] + (cells[d] as f64 + 2.0) * unit() / inv_dx - 1.0 / inv_dx))
+            .collect();
+        points.push([origin[0] + 2.0 / inv_dx, origin[1], origin[2] + 9.0 / inv_dx]);
+        fn check<R: Block<N>, const N: usize>(points: &[Vec3], origin: Vec3, inv_dx: f64, cells: [usize; 3]) {
+            for chunk in points.chunks(N) {
+                let b = evaluate_block::<R, N>(|l| chunk[l.min(chunk.len() - 1)], origin, inv_dx, cells);
+                for (l, &x) in chunk.iter().enumerate() {
+                    let one = evaluate(x, origin, inv_dx, cells);
+                    assert_eq!(b.cell[l], one.cell, "cell of lane {l} at {x:?}");
+                    for q in 0..8 {
+                        assert_eq!(b.w[q].lane(l).to_bits(), one.w[q].to_bits(), "w[{q}] of lane {l} at {x:?}");
+                        for d in 0..3 {
+                            let (got, want) = (b.g[q][d].lane(l), one.g[q][d]);
+                            assert_eq!(got.to_bits(), want.to_bits(), "g[{q}][{d}] of lane {l} at {x:?}");
+                        }
+                    }
+                }
+            }
+        }
+        check::<F4, 4>(&points, origin, inv_dx, cells);
+        check::<F8, 8>(&points, origin, inv_dx, cells);
+    }
+
+    /// The cell along an axis is the floor clamped to the grid, for NaN, infinities,
+    /// signed zeros, exact integers, the float just below one, and past 2^63 and 2^64.
+    #[test]
+    fn axis_cell_is_the_clamped_floor() {
+        let below_one = 1.0 - f64::EPSILON / 2.0;
+        let xs = [
+            f64::NAN,
+            f64::NEG_INFINITY,
+            -1e300,
+            -2.5,
+            -0.0,
+            0.0,
+            below_one,
+            1.0,
+            3.999999,
+            4.0,
+            17.0,
+            2f64.powi(62),
+            2f64.powi(63),
+            2f64.powi(64),
+            1e300,
+            f64::INFINITY,
+        ];
+        for cells in [1, 5, 1 << 40] {
+            for x in xs {
+                let want = if x.is_nan() { 0 } else { (x.floor().max(0.0) as usize).min(cells - 1) };
+                assert_eq!(axis_cell(x, cells), want, "x = {x}, cells = {cells}");
+            }
         }
     }
 
