@@ -325,6 +325,14 @@ macro_rules! lane_block {
             fn mask_from(mut f: impl FnMut(usize) -> bool) -> $m {
                 $m(array(|l| if f(l) { u64::MAX } else { 0 }))
             }
+            #[inline(always)]
+            fn to_array(self) -> [f64; $n] {
+                self.0
+            }
+            #[inline(always)]
+            fn mask_bools(m: $m) -> [bool; $n] {
+                lanes!(l => m.0[l] != 0; $($i)*)
+            }
         }
     };
     (@op $t:ident, $trait:ident, $method:ident, $op:tt, [$($i:literal)*]) => {
@@ -372,6 +380,12 @@ pub trait Block<const N: usize>: Real {
     fn mask_lane(m: Self::Mask, l: usize) -> bool;
     /// The mask whose lane `l` is `f(l)`.
     fn mask_from(f: impl FnMut(usize) -> bool) -> Self::Mask;
+    /// The lanes as an array: every lane at once, where a loop over the lanes should read
+    /// them (a lane taken from a register inside such a loop was stored whole and read back
+    /// at each step, a store-forwarding stall each time).
+    fn to_array(self) -> [f64; N];
+    /// A mask's lanes as `bool`s, at once (as [`Block::to_array`]).
+    fn mask_bools(m: Self::Mask) -> [bool; N];
 }
 
 #[cfg(test)]

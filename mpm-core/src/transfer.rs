@@ -620,18 +620,25 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
                 failed: R::mask_from(|l| self.failed[k[l]]),
             };
             let (out, signal, floor) = update_block::<R, E, LINEAR>(self.consts, self.eos, dt, de, de_mid, dw, state);
+            // Every lane out of the registers once, then particle by particle.
+            let stress: [[f64; N]; 6] = std::array::from_fn(|i| out.stress[i].to_array());
+            let vx: [[f64; N]; 3] = std::array::from_fn(|a| vx[a].to_array());
+            let (eps_p, e_int, rho, sound) =
+                (out.eps_p.to_array(), out.e_int.to_array(), out.rho.to_array(), out.sound.to_array());
+            let (failed, signal, floor) = (R::mask_bools(out.failed), signal.to_array(), floor.to_array());
             for l in 0..len {
                 let k = start + l;
-                self.stress[k] = array(|i| out.stress[i].lane(l));
-                let e = out.e_int.lane(l);
-                self.eps_p[k] = out.eps_p.lane(l);
+                let st: Sym = std::array::from_fn(|i| stress[i][l]);
+                self.stress[k] = st;
+                let e = e_int[l];
+                self.eps_p[k] = eps_p[l];
                 self.e_int[k] = e;
-                self.rho[k] = out.rho.lane(l);
-                self.sound[k] = out.sound.lane(l);
-                self.failed[k] = R::mask_lane(out.failed, l);
+                self.rho[k] = rho[l];
+                self.sound[k] = sound[l];
+                self.failed[k] = failed[l];
                 let xp = &mut self.x[k];
                 for a in 0..3 {
-                    xp[a] += dt * vx[a].lane(l);
+                    xp[a] += dt * vx[a][l];
                 }
                 let vp = self.v[k];
                 let m = self.mass[k];
@@ -639,17 +646,16 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
                 sum.kinetic += 0.5 * m * v2;
                 sum.internal += m * e;
                 sum.negative_internal += u64::from(e < -self.consts.energy_tolerance);
-                if floor.lane(l) > 0.0 {
+                if floor[l] > 0.0 {
                     sum.failed_floors += 1;
-                    sum.failed_floor_energy += m * floor.lane(l);
+                    sum.failed_floor_energy += m * floor[l];
                 }
                 for a in 0..3 {
                     sum.momentum[a] += m * vp[a];
                     sum.lo[a] = sum.lo[a].min(xp[a]);
                     sum.hi[a] = sum.hi[a].max(xp[a]);
                 }
-                sum.max_speed = sum.max_speed.max(signal.lane(l) + v2.sqrt());
-                let st = &self.stress[k];
+                sum.max_speed = sum.max_speed.max(signal[l] + v2.sqrt());
                 let finite = (xp[0] + xp[1] + xp[2] + v2 + st[0] + st[1] + st[2] + e).is_finite();
                 if !finite {
                     sum.non_finite += 1;
