@@ -127,11 +127,12 @@ impl<const BODY: bool> Blocked<P2G_WIDTH> for P2g<'_, BODY> {
             }
             let s = self.geom.shape_block::<F4, LANES>(|l| pt.x[k[l]]);
             let m = F4::from_lanes(|l| pt.mass[k[l]]);
-            let vol = m / F4::from_lanes(|l| pt.rho[k[l]]);
-            let mw: [F4; 8] = array(|q| m * s.w[q]);
+            // Out of the registers once (see `Block::to_array`).
+            let vol = (m / F4::from_lanes(|l| pt.rho[k[l]])).to_array();
+            let mw: [[f64; LANES]; 8] = array(|q| (m * s.w[q]).to_array());
             for (l, &p) in k[..len].iter().enumerate() {
                 let idx = nodes.target(s.cell[l]);
-                let vol = F4::splat(vol.lane(l));
+                let vol = F4::splat(vol[l]);
                 let vp = pt.v[p];
                 let st = &pt.stress[p];
                 // sigma . g = S_x g_x + S_y g_y + S_z g_z: the columns of the stress in Voigt order.
@@ -143,7 +144,7 @@ impl<const BODY: bool> Blocked<P2G_WIDTH> for P2g<'_, BODY> {
                     let t = columns[0] * F4::splat(g[0].lane(l))
                         + columns[1] * F4::splat(g[1].lane(l))
                         + columns[2] * F4::splat(g[2].lane(l));
-                    let mw = F4::splat(mw[q].lane(l));
+                    let mw = F4::splat(mw[q][l]);
                     let d = &mut data[idx[q]];
                     let lo = F4([d[0], d[1], d[2], d[3]]) + mw * one_v;
                     let f = F4([d[4], d[5], d[6], d[7]]);
