@@ -17,7 +17,7 @@
 use crate::blocks::BlockMap;
 use crate::capacity_bytes;
 use crate::math::Vec3;
-use crate::shape::{self, BlockShape, Shape};
+use crate::shape::{self, BlockShape, Local, Shape};
 use crate::simd::Block;
 use serde::{Deserialize, Serialize};
 
@@ -166,6 +166,12 @@ impl GridGeom {
     #[inline(always)]
     pub fn shape_block<R: Block<N>, const N: usize>(&self, x: impl Fn(usize) -> Vec3) -> BlockShape<R, N> {
         shape::evaluate_block(x, self.origin, self.inv_dx, self.cells)
+    }
+
+    /// The cells and local coordinates of `N` points, a lane each ([`shape::local_block`]).
+    #[inline(always)]
+    pub fn local_block<R: Block<N>, const N: usize>(&self, x: impl Fn(usize) -> Vec3) -> ([[usize; 3]; N], Local<R>) {
+        shape::local_block(x, self.origin, self.inv_dx, self.cells)
     }
 
     /// The cell containing `x` (clamped like [`GridGeom::shape`]).

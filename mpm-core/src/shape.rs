@@ -65,6 +65,28 @@ fn weights<R: Real>(n0: [R; 3], n1: [R; 3], inv_dx: f64) -> ([R; 8], [[R; 3]; 8]
     (w, g)
 }
 
+/// A block's coordinates in its cells, lane by lane: per axis the two linear factors
+/// `[1 - r, r]`, and the two gradient factors `[-1/dx, 1/dx]` ([`local_block`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Local<R> {
+    n: [[R; 2]; 3],
+    grad: [R; 2],
+}
+
+impl<R: Real> Local<R> {
+    /// Node `q = a + 2 b + 4 c`'s weight `S_q` and gradient, with [`evaluate`]'s
+    /// operations in its order (so each lane gets the bits [`evaluate`] gives its point).
+    /// A loop over the nodes calls it at each node instead of keeping the 32 values of a
+    /// [`BlockShape`]: the particle update's loop, where those went through the stack.
+    #[inline(always)]
+    pub fn node(&self, q: usize) -> (R, [R; 3]) {
+        let (a, b, c) = (q & 1, (q >> 1) & 1, q >> 2);
+        let [nx, ny, nz] = self.n;
+        let nyz = ny[b] * nz[c];
+        (nx[a] * nyz, [self.grad[a] * nyz, nx[a] * self.grad[b] * nz[c], nx[a] * ny[b] * self.grad[c]])
+    }
+}
+
 /// The shape functions of a block of `N` particles at once ([`evaluate_block`]): lane `l`
 /// of every value is particle `l`'s.
 #[derive(Clone, Copy, Debug)]
@@ -89,6 +111,37 @@ pub fn evaluate_block<R: Block<N>, const N: usize>(
     inv_dx: f64,
     cells: [usize; 3],
 ) -> BlockShape<R, N> {
+    let (cell, n1) = cells_and_offsets::<R, N>(x, origin, inv_dx, cells);
+    let one = R::splat(1.0);
+    let n0: [R; 3] = array(|d| one - n1[d]);
+    let (w, g) = weights(n0, n1, inv_dx);
+    BlockShape { cell, w, g }
+}
+
+/// The cells and [`Local`] coordinates of the `N` points `x(l)`, a lane each: the first half
+/// of [`evaluate_block`], for a loop that computes each node's weight where it uses it.
+#[inline(always)]
+pub fn local_block<R: Block<N>, const N: usize>(
+    x: impl Fn(usize) -> Vec3,
+    origin: Vec3,
+    inv_dx: f64,
+    cells: [usize; 3],
+) -> ([[usize; 3]; N], Local<R>) {
+    let (cell, n1) = cells_and_offsets::<R, N>(x, origin, inv_dx, cells);
+    let one = R::splat(1.0);
+    let n = [[one - n1[0], n1[0]], [one - n1[1], n1[1]], [one - n1[2], n1[2]]];
+    (cell, Local { n, grad: [R::splat(-inv_dx), R::splat(inv_dx)] })
+}
+
+/// Each point's cell and its offset `r` in the cell per axis (lane `l` point `x(l)`), with
+/// [`evaluate`]'s operations.
+#[inline(always)]
+fn cells_and_offsets<R: Block<N>, const N: usize>(
+    x: impl Fn(usize) -> Vec3,
+    origin: Vec3,
+    inv_dx: f64,
+    cells: [usize; 3],
+) -> ([[usize; 3]; N], [R; 3]) {
     let xi: [R; 3] = array(|d| (R::from_lanes(|l| x(l)[d]) - R::splat(origin[d])) * R::splat(inv_dx));
     let mut cell = [[0usize; 3]; N];
     for (l, c) in cell.iter_mut().enumerate() {
@@ -96,11 +149,8 @@ pub fn evaluate_block<R: Block<N>, const N: usize>(
             c[d] = axis_cell(xi[d].lane(l), cells[d]);
         }
     }
-    let one = R::splat(1.0);
     let n1: [R; 3] = array(|d| xi[d] - R::from_lanes(|l| cell[l][d] as f64));
-    let n0: [R; 3] = array(|d| one - n1[d]);
-    let (w, g) = weights(n0, n1, inv_dx);
-    BlockShape { cell, w, g }
+    (cell, n1)
 }
 
 /// Indices of the 8 nodes of `cell` in a box of nodes numbered `i + dims[0] (j + dims[1] k)`
@@ -157,7 +207,8 @@ mod tests {
         }
     }
 
-    /// Every lane of a block evaluation is bitwise the one-point evaluation of its point,
+    /// Every lane of a block evaluation (whole, and node by node through `local_block`) is
+    /// bitwise the one-point evaluation of its point,
     /// for points inside the grid, on cell faces and clamped from outside it, at 4 and 8
     /// lanes.
     #[test]
@@ -177,14 +228,21 @@ mod tests {
         fn check<R: Block<N>, const N: usize>(points: &[Vec3], origin: Vec3, inv_dx: f64, cells: [usize; 3]) {
             for chunk in points.chunks(N) {
                 let b = evaluate_block::<R, N>(|l| chunk[l.min(chunk.len() - 1)], origin, inv_dx, cells);
+                let (local_cells, local) =
+                    local_block::<R, N>(|l| chunk[l.min(chunk.len() - 1)], origin, inv_dx, cells);
                 for (l, &x) in chunk.iter().enumerate() {
                     let one = evaluate(x, origin, inv_dx, cells);
                     assert_eq!(b.cell[l], one.cell, "cell of lane {l} at {x:?}");
+                    assert_eq!(local_cells[l], one.cell, "local_block's cell of lane {l} at {x:?}");
                     for q in 0..8 {
+                        let (w, g) = local.node(q);
                         assert_eq!(b.w[q].lane(l).to_bits(), one.w[q].to_bits(), "w[{q}] of lane {l} at {x:?}");
+                        assert_eq!(w.lane(l).to_bits(), one.w[q].to_bits(), "node({q}) w of lane {l} at {x:?}");
                         for d in 0..3 {
                             let (got, want) = (b.g[q][d].lane(l), one.g[q][d]);
                             assert_eq!(got.to_bits(), want.to_bits(), "g[{q}][{d}] of lane {l} at {x:?}");
+                            let got = g[d].lane(l);
+                            assert_eq!(got.to_bits(), want.to_bits(), "node({q}) g[{d}] of lane {l} at {x:?}");
                         }
                     }
                 }
