@@ -251,8 +251,9 @@ impl Kernel<REMAP_WIDTH> for GatherRemap<'_> {
     }
 }
 
-/// [`GatherRemap`] over every particle in order into `remap` (zeroed first; numbered by
-/// `index`), on the calling thread: the serial strategy's pass, for benchmarks.
+/// The fused gather and re-map scatter over every particle in order into `remap` (zeroed
+/// first; numbered by `index`), on the calling thread: the serial strategy's pass, for
+/// benchmarks.
 #[allow(clippy::too_many_arguments)]
 pub fn gather_remap_serial(
     geom: &GridGeom,

@@ -249,10 +249,11 @@ pub fn measure(p: &Particles, g: &ImpactGeometry) -> CloudFigures {
 /// it, [`Collectives`]); the figures on rank 0, `None` on the others.
 ///
 /// The hole is a minimum over ranks (exact). The cloud's figures need the debris as a
-/// whole (the robust ones are mass quantiles), so its few values per particle
-/// ([`DEBRIS_ROW`]) are gathered on rank 0 and put in global id order, one process's
-/// order: the figures are computed from the same values in the same order as one process
-/// holding every particle computes them. No other particle data moves.
+/// whole (the robust ones are mass quantiles), so its few values per particle (5: global
+/// id, z, squared distance from the axis, mass, z-velocity) are gathered on rank 0 and put
+/// in global id order, one process's order: the figures are computed from the same values
+/// in the same order as one process holding every particle computes them. No other
+/// particle data moves.
 pub fn measure_over(
     p: &Particles,
     global_id: impl Fn(usize) -> u64,
