@@ -76,3 +76,17 @@ pub use work::{Work, WorkBound, WorkCounts};
 pub(crate) fn capacity_bytes<T>(v: &Vec<T>) -> usize {
     v.capacity() * std::mem::size_of::<T>()
 }
+
+/// Helpers of the crate's unit tests.
+#[cfg(test)]
+pub(crate) mod testing {
+    /// A reproducible stream of uniform numbers in `[0, 1)` (a 64-bit LCG, top 53 bits):
+    /// the random inputs of the unit tests, the same on every machine.
+    pub(crate) fn unit_stream(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+}

@@ -45,6 +45,10 @@ pub fn evaluate(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> Shape 
 /// The 8 weights and gradients from the local coordinates `n1 = r` and `n0 = 1 - r` per
 /// axis: `S_q = N_a(r_x) N_b(r_y) N_c(r_z)`, `q = a + 2 b + 4 c`, and its gradient, each
 /// product in the order written (so one point and a block's lanes get the same bits).
+/// [`Local::node`] computes the same products for one node; [`evaluate_block`] built on it
+/// made P2G 9-24 % slower (the loop below is unrolled, a loop over `q` was not), so the two
+/// stay apart and the test `block_lanes_are_bitwise_the_one_point_evaluation` holds both to
+/// [`evaluate`]'s bits.
 #[inline(always)]
 fn weights<R: Real>(n0: [R; 3], n1: [R; 3], inv_dx: f64) -> ([R; 8], [[R; 3]; 8]) {
     let grad = [R::splat(-inv_dx), R::splat(inv_dx)];
@@ -102,8 +106,8 @@ pub struct BlockShape<R, const N: usize> {
 /// [`evaluate`] for the `N` points `x(0), .., x(N - 1)` at once: the cells lane by lane,
 /// the weights and gradients as vectors of `N` lanes, each lane computed with
 /// [`evaluate`]'s operations in its order, so lane `l` holds bitwise [`evaluate`]`(x(l))`'s
-/// values. One evaluation serves a block of particles in the scatters and the update, at
-/// the vector width of the caller's level instead of one particle at a time.
+/// values. P2G evaluates its blocks so, at the vector width of its level instead of one
+/// particle at a time; the particle update takes [`local_block`] and [`Local::node`].
 #[inline(always)]
 pub fn evaluate_block<R: Block<N>, const N: usize>(
     x: impl Fn(usize) -> Vec3,
@@ -149,6 +153,8 @@ fn cells_and_offsets<R: Block<N>, const N: usize>(
             c[d] = axis_cell(xi[d].lane(l), cells[d]);
         }
     }
+    // `as f64`, not `cell_f64`: the same value, and through `i64` here P2G took 1.27 of
+    // the time (the block's offsets no longer became vector code).
     let n1: [R; 3] = array(|d| xi[d] - R::from_lanes(|l| cell[l][d] as f64));
     (cell, n1)
 }
@@ -215,11 +221,7 @@ mod tests {
     fn block_lanes_are_bitwise_the_one_point_evaluation() {
         use crate::simd::{F4, F8};
         let (origin, inv_dx, cells) = ([-0.3, 0.1, 2.0], 7.0, [5, 6, 9]);
-        let mut s = 7u64;
-        let mut unit = move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut unit = crate::testing::unit_stream(7);
         // Inside, on the lattice (r = 0), and up to a cell outside on every side (clamped).
         let mut points: Vec<Vec3> = (0..200)
             .map(|_| std::array::from_fn(|d| origin[d] + (cells[d] as f64 + 2.0) * unit() / inv_dx - 1.0 / inv_dx))

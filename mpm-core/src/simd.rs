@@ -223,23 +223,9 @@ impl Real for f64 {
 /// The operations of a block type `$f` of `$n` `f64` lanes and its mask `$m`, every one its
 /// `f64` operation lane by lane (IEEE arithmetic, correctly rounded `sqrt`, `f64::max`,
 /// selects by bits), over the lanes listed: [`Real`], [`Block`], the arithmetic and mask
-/// operators, and the mask's `get` and `from_bools`.
+/// operators.
 macro_rules! lane_block {
     ($f:ident, $m:ident, $n:expr, [$($i:literal)*]) => {
-        impl $m {
-            /// Lane `l` as a `bool`.
-            #[inline(always)]
-            pub fn get(self, l: usize) -> bool {
-                self.0[l] != 0
-            }
-
-            /// From one `bool` per lane.
-            #[inline(always)]
-            pub fn from_bools(b: [bool; $n]) -> Self {
-                $m(lanes!(l => if b[l] { u64::MAX } else { 0 }; $($i)*))
-            }
-        }
-
         lane_block!(@op $f, Add, add, +, [$($i)*]);
         lane_block!(@op $f, Sub, sub, -, [$($i)*]);
         lane_block!(@op $f, Mul, mul, *, [$($i)*]);
@@ -318,10 +304,6 @@ macro_rules! lane_block {
                 $f(a)
             }
             #[inline(always)]
-            fn mask_lane(m: $m, l: usize) -> bool {
-                m.get(l)
-            }
-            #[inline(always)]
             fn mask_from(mut f: impl FnMut(usize) -> bool) -> $m {
                 $m(array(|l| if f(l) { u64::MAX } else { 0 }))
             }
@@ -376,8 +358,6 @@ lane_block!(F8, M8, LANES8, [0 1 2 3 4 5 6 7]);
 pub trait Block<const N: usize>: Real {
     /// The lanes as an array.
     fn from_array(a: [f64; N]) -> Self;
-    /// Lane `l` of a mask.
-    fn mask_lane(m: Self::Mask, l: usize) -> bool;
     /// The mask whose lane `l` is `f(l)`.
     fn mask_from(f: impl FnMut(usize) -> bool) -> Self::Mask;
     /// The lanes as an array: every lane at once, where a loop over the lanes should read

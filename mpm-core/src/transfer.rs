@@ -686,11 +686,7 @@ mod tests {
     fn blocked_p2g_is_bitwise_one_particle_at_a_time() {
         let geom = GridGeom::fixed(&GridSpec { dx: 0.5, anchor: [0.0; 3], cells: [6, 5, 7] });
         let index = NodeIndex::of(&geom, None);
-        let mut s = 3u64;
-        let mut unit = move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut unit = crate::testing::unit_stream(3);
         let n = 61;
         let mut pt = Particles::with_capacity(n);
         for _ in 0..n {

@@ -22,7 +22,7 @@ pub use viscosity::{BulkViscosity, ViscosityTerms};
 
 use crate::error::SimError;
 use crate::math::{ddot, deviator, Sym, Vec3};
-use crate::simd::{array, Real, F4, LANES, LANES8, M4};
+use crate::simd::{array, Block, Real, F4, LANES, LANES8};
 use serde::Serialize;
 
 /// A material: elastic constants, hardening, EOS and optional failure.
@@ -365,7 +365,7 @@ pub fn update_lanes<E: PressureModel, const LINEAR: bool>(c: &PointConsts, eos: 
         e_int: f4(b.e_int),
         rho: f4(b.rho),
         sound: f4(b.sound),
-        failed: M4::from_bools(b.failed),
+        failed: F4::mask_from(|l| b.failed[l]),
     };
     let (out, signal, floor) =
         update_block::<F4, E, LINEAR>(c, eos, dt, b.de.map(f4), b.de_mid.map(f4), b.dw.map(f4), state);
@@ -374,7 +374,7 @@ pub fn update_lanes<E: PressureModel, const LINEAR: bool>(c: &PointConsts, eos: 
     b.e_int = out.e_int.0;
     b.rho = out.rho.0;
     b.sound = out.sound.0;
-    b.failed = std::array::from_fn(|l| out.failed.get(l));
+    b.failed = F4::mask_bools(out.failed);
     b.signal = signal.0;
     b.floor = floor.0;
 }
@@ -476,6 +476,7 @@ pub(crate) fn update_block<R: Real, E: PressureModel, const LINEAR: bool>(
 mod tests {
     use super::*;
     use crate::math::{trace, von_mises};
+    use crate::testing::unit_stream;
 
     /// A time step for the unit tests (s).
     const DT: f64 = 1e-8;
@@ -693,15 +694,6 @@ mod tests {
         let (mut a, mut b) = (Point::at_rest(&m), Point::at_rest(&m));
         let (sa, sb) = (a.step(&off, &eos, uniform(1e-3)), b.step(&on, &eos, uniform(1e-3)));
         assert_eq!((a.s, a.e, sa), (b.s, b.e, sb));
-    }
-
-    /// A deterministic stream of numbers in `[0, 1)`.
-    fn unit_stream(seed: u64) -> impl FnMut() -> f64 {
-        let mut s = seed;
-        move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        }
     }
 
     /// A block of random states: strains over three and a half decades, stresses up to

@@ -918,11 +918,7 @@ mod tests {
 
     /// Particles in a dense block plus a sparse spread over a 9 x 7 x 11 grid.
     fn clustered(n: usize) -> Vec<Vec3> {
-        let mut s = 12345u64;
-        let mut unit = move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut unit = crate::testing::unit_stream(12345);
         (0..n)
             .map(|i| {
                 if i % 5 == 0 {

@@ -419,11 +419,7 @@ mod tests {
     #[test]
     fn every_strategy_scatters_every_particle_once() {
         let geom = GridGeom::fixed(&GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [13, 9, 11] });
-        let mut s = 99u64;
-        let mut unit = move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut unit = crate::testing::unit_stream(99);
         let x: Vec<Vec3> = (0..5000).map(|_| [13.0 * unit(), 9.0 * unit(), 4.0 + 7.0 * unit()]).collect();
         let mut map = BlockMap::default();
         map.build(&Exec::serial(), &geom, &x);
