@@ -1,11 +1,15 @@
-//! Particles kept in cell order: every few steps the particle arrays are sorted by the block
-//! of 4^3 cells each particle lies in, blocks in Morton order (x the most significant axis),
-//! particles of one block in their previous order.
+//! Particles kept in cell order: every few steps the particle arrays are sorted by the cell
+//! each particle lies in, cells in Morton order (x the most significant axis), particles of
+//! one cell in their previous order. Morton order of the cells is Morton order of the blocks
+//! of 4^3 cells (the key's high bits) with each block's cells in Morton order (its low six),
+//! the cells counted on the lattice of those blocks.
 //!
 //! Why: the scatters and the particle update read and write the 8 nodes of each particle's
 //! cell. Neighbouring particles in memory then touch neighbouring nodes, so the node records
 //! a block of particles needs stay in the caches while it goes through, and the repeated
-//! cell look-ups of [`crate::grid::CellNodes`] hit. The particles start in the order their
+//! cell look-ups of [`crate::grid::CellNodes`] hit; and the particles of one cell are
+//! neighbours in memory, so the scatters add a run of them into its 8 node records in
+//! registers and the particle update gathers the records once per run. The particles start in the order their
 //! scenario made them (layer by layer); the debris of an impact mixes that order within tens
 //! of steps.
 //!
@@ -19,7 +23,10 @@
 //! It runs before a step, in the caller's rayon pool (`install`), on its threads: keys,
 //! sort (`par_sort_unstable` on unique keys: the result does not depend on the schedule),
 //! then the arrays gathered component by component through one `f64` buffer. Its memory is
-//! 16 bytes per particle (keys and that buffer), allocated at the first sort and kept.
+//! 16 bytes per particle (keys and that buffer), allocated at the first sort and kept. A key
+//! is one `u64`: the particle's index in its low bits (as many as the count needs) and the
+//! cell's Morton code above it, with as many bits per axis as are left (21 at most; 14 for a
+//! million particles, 10 at the 2^32 particles a process may hold).
 
 use crate::exchange::Exchange;
 use crate::grid::GridGeom;
@@ -31,13 +38,20 @@ use rayon::prelude::*;
 /// (and before the first).
 pub const SORT_EVERY: u64 = 20;
 
-/// Cells per block edge of the sort key (the sparse grid's blocks, [`crate::blocks`]).
+/// Cells per block edge of the sort key (the sparse grid's blocks, [`crate::blocks`]): the
+/// cells are counted from the first block of the anchor's lattice at or below the grid.
 const BLOCK_CELLS: i64 = 4;
 
-/// Bits per axis of the block coordinates in the key: up to 1024 blocks (4096 cells) per
-/// axis are told apart; beyond that the coordinates are clamped (the order stays valid,
-/// only less local).
-const AXIS_BITS: u32 = 10;
+/// The most bits per axis of a cell coordinate in a key (3 x 21 = 63).
+const MAX_AXIS_BITS: u32 = 21;
+
+/// How a key of `n` particles splits its 64 bits: `(index bits, bits per axis)`. Cells
+/// beyond `2^(bits per axis)` along an axis are clamped to the last (the order stays valid,
+/// only less local there).
+fn key_bits(n: usize) -> (u32, u32) {
+    let index = (usize::BITS - n.saturating_sub(1).leading_zeros()).max(1);
+    (index, ((64 - index) / 3).min(MAX_AXIS_BITS))
+}
 
 /// The sort's buffers, kept between sorts.
 #[derive(Debug, Default)]
@@ -67,12 +81,14 @@ impl CellOrder {
         self.keys.resize(n, 0);
         self.scratch.resize(n, 0.0);
         let x = &particles.x;
+        let (index_bits, axis_bits) = key_bits(n);
         self.keys.par_iter_mut().enumerate().with_min_len(4096).for_each(|(i, k)| {
-            *k = (block_key(geom, x[i]) << 32) | i as u64;
+            *k = (cell_key(geom, x[i], axis_bits) << index_bits) | i as u64;
         });
         self.keys.par_sort_unstable();
         let order = &mut self.keys;
-        order.par_iter_mut().with_min_len(4096).for_each(|k| *k &= u64::from(u32::MAX));
+        let index_mask = (1u64 << index_bits) - 1;
+        order.par_iter_mut().with_min_len(4096).for_each(|k| *k &= index_mask);
         if order.par_iter().enumerate().all(|(i, &k)| k == i as u64) {
             return false;
         }
@@ -103,22 +119,24 @@ fn gather<const K: usize>(data: &mut [[f64; K]], order: &[u64], scratch: &mut [f
     }
 }
 
-/// The Morton code of the block of the cell of `geom` holding `x` (x's bits the most
-/// significant of each triple).
-fn block_key(geom: &GridGeom, x: crate::math::Vec3) -> u64 {
+/// The Morton code, `bits` bits per axis, of the cell of `geom` holding `x` (x's bits the
+/// most significant of each triple), the cells counted on the lattice of the blocks of
+/// [`BLOCK_CELLS`]^3 cells: its top bits are the block's Morton code, its low six the cell's
+/// in the block.
+fn cell_key(geom: &GridGeom, x: crate::math::Vec3, bits: u32) -> u64 {
     let cell = shape::cell_of(x, geom.origin, geom.inv_dx, geom.cells);
-    let max = (1i64 << AXIS_BITS) - 1;
-    let b: [u64; 3] = std::array::from_fn(|d| {
-        let lattice = geom.start[d] + cell[d] as i64;
-        (lattice.div_euclid(BLOCK_CELLS) - geom.start[d].div_euclid(BLOCK_CELLS)).clamp(0, max) as u64
+    let max = (1i64 << bits) - 1;
+    let c: [u64; 3] = std::array::from_fn(|d| {
+        let first = geom.start[d].div_euclid(BLOCK_CELLS) * BLOCK_CELLS;
+        (geom.start[d] + cell[d] as i64 - first).clamp(0, max) as u64
     });
-    spread(b[0]) << 2 | spread(b[1]) << 1 | spread(b[2])
+    spread(c[0], bits) << 2 | spread(c[1], bits) << 1 | spread(c[2], bits)
 }
 
-/// The low [`AXIS_BITS`] bits of `v` spread to every third bit.
-fn spread(v: u64) -> u64 {
+/// The low `bits` bits of `v` spread to every third bit.
+fn spread(v: u64, bits: u32) -> u64 {
     let mut out = 0;
-    for bit in 0..AXIS_BITS {
+    for bit in 0..bits {
         out |= (v >> bit & 1) << (3 * bit);
     }
     out
@@ -144,23 +162,43 @@ mod tests {
     }
 
     #[test]
-    fn morton_code_interleaves_x_first() {
-        assert_eq!(spread(0b101), 0b001_000_001);
+    fn morton_code_of_cells_interleaves_x_first() {
+        assert_eq!(spread(0b101, 3), 0b001_000_001);
+        assert_eq!(spread(0b111, 2), 0b001_001, "only the asked bits");
         let spec = GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [16, 16, 16] };
         let g = GridGeom::fixed(&spec);
-        assert_eq!(block_key(&g, [0.5, 0.5, 0.5]), 0);
-        assert_eq!(block_key(&g, [3.9, 3.9, 3.9]), 0, "one block of 4 cells per axis");
-        assert_eq!(block_key(&g, [4.5, 0.5, 0.5]), 0b100);
-        assert_eq!(block_key(&g, [0.5, 4.5, 0.5]), 0b010);
-        assert_eq!(block_key(&g, [0.5, 0.5, 4.5]), 0b001);
-        assert_eq!(block_key(&g, [8.5, 0.5, 0.5]), 0b100_000);
-        assert_eq!(block_key(&g, [-5.0, 0.5, 99.0]), 0b001_001, "outside: the nearest cell");
+        let key = |x| cell_key(&g, x, 10);
+        assert_eq!(key([0.5, 0.5, 0.5]), 0);
+        assert_eq!(key([0.5, 0.5, 1.5]), 0b001);
+        assert_eq!(key([0.5, 1.5, 0.5]), 0b010);
+        assert_eq!(key([1.5, 0.5, 0.5]), 0b100);
+        assert_eq!(key([3.9, 3.9, 3.9]), 0b111_111, "the last cell of the first block of 4^3");
+        assert_eq!(key([4.5, 0.5, 0.5]), 0b100_000_000, "the next block's first cell after it");
+        assert_eq!(key([0.5, 4.5, 0.5]), 0b010_000_000);
+        assert_eq!(key([0.5, 0.5, 4.5]), 0b001_000_000);
+        assert_eq!(key([-5.0, 0.5, 99.0]), 0b001_001_001_001, "outside: the nearest cell (0, 0, 15)");
+        assert_eq!(cell_key(&g, [0.5, 0.5, 99.0], 2), 0b001_001, "beyond 2^bits cells: the last");
+        // A grid starting off the blocks' lattice counts its cells from the block below.
+        let shifted = GridGeom { start: [2, 0, 0], ..g };
+        assert_eq!(cell_key(&shifted, [1.5, 0.5, 0.5], 10), 0b001_001 << 2, "cell 1 is lattice cell 3");
     }
 
-    /// Every particle's whole state moves with it, blocks come out in Morton order and
-    /// particles of one block keep their order; the exchange learns the permutation.
     #[test]
-    fn sort_moves_whole_particles_into_block_order() {
+    fn key_keeps_every_index_and_at_most_21_bits_per_axis() {
+        assert_eq!(key_bits(0), (1, 21));
+        assert_eq!(key_bits(1), (1, 21));
+        assert_eq!(key_bits(2), (1, 21));
+        assert_eq!(key_bits(3), (2, 20));
+        assert_eq!(key_bits(56_056), (16, 16));
+        assert_eq!(key_bits(1 << 20), (20, 14));
+        assert_eq!(key_bits((1 << 20) + 1), (21, 14));
+        assert_eq!(key_bits(1 << 32), (32, 10));
+    }
+
+    /// Every particle's whole state moves with it, cells come out in Morton order and
+    /// particles of one cell keep their order; the exchange learns the permutation.
+    #[test]
+    fn sort_moves_whole_particles_into_cell_order() {
         let xs = [[4.5, 0.5, 0.5], [0.5, 4.5, 0.5], [0.5, 0.5, 0.5], [4.6, 0.4, 0.4], [1.5, 1.5, 1.5], [0.5, 0.5, 4.5]];
         let before = particles(&xs);
         let mut p = before.clone();
@@ -185,10 +223,11 @@ mod tests {
         // Sorted already: nothing moves, the ids stay.
         assert!(!pool.install(|| order.sort(&g, &mut p, &mut ex)));
         assert_eq!((0..6).map(|i| ex.global_id(i)).collect::<Vec<_>>(), want.map(|o| o as u64));
-        // Moved again: the ids compose.
+        // Moved again: the ids compose. The particle now at (0.5, 0.5, 0.5) goes first, ahead of
+        // (1.5, 1.5, 1.5) in the same block (a block order would have kept them as they were).
         p.x.swap(0, 5);
         assert!(pool.install(|| order.sort(&g, &mut p, &mut ex)));
-        assert_eq!((0..6).map(|i| ex.global_id(i)).collect::<Vec<_>>(), [4, 3, 5, 1, 2, 0]);
-        assert_eq!((p.v[0], p.v[1]), (before.v[4], before.v[3]), "the velocity stays with the particle");
+        assert_eq!((0..6).map(|i| ex.global_id(i)).collect::<Vec<_>>(), [3, 4, 5, 1, 2, 0]);
+        assert_eq!((p.v[0], p.v[1]), (before.v[3], before.v[4]), "the velocity stays with the particle");
     }
 }

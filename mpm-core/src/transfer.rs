@@ -431,8 +431,10 @@ fn strain_increment<R: Real>(l: &[[R; 3]; 3], dt: f64) -> [R; 6] {
 /// functions), so kinetic plus internal energy changes exactly by the work of the body
 /// forces: the energy balance holds to round-off (see [`crate::material::update_point`]).
 ///
-/// The particles go through in blocks of [`LANES`]: the increments of each particle of a
-/// block from its nodes, then the material update of the whole block at once
+/// The particles go through in blocks of [`LANES`] (of 8 at AVX-512): the increments of each
+/// particle of a block from its nodes (read once per run of the block's particles in one
+/// cell: particles in cell order, [`crate::order`], share their cell with their
+/// neighbours), then the material update of the whole block at once
 /// ([`crate::material::update_lanes`], vector instructions at the level `simd`, which must
 /// be available on this CPU), then positions and sums particle by particle in order. Every
 /// value is bitwise that of the particle-by-particle form.
@@ -565,12 +567,13 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
         self.run_lanes::<F8, LANES8, LINEAR>()
     }
 
-    /// The chunk in blocks of `N` particles (the last block's unused lanes repeat its
-    /// last particle and are not written back). Every quantity of a block is one `R`
-    /// ([`F4`] or [`F8`]), lane `l` particle `l`: the shape functions, the sums over the 8 nodes (the nodes'
-    /// values gathered lane by lane), the increments, the material update; then positions
-    /// and sums particle by particle, in order. Each lane computes its particle's values with
-    /// the operations, in the order, of `shape::evaluate` and the scalar sums.
+    /// The chunk in blocks of `N` particles (the last block's unused lanes repeat its last
+    /// particle and are not written back). Every quantity of a block is one `R` ([`F4`] or
+    /// [`F8`]), lane `l` particle `l`: the shape functions, the sums over the 8 nodes (the
+    /// nodes' values by one broadcast per run of lanes in one cell), the increments, the
+    /// material update; then positions and sums particle by particle, in order. Each lane
+    /// computes its particle's values with the operations, in the order, of
+    /// `shape::evaluate` and the scalar sums.
     #[inline(always)]
     fn run_lanes<R: Block<N>, const N: usize, const LINEAR: bool>(&mut self) -> Partial {
         let dt = self.dt;
@@ -586,12 +589,26 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
             // weights and gradients node by node in the loop below (keeping the 32 values of
             // a whole `BlockShape` took 4-9 % longer at AVX-512: they went through the stack).
             let (cells, local) = g.local_block::<R, N>(|l| self.x[k[l]]);
-            let idx: [[usize; 8]; N] = array(|l| nodes.get(cells[l]));
+            // The block in runs of lanes in one cell (particles of a cell are neighbours: the
+            // cell order, `crate::order`): each run's 8 node records looked up once, and each
+            // node value of a block built from one broadcast per run (lanes from the run's
+            // first on take the run's value), not gathered lane by lane.
+            let mut first = [0usize; N];
+            let mut runs = 1;
+            for l in 1..N {
+                if cells[l] != cells[l - 1] {
+                    first[runs] = l;
+                    runs += 1;
+                }
+            }
             let mut kin = [[&NO_KIN; 8]; N];
             let mut remap = [[&NO_REMAP; 8]; N];
-            for l in 0..N {
-                kin[l] = records(self.kin, &idx[l]);
-                remap[l] = records(self.remap, &idx[l]);
+            let mut from = [R::mask(true); N];
+            for r in 0..runs {
+                let idx = nodes.get(cells[first[r]]);
+                kin[r] = records(self.kin, &idx);
+                remap[r] = records(self.remap, &idx);
+                from[r] = R::mask_from(|l| l >= first[r]);
             }
             let zero = R::splat(0.0);
             let mut vx = [zero; 3];
@@ -599,8 +616,16 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
             let mut lm = [[zero; 3]; 3];
             for q in 0..8 {
                 let (w, gq) = local.node(q);
-                let kin_q: [R; KIN_WIDTH] = array(|i| R::from_lanes(|l| kin[l][q][i]));
-                let remap_q: [R; 3] = array(|i| R::from_lanes(|l| remap[l][q][i]));
+                let mut kin_q: [R; KIN_WIDTH] = array(|i| R::splat(kin[0][q][i]));
+                let mut remap_q: [R; 3] = array(|i| R::splat(remap[0][q][i]));
+                for r in 1..runs {
+                    for i in 0..KIN_WIDTH {
+                        kin_q[i] = R::select(from[r], R::splat(kin[r][q][i]), kin_q[i]);
+                    }
+                    for i in 0..3 {
+                        remap_q[i] = R::select(from[r], R::splat(remap[r][q][i]), remap_q[i]);
+                    }
+                }
                 for i in 0..3 {
                     // Eq. 7's velocity, Eq. 12's gradient, the mid-step gradient.
                     vx[i] = vx[i] + w * kin_q[i];
@@ -677,27 +702,96 @@ mod tests {
     use crate::grid::GridSpec;
     use crate::strategy::Kernel;
 
+    /// The particle update of a cell-ordered Taylor bar (blocks whose lanes lie in one, two or
+    /// more cells: each run of one cell's lanes takes its nodes' values by one broadcast)
+    /// gives every particle bitwise what the same update gives it alone (a block of one
+    /// lane, one run), at every SIMD level this CPU has. A lane given another run's node
+    /// values, or a run's lanes cut or joined wrongly, fails it.
+    #[test]
+    fn update_in_runs_of_one_cell_is_bitwise_each_particle_alone() {
+        use crate::material::Eos;
+        let setup = crate::scenario::taylor::TaylorBar::default().setup().unwrap();
+        let mut sim = crate::Simulation::new(setup, crate::SimConfig::default()).unwrap();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        for _ in 0..3 {
+            sim.step(&pool, f64::INFINITY).unwrap();
+        }
+        let geom = *sim.geom();
+        let index = NodeIndex::of(&geom, None);
+        let consts = *sim.point_consts();
+        let Eos::MieGruneisen(eos) = sim.material().eos else { unreachable!("copper uses Mie-Grüneisen") };
+        // 2000 particles in cell order (the solver sorted them before its first step).
+        let mut some = Particles::default();
+        let mut packed = Vec::new();
+        for p in 0..2000 {
+            packed.clear();
+            sim.particles().pack(p, &mut packed);
+            some.push_packed(&packed);
+        }
+        let cell = |p: &Particles, i| geom.shape(p.x[i]).cell;
+        let shared = (1..some.len()).filter(|&i| cell(&some, i) == cell(&some, i - 1)).count();
+        assert!(4 * shared > 3 * some.len(), "the particles are not in runs of one cell: {shared} of 2000 share");
+        let dt = 2e-9;
+        let update_at = |p: &mut Particles, simd| {
+            let mut partials = vec![Partial::default(); 1];
+            update(&Exec::serial(), &geom, &index, sim.nodes(), p, &consts, &eos, dt, &mut partials, simd);
+        };
+        for simd in SimdLevel::ALL.into_iter().filter(|l| l.is_available()) {
+            let mut all = some.clone();
+            update_at(&mut all, simd);
+            for i in 0..some.len() {
+                let mut alone = Particles::default();
+                packed.clear();
+                some.pack(i, &mut packed);
+                alone.push_packed(&packed);
+                update_at(&mut alone, simd);
+                packed.clear();
+                all.pack(i, &mut packed);
+                let mut want = Vec::new();
+                alone.pack(0, &mut want);
+                let same = packed.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(same, "particle {i} at {simd}: in its block {packed:?}, alone {want:?}");
+            }
+        }
+    }
+
     /// The blocked P2G (shape functions 4 particles at a time) gives every node bitwise what
     /// the same particles give one at a time (blocks of one), for id lists of every length
-    /// modulo the block (partial last blocks), out of order and repeating no particle, with
-    /// and without body force, at every SIMD level this CPU has. A lane mixed up between
-    /// particles of a block, or a partial block dropped or padded into the sums, fails it.
+    /// modulo the block (partial last blocks), out of order, in cell order and in runs of 8
+    /// particles per cell (the solver's order: a block's particles then add to the same
+    /// records one after the other), repeating no particle, with and without body force, at
+    /// every SIMD level this CPU has. A lane mixed up between particles of a block, or a
+    /// partial block dropped or padded into the sums, fails it.
     #[test]
     fn blocked_p2g_is_bitwise_one_particle_at_a_time() {
         let geom = GridGeom::fixed(&GridSpec { dx: 0.5, anchor: [0.0; 3], cells: [6, 5, 7] });
         let index = NodeIndex::of(&geom, None);
         let mut unit = crate::testing::unit_stream(3);
-        let n = 61;
+        let (spread, n) = (61, 85);
         let mut pt = Particles::with_capacity(n);
-        for _ in 0..n {
+        for _ in 0..spread {
             let x = [3.0 * unit(), 2.5 * unit(), 3.5 * unit()];
             pt.push(x, [unit() - 0.5, unit() - 0.5, unit() - 0.5], 0.1 + unit(), 7000.0 + 1000.0 * unit(), 4000.0);
+        }
+        // 8 particles in each of three cells, one cell after the other.
+        for corner in [[0.5, 0.5, 0.5], [1.0, 1.5, 2.0], [2.5, 2.0, 3.0]] {
+            for _ in 0..8 {
+                let x = std::array::from_fn(|d| corner[d] + 0.49 * unit());
+                pt.push(x, [unit() - 0.5, unit() - 0.5, unit() - 0.5], 0.1 + unit(), 7000.0 + 1000.0 * unit(), 4000.0);
+            }
         }
         for st in pt.stress.iter_mut() {
             *st = std::array::from_fn(|_| 1e8 * (unit() - 0.5));
         }
-        // Out of order: a stride through the particles, as a DD column lists its ids.
-        let order: Vec<usize> = (0..n).map(|i| (i * 17) % n).collect();
+        // Out of order: a stride through the particles, as a DD column lists its ids; in cell
+        // order (`crate::order`'s runs); the three cells' runs alone.
+        let stride: Vec<usize> = (0..n).map(|i| (i * 19) % n).collect();
+        let mut by_cell: Vec<usize> = (0..n).collect();
+        by_cell.sort_by_key(|&p| {
+            let c = geom.shape(pt.x[p]).cell;
+            [c[2], c[1], c[0]]
+        });
+        let runs: Vec<usize> = (spread..n).collect();
         let levels: Vec<SimdLevel> = SimdLevel::ALL.into_iter().filter(|l| l.is_available()).collect();
         fn run<K: Kernel<P2G_WIDTH>>(k: &K, index: &NodeIndex<'_>, ids: &[usize], blocked: bool) -> Vec<[f64; 8]> {
             let mut data = vec![[0.0; P2G_WIDTH]; index.num_nodes()];
@@ -711,27 +805,32 @@ mod tests {
             }
             data
         }
-        for len in (0..=9).chain([n]) {
-            let ids = &order[..len];
-            for &simd in &levels {
-                let plain = P2g::<false> { geom: &geom, particles: &pt, body_force: [0.0; 3], simd };
-                let body = P2g::<true> { geom: &geom, particles: &pt, body_force: [0.0, -9.81, 1.5], simd };
-                for (what, blocked, single) in [
-                    ("no body force", run(&plain, &index, ids, true), run(&plain, &index, ids, false)),
-                    ("body force", run(&body, &index, ids, true), run(&body, &index, ids, false)),
-                ] {
-                    for (i, (b, s)) in blocked.iter().zip(&single).enumerate() {
-                        let same = b.iter().zip(s).all(|(x, y)| x.to_bits() == y.to_bits());
-                        assert!(
+        for (list, order) in [("stride", &stride), ("cell order", &by_cell), ("runs", &runs)] {
+            for len in (0..=9).chain([order.len()]) {
+                let ids = &order[..len];
+                for &simd in &levels {
+                    let plain = P2g::<false> { geom: &geom, particles: &pt, body_force: [0.0; 3], simd };
+                    let body = P2g::<true> { geom: &geom, particles: &pt, body_force: [0.0, -9.81, 1.5], simd };
+                    for (what, blocked, single) in [
+                        ("no body force", run(&plain, &index, ids, true), run(&plain, &index, ids, false)),
+                        ("body force", run(&body, &index, ids, true), run(&body, &index, ids, false)),
+                    ] {
+                        for (i, (b, s)) in blocked.iter().zip(&single).enumerate() {
+                            let same = b.iter().zip(s).all(|(x, y)| x.to_bits() == y.to_bits());
+                            assert!(
                             same,
-                            "{what}, {len} particles at {simd}: node {i}: blocked {b:?} vs one at a time {s:?}"
+                            "{what}, {list}, {len} particles at {simd}: node {i}: blocked {b:?} vs one at a time {s:?}"
+                        );
+                        }
+                    }
+                    if len > 0 {
+                        let mass: f64 = run(&plain, &index, ids, true).iter().map(|d| d[0]).sum();
+                        let want: f64 = ids.iter().map(|&p| pt.mass[p]).sum();
+                        assert!(
+                            (mass - want).abs() <= 1e-12 * want,
+                            "{list}, {len} particles at {simd}: mass {mass} vs {want}"
                         );
                     }
-                }
-                if len > 0 {
-                    let mass: f64 = run(&plain, &index, ids, true).iter().map(|d| d[0]).sum();
-                    let want: f64 = ids.iter().map(|&p| pt.mass[p]).sum();
-                    assert!((mass - want).abs() <= 1e-12 * want, "{len} particles at {simd}: mass {mass} vs {want}");
                 }
             }
         }
