@@ -143,7 +143,9 @@ impl MieGruneisen {
     fn compressed<R: Real>(&self, k0: f64, mu: R) -> (R, R) {
         let one = R::splat(1.0);
         let d = one - R::splat(self.s - 1.0) * mu;
-        let inv_d2 = one / (d * d);
+        // One division (the vector unit's slowest operation) for `1/d^2` and `1/d^3`.
+        let inv_d = one / d;
+        let inv_d2 = inv_d * inv_d;
         let (f, df) = match self.form {
             MgForm::PaperPrinted => {
                 // a = mu + mu^2, b = 1 - (gamma0 / 2) mu; f' = (1 + 2 mu) b - a gamma0 / 2
@@ -158,7 +160,7 @@ impl MieGruneisen {
         };
         // d/dmu [f / d^2] = f'/d^2 + 2 (s - 1) f / d^3
         let k0 = R::splat(k0);
-        (k0 * f * inv_d2, k0 * (df * inv_d2 + R::splat(2.0 * (self.s - 1.0)) * f * inv_d2 / d))
+        (k0 * f * inv_d2, k0 * (df * inv_d2 + R::splat(2.0 * (self.s - 1.0)) * f * inv_d2 * inv_d))
     }
 
     /// Pressure at compression `mu` and internal energy per initial volume `e_vol` (Eq. 18).
@@ -186,27 +188,35 @@ impl MieGruneisen {
         (p, dp)
     }
 
-    /// The energy term and the isentropic slope on top of the cold part `(pc, dpc)`.
+    /// The energy term and the isentropic slope on top of the cold part `(pc, dpc)`, with
+    /// `inv_opm2 = 1 / (1 + mu)^2` ([`MieGruneisen::inv_opm2`]).
     #[inline(always)]
-    fn with_energy<R: Real>(&self, (pc, dpc): (R, R), mu: R, e: R) -> (R, R) {
+    fn with_energy<R: Real>(&self, (pc, dpc): (R, R), inv_opm2: R, e: R) -> (R, R) {
         let p = pc + R::splat(self.gamma0 * self.rho0) * e;
         // Along an isentrope de = p dv = -p dmu / (rho0 (1 + mu)^2), so
         // dp/dmu = dpc/dmu + gamma0 p / (1 + mu)^2.
+        (p, dpc + R::splat(self.gamma0) * p * inv_opm2)
+    }
+
+    /// `1 / (1 + mu)^2`, once for both energies of [`PressureModel::pressure_and_heat_free`].
+    #[inline(always)]
+    fn inv_opm2<R: Real>(mu: R) -> R {
         let opm = R::splat(1.0) + mu;
-        (p, dpc + R::splat(self.gamma0) * p / (opm * opm))
+        R::splat(1.0) / (opm * opm)
     }
 }
 
 impl PressureModel for MieGruneisen {
     #[inline(always)]
     fn pressure(&self, mu: f64, e: f64) -> (f64, f64) {
-        self.with_energy(self.cold(mu), mu, e)
+        self.with_energy(self.cold(mu), Self::inv_opm2(mu), e)
     }
 
     #[inline(always)]
     fn pressure_and_heat_free<R: Real>(&self, mu: R, e: R) -> [(R, R); 2] {
         let cold = self.cold_branchless(mu);
-        [self.with_energy(cold, mu, e), self.with_energy(cold, mu, R::splat(0.0))]
+        let inv_opm2 = Self::inv_opm2(mu);
+        [self.with_energy(cold, inv_opm2, e), self.with_energy(cold, inv_opm2, R::splat(0.0))]
     }
 }
 

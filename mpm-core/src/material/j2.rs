@@ -51,7 +51,8 @@ pub fn radial_return(s_trial: Sym, eps_p: f64, g: f64, h: &Hardening) -> (Sym, f
         return (s_trial, eps_p);
     }
     let d = if h.n == 1.0 {
-        (j - y0) / (3.0 * g + h.b)
+        // Times the reciprocal: the particle update forms it once for all particles.
+        (j - y0) * (1.0 / (3.0 * g + h.b))
     } else {
         let mut d = (j - y0) / (3.0 * g + h.slope(eps_p));
         for _ in 0..30 {

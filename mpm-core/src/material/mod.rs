@@ -118,6 +118,7 @@ impl Material {
         PointConsts {
             g,
             rho0: self.density,
+            inv_rho0: 1.0 / self.density,
             hardening: self.hardening,
             failure: self.failure,
             four_thirds_g: 4.0 / 3.0 * g,
@@ -199,6 +200,9 @@ pub struct PointConsts {
     pub g: f64,
     /// Reference density (kg/m^3).
     pub rho0: f64,
+    /// `1 / rho0`: the update multiplies by it (a division costs the vector unit about ten
+    /// times a multiplication, and the update had twelve).
+    pub inv_rho0: f64,
     /// Yield stress law.
     pub hardening: Hardening,
     /// Failure thresholds.
@@ -287,8 +291,8 @@ pub fn update_point<E: PressureModel>(
         *st.eps_p = eps_p_new;
         s_new
     };
-    let (q, big_q) = c.viscosity.q(rho_new, *st.sound, tr_de / dt);
-    let mu_new = rho_new / c.rho0 - 1.0;
+    let (q, big_q) = c.viscosity.q(rho_new, *st.sound, tr_de * (1.0 / dt));
+    let mu_new = rho_new * c.inv_rho0 - 1.0;
     let (mut p, mut dp_dmu) = eos.pressure(mu_new, e_new);
     if !failed && c.failure.is_some_and(|f| f.fails(*st.eps_p, p)) {
         failed = true;
@@ -313,7 +317,7 @@ pub fn update_point<E: PressureModel>(
     // Sound speed for the next step: c^2 = dp/drho, plus (4G/3)/rho while the particle
     // carries shear stress.
     let shear = if failed { 0.0 } else { c.four_thirds_g / rho_new };
-    let sound = ((dp_dmu / c.rho0).max(0.0) + shear).sqrt();
+    let sound = ((dp_dmu * c.inv_rho0).max(0.0) + shear).sqrt();
     *st.sound = sound;
     (viscosity::signal_speed(big_q, sound), floor)
 }
@@ -420,7 +424,7 @@ pub(crate) fn update_block<R: Real, E: PressureModel, const LINEAR: bool>(
         // j2::radial_return for n = 1: `3.0 * g * d` is `(3.0 * g) * d`.
         let j = crate::math::von_mises(&trial);
         let y0 = R::splat(c.hardening.a) + R::splat(c.hardening.b) * st.eps_p;
-        let d = (j - y0) / R::splat(3.0 * c.g + c.hardening.b);
+        let d = (j - y0) * R::splat(1.0 / (3.0 * c.g + c.hardening.b));
         let scale = (j - R::splat(3.0 * c.g) * d) / j;
         let elastic = j.le(y0);
         (array(|i| R::select(elastic, trial[i], trial[i] * scale)), R::select(elastic, st.eps_p, st.eps_p + d))
@@ -439,13 +443,13 @@ pub(crate) fn update_block<R: Real, E: PressureModel, const LINEAR: bool>(
     let eps_p_new = R::select(failed, st.eps_p, eps_ret);
     // ViscosityTerms::q without its branch.
     let v = c.viscosity;
-    let tr_d = tr_de / R::splat(dt);
+    let tr_d = tr_de * R::splat(1.0 / dt);
     let rate = -tr_d;
     let big_q_c = R::splat(v.c1_dx) * rate + R::splat(v.c2) * st.sound;
     let q_c = rho_new * R::splat(v.dx) * rate * big_q_c;
     let expanding = tr_d.ge(zero);
     let (q, big_q) = (R::select(expanding, zero, q_c), R::select(expanding, zero, big_q_c));
-    let mu_new = rho_new / R::splat(c.rho0) - R::splat(1.0);
+    let mu_new = rho_new * R::splat(c.inv_rho0) - R::splat(1.0);
     let [(p_e, dp_e), (p_0, dp_0)] = eos.pressure_and_heat_free(mu_new, e_new);
     let fails = match c.failure {
         Some(f) => eps_p_new.ge(R::splat(f.eps_f)) | p_e.lt(R::splat(f.p_min)),
@@ -466,7 +470,7 @@ pub(crate) fn update_block<R: Real, E: PressureModel, const LINEAR: bool>(
         }
     });
     let shear = R::select(failed_new, zero, R::splat(c.four_thirds_g) / rho_new);
-    let sound = ((dp_dmu / R::splat(c.rho0)).max(zero) + shear).sqrt();
+    let sound = ((dp_dmu * R::splat(c.inv_rho0)).max(zero) + shear).sqrt();
     let signal = big_q + (big_q * big_q + sound * sound).sqrt();
     let out = LaneState { stress, eps_p: eps_p_new, e_int: e_out, rho: rho_new, sound, failed: failed_new };
     (out, signal, floor)
