@@ -5,11 +5,11 @@
 #     libclang (the MPI bindings are generated with bindgen at build time), and Slurm with
 #     munge (slurm-wlm, munge: `mpm-bench run --scheduler slurm`, tested against a one-node
 #     Slurm that scripts/slurm-local.sh starts)
-#   - a Rust toolchain >= 1.85 (through rustup when cargo is missing or too old)
+#   - a Rust toolchain >= 1.89 (through rustup when cargo is missing or too old)
 # Safe to run again: it does nothing when everything is present.
 set -euo pipefail
 
-need_rust="1.85.0"
+need_rust="1.89.0"
 
 as_root() {
     if [ "$(id -u)" -eq 0 ]; then "$@"

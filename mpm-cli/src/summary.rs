@@ -51,7 +51,7 @@ impl HistoryRecorder {
 
     /// Record a step's state (call with step 0 first, then every step in order).
     pub fn record(&mut self, p: HistoryPoint) {
-        if p.step % self.stride == 0 {
+        if p.step.is_multiple_of(self.stride) {
             self.points.push(p);
             if self.points.len() > self.cap {
                 self.stride *= 2;

@@ -187,7 +187,7 @@ pub fn axis_cell(xi: f64, cells: usize) -> usize {
 /// A cell index as `f64`, exactly `c as f64`: through `i64` (one conversion instruction;
 /// from `usize` the compiler adds the unsigned case's five), as a cell index is below 2^63.
 #[inline(always)]
-fn cell_f64(c: usize) -> f64 {
+pub(crate) fn cell_f64(c: usize) -> f64 {
     c as i64 as f64
 }
 

@@ -761,7 +761,7 @@ impl Simulation {
             return Err(SimError::Released(self.steps));
         }
         let every = self.config.sort_every;
-        if every > 0 && self.steps % every == 0 {
+        if every > 0 && self.steps.is_multiple_of(every) {
             let start = std::time::Instant::now();
             let Self { order, geom, particles, exchange, .. } = self;
             pool.install(|| order.sort(geom, particles, exchange.as_mut()));

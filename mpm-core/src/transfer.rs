@@ -51,10 +51,11 @@ fn next_block<const N: usize>(ids: &mut impl Iterator<Item = usize>) -> ([usize;
 }
 
 /// `kernel`'s loop over the particles `ids` at the level `simd`: the copy of the loop compiled
-/// for AVX2 where that is asked for, the baseline one otherwise. AVX-512 runs it at AVX2:
-/// the records are added 4 lanes at a time, and the loop compiled for AVX-512F (the P2G
-/// shape functions in blocks of 8) took longer, P2G 0.83 and the gather/re-map 1.12 of the
-/// 4407a32 code's time against 0.76 and 1.02 at AVX2 (medians of 8 alternated runs each).
+/// for AVX2 where that is asked for, the baseline one otherwise. AVX-512 runs it at AVX2
+/// (P2G has a kernel of its own there, [`P2g`]): the records are added 4 lanes at a time, and
+/// the loop compiled for AVX-512F (the P2G shape functions in blocks of 8) took longer, P2G
+/// 0.83 and the gather/re-map 1.12 of the 4407a32 code's time against 0.76 and 1.02 at AVX2
+/// (medians of 8 alternated runs each).
 #[inline(always)]
 fn scatter_at<const K: usize, Kn: Blocked<K>>(
     kernel: &Kn,
@@ -102,7 +103,10 @@ unsafe fn scatter_avx2<const K: usize, Kn: Blocked<K>>(
 /// `V = m / rho` and `m S` as [`F4`]s, one lane per particle (each lane bitwise the
 /// one-particle value), then each particle's 8 node records in order. Against the
 /// particle-at-a-time form (4407a32), P2G took 0.76 of the time (median of 8 alternated
-/// runs of serial Model 1; test `blocked_p2g_is_bitwise_one_particle_at_a_time`).
+/// runs of serial Model 1; test `blocked_p2g_is_bitwise_one_particle_at_a_time`). At
+/// AVX-512 the loop is `p2g512`'s instead: one particle at a time with its 8 nodes in the 8
+/// lanes of a register and an 8 x 8 transpose into the records, bitwise the same sums, 0.62
+/// of the blocked form's time.
 #[derive(Clone, Copy)]
 pub struct P2g<'a, const BODY: bool> {
     /// The grid of this step.
@@ -164,9 +168,20 @@ impl<const BODY: bool> Kernel<P2G_WIDTH> for P2g<'_, BODY> {
 
     #[inline(always)]
     fn scatter_all(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; P2G_WIDTH]]) {
+        #[cfg(target_arch = "x86_64")]
+        if self.simd >= SimdLevel::Avx512 {
+            assert!(SimdLevel::Avx512.is_available(), "AVX-512 asked for on a CPU without it");
+            // SAFETY: `p2g512::scatter` is compiled with AVX-512F, and the line above has
+            // just checked that this CPU executes it.
+            unsafe { p2g512::scatter(self, ids, nodes, data) };
+            return;
+        }
         scatter_at(self, self.simd, ids, nodes, data);
     }
 }
+
+#[cfg(target_arch = "x86_64")]
+mod p2g512;
 
 /// The gather (Eqs. 8, 10: `v_p += dt sum_i S_ip a_i`) and the MUSL re-map scatter (Eq. 11:
 /// `m_p v_p(k+1) S_ip` at the 8 nodes) of particle `p` in one pass: one shape evaluation, one
@@ -704,8 +719,8 @@ mod tests {
     use crate::grid::GridSpec;
     use crate::strategy::Kernel;
 
-    /// The scatter tests' 85 particles on `geom` (a box of 3 x 2.5 x 3.5: cells of 0.5, 6 x 5 x
-    /// 7): 61 spread at random, then 8 in each of three cells; random velocities, masses,
+    /// The scatter tests' 85 particles on `geom` (6 x 5 x 7 cells of 4/7, anchored at 0): 61
+    /// spread at random in 3 x 2.5 x 3.5, then 8 in each of three cells; random velocities, masses,
     /// densities and stresses. And three id lists: out of order (a stride through the
     /// particles, as a DD column lists its ids), in cell order (`crate::order`'s runs), the
     /// three cells' runs alone.
@@ -717,9 +732,9 @@ mod tests {
             let x = [3.0 * unit(), 2.5 * unit(), 3.5 * unit()];
             pt.push(x, [unit() - 0.5, unit() - 0.5, unit() - 0.5], 0.1 + unit(), 7000.0 + 1000.0 * unit(), 4000.0);
         }
-        for corner in [[0.5, 0.5, 0.5], [1.0, 1.5, 2.0], [2.5, 2.0, 3.0]] {
+        for cell in [[1.0, 1.0, 1.0], [2.0, 3.0, 4.0], [5.0, 4.0, 6.0]] {
             for _ in 0..8 {
-                let x = std::array::from_fn(|d| corner[d] + 0.49 * unit());
+                let x = std::array::from_fn(|d| (cell[d] + 0.05 + 0.9 * unit()) * geom.dx);
                 pt.push(x, [unit() - 0.5, unit() - 0.5, unit() - 0.5], 0.1 + unit(), 7000.0 + 1000.0 * unit(), 4000.0);
             }
         }
@@ -789,8 +804,10 @@ mod tests {
         }
     }
 
-    /// The blocked P2G (shape functions 4 particles at a time) gives every node bitwise what
-    /// the same particles give one at a time (blocks of one), for id lists of every length
+    /// The blocked P2G (shape functions 4 particles at a time; at AVX-512, `p2g512`'s
+    /// particle at a time with its 8 nodes in the lanes) gives every node bitwise what the
+    /// same particles give one at a time through the blocked form (blocks of one: at
+    /// AVX-512 this holds the two kernels to each other), for id lists of every length
     /// modulo the block (partial last blocks), out of order, in cell order and in runs of 8
     /// particles per cell (the solver's order: a block's particles then add to the same
     /// records one after the other), repeating no particle, with and without body force, at
@@ -798,7 +815,9 @@ mod tests {
     /// partial block dropped or padded into the sums, fails it.
     #[test]
     fn blocked_p2g_is_bitwise_one_particle_at_a_time() {
-        let geom = GridGeom::fixed(&GridSpec { dx: 0.5, anchor: [0.0; 3], cells: [6, 5, 7] });
+        // Cells of 4/7: `1/dx` no power of two, so a product of the gradient's factors taken in
+        // another order changes bits.
+        let geom = GridGeom::fixed(&GridSpec { dx: 4.0 / 7.0, anchor: [0.0; 3], cells: [6, 5, 7] });
         let index = NodeIndex::of(&geom, None);
         let (pt, [stride, by_cell, runs]) = scatter_inputs(&geom);
         let levels: Vec<SimdLevel> = SimdLevel::ALL.into_iter().filter(|l| l.is_available()).collect();

@@ -531,7 +531,7 @@ impl RunSpec {
         };
         let steps = self.budget.steps.unwrap_or(0);
         let timed = steps.saturating_sub(warmup);
-        if p.blocks == 0 || timed < p.blocks || timed % p.blocks != 0 {
+        if p.blocks == 0 || timed < p.blocks || !timed.is_multiple_of(p.blocks) {
             return Err(SpecError::Invalid {
                 key: "budget.steps",
                 flag: "--steps",

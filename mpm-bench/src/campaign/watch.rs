@@ -64,7 +64,7 @@ impl HostWatch {
 
     /// Before a run on `cpus` (empty: not pinned): calibrate again when due, then probe.
     pub fn before_run(&mut self, cpus: &[usize]) -> BeforeRun {
-        if self.runs > 0 && self.runs % self.settings.calibrate_every.max(1) == 0 {
+        if self.runs > 0 && self.runs.is_multiple_of(self.settings.calibrate_every.max(1)) {
             self.ratios = Calibration::measure().ratio_to(&self.start);
         }
         self.runs += 1;

@@ -39,7 +39,7 @@ impl<'s> Split<'s> {
             // `partition` stays in 0..len and both its ends grow with w.
             Split::Even => {}
             Split::EvenRows(row) => {
-                assert!(row > 0 && len % row == 0, "an array of {len} is not a whole number of rows of {row}");
+                assert!(row > 0 && len.is_multiple_of(row), "an array of {len} is not a whole number of rows of {row}");
             }
             Split::Blocks(size) => assert!(
                 size.checked_mul(workers).is_some_and(|n| n <= len),

@@ -314,9 +314,9 @@ impl Cuts {
 /// Every layout `[px, py, pz]` of `threads` patches (`px py pz = threads`), px outermost,
 /// then py.
 pub fn layouts(threads: usize) -> impl Iterator<Item = [usize; 3]> {
-    (1..=threads).filter(move |px| threads % px == 0).flat_map(move |px| {
+    (1..=threads).filter(move |px| threads.is_multiple_of(*px)).flat_map(move |px| {
         let rest = threads / px;
-        (1..=rest).filter(move |py| rest % py == 0).map(move |py| [px, py, rest / py])
+        (1..=rest).filter(move |py| rest.is_multiple_of(*py)).map(move |py| [px, py, rest / py])
     })
 }
 

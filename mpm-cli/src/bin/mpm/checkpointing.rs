@@ -148,7 +148,7 @@ impl Checkpointer {
     /// the interval is a duration (the ranks' clocks differ: rank 0's decides).
     pub fn due(&self, sim: &Simulation, ranks: &mut dyn Collectives) -> Result<bool> {
         match self.every {
-            CheckpointEvery::Steps(n) => Ok(sim.steps() % n == 0),
+            CheckpointEvery::Steps(n) => Ok(sim.steps().is_multiple_of(n)),
             CheckpointEvery::Duration(d) => {
                 let mine = ranks.rank() == 0 && self.since.elapsed() >= d;
                 if ranks.ranks() == 1 {

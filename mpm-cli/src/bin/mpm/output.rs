@@ -65,13 +65,13 @@ impl Outputs {
     /// `--radiograph-every` steps, timed.
     pub fn after_step(&mut self, sim: &Simulation, geometry: Option<&ImpactGeometry>) -> Result<()> {
         let step = sim.steps();
-        if let Some(w) = self.snapshots.as_mut().filter(|_| step % self.every == 0) {
+        if let Some(w) = self.snapshots.as_mut().filter(|_| step.is_multiple_of(self.every)) {
             let t0 = Instant::now();
             w.write(step, sim.time(), sim.particles())?;
             self.spent += t0.elapsed();
         }
         if let (Some((dir, Some(k))), Some(g)) = (&self.radiographs, geometry) {
-            if step % k == 0 {
+            if step.is_multiple_of(*k) {
                 let t0 = Instant::now();
                 radiograph_png(dir, sim, g, &format!("radiograph_{step:06}.png"))?;
                 self.spent += t0.elapsed();
