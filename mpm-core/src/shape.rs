@@ -27,6 +27,16 @@ pub struct Shape {
 /// happens on a correct run.
 #[inline(always)]
 pub fn evaluate(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> Shape {
+    let (cell, n0, n1) = local_coords(x, origin, inv_dx, cells);
+    let (w, g) = weights(n0, n1, inv_dx);
+    Shape { cell, w, g }
+}
+
+/// The cell containing `x` (clamped as [`evaluate`] says) and the local coordinates in it
+/// per axis, `n0 = 1 - r` and `n1 = r`: the first half of [`evaluate`], also the start of
+/// P2G's AVX-512 kernel, which builds the weights from them with the nodes in the lanes.
+#[inline(always)]
+pub(crate) fn local_coords(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> ([usize; 3], Vec3, Vec3) {
     let mut cell = [0usize; 3];
     let mut n0 = [0.0; 3];
     let mut n1 = [0.0; 3];
@@ -38,8 +48,7 @@ pub fn evaluate(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> Shape 
         n0[d] = 1.0 - r;
         n1[d] = r;
     }
-    let (w, g) = weights(n0, n1, inv_dx);
-    Shape { cell, w, g }
+    (cell, n0, n1)
 }
 
 /// The 8 weights and gradients from the local coordinates `n1 = r` and `n0 = 1 - r` per
@@ -187,7 +196,7 @@ pub fn axis_cell(xi: f64, cells: usize) -> usize {
 /// A cell index as `f64`, exactly `c as f64`: through `i64` (one conversion instruction;
 /// from `usize` the compiler adds the unsigned case's five), as a cell index is below 2^63.
 #[inline(always)]
-pub(crate) fn cell_f64(c: usize) -> f64 {
+fn cell_f64(c: usize) -> f64 {
     c as i64 as f64
 }
 

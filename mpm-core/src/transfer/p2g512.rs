@@ -53,17 +53,7 @@ pub(super) unsafe fn scatter<const BODY: bool>(
     let halves_hi = _mm512_set_epi64(15, 14, 13, 12, 7, 6, 5, 4);
     for p in ids {
         // Cell and local coordinates as `shape::evaluate` computes them.
-        let x = pt.x[p];
-        let mut cell = [0usize; 3];
-        let (mut n0, mut n1) = ([0.0; 3], [0.0; 3]);
-        for d in 0..3 {
-            let xi = (x[d] - g.origin[d]) * inv_dx;
-            let c = shape::axis_cell(xi, g.cells[d]);
-            let r = xi - shape::cell_f64(c);
-            cell[d] = c;
-            n0[d] = 1.0 - r;
-            n1[d] = r;
-        }
+        let (cell, n0, n1) = shape::local_coords(pt.x[p], g.origin, inv_dx, g.cells);
         let nx = _mm512_mask_blend_pd(a1, _mm512_set1_pd(n0[0]), _mm512_set1_pd(n1[0]));
         let ny = _mm512_mask_blend_pd(b1, _mm512_set1_pd(n0[1]), _mm512_set1_pd(n1[1]));
         let nz = _mm512_mask_blend_pd(c1, _mm512_set1_pd(n0[2]), _mm512_set1_pd(n1[2]));
