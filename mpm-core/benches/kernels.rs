@@ -1,6 +1,6 @@
 //! Criterion micro-benchmarks of the solver's kernels on the Taylor bar:
 #![allow(missing_docs)] // criterion_group! generates undocumented items
-//! P2G scatter, the gather fused with the re-map scatter, stress update (serial, Model 1,
+//! locating the particles (cells and local coordinates), P2G scatter, the gather fused with the re-map scatter, stress update (serial, Model 1,
 //! at the widest SIMD level of the CPU), and the parallel strategies'
 //! own work: AE assembly, DD binning and DD assembly (Model 2, 2 threads). The parallel
 //! kernels run as phases of one parallel region of a `Team`, as in the solver's step.
@@ -8,6 +8,7 @@
 //! `cargo bench -p mpm-core --bench kernels` (the `bench` profile inherits `release`).
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
+use mpm_core::locate::Located;
 use mpm_core::material::Eos;
 use mpm_core::parallel::{Exec, Team};
 use mpm_core::scenario::taylor::TaylorBar;
@@ -39,7 +40,10 @@ fn serial_kernels(c: &mut Criterion) {
     let index = NodeIndex::of(&geom, None);
     let mut out = vec![[0.0; 8]; geom.num_nodes()];
     let simd = mpm_core::SimdLevel::detected();
-    let p2g = transfer::P2g::<false> { geom: &geom, particles: &particles, body_force: [0.0; 3], simd };
+    let mut located = Located::default();
+    g.bench_function("locate", |b| b.iter(|| located.locate(&Exec::serial(), &geom, black_box(&particles.x), simd)));
+    let (particles, located) = (&particles, &located);
+    let p2g = transfer::P2g::<false> { geom: &geom, particles, located, body_force: [0.0; 3], simd };
     g.bench_function("p2g_scatter", |b| b.iter(|| serial::scatter(&index, n, &mut out, black_box(&p2g))));
 
     let kin = sim.nodes().kin.clone();
@@ -47,8 +51,8 @@ fn serial_kernels(c: &mut Criterion) {
     let mut remap = vec![[0.0; 4]; geom.num_nodes()];
     g.bench_function("gather_remap_scatter", |b| {
         b.iter(|| {
-            let (x, m) = (&particles.x, &particles.mass);
-            transfer::gather_remap_serial(&geom, &index, black_box(&kin), x, m, &mut v, 0.0, &mut remap)
+            let m = &particles.mass;
+            transfer::gather_remap_serial(&geom, &index, black_box(&kin), located, m, &mut v, 0.0, &mut remap)
         })
     });
 
@@ -63,6 +67,7 @@ fn serial_kernels(c: &mut Criterion) {
                     &Exec::serial(),
                     &geom,
                     &index,
+                    located,
                     sim.nodes(),
                     p,
                     &consts,

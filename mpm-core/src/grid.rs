@@ -17,8 +17,7 @@
 use crate::blocks::BlockMap;
 use crate::capacity_bytes;
 use crate::math::Vec3;
-use crate::shape::{self, BlockShape, Local, Shape};
-use crate::simd::Block;
+use crate::shape::{self, Shape};
 use serde::{Deserialize, Serialize};
 
 /// Values per node of the P2G scatter (Eqs. 1-5): mass, momentum (3), force (3), and one
@@ -160,18 +159,6 @@ impl GridGeom {
     #[inline(always)]
     pub fn shape(&self, x: Vec3) -> Shape {
         shape::evaluate(x, self.origin, self.inv_dx, self.cells)
-    }
-
-    /// [`GridGeom::shape`] of `N` points at once, a lane each ([`shape::evaluate_block`]).
-    #[inline(always)]
-    pub fn shape_block<R: Block<N>, const N: usize>(&self, x: impl Fn(usize) -> Vec3) -> BlockShape<R, N> {
-        shape::evaluate_block(x, self.origin, self.inv_dx, self.cells)
-    }
-
-    /// The cells and local coordinates of `N` points, a lane each ([`shape::local_block`]).
-    #[inline(always)]
-    pub fn local_block<R: Block<N>, const N: usize>(&self, x: impl Fn(usize) -> Vec3) -> ([[usize; 3]; N], Local<R>) {
-        shape::local_block(x, self.origin, self.inv_dx, self.cells)
     }
 
     /// The cell containing `x` (clamped like [`GridGeom::shape`]).

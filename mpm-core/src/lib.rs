@@ -45,6 +45,7 @@ pub mod error;
 pub mod exchange;
 pub mod grid;
 mod inject;
+pub mod locate;
 pub mod material;
 pub mod math;
 pub mod order;

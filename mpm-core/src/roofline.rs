@@ -62,10 +62,18 @@ const P2G_REC: f64 = 64.0;
 const KIN_REC: f64 = 48.0;
 const REMAP_REC: f64 = 32.0;
 
-/// Flops of one shape-function evaluation (`shape::evaluate`, and its lane form in the
-/// particle update): per axis `(x - o) * inv_dx`, `xi - c`, `1 - r` (4, x 3 = 12); per node
-/// `ny nz`, `nx nyz`, `dx nyz`, `nx dy nz`, `nx ny dz` (7, x 8 = 56).
-pub const SHAPE_FLOPS: f64 = 12.0 + 56.0;
+/// Bytes of a particle's cell and local coordinates ([`crate::locate::Located`]: 3 `u32`
+/// and 3 `f64`).
+const LOCATED: f64 = 12.0 + 24.0;
+
+/// Flops of locating one particle ([`crate::locate`], once a step, booked to the scatter):
+/// per axis `(x - o) * inv_dx` and `r = xi - c` (3, x 3 = 9).
+pub const LOCATE_FLOPS: f64 = 9.0;
+
+/// Flops of one shape-function evaluation from the local coordinates (`shape::at`, and its
+/// lane forms in P2G and the particle update): per axis `1 - r` (3); per node `ny nz`,
+/// `nx nyz`, `dx nyz`, `nx dy nz`, `nx ny dz` (7, x 8 = 56).
+pub const SHAPE_FLOPS: f64 = 3.0 + 56.0;
 
 /// Flops of the material update of one particle ([`crate::material::update_lanes`]: Jaumann
 /// rotation, trial deviator, radial return, viscosity, both EOS evaluations, failure,
@@ -102,16 +110,17 @@ pub const COSTS: [StageCost; 10] = [
         particle_flops: 6.0,
         node_flops: 0.0,
     },
-    // scatter (P2G, transfer::P2g without body force): reads x, v, mass, rho, stress;
-    // zeroes, reads and writes the 64-byte records. Flops: shape, V = m / rho (1), per node
-    // sigma . G (9 mul + 6 add), m S (1), m S += (1), m S v (3 + 3), V t (3 + 3): 29 x 8
-    // (the useful lanes: the vector form's unused fourth lanes and its `m S * 1` are not
-    // counted).
+    // scatter: locating the particles (reads x, writes the cells and local coordinates),
+    // then P2G (transfer::P2g without body force): reads those, v, mass, rho, stress;
+    // zeroes, reads and writes the 64-byte records. Flops: locate, shape, V = m / rho (1),
+    // per node sigma . G (9 mul + 6 add), m S (1), m S += (1), m S v (3 + 3), V t (3 + 3):
+    // 29 x 8 (the useful lanes: the vector form's unused fourth lanes and its `m S * 1` are
+    // not counted).
     StageCost {
         substage: Substage::Scatter,
-        particle_bytes: 2.0 * V3 + 2.0 * F + SYM,
+        particle_bytes: V3 + 2.0 * LOCATED + V3 + 2.0 * F + SYM,
         node_bytes: 3.0 * P2G_REC,
-        particle_flops: SHAPE_FLOPS + 1.0 + 8.0 * 29.0,
+        particle_flops: LOCATE_FLOPS + SHAPE_FLOPS + 1.0 + 8.0 * 29.0,
         node_flops: 0.0,
     },
     // assembly: none in the serial step (AE sums T copies, DD adds the sub-grids).
@@ -139,12 +148,13 @@ pub const COSTS: [StageCost; 10] = [
         particle_flops: 0.0,
         node_flops: 0.0,
     },
-    // remap_scatter (the gather and Eq. 11 in one pass): reads x, mass, v and writes v;
-    // reads the kinematic records, zeroes, reads and writes the re-map ones. Flops: shape,
-    // sum S a (2 x 3 x 8), v += dt acc (2 x 3), m v (3), m v S (2 x 3 x 8).
+    // remap_scatter (the gather and Eq. 11 in one pass): reads the cells and local
+    // coordinates, mass, v and writes v; reads the kinematic records, zeroes, reads and
+    // writes the re-map ones. Flops: shape, sum S a (2 x 3 x 8), v += dt acc (2 x 3), m v
+    // (3), m v S (2 x 3 x 8).
     StageCost {
         substage: Substage::RemapScatter,
-        particle_bytes: 3.0 * V3 + F,
+        particle_bytes: LOCATED + 2.0 * V3 + F,
         node_bytes: KIN_REC + 3.0 * REMAP_REC,
         particle_flops: SHAPE_FLOPS + 48.0 + 6.0 + 3.0 + 48.0,
         node_flops: 0.0,
@@ -159,14 +169,15 @@ pub const COSTS: [StageCost; 10] = [
         particle_flops: 0.0,
         node_flops: 1.0 + 18.0,
     },
-    // stress_update: reads and writes x, rho, stress, eps_p, e_int, sound, failed; reads v
-    // and mass; reads the kinematic and re-map records. Flops: shape; sum S v (48), both
+    // stress_update: reads and writes x, rho, stress, eps_p, e_int, sound, failed; reads v,
+    // mass, the cells and local coordinates; reads the kinematic and re-map records. Flops:
+    // shape; sum S v (48), both
     // gradients (2 x 9 x 2 x 8 = 288); the increments (2 x 9) and the spin (6); the
     // material; then x += dt v (6), |v|^2 (5), the energies (3 + 2), momentum (6), the
     // signal speed (sqrt and add: 2) and the finiteness sum (7).
     StageCost {
         substage: Substage::StressUpdate,
-        particle_bytes: 2.0 * (V3 + 4.0 * F + SYM + FLAG) + V3 + F,
+        particle_bytes: 2.0 * (V3 + 4.0 * F + SYM + FLAG) + V3 + F + LOCATED,
         node_bytes: KIN_REC + REMAP_REC,
         particle_flops: SHAPE_FLOPS + 48.0 + 288.0 + 18.0 + 6.0 + MATERIAL_FLOPS + 6.0 + 5.0 + 5.0 + 6.0 + 2.0 + 7.0,
         node_flops: 0.0,
@@ -371,7 +382,11 @@ mod tests {
         p.push([0.0; 3], [0.0; 3], 1.0, 1.0, 1.0);
         p.shrink_to_fit();
         let written = V3 + F + SYM + 4.0 * F + FLAG - F; // x, rho, stress, eps_p, e_int, sound, failed
-        assert_eq!(cost(Substage::StressUpdate).particle_bytes, p.bytes() as f64 + written);
+                                                         // And the particle's cell and local coordinates (`Located`'s arrays), read.
+        let geom = crate::grid::GridGeom::fixed(&crate::grid::GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [1; 3] });
+        let located = crate::locate::Located::of(&geom, &[[0.5; 3]; 64]);
+        assert_eq!(located.bytes() as f64, 64.0 * LOCATED, "64 particles located");
+        assert_eq!(cost(Substage::StressUpdate).particle_bytes, p.bytes() as f64 + written + LOCATED);
     }
 
     #[test]

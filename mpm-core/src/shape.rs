@@ -27,28 +27,32 @@ pub struct Shape {
 /// happens on a correct run.
 #[inline(always)]
 pub fn evaluate(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> Shape {
-    let (cell, n0, n1) = local_coords(x, origin, inv_dx, cells);
-    let (w, g) = weights(n0, n1, inv_dx);
-    Shape { cell, w, g }
+    let (cell, r) = local_coords(x, origin, inv_dx, cells);
+    at(cell, r, inv_dx)
 }
 
-/// The cell containing `x` (clamped as [`evaluate`] says) and the local coordinates in it
-/// per axis, `n0 = 1 - r` and `n1 = r`: the first half of [`evaluate`], also the start of
-/// P2G's AVX-512 kernel, which builds the weights from them with the nodes in the lanes.
+/// The cell containing `x` (clamped as [`evaluate`] says) and the local coordinates `r` of
+/// `x` in it per axis (`r = xi - cell`, `xi = (x - origin) / dx`): the first half of
+/// [`evaluate`]. A step computes them once per particle ([`crate::locate`]).
 #[inline(always)]
-pub(crate) fn local_coords(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> ([usize; 3], Vec3, Vec3) {
+pub(crate) fn local_coords(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> ([usize; 3], Vec3) {
     let mut cell = [0usize; 3];
-    let mut n0 = [0.0; 3];
-    let mut n1 = [0.0; 3];
+    let mut r = [0.0; 3];
     for d in 0..3 {
         let xi = (x[d] - origin[d]) * inv_dx;
         let c = axis_cell(xi, cells[d]);
-        let r = xi - cell_f64(c);
         cell[d] = c;
-        n0[d] = 1.0 - r;
-        n1[d] = r;
+        r[d] = xi - cell_f64(c);
     }
-    (cell, n0, n1)
+    (cell, r)
+}
+
+/// The shape functions of the point at local coordinates `r` in `cell` (as
+/// [`local_coords`] gives them): the second half of [`evaluate`], `n1 = r`, `n0 = 1 - r`.
+#[inline(always)]
+pub fn at(cell: [usize; 3], r: Vec3, inv_dx: f64) -> Shape {
+    let (w, g) = weights(r.map(|r| 1.0 - r), r, inv_dx);
+    Shape { cell, w, g }
 }
 
 /// The 8 weights and gradients from the local coordinates `n1 = r` and `n0 = 1 - r` per
@@ -112,60 +116,53 @@ pub struct BlockShape<R, const N: usize> {
     pub g: [[R; 3]; 8],
 }
 
-/// [`evaluate`] for the `N` points `x(0), .., x(N - 1)` at once: the cells lane by lane,
-/// the weights and gradients as vectors of `N` lanes, each lane computed with
-/// [`evaluate`]'s operations in its order, so lane `l` holds bitwise [`evaluate`]`(x(l))`'s
-/// values. P2G evaluates its blocks so, at the vector width of its level instead of one
-/// particle at a time; the particle update takes [`local_block`] and [`Local::node`].
+/// [`at`] for `N` points at once (lane `l` of `r` point `l`, in `cell[l]`): the weights and
+/// gradients as vectors of `N` lanes, each lane computed with [`at`]'s operations in its
+/// order, so lane `l` holds bitwise [`at`]`(cell[l], r(l))`'s values. The blocked P2G
+/// evaluates its blocks so; the particle update takes [`local_at`] and [`Local::node`].
 #[inline(always)]
-pub fn evaluate_block<R: Block<N>, const N: usize>(
-    x: impl Fn(usize) -> Vec3,
-    origin: Vec3,
-    inv_dx: f64,
-    cells: [usize; 3],
-) -> BlockShape<R, N> {
-    let (cell, n1) = cells_and_offsets::<R, N>(x, origin, inv_dx, cells);
+pub fn block_at<R: Block<N>, const N: usize>(cell: [[usize; 3]; N], r: [R; 3], inv_dx: f64) -> BlockShape<R, N> {
     let one = R::splat(1.0);
-    let n0: [R; 3] = array(|d| one - n1[d]);
-    let (w, g) = weights(n0, n1, inv_dx);
+    let n0: [R; 3] = array(|d| one - r[d]);
+    let (w, g) = weights(n0, r, inv_dx);
     BlockShape { cell, w, g }
 }
 
-/// The cells and [`Local`] coordinates of the `N` points `x(l)`, a lane each: the first half
-/// of [`evaluate_block`], for a loop that computes each node's weight where it uses it.
+/// The [`Local`] coordinates of `N` points at the local coordinates `r`, a lane each, for a
+/// loop that computes each node's weight where it uses it.
 #[inline(always)]
-pub fn local_block<R: Block<N>, const N: usize>(
-    x: impl Fn(usize) -> Vec3,
-    origin: Vec3,
-    inv_dx: f64,
-    cells: [usize; 3],
-) -> ([[usize; 3]; N], Local<R>) {
-    let (cell, n1) = cells_and_offsets::<R, N>(x, origin, inv_dx, cells);
+pub fn local_at<R: Real>(r: [R; 3], inv_dx: f64) -> Local<R> {
     let one = R::splat(1.0);
-    let n = [[one - n1[0], n1[0]], [one - n1[1], n1[1]], [one - n1[2], n1[2]]];
-    (cell, Local { n, grad: [R::splat(-inv_dx), R::splat(inv_dx)] })
+    let n = [[one - r[0], r[0]], [one - r[1], r[1]], [one - r[2], r[2]]];
+    Local { n, grad: [R::splat(-inv_dx), R::splat(inv_dx)] }
 }
 
-/// Each point's cell and its offset `r` in the cell per axis (lane `l` point `x(l)`), with
-/// [`evaluate`]'s operations.
+/// [`local_coords`] of `N` points at once, lane `l` point `x(l)`: each point's cell per axis
+/// as a whole `f64` and its local coordinate, every value bitwise [`local_coords`]'s. The
+/// cell is `min(floor(max(xi, 0)), cells - 1)` in vector instructions where
+/// [`axis_cell`] takes `max(xi, 0)` through an integer conversion: the same whole number for
+/// every `xi` (NaN: 0 both; below 2^63 the conversion truncates a non-negative number, its
+/// floor; above, both end at `cells - 1`), exact in `f64` below 2^53 cells; at `xi = -0`
+/// the vector `max` gives `+0` (IEEE leaves the sign open; the tests hold it, as a `-0`
+/// cell would flip the sign of `r = 0`). Vector code
+/// only where the level has a rounding instruction (AVX and up): on the baseline `floor` is a
+/// library call per lane, and [`crate::locate`] takes [`local_coords`] there.
 #[inline(always)]
-fn cells_and_offsets<R: Block<N>, const N: usize>(
+pub(crate) fn local_coords_block<R: Block<N>, const N: usize>(
     x: impl Fn(usize) -> Vec3,
     origin: Vec3,
     inv_dx: f64,
     cells: [usize; 3],
-) -> ([[usize; 3]; N], [R; 3]) {
+) -> ([R; 3], [R; 3]) {
     let xi: [R; 3] = array(|d| (R::from_lanes(|l| x(l)[d]) - R::splat(origin[d])) * R::splat(inv_dx));
-    let mut cell = [[0usize; 3]; N];
-    for (l, c) in cell.iter_mut().enumerate() {
-        for d in 0..3 {
-            c[d] = axis_cell(xi[d].lane(l), cells[d]);
-        }
-    }
-    // `as f64`, not `cell_f64`: the same value, and through `i64` here P2G took 1.27 of
-    // the time (the block's offsets no longer became vector code).
-    let n1: [R; 3] = array(|d| xi[d] - R::from_lanes(|l| cell[l][d] as f64));
-    (cell, n1)
+    let zero = R::splat(0.0);
+    let cell: [R; 3] = array(|d| {
+        let top = R::splat(cell_f64(cells[d] - 1));
+        let c = xi[d].max(zero).floor();
+        R::select(c.gt(top), top, c)
+    });
+    let r: [R; 3] = array(|d| xi[d] - cell[d]);
+    (cell, r)
 }
 
 /// Indices of the 8 nodes of `cell` in a box of nodes numbered `i + dims[0] (j + dims[1] k)`
@@ -222,29 +219,37 @@ mod tests {
         }
     }
 
-    /// Every lane of a block evaluation (whole, and node by node through `local_block`) is
-    /// bitwise the one-point evaluation of its point,
-    /// for points inside the grid, on cell faces and clamped from outside it, at 4 and 8
-    /// lanes.
+    /// Every lane of a block evaluation (whole through `block_at`, and node by node through
+    /// `local_at`) is bitwise the one-point evaluation of its point, and so are the block's
+    /// cells and local coordinates (`local_coords_block`, the vector form of the cells), for
+    /// points inside the grid, on cell faces, at `-0`, clamped from outside it and NaN, at 4
+    /// and 8 lanes.
     #[test]
     fn block_lanes_are_bitwise_the_one_point_evaluation() {
         use crate::simd::{F4, F8};
-        let (origin, inv_dx, cells) = ([-0.3, 0.1, 2.0], 7.0, [5, 6, 9]);
+        let (origin, inv_dx, cells) = ([-0.3, 0.0, 2.0], 7.0, [5, 6, 9]);
         let mut unit = crate::testing::unit_stream(7);
         // Inside, on the lattice (r = 0), and up to a cell outside on every side (clamped).
         let mut points: Vec<Vec3> = (0..200)
             .map(|_| std::array::from_fn(|d| origin[d] + (cells[d] as f64 + 2.0) * unit() / inv_dx - 1.0 / inv_dx))
             .collect();
-        points.push([origin[0] + 2.0 / inv_dx, origin[1], origin[2] + 9.0 / inv_dx]);
+        points.push([origin[0] + 2.0 / inv_dx, -0.0, origin[2] + 9.0 / inv_dx]);
+        points.push([f64::NAN, 1e300, -f64::INFINITY]);
         fn check<R: Block<N>, const N: usize>(points: &[Vec3], origin: Vec3, inv_dx: f64, cells: [usize; 3]) {
             for chunk in points.chunks(N) {
-                let b = evaluate_block::<R, N>(|l| chunk[l.min(chunk.len() - 1)], origin, inv_dx, cells);
-                let (local_cells, local) =
-                    local_block::<R, N>(|l| chunk[l.min(chunk.len() - 1)], origin, inv_dx, cells);
+                let x = |l: usize| chunk[l.min(chunk.len() - 1)];
+                let (cell_f, r) = local_coords_block::<R, N>(x, origin, inv_dx, cells);
+                let cell: [[usize; 3]; N] = std::array::from_fn(|l| local_coords(x(l), origin, inv_dx, cells).0);
+                let b = block_at::<R, N>(cell, r, inv_dx);
+                let local = local_at(r, inv_dx);
                 for (l, &x) in chunk.iter().enumerate() {
+                    let (one_cell, one_r) = local_coords(x, origin, inv_dx, cells);
+                    for d in 0..3 {
+                        assert_eq!(cell_f[d].lane(l), one_cell[d] as f64, "cell {d} of lane {l} at {x:?}");
+                        assert_eq!(r[d].lane(l).to_bits(), one_r[d].to_bits(), "r {d} of lane {l} at {x:?}");
+                    }
                     let one = evaluate(x, origin, inv_dx, cells);
                     assert_eq!(b.cell[l], one.cell, "cell of lane {l} at {x:?}");
-                    assert_eq!(local_cells[l], one.cell, "local_block's cell of lane {l} at {x:?}");
                     for q in 0..8 {
                         let (w, g) = local.node(q);
                         assert_eq!(b.w[q].lane(l).to_bits(), one.w[q].to_bits(), "w[{q}] of lane {l} at {x:?}");

@@ -312,6 +312,10 @@ macro_rules! lane_block {
                 self.0
             }
             #[inline(always)]
+            fn floor(self) -> Self {
+                $f(lanes!(l => self.0[l].floor(); $($i)*))
+            }
+            #[inline(always)]
             fn mask_bools(m: $m) -> [bool; $n] {
                 lanes!(l => m.0[l] != 0; $($i)*)
             }
@@ -364,6 +368,9 @@ pub trait Block<const N: usize>: Real {
     /// them (a lane taken from a register inside such a loop was stored whole and read back
     /// at each step, a store-forwarding stall each time).
     fn to_array(self) -> [f64; N];
+    /// `f64::floor` lane by lane (one rounding instruction at AVX and up; a library call
+    /// per lane on the x86-64 baseline, which has none).
+    fn floor(self) -> Self;
     /// A mask's lanes as `bool`s, at once (as [`Block::to_array`]).
     fn mask_bools(m: Self::Mask) -> [bool; N];
 }

@@ -31,6 +31,7 @@ use crate::grid::{
     GridGeom, GridMode, GridSpec, NodeArrays, NodeIndex, Records, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH,
 };
 use crate::inject::Injection;
+use crate::locate::Located;
 use crate::material::{BulkViscosity, Eos, Material, PointConsts};
 use crate::math::{norm, Vec3};
 use crate::order::{CellOrder, SORT_EVERY};
@@ -219,6 +220,8 @@ pub struct Simulation {
     /// The same for the re-map scatter.
     remap_parts: Records<REMAP_WIDTH>,
     partials: Vec<Partial>,
+    /// The particles' cells and local coordinates in this step's grid (computed before P2G).
+    located: Located,
     consts: PointConsts,
     mass_tol: f64,
     time: f64,
@@ -423,6 +426,7 @@ impl Simulation {
             engine,
             spacing,
             partials: vec![Partial::default(); config.threads],
+            located: Located::default(),
             consts,
             mass_tol: state.mass_tol,
             particles,
@@ -613,6 +617,12 @@ impl Simulation {
         &self.nodes
     }
 
+    /// The particles' cells and local coordinates in the last step's grid (at the step's
+    /// start: the particles have moved since).
+    pub fn located(&self) -> &Located {
+        &self.located
+    }
+
     /// How the nodal arrays are numbered: the dense grid, or its stored blocks
     /// ([`GridMode::Sparse`]).
     pub fn node_index(&self) -> NodeIndex<'_> {
@@ -718,7 +728,8 @@ impl Simulation {
         self.engine.domain_decomposition()
     }
 
-    /// Bytes held by particles, nodal arrays, scatter buffers and strategy tables.
+    /// Bytes held by particles, nodal arrays, scatter buffers, strategy tables and the
+    /// particles' cells and local coordinates.
     pub fn memory_bytes(&self) -> usize {
         self.particles.bytes()
             + self.nodes.bytes()
@@ -728,10 +739,11 @@ impl Simulation {
             + self.blocks.as_ref().map_or(0, BlockMap::bytes)
             + self.order.bytes()
             + self.exchange.bytes()
+            + self.located.bytes()
     }
 
-    /// After the last step: free the node arrays and the strategy's scatter buffers, which
-    /// only a step uses, so that whatever the caller does next with the particles (gather
+    /// After the last step: free the node arrays, the strategy's scatter buffers and the
+    /// particles' cells and local coordinates, which only a step uses, so that whatever the caller does next with the particles (gather
     /// every rank's for a state dump) does not stack on them. The particles, the figures
     /// and the strategy's tables stay; [`Simulation::memory_bytes`] drops accordingly. A
     /// further step returns [`SimError::Released`].
@@ -742,6 +754,7 @@ impl Simulation {
         }
         self.p2g_parts = Records::default();
         self.remap_parts = Records::default();
+        self.located = Located::default();
         self.released = true;
     }
 
@@ -824,12 +837,15 @@ impl Simulation {
         let n = self.particles.len();
         // The exchange calls below are no-ops for one process (`SingleProcess`): the sums and
         // maxima over one rank leave every value as it is, bit for bit.
-        let (particles, body_force) = (&self.particles, self.config.body_force);
+        // Each particle's cell and local coordinates, once for P2G, the gather and re-map
+        // and the update (booked to the scatter, the first of them).
+        self.located.locate(exec, &geom, &self.particles.x, self.simd);
+        let (particles, located, body_force) = (&self.particles, &self.located, self.config.body_force);
         if body_force == [0.0; 3] {
-            let p2g = transfer::P2g::<false> { geom: &geom, particles, body_force, simd: self.simd };
+            let p2g = transfer::P2g::<false> { geom: &geom, particles, located, body_force, simd: self.simd };
             self.engine.scatter(exec, &geom, &index, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
         } else {
-            let p2g = transfer::P2g::<true> { geom: &geom, particles, body_force, simd: self.simd };
+            let p2g = transfer::P2g::<true> { geom: &geom, particles, located, body_force, simd: self.simd };
             self.engine.scatter(exec, &geom, &index, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
         }
         lap.lap(&mut self.times, Substage::Scatter);
@@ -847,8 +863,8 @@ impl Simulation {
         // The gather (Eqs. 8, 10) runs inside the re-map scatter (Eq. 11), particle by
         // particle: its time is the re-map scatter's (`Substage::Gather` stays 0).
         let NodeArrays { kin, remap, .. } = &mut self.nodes;
-        let Particles { x, v, mass, .. } = &mut self.particles;
-        let gather_remap = transfer::GatherRemap::new(&geom, kin, x, mass, v, dt, self.simd);
+        let Particles { v, mass, .. } = &mut self.particles;
+        let gather_remap = transfer::GatherRemap::new(&geom, kin, &self.located, mass, v, dt, self.simd);
         self.engine.scatter(exec, &geom, &index, n, remap, &mut self.remap_parts, &gather_remap);
         lap.lap(&mut self.times, Substage::RemapScatter);
         self.engine.assemble(exec, &geom, &index, &mut self.nodes.remap, &self.remap_parts);
@@ -857,13 +873,13 @@ impl Simulation {
         lap.lap(&mut self.times, Substage::RemapAssembly);
 
         let (nodes, particles, consts, partials) = (&self.nodes, &mut self.particles, &self.consts, &mut self.partials);
-        let simd = self.simd;
+        let (simd, located) = (self.simd, &self.located);
         match self.material.eos {
             Eos::MieGruneisen(ref m) => {
-                transfer::update(exec, &geom, &index, nodes, particles, consts, m, dt, partials, simd)
+                transfer::update(exec, &geom, &index, located, nodes, particles, consts, m, dt, partials, simd)
             }
             Eos::Linear(ref l) => {
-                transfer::update(exec, &geom, &index, nodes, particles, consts, l, dt, partials, simd)
+                transfer::update(exec, &geom, &index, located, nodes, particles, consts, l, dt, partials, simd)
             }
         }
         let mut total = Partial::default();

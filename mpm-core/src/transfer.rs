@@ -11,6 +11,7 @@
 use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
 use crate::energy::Partial;
 use crate::grid::{records, CellNodes, GridGeom, NodeArrays, NodeIndex, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
+use crate::locate::Located;
 use crate::material::{update_block, LaneState, PointConsts, PressureModel};
 use crate::math::{Sym, Vec3};
 use crate::parallel::{partition, DisjointSlice, Exec, Split};
@@ -113,6 +114,8 @@ pub struct P2g<'a, const BODY: bool> {
     pub geom: &'a GridGeom,
     /// The particles at step `k`.
     pub particles: &'a Particles,
+    /// Their cells and local coordinates in `geom`.
+    pub located: &'a Located,
     /// Body force per unit mass (m/s^2); ignored unless `BODY`.
     pub body_force: Vec3,
     /// The instruction-set level of the scatter loop.
@@ -129,7 +132,7 @@ impl<const BODY: bool> Blocked<P2G_WIDTH> for P2g<'_, BODY> {
             if len == 0 {
                 return;
             }
-            let s = self.geom.shape_block::<F4, LANES>(|l| pt.x[k[l]]);
+            let s = self.located.shape_block::<F4, LANES>(&k, self.geom.inv_dx);
             let m = F4::from_lanes(|l| pt.mass[k[l]]);
             // Out of the registers once (see `Block::to_array`).
             let vol = (m / F4::from_lanes(|l| pt.rho[k[l]])).to_array();
@@ -189,10 +192,10 @@ mod p2g512;
 /// particle from the worker that owns it ([`crate::strategy::ScatterStrategy::scatter`]), so
 /// the gather follows the re-map's partition (DD: the patch's particles).
 pub(crate) struct GatherRemap<'a> {
-    geom: &'a GridGeom,
+    inv_dx: f64,
     /// `[v, a]` per node of the grid (numbered like the grid: `Cursors::both`'s second).
     kin: &'a [[f64; KIN_WIDTH]],
-    x: &'a [Vec3],
+    located: &'a Located,
     mass: &'a [f64],
     /// The velocities, written by the worker that scatters each particle.
     v: DisjointSlice<'a, Vec3>,
@@ -202,19 +205,19 @@ pub(crate) struct GatherRemap<'a> {
 }
 
 impl<'a> GatherRemap<'a> {
-    /// The kernel over the particles at `x` with masses `mass` and velocities `v` (updated
-    /// in place) for nodal accelerations in `kin`.
+    /// The kernel over the particles `located` in `geom` with masses `mass` and velocities
+    /// `v` (updated in place) for nodal accelerations in `kin`.
     pub(crate) fn new(
-        geom: &'a GridGeom,
+        geom: &GridGeom,
         kin: &'a [[f64; KIN_WIDTH]],
-        x: &'a [Vec3],
+        located: &'a Located,
         mass: &'a [f64],
         v: &'a mut [Vec3],
         dt: f64,
         simd: SimdLevel,
     ) -> Self {
-        assert!(x.len() == v.len() && x.len() == mass.len(), "one position, mass and velocity per particle");
-        Self { geom, kin, x, mass, v: DisjointSlice::new(v), dt, simd }
+        assert!(located.len() == v.len() && v.len() == mass.len(), "one location, mass and velocity per particle");
+        Self { inv_dx: geom.inv_dx, kin, located, mass, v: DisjointSlice::new(v), dt, simd }
     }
 }
 
@@ -240,7 +243,7 @@ impl Kernel<REMAP_WIDTH> for GatherRemap<'_> {
 
     #[inline(always)]
     fn scatter(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut [[f64; REMAP_WIDTH]]) {
-        let s = self.geom.shape(self.x[p]);
+        let s = self.located.shape(p, self.inv_dx);
         let (target, grid) = nodes.both(s.cell);
         let mut acc = [0.0; 3];
         for q in 0..8 {
@@ -270,20 +273,20 @@ impl Kernel<REMAP_WIDTH> for GatherRemap<'_> {
 
 /// The fused gather and re-map scatter over every particle in order into `remap` (zeroed
 /// first; numbered by `index`), on the calling thread: the serial strategy's pass, for
-/// benchmarks.
+/// benchmarks (the particles `located` in `geom`, e.g. by [`Located::of`]).
 #[allow(clippy::too_many_arguments)]
 pub fn gather_remap_serial(
     geom: &GridGeom,
     index: &NodeIndex<'_>,
     kin: &[[f64; KIN_WIDTH]],
-    x: &[Vec3],
+    located: &Located,
     mass: &[f64],
     v: &mut [Vec3],
     dt: f64,
     remap: &mut [[f64; REMAP_WIDTH]],
 ) {
-    let n = x.len();
-    let kernel = GatherRemap::new(geom, kin, x, mass, v, dt, SimdLevel::detected());
+    let n = located.len();
+    let kernel = GatherRemap::new(geom, kin, located, mass, v, dt, SimdLevel::detected());
     crate::strategy::serial::scatter(index, n, remap, &kernel);
 }
 
@@ -460,6 +463,7 @@ pub fn update<E: PressureModel + Sync>(
     exec: &Exec<'_>,
     geom: &GridGeom,
     index: &NodeIndex<'_>,
+    located: &Located,
     nodes: &NodeArrays,
     particles: &mut Particles,
     consts: &PointConsts,
@@ -470,6 +474,7 @@ pub fn update<E: PressureModel + Sync>(
 ) {
     assert!(simd.is_available(), "the particle update at SIMD level {simd}, which this CPU does not have");
     let n = particles.len();
+    assert_eq!(located.len(), n, "one location per particle");
     let Particles { x, v, mass, rho, stress, eps_p, e_int, sound, failed } = particles;
     let (v, mass) = (&v[..], &mass[..]);
     let (kin, remap) = (&nodes.kin[..], &nodes.remap[..]);
@@ -489,7 +494,9 @@ pub fn update<E: PressureModel + Sync>(
         let r = partition(n, t, w);
         tally.particles(w, r.len());
         let mut chunk = UpdateChunk {
-            geom,
+            inv_dx: geom.inv_dx,
+            located,
+            first: r.start,
             index: *index,
             kin,
             remap,
@@ -516,7 +523,11 @@ static NO_REMAP: [f64; REMAP_WIDTH] = [0.0; REMAP_WIDTH];
 
 /// One worker's particles in [`update`]: the shared node arrays and its own particle parts.
 struct UpdateChunk<'a, E> {
-    geom: &'a GridGeom,
+    inv_dx: f64,
+    /// The particles' cells and local coordinates (all of them: the chunk's from `first`).
+    located: &'a Located,
+    /// The chunk's first particle.
+    first: usize,
     index: NodeIndex<'a>,
     kin: &'a [[f64; KIN_WIDTH]],
     remap: &'a [[f64; REMAP_WIDTH]],
@@ -595,7 +606,7 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
     fn run_lanes<R: Block<N>, const N: usize, const LINEAR: bool>(&mut self) -> Partial {
         let dt = self.dt;
         let n = self.x.len();
-        let g = self.geom;
+        let inv_dx = self.inv_dx;
         let mut sum = Partial::default();
         let mut nodes = CellNodes::new(self.index);
         let mut start = 0;
@@ -605,7 +616,7 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
             // The block's cells and local coordinates, the nodes of each lane's cell; the
             // weights and gradients node by node in the loop below (keeping the 32 values of
             // a whole `BlockShape` took 4-9 % longer at AVX-512: they went through the stack).
-            let (cells, local) = g.local_block::<R, N>(|l| self.x[k[l]]);
+            let (cells, local) = self.located.local_block::<R, N>(&k.map(|k| self.first + k), inv_dx);
             // The block in runs of lanes in one cell (particles of a cell are neighbours: the
             // cell order, `crate::order`): each run's 8 node records looked up once, and each
             // node value of a block built from one broadcast per run (lanes from the run's
@@ -622,7 +633,7 @@ impl<E: PressureModel> UpdateChunk<'_, E> {
             let mut remap = [[&NO_REMAP; 8]; N];
             let mut from = [R::mask(true); N];
             for r in 0..runs {
-                let idx = nodes.get(cells[first[r]]);
+                let idx = nodes.get(cells[first[r]].map(|c| c as usize));
                 kin[r] = records(self.kin, &idx);
                 remap[r] = records(self.remap, &idx);
                 from[r] = R::mask_from(|l| l >= first[r]);
@@ -783,7 +794,8 @@ mod tests {
         let dt = 2e-9;
         let update_at = |p: &mut Particles, simd| {
             let mut partials = vec![Partial::default(); 1];
-            update(&Exec::serial(), &geom, &index, sim.nodes(), p, &consts, &eos, dt, &mut partials, simd);
+            let located = Located::of(&geom, &p.x);
+            update(&Exec::serial(), &geom, &index, &located, sim.nodes(), p, &consts, &eos, dt, &mut partials, simd);
         };
         for simd in SimdLevel::ALL.into_iter().filter(|l| l.is_available()) {
             let mut all = some.clone();
@@ -800,6 +812,51 @@ mod tests {
                 alone.pack(0, &mut want);
                 let same = packed.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits());
                 assert!(same, "particle {i} at {simd}: in its block {packed:?}, alone {want:?}");
+            }
+        }
+    }
+
+    /// The fused gather and re-map's loop at every level this CPU has gives every velocity
+    /// and every re-map record bitwise what the one-particle form gives, for id lists of every length, out of order,
+    /// in cell order and in runs of one cell, with random nodal velocities and accelerations.
+    #[test]
+    fn gather_remap_loops_are_bitwise_the_one_particle_form() {
+        let geom = GridGeom::fixed(&GridSpec { dx: 4.0 / 7.0, anchor: [0.0; 3], cells: [6, 5, 7] });
+        let index = NodeIndex::of(&geom, None);
+        let (pt, [stride, by_cell, runs]) = scatter_inputs(&geom);
+        let mut unit = crate::testing::unit_stream(5);
+        let kin: Vec<[f64; KIN_WIDTH]> =
+            (0..index.num_nodes()).map(|_| std::array::from_fn(|_| 100.0 * (unit() - 0.5))).collect();
+        let located = Located::of(&geom, &pt.x);
+        let dt = 3.7e-3;
+        for (list, order) in [("stride", &stride), ("cell order", &by_cell), ("runs", &runs)] {
+            for len in (0..=9).chain([order.len()]) {
+                let ids = &order[..len];
+                let run = |simd: SimdLevel, all: bool| {
+                    let mut v = pt.v.clone();
+                    let mut data = vec![[0.0; REMAP_WIDTH]; index.num_nodes()];
+                    let k = GatherRemap::new(&geom, &kin, &located, &pt.mass, &mut v, dt, simd);
+                    let mut nodes = Cursors::global(index);
+                    if all {
+                        k.scatter_all(ids.iter().copied(), &mut nodes, &mut data);
+                    } else {
+                        for &p in ids {
+                            k.scatter(p, &mut nodes, &mut data);
+                        }
+                    }
+                    (v, data)
+                };
+                let (v1, d1) = run(SimdLevel::Baseline, false);
+                for simd in SimdLevel::ALL.into_iter().filter(|l| l.is_available()) {
+                    let (vl, dl) = run(simd, true);
+                    for (p, (a, b)) in vl.iter().zip(&v1).enumerate() {
+                        let (a, b) = (a.map(f64::to_bits), b.map(f64::to_bits));
+                        assert_eq!(a, b, "{list}, {len} at {simd}: velocity of {p}");
+                    }
+                    for (i, (a, b)) in dl.iter().zip(&d1).enumerate() {
+                        assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "{list}, {len} at {simd}: node {i}");
+                    }
+                }
             }
         }
     }
@@ -833,12 +890,14 @@ mod tests {
             }
             data
         }
+        let located = Located::of(&geom, &pt.x);
         for (list, order) in [("stride", &stride), ("cell order", &by_cell), ("runs", &runs)] {
             for len in (0..=9).chain([order.len()]) {
                 let ids = &order[..len];
                 for &simd in &levels {
-                    let plain = P2g::<false> { geom: &geom, particles: &pt, body_force: [0.0; 3], simd };
-                    let body = P2g::<true> { geom: &geom, particles: &pt, body_force: [0.0, -9.81, 1.5], simd };
+                    let (particles, located) = (&pt, &located);
+                    let plain = P2g::<false> { geom: &geom, particles, located, body_force: [0.0; 3], simd };
+                    let body = P2g::<true> { geom: &geom, particles, located, body_force: [0.0, -9.81, 1.5], simd };
                     for (what, blocked, single) in [
                         ("no body force", run(&plain, &index, ids, true), run(&plain, &index, ids, false)),
                         ("body force", run(&body, &index, ids, true), run(&body, &index, ids, false)),

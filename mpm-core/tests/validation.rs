@@ -261,12 +261,12 @@ fn nan_is_reported_with_its_step_number() {
 #[test]
 fn released_grid_arrays_free_their_memory_and_refuse_another_step() {
     let (mut sim, pool) = model1_after_three_steps();
-    let (before, nodes) = (sim.memory_bytes(), sim.nodes().bytes());
+    let (before, nodes, located) = (sim.memory_bytes(), sim.nodes().bytes(), sim.located().bytes());
     let (x, energy) = (sim.particles().x.clone(), sim.diagnostics());
-    assert!(nodes > 0);
+    assert!(nodes > 0 && located >= 36 * sim.particles().len());
     sim.release_grid_arrays();
-    assert_eq!(sim.nodes().bytes(), 0);
-    assert_eq!(sim.memory_bytes(), before - nodes);
+    assert_eq!((sim.nodes().bytes(), sim.located().bytes()), (0, 0));
+    assert_eq!(sim.memory_bytes(), before - nodes - located);
     assert_eq!((&sim.particles().x, sim.diagnostics()), (&x, energy));
     let err = sim.step(&pool, f64::INFINITY).unwrap_err();
     assert!(matches!(err, SimError::Released(3)), "{err:?}");

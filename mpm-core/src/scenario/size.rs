@@ -9,7 +9,8 @@
 //! * Memory ([`ModelSize::memory_bytes`]): bytes per particle and per node fitted to the
 //!   solver's own [`crate::Simulation::memory_bytes`] on Models 1-3 (serial: 137 B per
 //!   particle + 162 B per node, the node records of 64 + 48 + 32 bytes and the grid's flags,
-//!   reproduces all three to 0.002 %). Array expansion keeps one private 108-byte copy of the
+//!   reproduced all three to 0.002 %), plus the 36 B per particle of the step's cells and
+//!   local coordinates ([`crate::locate`], added since). Array expansion keeps one private 108-byte copy of the
 //!   scattered node records per worker (Model 2 at 1 and 4 threads: exactly 108 and 432 B
 //!   per node), so it grows with every thread; domain decomposition adds binning (8 B per
 //!   particle) and sub-grid records (108-113 B per node at 1-4 threads) that barely depend on
@@ -18,8 +19,9 @@
 use super::{impact, taylor};
 use crate::strategy::{MemoryModel, Strategy};
 
-/// Bytes per particle (state, stress, strain, material history).
-pub const BYTES_PER_PARTICLE: u64 = 137;
+/// Bytes per particle (state, stress, strain, material history: 137; the step's cell and
+/// local coordinates: 36).
+pub const BYTES_PER_PARTICLE: u64 = 137 + 36;
 /// Bytes per grid node (the P2G, kinematic and re-map records, flags).
 pub const BYTES_PER_NODE: u64 = 162;
 /// Extra bytes per node for each AE worker (its private copy of the scattered records).

@@ -20,7 +20,6 @@
 //! `dispatch_levels_agree_bitwise` whole runs against the baseline.
 
 use super::{Cursors, P2g, P2G_WIDTH};
-use crate::shape;
 use std::arch::x86_64::*;
 
 /// `kernel`'s additions for the particles `ids`, in order, into `data` (see the module).
@@ -35,8 +34,7 @@ pub(super) unsafe fn scatter<const BODY: bool>(
     data: &mut [[f64; P2G_WIDTH]],
 ) {
     let pt = kernel.particles;
-    let g = kernel.geom;
-    let inv_dx = g.inv_dx;
+    let inv_dx = kernel.geom.inv_dx;
     let (lo, hi) = (_mm512_set1_pd(-inv_dx), _mm512_set1_pd(inv_dx));
     // The lanes q = a + 2 b + 4 c with a = 1 (mask 0xAA), b = 1 (0xCC), c = 1 (0xF0).
     let (a1, b1, c1) = (0xAA, 0xCC, 0xF0);
@@ -52,8 +50,9 @@ pub(super) unsafe fn scatter<const BODY: bool>(
     let halves_lo = _mm512_set_epi64(11, 10, 9, 8, 3, 2, 1, 0);
     let halves_hi = _mm512_set_epi64(15, 14, 13, 12, 7, 6, 5, 4);
     for p in ids {
-        // Cell and local coordinates as `shape::evaluate` computes them.
-        let (cell, n0, n1) = shape::local_coords(pt.x[p], g.origin, inv_dx, g.cells);
+        // Cell and local coordinates (`shape::local_coords`), `n0 = 1 - r` as `shape::at`.
+        let (cell, n1) = (kernel.located.cell(p), kernel.located.r(p));
+        let n0 = n1.map(|r| 1.0 - r);
         let nx = _mm512_mask_blend_pd(a1, _mm512_set1_pd(n0[0]), _mm512_set1_pd(n1[0]));
         let ny = _mm512_mask_blend_pd(b1, _mm512_set1_pd(n0[1]), _mm512_set1_pd(n1[1]));
         let nz = _mm512_mask_blend_pd(c1, _mm512_set1_pd(n0[2]), _mm512_set1_pd(n1[2]));
