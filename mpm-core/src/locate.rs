@@ -6,9 +6,10 @@
 //! particles after it has read them). So [`Located::locate`] computes them once, before P2G,
 //! in vector instructions over blocks of particles (split between the workers like the
 //! update), and the three passes read them: the particle update's share of the step was
-//! 14 % its own cell computation, lane by lane. The cells are kept as `u32` per axis and the
-//! local coordinates one array per axis, so that a block of the update loads each as one
-//! vector. Every value is bitwise what the passes computed from the positions before
+//! 14 % its own cell computation, lane by lane. The cells are kept as `u32` and the local
+//! coordinates as `f64`, one array per axis each (a block of the update loads its local
+//! coordinates as one vector an axis, and a block's cells convert to `u32` in one
+//! instruction an axis). Every value is bitwise what the passes computed from the positions before
 //! (`shape::local_coords`): the test `located_is_bitwise_local_coords` holds every level to
 //! it.
 
@@ -21,8 +22,8 @@ use crate::simd::{Block, SimdLevel, F4, F8, LANES, LANES8};
 /// The cells and local coordinates of a step's particles (see the module).
 #[derive(Clone, Debug, Default)]
 pub struct Located {
-    /// Particle `p`'s cell, per axis.
-    cell: Vec<[u32; 3]>,
+    /// Particle `p`'s cell, one array per axis.
+    cell: [Vec<u32>; 3],
     /// Particle `p`'s local coordinate in its cell, one array per axis.
     r: [Vec<f64>; 3],
 }
@@ -38,17 +39,18 @@ impl Located {
 
     /// Number of particles located.
     pub fn len(&self) -> usize {
-        self.cell.len()
+        self.cell[0].len()
     }
 
     /// Bytes held.
     pub fn bytes(&self) -> usize {
-        crate::capacity_bytes(&self.cell) + self.r.iter().map(crate::capacity_bytes).sum::<usize>()
+        self.cell.iter().map(crate::capacity_bytes).sum::<usize>()
+            + self.r.iter().map(crate::capacity_bytes).sum::<usize>()
     }
 
     /// Whether no particle is located.
     pub fn is_empty(&self) -> bool {
-        self.cell.is_empty()
+        self.cell[0].is_empty()
     }
 
     /// Locate the particles at `x` in `geom`: the work split between `exec`'s workers like
@@ -63,15 +65,24 @@ impl Located {
             geom.cells
         );
         let n = x.len();
-        self.cell.resize(n, [0; 3]);
+        for c in &mut self.cell {
+            c.resize(n, 0);
+        }
         for r in &mut self.r {
             r.resize(n, 0.0);
         }
-        let [rx, ry, rz] = &mut self.r;
+        let ([cx, cy, cz], [rx, ry, rz]) = (&mut self.cell, &mut self.r);
         let t = exec.workers();
-        let chunks = (Split::Even.of(&mut self.cell), Split::Even.of(rx), Split::Even.of(ry), Split::Even.of(rz));
-        exec.for_each_chunk_mut(chunks, |w, (cell, rx, ry, rz)| {
-            let mut out = Out { cell, r: [rx, ry, rz] };
+        let chunks = (
+            Split::Even.of(cx),
+            Split::Even.of(cy),
+            Split::Even.of(cz),
+            Split::Even.of(rx),
+            Split::Even.of(ry),
+            Split::Even.of(rz),
+        );
+        exec.for_each_chunk_mut(chunks, |w, (cx, cy, cz, rx, ry, rz)| {
+            let mut out = Out { cell: [cx, cy, cz], r: [rx, ry, rz] };
             let x = &x[partition(n, t, w)];
             #[cfg(target_arch = "x86_64")]
             if simd >= SimdLevel::Avx2 {
@@ -98,7 +109,7 @@ impl Located {
     /// Particle `p`'s cell.
     #[inline(always)]
     pub fn cell(&self, p: usize) -> [usize; 3] {
-        self.cell[p].map(|c| c as usize)
+        [self.cell[0][p] as usize, self.cell[1][p] as usize, self.cell[2][p] as usize]
     }
 
     /// Particle `p`'s local coordinates.
@@ -140,21 +151,25 @@ impl Located {
     /// ([`shape::local_at`]).
     #[inline(always)]
     pub fn local_block<R: Block<N>, const N: usize>(&self, k: &[usize; N], inv_dx: f64) -> ([[u32; 3]; N], Local<R>) {
-        (std::array::from_fn(|l| self.cell[k[l]]), shape::local_at(self.r_block(k), inv_dx))
+        let cell = std::array::from_fn(|l| [self.cell[0][k[l]], self.cell[1][k[l]], self.cell[2][k[l]]]);
+        (cell, shape::local_at(self.r_block(k), inv_dx))
     }
 }
 
+/// 2^52: the `f64` whose last mantissa bit is 1.
+const TWO_52: f64 = 4_503_599_627_370_496.0;
+
 /// One worker's part of the arrays.
 struct Out<'a> {
-    cell: &'a mut [[u32; 3]],
+    cell: [&'a mut [u32]; 3],
     r: [&'a mut [f64]; 3],
 }
 
 impl Out<'_> {
     #[inline(always)]
     fn set(&mut self, p: usize, cell: [u32; 3], r: Vec3) {
-        self.cell[p] = cell;
         for d in 0..3 {
+            self.cell[d][p] = cell[d];
             self.r[d][p] = r[d];
         }
     }
@@ -188,12 +203,16 @@ fn locate_blocks<R: Block<N>, const N: usize>(geom: &GridGeom, x: &[Vec3], out: 
     let mut start = 0;
     while start + N <= n {
         let (cell, r) = shape::local_coords_block::<R, N>(|l| x[start + l], geom.origin, geom.inv_dx, geom.cells);
-        let cell = cell.map(|c| c.to_array());
         for d in 0..3 {
             out.r[d][start..start + N].copy_from_slice(&r[d].to_array());
-        }
-        for l in 0..N {
-            out.cell[start + l] = [cell[0][l] as u32, cell[1][l] as u32, cell[2][l] as u32];
+            // A whole number `c` below 2^32 as `u32`: the low bits of `c + 2^52`, whose
+            // mantissa holds `c` exactly (vector additions and a narrowing; `as u32` is a
+            // saturating conversion, which the compiler left lane by lane).
+            let c = (cell[d] + R::splat(TWO_52)).to_array();
+            let to = &mut out.cell[d][start..start + N];
+            for l in 0..N {
+                to[l] = c[l].to_bits() as u32;
+            }
         }
         start += N;
     }
