@@ -15,9 +15,10 @@
 #                      test into a temporary IMPACT_RESULTS
 #
 # Times on the development machine (2 cores), on the sparse grid (the impact's default), at
-# 4899611 / 19f6066: the small model 38 s, 51 s and 1.3 min at 2.12, 1.59 and 1.06 mm cells;
-# the large model (13.5 M particles) 19.2 min with a 3.2 GiB peak (8.3 GiB on the dense adaptive grid,
-# --grid adaptive: ARCHITECTURE.md, "Memory of the adaptive grid: the sparse grid").
+# 425f254: the small model 21 s, 42 s and 1.3 min at 2.12, 1.59 and 1.06 mm cells; the large
+# model (13.5 M particles) 17.6 min with a 3.7 GiB peak (8.3 GiB on the dense adaptive grid
+# at an earlier commit, --grid adaptive: ARCHITECTURE.md, "Memory of the adaptive grid: the
+# sparse grid").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 [ -f "$HOME/.cargo/env" ] && . "$HOME/.cargo/env"
