@@ -381,8 +381,9 @@ mod tests {
         let mut p = crate::Particles::default();
         p.push([0.0; 3], [0.0; 3], 1.0, 1.0, 1.0);
         p.shrink_to_fit();
-        let written = V3 + F + SYM + 4.0 * F + FLAG - F; // x, rho, stress, eps_p, e_int, sound, failed
-                                                         // And the particle's cell and local coordinates (`Located`'s arrays), read.
+        // Written: x, rho, stress, eps_p, e_int, sound, failed.
+        let written = V3 + F + SYM + 4.0 * F + FLAG - F;
+        // And the particle's cell and local coordinates (`Located`'s arrays), read.
         let geom = crate::grid::GridGeom::fixed(&crate::grid::GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [1; 3] });
         let located = crate::locate::Located::of(&geom, &[[0.5; 3]; 64]);
         assert_eq!(located.bytes() as f64, 64.0 * LOCATED, "64 particles located");

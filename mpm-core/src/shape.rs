@@ -35,7 +35,7 @@ pub fn evaluate(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> Shape 
 /// `x` in it per axis (`r = xi - cell`, `xi = (x - origin) / dx`): the first half of
 /// [`evaluate`]. A step computes them once per particle ([`crate::locate`]).
 #[inline(always)]
-pub(crate) fn local_coords(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> ([usize; 3], Vec3) {
+pub fn local_coords(x: Vec3, origin: Vec3, inv_dx: f64, cells: [usize; 3]) -> ([usize; 3], Vec3) {
     let mut cell = [0usize; 3];
     let mut r = [0.0; 3];
     for d in 0..3 {
@@ -58,7 +58,7 @@ pub fn at(cell: [usize; 3], r: Vec3, inv_dx: f64) -> Shape {
 /// The 8 weights and gradients from the local coordinates `n1 = r` and `n0 = 1 - r` per
 /// axis: `S_q = N_a(r_x) N_b(r_y) N_c(r_z)`, `q = a + 2 b + 4 c`, and its gradient, each
 /// product in the order written (so one point and a block's lanes get the same bits).
-/// [`Local::node`] computes the same products for one node; [`evaluate_block`] built on it
+/// [`Local::node`] computes the same products for one node; a block evaluation built on it
 /// made P2G 9-24 % slower (the loop below is unrolled, a loop over `q` was not), so the two
 /// stay apart and the test `block_lanes_are_bitwise_the_one_point_evaluation` holds both to
 /// [`evaluate`]'s bits.
@@ -83,7 +83,7 @@ fn weights<R: Real>(n0: [R; 3], n1: [R; 3], inv_dx: f64) -> ([R; 8], [[R; 3]; 8]
 }
 
 /// A block's coordinates in its cells, lane by lane: per axis the two linear factors
-/// `[1 - r, r]`, and the two gradient factors `[-1/dx, 1/dx]` ([`local_block`]).
+/// `[1 - r, r]`, and the two gradient factors `[-1/dx, 1/dx]` ([`local_at`]).
 #[derive(Clone, Copy, Debug)]
 pub struct Local<R> {
     n: [[R; 2]; 3],
@@ -104,7 +104,7 @@ impl<R: Real> Local<R> {
     }
 }
 
-/// The shape functions of a block of `N` particles at once ([`evaluate_block`]): lane `l`
+/// The shape functions of a block of `N` particles at once ([`block_at`]): lane `l`
 /// of every value is particle `l`'s.
 #[derive(Clone, Copy, Debug)]
 pub struct BlockShape<R, const N: usize> {
@@ -144,9 +144,9 @@ pub fn local_at<R: Real>(r: [R; 3], inv_dx: f64) -> Local<R> {
 /// every `xi` (NaN: 0 both; below 2^63 the conversion truncates a non-negative number, its
 /// floor; above, both end at `cells - 1`), exact in `f64` below 2^53 cells; at `xi = -0`
 /// the vector `max` gives `+0` (IEEE leaves the sign open; the tests hold it, as a `-0`
-/// cell would flip the sign of `r = 0`). Vector code
-/// only where the level has a rounding instruction (AVX and up): on the baseline `floor` is a
-/// library call per lane, and [`crate::locate`] takes [`local_coords`] there.
+/// cell would flip the sign of `r = 0`). Vector code only where the level has a rounding
+/// instruction (AVX and up): on the baseline `floor` is a library call per lane, and
+/// [`crate::locate`] takes [`local_coords`] there.
 #[inline(always)]
 pub(crate) fn local_coords_block<R: Block<N>, const N: usize>(
     x: impl Fn(usize) -> Vec3,

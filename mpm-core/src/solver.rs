@@ -743,10 +743,11 @@ impl Simulation {
     }
 
     /// After the last step: free the node arrays, the strategy's scatter buffers and the
-    /// particles' cells and local coordinates, which only a step uses, so that whatever the caller does next with the particles (gather
-    /// every rank's for a state dump) does not stack on them. The particles, the figures
-    /// and the strategy's tables stay; [`Simulation::memory_bytes`] drops accordingly. A
-    /// further step returns [`SimError::Released`].
+    /// particles' cells and local coordinates, which only a step uses, so that whatever the
+    /// caller does next with the particles (gather every rank's for a state dump) does not
+    /// stack on them. The particles, the figures and the strategy's tables stay;
+    /// [`Simulation::memory_bytes`] drops accordingly. A further step returns
+    /// [`SimError::Released`].
     pub fn release_grid_arrays(&mut self) {
         self.nodes = NodeArrays::default();
         if let Some(map) = &mut self.blocks {
