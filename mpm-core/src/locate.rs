@@ -9,9 +9,9 @@
 //! 14 % its own cell computation, lane by lane. The cells are kept as `u32` and the local
 //! coordinates as `f64`, one array per axis each (a block of the update loads its local
 //! coordinates as one vector an axis, and a block's cells convert to `u32` in one
-//! instruction an axis). Every value is bitwise what the passes computed from the positions before
-//! (`shape::local_coords`): the test `located_is_bitwise_local_coords` holds every level to
-//! it.
+//! instruction an axis). Every value is bitwise what the passes computed from the positions
+//! before (`shape::local_coords`): the test `located_is_bitwise_local_coords` holds every
+//! level to it.
 
 use crate::grid::GridGeom;
 use crate::math::Vec3;
@@ -61,7 +61,7 @@ impl Located {
         assert!(simd.is_available(), "locating at SIMD level {simd}, which this CPU does not have");
         assert!(
             geom.cells.iter().all(|&c| c <= u32::MAX as usize),
-            "a grid of {:?} cells: at most 2^32 cells an axis can be located",
+            "a grid of {:?} cells: fewer than 2^32 cells an axis can be located",
             geom.cells
         );
         let n = x.len();
