@@ -100,8 +100,7 @@ impl Located {
                 return;
             }
             for (p, &xp) in x.iter().enumerate() {
-                let (c, r) = local_coords(xp, geom.origin, geom.inv_dx, geom.cells);
-                out.set(p, c.map(|c| c as u32), r);
+                out.locate_one(p, xp, geom);
             }
         });
     }
@@ -166,10 +165,13 @@ struct Out<'a> {
 }
 
 impl Out<'_> {
+    /// Particle `p` at `x`, one at a time ([`local_coords`]): the baseline level's pass and
+    /// the blocks' remainder.
     #[inline(always)]
-    fn set(&mut self, p: usize, cell: [u32; 3], r: Vec3) {
+    fn locate_one(&mut self, p: usize, x: Vec3, geom: &GridGeom) {
+        let (cell, r) = local_coords(x, geom.origin, geom.inv_dx, geom.cells);
         for d in 0..3 {
-            self.cell[d][p] = cell[d];
+            self.cell[d][p] = cell[d] as u32;
             self.r[d][p] = r[d];
         }
     }
@@ -217,8 +219,7 @@ fn locate_blocks<R: Block<N>, const N: usize>(geom: &GridGeom, x: &[Vec3], out: 
         start += N;
     }
     for p in start..n {
-        let (c, r) = local_coords(x[p], geom.origin, geom.inv_dx, geom.cells);
-        out.set(p, c.map(|c| c as u32), r);
+        out.locate_one(p, x[p], geom);
     }
 }
 
