@@ -17,7 +17,7 @@ use crate::grid::GridGeom;
 use crate::math::Vec3;
 use crate::parallel::{partition, Exec, Split};
 use crate::shape::{self, local_coords, BlockShape, Local, Shape};
-use crate::simd::{Block, SimdLevel, F4, F8, LANES, LANES8};
+use crate::simd::{array, Block, SimdLevel, F4, F8, LANES, LANES8};
 
 /// The cells and local coordinates of a step's particles (see the module).
 #[derive(Clone, Debug, Default)]
@@ -129,7 +129,7 @@ impl Located {
     #[inline(always)]
     fn r_block<R: Block<N>, const N: usize>(&self, k: &[usize; N]) -> [R; 3] {
         let contiguous = (1..N).all(|l| k[l] == k[0] + l);
-        std::array::from_fn(|d| {
+        array(|d| {
             let r = &self.r[d];
             if contiguous {
                 R::from_array(r[k[0]..k[0] + N].try_into().expect("N values"))
@@ -143,14 +143,14 @@ impl Located {
     /// ([`shape::block_at`]).
     #[inline(always)]
     pub fn shape_block<R: Block<N>, const N: usize>(&self, k: &[usize; N], inv_dx: f64) -> BlockShape<R, N> {
-        shape::block_at(std::array::from_fn(|l| self.cell(k[l])), self.r_block(k), inv_dx)
+        shape::block_at(array(|l| self.cell(k[l])), self.r_block(k), inv_dx)
     }
 
     /// The cells and [`Local`] coordinates of the particles `k[0], .., k[N - 1]`, a lane each
     /// ([`shape::local_at`]).
     #[inline(always)]
     pub fn local_block<R: Block<N>, const N: usize>(&self, k: &[usize; N], inv_dx: f64) -> ([[u32; 3]; N], Local<R>) {
-        let cell = std::array::from_fn(|l| [self.cell[0][k[l]], self.cell[1][k[l]], self.cell[2][k[l]]]);
+        let cell = array(|l| [self.cell[0][k[l]], self.cell[1][k[l]], self.cell[2][k[l]]]);
         (cell, shape::local_at(self.r_block(k), inv_dx))
     }
 }
