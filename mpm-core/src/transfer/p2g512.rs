@@ -118,16 +118,20 @@ pub(super) unsafe fn scatter<const BODY: bool>(
 }
 
 /// The records of the nodes `idx` out of `data`, transposed.
-#[inline(always)]
+#[target_feature(enable = "avx512f")]
+#[inline]
 fn load(idx: &[usize; 8], data: &[[f64; P2G_WIDTH]]) -> [__m512d; 8] {
-    // SAFETY: each pointer is to `data[i]`, 8 `f64`; the unaligned load reads exactly those.
-    // Called only from `scatter`, whose caller guarantees AVX-512F.
-    let record = |q: usize| unsafe { _mm512_loadu_pd(data[idx[q]].as_ptr()) };
-    transpose([record(0), record(1), record(2), record(3), record(4), record(5), record(6), record(7)])
+    let mut records = [_mm512_setzero_pd(); 8];
+    for (r, &i) in records.iter_mut().zip(idx) {
+        // SAFETY: the pointer is to `data[i]`, 8 `f64`; the unaligned load reads exactly those.
+        *r = unsafe { _mm512_loadu_pd(data[i].as_ptr()) };
+    }
+    transpose(records)
 }
 
 /// [`load`]'s records, transposed back, into `data`.
-#[inline(always)]
+#[target_feature(enable = "avx512f")]
+#[inline]
 fn store(idx: &[usize; 8], sums: [__m512d; 8], data: &mut [[f64; P2G_WIDTH]]) {
     for (&i, &r) in idx.iter().zip(&transpose(sums)) {
         // SAFETY: `data[i]`, 8 `f64` borrowed mutably here; the store writes exactly those.
@@ -136,42 +140,40 @@ fn store(idx: &[usize; 8], sums: [__m512d; 8], data: &mut [[f64; P2G_WIDTH]]) {
 }
 
 /// The 8 x 8 transpose: lane `j` of row `i` is lane `i` of the result's row `j`.
-#[inline(always)]
+#[target_feature(enable = "avx512f")]
+#[inline]
 fn transpose(rows: [__m512d; 8]) -> [__m512d; 8] {
-    // SAFETY: register operations only; called from `scatter`'s AVX-512F code.
-    unsafe {
-        // Lane i of a result: index < 8 from the first operand, index - 8 from the second:
-        // pairs of 128-bit halves, then 256-bit halves.
-        let pairs_lo = _mm512_set_epi64(13, 12, 5, 4, 9, 8, 1, 0);
-        let pairs_hi = _mm512_set_epi64(15, 14, 7, 6, 11, 10, 3, 2);
-        let halves_lo = _mm512_set_epi64(11, 10, 9, 8, 3, 2, 1, 0);
-        let halves_hi = _mm512_set_epi64(15, 14, 13, 12, 7, 6, 5, 4);
-        let [r0, r1, r2, r3, r4, r5, r6, r7] = rows;
-        let t0 = _mm512_unpacklo_pd(r0, r1);
-        let t1 = _mm512_unpackhi_pd(r0, r1);
-        let t2 = _mm512_unpacklo_pd(r2, r3);
-        let t3 = _mm512_unpackhi_pd(r2, r3);
-        let t4 = _mm512_unpacklo_pd(r4, r5);
-        let t5 = _mm512_unpackhi_pd(r4, r5);
-        let t6 = _mm512_unpacklo_pd(r6, r7);
-        let t7 = _mm512_unpackhi_pd(r6, r7);
-        let u0 = _mm512_permutex2var_pd(t0, pairs_lo, t2);
-        let u1 = _mm512_permutex2var_pd(t0, pairs_hi, t2);
-        let u2 = _mm512_permutex2var_pd(t1, pairs_lo, t3);
-        let u3 = _mm512_permutex2var_pd(t1, pairs_hi, t3);
-        let u4 = _mm512_permutex2var_pd(t4, pairs_lo, t6);
-        let u5 = _mm512_permutex2var_pd(t4, pairs_hi, t6);
-        let u6 = _mm512_permutex2var_pd(t5, pairs_lo, t7);
-        let u7 = _mm512_permutex2var_pd(t5, pairs_hi, t7);
-        [
-            _mm512_permutex2var_pd(u0, halves_lo, u4),
-            _mm512_permutex2var_pd(u2, halves_lo, u6),
-            _mm512_permutex2var_pd(u1, halves_lo, u5),
-            _mm512_permutex2var_pd(u3, halves_lo, u7),
-            _mm512_permutex2var_pd(u0, halves_hi, u4),
-            _mm512_permutex2var_pd(u2, halves_hi, u6),
-            _mm512_permutex2var_pd(u1, halves_hi, u5),
-            _mm512_permutex2var_pd(u3, halves_hi, u7),
-        ]
-    }
+    // Lane i of a result: index < 8 from the first operand, index - 8 from the second:
+    // pairs of 128-bit halves, then 256-bit halves.
+    let pairs_lo = _mm512_set_epi64(13, 12, 5, 4, 9, 8, 1, 0);
+    let pairs_hi = _mm512_set_epi64(15, 14, 7, 6, 11, 10, 3, 2);
+    let halves_lo = _mm512_set_epi64(11, 10, 9, 8, 3, 2, 1, 0);
+    let halves_hi = _mm512_set_epi64(15, 14, 13, 12, 7, 6, 5, 4);
+    let [r0, r1, r2, r3, r4, r5, r6, r7] = rows;
+    let t0 = _mm512_unpacklo_pd(r0, r1);
+    let t1 = _mm512_unpackhi_pd(r0, r1);
+    let t2 = _mm512_unpacklo_pd(r2, r3);
+    let t3 = _mm512_unpackhi_pd(r2, r3);
+    let t4 = _mm512_unpacklo_pd(r4, r5);
+    let t5 = _mm512_unpackhi_pd(r4, r5);
+    let t6 = _mm512_unpacklo_pd(r6, r7);
+    let t7 = _mm512_unpackhi_pd(r6, r7);
+    let u0 = _mm512_permutex2var_pd(t0, pairs_lo, t2);
+    let u1 = _mm512_permutex2var_pd(t0, pairs_hi, t2);
+    let u2 = _mm512_permutex2var_pd(t1, pairs_lo, t3);
+    let u3 = _mm512_permutex2var_pd(t1, pairs_hi, t3);
+    let u4 = _mm512_permutex2var_pd(t4, pairs_lo, t6);
+    let u5 = _mm512_permutex2var_pd(t4, pairs_hi, t6);
+    let u6 = _mm512_permutex2var_pd(t5, pairs_lo, t7);
+    let u7 = _mm512_permutex2var_pd(t5, pairs_hi, t7);
+    [
+        _mm512_permutex2var_pd(u0, halves_lo, u4),
+        _mm512_permutex2var_pd(u2, halves_lo, u6),
+        _mm512_permutex2var_pd(u1, halves_lo, u5),
+        _mm512_permutex2var_pd(u3, halves_lo, u7),
+        _mm512_permutex2var_pd(u0, halves_hi, u4),
+        _mm512_permutex2var_pd(u2, halves_hi, u6),
+        _mm512_permutex2var_pd(u1, halves_hi, u5),
+        _mm512_permutex2var_pd(u3, halves_hi, u7),
+    ]
 }
