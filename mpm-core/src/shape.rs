@@ -143,8 +143,8 @@ pub fn local_at<R: Real>(r: [R; 3], inv_dx: f64) -> Local<R> {
 /// [`axis_cell`] takes `max(xi, 0)` through an integer conversion: the same whole number for
 /// every `xi` (NaN: 0 both; below 2^63 the conversion truncates a non-negative number, its
 /// floor; above, both end at `cells - 1`), exact in `f64` below 2^53 cells; at `xi = -0`
-/// the vector `max` gives `+0` (IEEE leaves the sign open; the tests hold it, as a `-0`
-/// cell would flip the sign of `r = 0`). Vector code only where the level has a rounding
+/// [`Real::max`] gives `+0` (its rule: `other` on a tie; `f64::max` leaves the sign open,
+/// and a `-0` cell would flip the sign of `r = 0`: the tests hold it). Vector code only where the level has a rounding
 /// instruction (AVX and up): on the baseline `floor` is a library call per lane, and
 /// [`crate::locate`] takes [`local_coords`] there.
 #[inline(always)]
@@ -265,10 +265,8 @@ mod tests {
             }
         }
         check::<F4, 4>(&points, origin, inv_dx, cells);
-        if crate::simd::SimdLevel::Avx512.is_available() {
+        if crate::simd::avx512_for_test("the 8-lane blocks") {
             check::<F8, 8>(&points, origin, inv_dx, cells);
-        } else {
-            eprintln!("this CPU has no AVX-512F: the 8-lane blocks not checked");
         }
     }
 

@@ -780,8 +780,7 @@ mod tests {
     /// (checked against `update_point` by `check_lanes`): every output bitwise equal.
     fn check_block8<E: PressureModel, const LINEAR: bool>(m: &Material, c: &PointConsts, eos: &E, seed: u64) {
         use crate::simd::F8;
-        if !crate::simd::SimdLevel::Avx512.is_available() {
-            eprintln!("this CPU has no AVX-512F: the 8-lane block of {} not checked", m.name);
+        if !crate::simd::avx512_for_test(&format!("the 8-lane block of {}", m.name)) {
             return;
         }
         let mut u = unit_stream(seed);
