@@ -2,7 +2,8 @@
 #![allow(missing_docs)] // criterion_group! generates undocumented items
 //! locating the particles (cells and local coordinates), P2G scatter, the gather fused with the re-map scatter, stress update (serial, Model 1,
 //! at the widest SIMD level of the CPU), and the parallel strategies'
-//! own work: AE assembly, DD binning and DD assembly (Model 2, 2 threads). The parallel
+//! own work: AE's P2G scatter with its assembly, DD binning and DD assembly (Model 2, 2
+//! threads). The parallel
 //! kernels run as phases of one parallel region of a `Team`, as in the solver's step.
 //!
 //! `cargo bench -p mpm-core --bench kernels` (the `bench` profile inherits `release`).
@@ -107,12 +108,23 @@ fn strategy_kernels(c: &mut Criterion) {
     let mut g = c.benchmark_group("model2-2threads");
     g.sample_size(20);
 
-    let copies = vec![[1.0; 8]; threads * nn];
+    // AE's P2G round trip: each worker's half of the particles into its copy, then the
+    // copies summed (and cleared for the next scatter), as in a step.
     let mut global = vec![[0.0; 8]; nn];
-    g.throughput(Throughput::Elements(nn as u64));
-    g.bench_function("ae_assembly", |b| {
+    let index = NodeIndex::of(&geom, None);
+    let particles = sim.particles();
+    let simd = mpm_core::SimdLevel::detected();
+    let mut located = Located::default();
+    located.locate(&Exec::serial(), &geom, &particles.x, simd);
+    let p2g = transfer::P2g::<false> { geom: &geom, particles, located: &located, body_force: [0.0; 3], simd };
+    let mut copies = mpm_core::grid::Records::<8>::zeroed(threads * nn);
+    g.throughput(Throughput::Elements(x.len() as u64));
+    g.bench_function("ae_p2g_scatter_assembly", |b| {
         b.iter_custom(|iters| {
-            in_region(&team, &pool, iters, |exec| array_expansion::assemble(exec, &mut global, black_box(&copies)))
+            in_region(&team, &pool, iters, |exec| {
+                array_expansion::scatter(exec, nn, &index, x.len(), &mut copies, black_box(&p2g));
+                array_expansion::assemble(exec, &mut global, &mut copies);
+            })
         })
     });
 
@@ -122,12 +134,12 @@ fn strategy_kernels(c: &mut Criterion) {
         b.iter_custom(|iters| in_region(&team, &pool, iters, |exec| dd.prepare(exec, &geom, None, black_box(&x))))
     });
 
-    let subgrids = vec![[1.0; 8]; dd.subgrid_nodes()];
+    let mut subgrids = vec![[1.0; 8]; dd.subgrid_nodes()];
     g.throughput(Throughput::Elements(nn as u64));
     g.bench_function("dd_assembly", |b| {
         b.iter_custom(|iters| {
             in_region(&team, &pool, iters, |exec| {
-                dd.assemble(exec, &geom, &NodeIndex::of(&geom, None), &mut global, black_box(&subgrids))
+                dd.assemble(exec, &geom, &NodeIndex::of(&geom, None), &mut global, black_box(&mut subgrids))
             })
         })
     });

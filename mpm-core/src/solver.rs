@@ -850,7 +850,7 @@ impl Simulation {
             self.engine.scatter(exec, &geom, &index, n, &mut self.nodes.p2g, &mut self.p2g_parts, &p2g);
         }
         lap.lap(&mut self.times, Substage::Scatter);
-        self.engine.assemble(exec, &geom, &index, &mut self.nodes.p2g, &self.p2g_parts);
+        self.engine.assemble(exec, &geom, &index, &mut self.nodes.p2g, &mut self.p2g_parts);
         self.exchange.sum_shared_nodes(&geom, self.nodes.p2g.as_flattened_mut(), P2G_WIDTH)?;
         lap.lap(&mut self.times, Substage::Assembly);
         transfer::grid_update(exec, &geom, &index, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
@@ -868,7 +868,7 @@ impl Simulation {
         let gather_remap = transfer::GatherRemap::new(&geom, kin, &self.located, mass, v, dt, self.simd);
         self.engine.scatter(exec, &geom, &index, n, remap, &mut self.remap_parts, &gather_remap);
         lap.lap(&mut self.times, Substage::RemapScatter);
-        self.engine.assemble(exec, &geom, &index, &mut self.nodes.remap, &self.remap_parts);
+        self.engine.assemble(exec, &geom, &index, &mut self.nodes.remap, &mut self.remap_parts);
         self.exchange.sum_shared_nodes(&geom, self.nodes.remap.as_flattened_mut(), REMAP_WIDTH)?;
         transfer::remap_velocity(exec, &geom, &index, &self.wall_layers, &mut self.nodes, dt, self.mass_tol);
         lap.lap(&mut self.times, Substage::RemapAssembly);

@@ -8,16 +8,17 @@
 //!
 //! * `particles`: particles the worker went over (P2G, the fused gather and re-map, the
 //!   particle update; DD's binning passes, once per pass; the sparse grid's marking pass);
-//! * `nodes_scattered`: node records of the worker's scatter target, which it zeroes and
-//!   scatters into: its copy of the whole grid (AE), its patch's sub-grid (DD), the global
-//!   arrays (serial);
+//! * `nodes_scattered`: node records of the worker's scatter target, which it scatters into:
+//!   its copy of the whole grid (AE; zero already, cleared by the previous assembly), its
+//!   patch's sub-grid (DD) or the global arrays (serial), both zeroed first;
 //! * `nodes_assembled`: global node records the worker wrote in an assembly (AE: its range of
 //!   the grid; DD: its rows of each patch, so a node on a face shared by two patches counts
 //!   twice);
 //! * `nodes_updated`: node records of the worker's part of the node passes (the grid update
 //!   of Eq. 6, the re-map velocities);
 //! * `part_bytes`: bytes of private grids (AE copies) or sub-grids (DD) the worker wrote
-//!   (zeroing them, in the scatters) or read (summing them into the global arrays, in the
+//!   (DD zeroing its sub-grid, in the scatters; AE clearing the records it summed that were
+//!   not zero, in the assemblies) or read (summing them into the global arrays, in the
 //!   assemblies).
 //!
 //! The counts are made once per share of a phase from the sizes of the worker's part (a
@@ -143,22 +144,24 @@ impl<'a> Tally<'a> {
         self.0.add(w, PARTICLES, n(count));
     }
 
-    /// Worker `w` zeroed and scattered into `records` node records of `record_bytes` bytes,
-    /// its own (a private grid or sub-grid: `private`) or the global arrays.
+    /// Worker `w` scattered into `records` node records of `record_bytes` bytes, which it
+    /// zeroed first when they are a private grid or sub-grid of its own (`zeroed_private`:
+    /// their bytes are part bytes).
     #[inline]
-    pub fn scattered(&self, w: usize, records: usize, record_bytes: usize, private: bool) {
+    pub fn scattered(&self, w: usize, records: usize, record_bytes: usize, zeroed_private: bool) {
         self.0.add(w, SCATTERED, n(records));
-        if private {
+        if zeroed_private {
             self.0.add(w, PART_BYTES, n(records * record_bytes));
         }
     }
 
     /// Worker `w` wrote `records` global node records of `record_bytes` bytes in an assembly,
-    /// reading `parts_read` records of private grids or sub-grids.
+    /// reading or writing `part_records` records of private grids or sub-grids (AE: the
+    /// records of every copy in its range, read, and those of them it cleared, written).
     #[inline]
-    pub fn assembled(&self, w: usize, records: usize, parts_read: usize, record_bytes: usize) {
+    pub fn assembled(&self, w: usize, records: usize, part_records: usize, record_bytes: usize) {
         self.0.add(w, ASSEMBLED, n(records));
-        self.0.add(w, PART_BYTES, n(parts_read * record_bytes));
+        self.0.add(w, PART_BYTES, n(part_records * record_bytes));
     }
 
     /// Worker `w` went over `records` node records in a node pass.

@@ -31,21 +31,25 @@ fn w(particles: u64, scattered: u64, assembled: u64, updated: u64, part_bytes: u
 }
 
 /// Array expansion on 2 workers: each scatters its half of the particles into a whole copy
-/// of the 325 nodes (64-byte P2G and 32-byte re-map records); the assembly splits the 325
-/// nodes 162 / 163 and reads both copies of its range; the node passes split the 65 node
-/// rows of 5 nodes 32 / 33 (160 / 165 nodes).
+/// of the 325 nodes (64-byte P2G and 32-byte re-map records), zero already (nothing written
+/// but the scatter); the assembly splits the 325 nodes 162 / 163, reads both copies of its
+/// range and clears the records the particles touched: in cell order worker 0's particles
+/// are the cells of z < 4 (node layers z = 0-4, nodes 0-124 of 25 a layer), worker 1's those
+/// of 4 <= z < 8 (layers 4-8, nodes 100-224), so the assembly of nodes 0-161 clears 125 + 62
+/// records, that of nodes 162-324 clears 63; the node passes split the 65 node rows of 5
+/// nodes 32 / 33 (160 / 165 nodes).
 #[test]
 fn array_expansion_counts_by_hand() {
     let c = run(Strategy::ArrayExpansion, 2, 0.0).work();
     assert_eq!(c.threads(), 2);
     let s = STEPS;
-    for (worker, asm, upd) in [(0, 162, 160), (1, 163, 165)] {
+    for (worker, asm, cleared, upd) in [(0, 162, 125 + 62, 160), (1, 163, 63, 165)] {
         let want = [
-            (Substage::Scatter, w(512 * s, NODES * s, 0, 0, NODES * s * 64)),
-            (Substage::Assembly, w(0, 0, asm * s, 0, 2 * asm * s * 64)),
+            (Substage::Scatter, w(512 * s, NODES * s, 0, 0, 0)),
+            (Substage::Assembly, w(0, 0, asm * s, 0, (2 * asm + cleared) * s * 64)),
             (Substage::GridUpdate, w(0, 0, 0, upd * s, 0)),
-            (Substage::RemapScatter, w(512 * s, NODES * s, 0, 0, NODES * s * 32)),
-            (Substage::RemapAssembly, w(0, 0, asm * s, upd * s, 2 * asm * s * 32)),
+            (Substage::RemapScatter, w(512 * s, NODES * s, 0, 0, 0)),
+            (Substage::RemapAssembly, w(0, 0, asm * s, upd * s, (2 * asm + cleared) * s * 32)),
             (Substage::StressUpdate, w(512 * s, 0, 0, 0, 0)),
         ];
         assert_eq!(c.workers[worker], want.into_iter().collect(), "worker {worker}");

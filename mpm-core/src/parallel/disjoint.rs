@@ -140,6 +140,74 @@ tuple_chunk_set!(A 0, B 1, C 2, D 3, E 4, F 5);
 tuple_chunk_set!(A 0, B 1, C 2, D 3, E 4, F 5, G 6);
 tuple_chunk_set!(A 0, B 1, C 2, D 3, E 4, F 5, G 6, H 7);
 
+/// A column-major table in a slice: `columns` columns of `rows` elements each (the slice's
+/// first `rows * columns` elements), cut by rows: worker `w` of `T` receives rows
+/// [`partition`]`(rows, T, w)` of every column ([`TableRows`]). Array expansion's per-thread
+/// copies read this way: worker `w` sums (and clears) its range of nodes in every copy.
+pub struct Table<'a, T> {
+    slice: DisjointSlice<'a, T>,
+    rows: usize,
+    columns: usize,
+}
+
+impl<'a, T> Table<'a, T> {
+    /// `slice` as `columns` columns of `rows` elements (checked when a phase takes it).
+    pub fn of(slice: &'a mut [T], rows: usize, columns: usize) -> Self {
+        Self { slice: DisjointSlice::new(slice), rows, columns }
+    }
+}
+
+/// Worker `w`'s rows of every column of a [`Table`]: one column's part at a time.
+pub struct TableRows<'a, T> {
+    ptr: *mut T,
+    rows: usize,
+    columns: usize,
+    range: Range<usize>,
+    _borrow: PhantomData<&'a mut [T]>,
+}
+
+impl<T> TableRows<'_, T> {
+    /// Number of columns.
+    pub fn columns(&self) -> usize {
+        self.columns
+    }
+
+    /// This worker's rows of column `j` (the first of them is row `range.start`).
+    #[inline]
+    pub fn column(&mut self, j: usize) -> &mut [T] {
+        assert!(j < self.columns, "column {j} of a table of {}", self.columns);
+        // SAFETY: the table's check put every column's rows inside the borrowed slice; the
+        // range is this worker's rows, which no other worker's part holds in any column (the
+        // ranges of `partition` are disjoint), and `&mut self` keeps one column's slice alive
+        // at a time.
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.add(j * self.rows + self.range.start), self.range.len()) }
+    }
+}
+
+impl<'a, T: Send> sealed::Sealed for Table<'a, T> {
+    type Part = TableRows<'a, T>;
+
+    fn check(&self, _workers: usize) {
+        assert!(
+            self.rows.checked_mul(self.columns).is_some_and(|n| n <= self.slice.len()),
+            "{} columns of {} rows do not fit in an array of {}",
+            self.columns,
+            self.rows,
+            self.slice.len()
+        );
+    }
+
+    #[inline]
+    unsafe fn part(&self, w: usize, workers: usize) -> TableRows<'a, T> {
+        // No reference is made here: the part keeps the raw pointer, and `TableRows::column`
+        // makes a slice of worker w's rows of one column only (in bounds by `check`; disjoint
+        // from every other worker's rows, `partition`'s ranges being disjoint; part w taken
+        // once by the caller's contract).
+        let range = partition(self.rows, workers, w);
+        TableRows { ptr: self.slice.ptr, rows: self.rows, columns: self.columns, range, _borrow: PhantomData }
+    }
+}
+
 /// A mutable slice shared by the workers of one parallel phase, each of which reaches only
 /// elements no other worker reads or writes during that phase.
 ///
@@ -200,6 +268,7 @@ impl<'a, T> DisjointSlice<'a, T> {
 
 #[cfg(all(test, not(loom)))]
 mod tests {
+    use super::sealed::Sealed;
     use super::*;
 
     /// For every split kind and worker count: the checked parts are in bounds, pairwise
@@ -228,6 +297,46 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A table's parts: worker `w` reaches rows `partition(rows, T, w)` of every column and
+    /// nothing else, so every element of the table is reached by exactly one worker (an
+    /// element past the table by none); a table larger than its array is refused.
+    #[test]
+    fn table_parts_are_each_workers_rows_of_every_column() {
+        for (rows, columns) in [(7, 3), (1, 4), (10, 1), (0, 2)] {
+            for workers in 1..=5 {
+                let mut owner = vec![usize::MAX; rows * columns + 2];
+                let table = Table::of(&mut owner, rows, columns);
+                table.check(workers);
+                for w in 0..workers {
+                    // SAFETY: checked for `workers`; each part taken once, used alone.
+                    let mut part = unsafe { table.part(w, workers) };
+                    assert_eq!(part.columns(), columns);
+                    for j in 0..columns {
+                        for (i, o) in part.column(j).iter_mut().enumerate() {
+                            assert_eq!(*o, usize::MAX, "{rows} x {columns}, {workers} workers: element reached twice");
+                            *o = w * 1000 + j * 100 + i;
+                        }
+                    }
+                }
+                for j in 0..columns {
+                    for w in 0..workers {
+                        for (i, r) in partition(rows, workers, w).enumerate() {
+                            assert_eq!(
+                                owner[j * rows + r],
+                                w * 1000 + j * 100 + i,
+                                "{rows} x {columns}: row {r} of column {j}"
+                            );
+                        }
+                    }
+                }
+                assert!(owner[rows * columns..].iter().all(|&o| o == usize::MAX), "a part reached past the table");
+            }
+        }
+        let mut small = [0u8; 5];
+        let refused = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| Table::of(&mut small, 3, 2).check(2)));
+        assert!(refused.is_err(), "3 x 2 table in 5 elements");
     }
 
     /// Splits whose parts would overlap or leave the array are refused before any worker

@@ -33,7 +33,7 @@ mod tally;
 mod team;
 
 pub(crate) use disjoint::DisjointSlice;
-pub use disjoint::{ChunkSet, Parts, Split};
+pub use disjoint::{ChunkSet, Parts, Split, Table, TableRows};
 pub use exec::Exec;
 pub use tally::{Counters, Tally, LANES};
 pub use team::{RegionError, Team};

@@ -657,7 +657,7 @@ impl ScatterStrategy for DomainDecomposition {
         geom: &GridGeom,
         index: &NodeIndex<'_>,
         global: &mut [[f64; K]],
-        subgrids: &[[f64; K]],
+        subgrids: &mut [[f64; K]],
     ) {
         // The row ranges below are disjoint, and inside `global`, only for the grid the
         // patches were cut for, and only if every patch lies inside that grid (the cuts'
@@ -846,16 +846,16 @@ mod tests {
         let mut dd = DomainDecomposition::new(2);
         dd.cut(&geom);
         dd.patches[1].cells[0] += 1;
-        let buf = vec![[0.0; 2]; dd.subgrid_nodes() + 64];
+        let mut buf = vec![[0.0; 2]; dd.subgrid_nodes() + 64];
         let mut global = vec![[0.0; 2]; geom.num_nodes()];
-        in_region(2, |exec| dd.assemble(exec, &geom, &NodeIndex::of(&geom, None), &mut global, &buf));
+        in_region(2, |exec| dd.assemble(exec, &geom, &NodeIndex::of(&geom, None), &mut global, &mut buf));
     }
 
     /// Assemble a sub-grid buffer of distinct values into a NaN-filled global array and
     /// compare with the sum over every patch's nodes.
     fn check_assembly(dd: &DomainDecomposition, geom: &GridGeom, threads: usize) {
         // Distinct small integers and halves: their sums are exact, so equality is exact.
-        let buf: Vec<[f64; 2]> = (0..dd.subgrid_nodes()).map(|i| [1.0 + i as f64, -0.5 * i as f64]).collect();
+        let mut buf: Vec<[f64; 2]> = (0..dd.subgrid_nodes()).map(|i| [1.0 + i as f64, -0.5 * i as f64]).collect();
         let mut want = vec![[0.0; 2]; geom.num_nodes()];
         for (j, p) in dd.patches().iter().enumerate() {
             for s in 0..p.num_nodes() {
@@ -866,7 +866,7 @@ mod tests {
             }
         }
         let mut global = vec![[f64::NAN; 2]; geom.num_nodes()];
-        in_region(threads, |exec| dd.assemble(exec, geom, &NodeIndex::of(geom, None), &mut global, &buf));
+        in_region(threads, |exec| dd.assemble(exec, geom, &NodeIndex::of(geom, None), &mut global, &mut buf));
         assert_eq!(global, want, "cells {:?}, {threads} threads, balanced {}", geom.cells, dd.is_balanced());
     }
 
@@ -887,7 +887,8 @@ mod tests {
                     if balanced { DomainDecomposition::balanced(threads) } else { DomainDecomposition::new(threads) };
                 dd.reserve(&geom, Some(&grid));
                 in_region(threads, |exec| dd.prepare(exec, &geom, Some(&grid), &x));
-                let buf: Vec<[f64; 2]> = (0..dd.subgrid_nodes()).map(|i| [1.0 + i as f64, -0.5 * i as f64]).collect();
+                let mut buf: Vec<[f64; 2]> =
+                    (0..dd.subgrid_nodes()).map(|i| [1.0 + i as f64, -0.5 * i as f64]).collect();
                 let mut want = vec![[0.0; 2]; grid.num_nodes()];
                 for (j, (p, map)) in dd.patches().iter().zip(&dd.patch_blocks).enumerate() {
                     for s in 0..map.len() {
@@ -903,7 +904,7 @@ mod tests {
                     }
                 }
                 let mut global = vec![[f64::NAN; 2]; grid.num_nodes()];
-                in_region(threads, |exec| dd.assemble(exec, &geom, &NodeIndex::Blocks(&grid), &mut global, &buf));
+                in_region(threads, |exec| dd.assemble(exec, &geom, &NodeIndex::Blocks(&grid), &mut global, &mut buf));
                 for s in 0..grid.len() {
                     BlockMap::rows_in(grid.block(s), [0; 3], geom.cells, |_, locals| {
                         for l in locals {

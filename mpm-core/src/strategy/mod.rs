@@ -281,7 +281,7 @@ pub trait ScatterStrategy {
         geom: &GridGeom,
         index: &NodeIndex<'_>,
         global: &mut [[f64; K]],
-        parts: &[[f64; K]],
+        parts: &mut [[f64; K]],
     );
 
     /// Bytes held by the strategy's own tables (not `parts`).
@@ -368,7 +368,7 @@ impl Engine {
         geom: &GridGeom,
         index: &NodeIndex<'_>,
         global: &mut [[f64; K]],
-        parts: &[[f64; K]],
+        parts: &mut [[f64; K]],
     ) {
         dispatch!(self, s => s.assemble(exec, geom, index, global, parts))
     }
@@ -440,7 +440,7 @@ mod tests {
                     let mut run = |exec: &Exec<'_>| {
                         engine.prepare(exec, &geom, blocks, &x);
                         engine.scatter(exec, &geom, &index, x.len(), &mut global, &mut parts, &kernel);
-                        engine.assemble(exec, &geom, &index, &mut global, &parts);
+                        engine.assemble(exec, &geom, &index, &mut global, &mut parts);
                     };
                     if strategy.is_parallel() {
                         Team::new(threads).region(&pool, run).unwrap();

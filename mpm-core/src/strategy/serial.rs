@@ -53,7 +53,7 @@ impl ScatterStrategy for Serial {
         _geom: &GridGeom,
         _index: &NodeIndex<'_>,
         _global: &mut [[f64; K]],
-        _parts: &[[f64; K]],
+        _parts: &mut [[f64; K]],
     ) {
     }
 
