@@ -14,11 +14,11 @@
 #   IMPACT_EXTRA_ARGS  more options for every `mpm run impact`, e.g. "--steps 3" for a smoke
 #                      test into a temporary IMPACT_RESULTS
 #
-# Times on the development machine (2 cores), on the sparse grid (the impact's default), at
-# 425f254: the small model 21 s, 42 s and 1.3 min at 2.12, 1.59 and 1.06 mm cells; the large
-# model (13.5 M particles) 17.6 min with a 3.7 GiB peak (8.3 GiB on the dense adaptive grid
-# at an earlier commit, --grid adaptive: ARCHITECTURE.md, "Memory of the adaptive grid: the
-# sparse grid").
+# Times on the development machine (2 cores), on the sparse grid (the impact's default): the
+# small model 21 s, 42 s and 1.3 min at 2.12, 1.59 and 1.06 mm cells (at 425f254); the large
+# model (13.5 M particles) 14.3 min with a 3.6 GiB peak at fbc342e (17.6 min at 425f254;
+# 8.3 GiB on the dense adaptive grid at an earlier commit, --grid adaptive: ARCHITECTURE.md,
+# "Memory of the adaptive grid: the sparse grid").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 [ -f "$HOME/.cargo/env" ] && . "$HOME/.cargo/env"
