@@ -7,7 +7,7 @@
 //! The columns are zero between steps: the assembly, which reads every record of every
 //! column, sets each record it read back to zero if it is not (bit for bit), so the scatter
 //! starts from zeroed columns without writing `N x T` zeros. On the Taylor bar's fixed grid
-//! most records are never scattered into (Model 3: about 14 % of its cells hold particles),
+//! most records are never scattered into (Model 3: 16 % of its cells hold particles),
 //! so the zeroing writes back only the records the particles touched, where a fill of every
 //! column wrote them all; and the assembly goes over its range in blocks that stay in the
 //! L1 cache between the columns, so the global records are written once, not re-read for
