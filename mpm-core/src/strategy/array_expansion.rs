@@ -51,7 +51,7 @@ pub fn scatter<const K: usize, F>(
 {
     let t = exec.workers();
     columns.resize(nn * t);
-    debug_assert!(columns.iter().all(|r| r.iter().all(|v| v.to_bits() == 0)), "array expansion's columns are zero");
+    debug_assert!(columns.iter().all(is_zero), "array expansion's columns are zero");
     let tally = Tally::of(exec);
     exec.for_each_chunk_mut(Split::Blocks(nn).of(columns), |j, column| {
         let mut nodes = Cursors::global(*index);
@@ -78,14 +78,15 @@ pub fn assemble<const K: usize>(exec: &Exec<'_>, global: &mut [[f64; K]], column
         for start in (0..dst.len()).step_by(block) {
             let end = (start + block).min(dst.len());
             let dst = &mut dst[start..end];
-            let first = &mut cols.column(0)[start..end];
-            dst.copy_from_slice(first);
-            cleared += clear(first);
-            for j in 1..t {
+            for j in 0..t {
                 let src = &mut cols.column(j)[start..end];
-                for (a, b) in dst.iter_mut().zip(src.iter()) {
-                    for k in 0..K {
-                        a[k] += b[k];
+                if j == 0 {
+                    dst.copy_from_slice(src);
+                } else {
+                    for (a, b) in dst.iter_mut().zip(src.iter()) {
+                        for k in 0..K {
+                            a[k] += b[k];
+                        }
                     }
                 }
                 cleared += clear(src);
@@ -95,13 +96,19 @@ pub fn assemble<const K: usize>(exec: &Exec<'_>, global: &mut [[f64; K]], column
     });
 }
 
+/// Whether every value of `record` is `+0.0` (all bits zero: `-0.0` is not).
+#[inline]
+fn is_zero<const K: usize>(record: &[f64; K]) -> bool {
+    record.iter().fold(0, |acc, v| acc | v.to_bits()) == 0
+}
+
 /// Set every record of `records` that is not all zero bits to zero; return how many were.
 /// Records already zero are not written, so their cache lines stay clean.
 #[inline]
 fn clear<const K: usize>(records: &mut [[f64; K]]) -> usize {
     let mut cleared = 0;
     for r in records {
-        if r.iter().fold(0, |acc, v| acc | v.to_bits()) != 0 {
+        if !is_zero(r) {
             *r = [0.0; K];
             cleared += 1;
         }
