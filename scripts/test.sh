@@ -32,4 +32,7 @@ cargo test --workspace --profile o3-test
 step "loom model check of the parallel primitives (mpm-core parallel::)"
 RUSTFLAGS="--cfg loom" CARGO_TARGET_DIR=target/loom cargo test --profile o3-test -p mpm-core --lib parallel::
 
+step "the docs' measured tables against results/ (scripts/docs-tables.sh --check)"
+scripts/docs-tables.sh --check
+
 step "done in $(( $(date +%s) - start )) s"
