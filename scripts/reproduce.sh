@@ -57,7 +57,7 @@ target/o3/mpm-bench bandwidth --threads 1,2 --out "$campaign/bandwidth.json"
 step "figures 7-14, the memory figure and points.csv -> $campaign/figures/"
 target/o3/mpm-bench figures --results "$campaign" --out "$campaign/figures"
 
-step "the paper's claims C1-C6 on this machine"
+step "the paper's claims C1-C7 on this machine"
 target/o3/mpm-bench claims --results "$campaign" --markdown "$campaign/claims.md"
 
 step "the campaign's report: one page to open first"
