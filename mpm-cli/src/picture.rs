@@ -1,26 +1,15 @@
-//! Pictures: the font every figure uses, the radiograph-style side view of the debris cloud
-//! (paper Section 6) and the cloud's history (front and width against time).
+//! Pictures: the radiograph-style side view of the debris cloud (paper Section 6) and the
+//! cloud's history (front and width against time).
 //!
-//! Text is rendered with DejaVu Sans compiled into the program (crate `dejavu`), registered
-//! with plotters' `ab_glyph` backend: no figure depends on the fonts a machine has installed.
+//! Text is rendered with the font compiled into the program ([`mpm_host::fonts`]): no figure
+//! depends on the fonts a machine has installed.
 
 use anyhow::{Context, Result};
 use mpm_core::scenario::impact::{radiograph, HistorySample};
 use mpm_core::Particles;
+use mpm_host::fonts::register_fonts;
 use plotters::prelude::*;
-use plotters::style::FontStyle;
 use std::path::Path;
-use std::sync::Once;
-
-/// Register the embedded DejaVu Sans as `sans-serif` (normal and bold). Idempotent.
-pub fn register_fonts() {
-    static ONCE: Once = Once::new();
-    ONCE.call_once(|| {
-        // The embedded fonts are valid TrueType files: registration cannot fail.
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular());
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Bold, dejavu::sans::bold());
-    });
-}
 
 /// What to annotate on a radiograph.
 #[derive(Clone, Debug)]

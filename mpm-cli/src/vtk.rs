@@ -31,12 +31,12 @@
 //! The collection file `<prefix>.pvd` lists every snapshot with its time and is
 //! rewritten (atomically) after each one, so it is valid even if the run stops early.
 
-use crate::atomic::write_atomic;
 use anyhow::{Context, Result};
 use flate2::write::ZlibEncoder;
 use flate2::Compression;
 use mpm_core::math::{deviator, trace, von_mises};
 use mpm_core::Particles;
+use mpm_host::atomic::write_atomic;
 use std::fmt::Display;
 use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
@@ -517,7 +517,7 @@ impl SnapshotWriter {
         write_vtu(&self.dir.join(&name), particles, time, step, self.encoding)?;
         self.entries.push((time, name));
         self.steps.push(step);
-        write_atomic(&self.pvd_path(), pvd_text(&self.entries).as_bytes())
+        Ok(write_atomic(&self.pvd_path(), pvd_text(&self.entries).as_bytes())?)
     }
 }
 

@@ -1,7 +1,8 @@
 //! The summary of a run for people (stdout), unless `--quiet`.
 
 use mpm_cli::vtk::SnapshotWriter;
-use mpm_cli::{group_digits, pinning};
+use mpm_host::human::group_digits;
+use mpm_host::pinning;
 use mpm_spec::summary::{EndReason, WallContact};
 use mpm_spec::{ScenarioKind, Summary};
 use std::path::Path;
@@ -128,7 +129,7 @@ fn timing(s: &Summary) -> Vec<String> {
             "checkpoints: {} written in {:.3} s (the last {}){restarts}; none of it in the times above",
             c.written,
             c.write_s,
-            mpm_cli::memory::human_bytes(c.last_bytes)
+            mpm_host::human::human_bytes(c.last_bytes)
         ));
     }
     if let Some(w) = s.work.as_ref().filter(|w| w.worker_bytes.len() > 1) {

@@ -3,11 +3,11 @@
 //! spent writing them (left out of the run's wall time).
 
 use anyhow::{bail, Context, Result};
-use mpm_cli::atomic;
 use mpm_cli::picture::{write_history_plot, write_radiograph, RadiographNotes};
 use mpm_cli::vtk::SnapshotWriter;
 use mpm_core::scenario::impact::{self, History, ImpactGeometry};
 use mpm_core::Simulation;
+use mpm_host::atomic;
 use mpm_spec::{RunSpec, Summary};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};

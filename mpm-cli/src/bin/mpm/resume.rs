@@ -16,9 +16,9 @@ use crate::output::Outputs;
 use crate::ranks::Ranks;
 use crate::run::{go, place_rank, sim_config, start_pool, Carry, Checkpoints, Plan, Ready};
 use anyhow::{bail, Context, Result};
-use mpm_cli::checkpoint::{read_file, read_header, Damage, Entry, Folder, Loaded};
 use mpm_cli::distributed::launcher_ranks;
 use mpm_core::{Collectives, OneProcess, Simulation};
+use mpm_host::checkpoint::{read_file, read_header, Damage, Entry, Folder, Loaded};
 use mpm_spec::scenario::Prepared;
 use mpm_spec::RunSpec;
 use std::path::Path;
@@ -173,7 +173,7 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
     // Rank 0 holds the folder from here on: a run still writing into it (the ranks of a run
     // killed with its launcher end a moment after it) is waited for. Then the choice is
     // final.
-    let lock = if rank == 0 { Some(Folder::new(&cmd.dir).lock(LOCK_WAIT)) } else { None };
+    let lock = if rank == 0 { Some(Folder::new(&cmd.dir).lock(LOCK_WAIT).map_err(anyhow::Error::from)) } else { None };
     if failures(ranks.collectives(), lock.as_ref().is_none_or(Result::is_ok))? > 0 {
         return Err(lock
             .and_then(Result::err)
@@ -207,7 +207,7 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
         }
     }
     let header = &loaded.header;
-    let this_binary = mpm_cli::identity::this_binary_sha256();
+    let this_binary = mpm_host::identity::this_binary_sha256();
     if header.binary_sha256 != this_binary {
         bail!(
             "the checkpoint {} was written by another mpm binary (version {}, commit {}, sha256 {}...); this one is \
@@ -218,7 +218,7 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
             header.git_commit,
             header.binary_sha256.chars().take(16).collect::<String>(),
             mpm_cli::summary::VERSION,
-            mpm_cli::identity::GIT_COMMIT,
+            mpm_host::identity::GIT_COMMIT,
             this_binary.chars().take(16).collect::<String>()
         );
     }
@@ -328,7 +328,7 @@ fn continued_spec(cmd: &ResumeCmd, saved: RunSpec) -> Result<RunSpec> {
         spec.threads = cmd.threads.unwrap_or(spec.threads);
         match cmd.cpus.as_deref() {
             Some("none") => spec.cpus = None,
-            Some(list) => spec.cpus = Some(mpm_cli::pinning::parse_cpu_list(list).context("invalid --cpus")?),
+            Some(list) => spec.cpus = Some(mpm_host::pinning::parse_cpu_list(list).context("invalid --cpus")?),
             None if changed && spec.cpus.as_ref().is_some_and(|c| c.len() != spec.threads) => {
                 eprintln!(
                     "note: the run's CPU list was for {} thread(s): continuing unpinned (give --cpus)",

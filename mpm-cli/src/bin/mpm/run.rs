@@ -11,14 +11,14 @@ use crate::output::Outputs;
 use crate::progress::Progress;
 use crate::ranks::Ranks;
 use anyhow::{bail, Context, Result};
-use mpm_cli::checkpoint::Folder;
-use mpm_cli::pinning::{self, PinnedPool};
 use mpm_cli::summary::{self, HistoryRecorder, RunContext, Timing};
-use mpm_cli::usage::UsageMeter;
 use mpm_core::scenario::impact::{self, CloudFigures, History, ImpactGeometry, DEFAULT_HISTORY_INTERVAL};
 use mpm_core::scenario::plate::{PlateGeometry, PlateResult, ShockTracker};
 use mpm_core::scenario::taylor::{self, TaylorFigures};
 use mpm_core::{Collectives, SimConfig, Simulation};
+use mpm_host::checkpoint::Folder;
+use mpm_host::pinning::{self, PinnedPool};
+use mpm_host::usage::UsageMeter;
 use mpm_spec::scenario::Prepared;
 use mpm_spec::spec::Budget;
 use mpm_spec::summary::{CheckpointReport, EndReason, HistoryPoint, RankReport, MIN_CPU_SHARE};
@@ -82,17 +82,17 @@ impl Plan {
 fn check_memory(spec: &RunSpec, force: bool) -> Result<()> {
     let whole = spec.scenario.size().memory_bytes(spec.strategy, spec.threads);
     let estimate = if spec.ranks > 1 { whole / spec.ranks as u64 + RANK_OVERHEAD_BYTES } else { whole };
-    let Some(available) = mpm_cli::memory::available_memory() else { return Ok(()) };
+    let Some(available) = mpm_host::memory::available_memory() else { return Ok(()) };
     if estimate > available && !force {
         bail!(
             "the run needs about {} ({}, {} with {} thread(s){}) but {} is available: use a smaller model \
              (e.g. a coarser --spacing or larger --cell), fewer threads with ae, or --force to try anyway",
-            mpm_cli::memory::human_bytes(estimate),
+            mpm_host::human::human_bytes(estimate),
             spec.scenario.describe(),
             spec.strategy,
             spec.threads,
             if spec.ranks > 1 { format!(", per rank of {}", spec.ranks) } else { String::new() },
-            mpm_cli::memory::human_bytes(available)
+            mpm_host::human::human_bytes(available)
         );
     }
     Ok(())
@@ -515,7 +515,7 @@ impl Request {
 /// `mpm run ...`: the whole run, from its spec (read, or built from the flags on the
 /// launcher's rank count) to its summary.
 pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Result<()> {
-    let started_unix_s = mpm_cli::summary::unix_now();
+    let started_unix_s = mpm_host::clock::unix_now();
     let (requested, from_file) = request.before_start()?;
     let mut ranks = Ranks::start(requested)?;
     let lead = ranks.rank() == 0;
@@ -537,7 +537,7 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
         _ => None,
     };
     if let Some(c) = &spec.outputs.checkpoint {
-        mpm_cli::checkpoint::refuse_used_folder(&c.dir, &mpm_cli::checkpoint::run_key(&spec))?;
+        mpm_host::checkpoint::refuse_used_folder(&c.dir, &mpm_host::checkpoint::run_key(&spec))?;
     }
     let (cpus, rank_oversubscribed) = place_rank(&spec, &mut plan, &ranks)?;
     let mut outputs = if lead { Outputs::open(&spec)? } else { Outputs::none() };
@@ -558,7 +558,7 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
             c.every,
             &spec,
             ranks.rank(),
-            mpm_cli::identity::this_binary_sha256(),
+            mpm_host::identity::this_binary_sha256(),
         )?)),
         None => None,
     };
