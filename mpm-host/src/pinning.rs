@@ -1,8 +1,8 @@
 //! Building the rayon pool of one run, with worker `j` pinned to CPU `cpus[j]`, and
 //! verifying where the workers really are.
 //!
-//! The solver library never pins: `mpm` builds the pool here and passes it to
-//! [`mpm_core::Simulation::step`]. Pinning happens inside each worker, in
+//! The solver library never pins: `mpm` and the harness build the pool here and hand it to
+//! the simulation ([`mpm_core::Simulation::step`]). Pinning happens inside each worker, in
 //! [`rayon::ThreadPoolBuilder::start_handler`], before the worker takes any job. After the
 //! pool is built, one [`rayon::ThreadPool::broadcast`] asks every worker for its actual
 //! affinity mask (`sched_getaffinity`) and the CPU it runs on (`sched_getcpu`), so a
@@ -341,8 +341,7 @@ pub fn build_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool, 
     }
     let pool = builder.build().map_err(|source| PinError::Pool { threads, source })?;
     // Every worker has run its start handler before it takes the broadcast job.
-    let placements: Vec<Result<(Vec<usize>, Option<usize>), PinError>> =
-        pool.broadcast(|_| Ok((current_affinity()?, current_cpu())));
+    let placements = pool.broadcast(|_| Ok::<_, PinError>((current_affinity()?, current_cpu())));
     let failures = std::mem::take(&mut *failures.lock().unwrap_or_else(|e| e.into_inner()));
     if !failures.is_empty() {
         return Err(PinError::Pinning(failures));

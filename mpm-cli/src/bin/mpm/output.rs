@@ -56,7 +56,7 @@ impl Outputs {
     /// The snapshot of the initial state (before the timed loop).
     pub fn initial(&mut self, sim: &Simulation) -> Result<()> {
         match self.snapshots.as_mut() {
-            Some(w) => w.write(0, 0.0, sim.particles()),
+            Some(w) => Ok(w.write(0, 0.0, sim.particles())?),
             None => Ok(()),
         }
     }
