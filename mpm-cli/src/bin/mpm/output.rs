@@ -26,14 +26,10 @@ pub struct Outputs {
 
 impl Outputs {
     /// Check and reserve every output before the run: the JSON summary's file, the snapshot
-    /// directory, the radiograph directory.
-    pub fn open(spec: &RunSpec) -> Result<Self> {
-        Self::open_continued(spec, Vec::new())
-    }
-
-    /// [`Outputs::open`] for a run continued from a checkpoint, whose snapshot collection
-    /// already lists the `written` snapshots `(step, time, file)`.
-    pub fn open_continued(spec: &RunSpec, written: Vec<(u64, f64, String)>) -> Result<Self> {
+    /// directory, the radiograph directory. `written`: the snapshots `(step, time, file)`
+    /// the collection of a run continued from a checkpoint already lists (none for a fresh
+    /// run).
+    pub fn open(spec: &RunSpec, written: Vec<(u64, f64, String)>) -> Result<Self> {
         let o = &spec.outputs;
         let json = o.json.as_deref().map(PendingFile::reserve).transpose()?;
         let name = spec.scenario.kind().name();

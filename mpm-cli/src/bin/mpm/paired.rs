@@ -6,7 +6,7 @@
 //! The summary is the `T`-thread solver's (its times are its warm-up and its blocks); its
 //! `paired` section holds both solvers' seconds per step per block and their ratio.
 
-use crate::run::Interrupted;
+use crate::interrupt::Interrupted;
 use anyhow::{Context, Result};
 use mpm_cli::summary::Timing;
 use mpm_core::{SimConfig, Simulation};
