@@ -16,8 +16,8 @@ use mpm_bench::machine::placement::{PinPolicy, Places, PAPER_THREADS};
 use mpm_bench::machine::topology::{self, Machine};
 use mpm_bench::machine::{bandwidth, fingerprint};
 use mpm_bench::report::{comparison, figures, imbalance as imbalance_figure, impact_table, roofline_table};
-use mpm_cli::atomic::write_atomic;
 use mpm_core::Strategy;
+use mpm_host::atomic::write_atomic;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 

@@ -4,13 +4,13 @@
 //! memory (`VmHWM`, read by [`peak_rss_bytes`]). The type itself, [`Summary`], and the
 //! meaning of each figure are in [`mpm_spec::summary`], shared with the harness.
 
-use crate::identity::provenance_of_this_process;
-use crate::pinning::PinnedPool;
 use mpm_core::grid::Occupancy;
 use mpm_core::scenario::impact::{CloudFigures, History};
 use mpm_core::scenario::plate::{PlateGeometry, PlateResult};
 use mpm_core::scenario::taylor::TaylorFigures;
 use mpm_core::{Simulation, StageTimes};
+use mpm_host::identity::provenance_of_this_process;
+use mpm_host::pinning::PinnedPool;
 use mpm_spec::summary::{
     load_imbalance, CheckpointReport, EndReason, EnergyReport, EosKind, HistoryPoint, PatchCounts, StageRoofline,
     StageSeconds, Summary, WallContact, WorkReport, LENGTH_CONVENTION, PLATE_CONFIGURATION,
@@ -82,11 +82,6 @@ impl HistoryRecorder {
         }
         out
     }
-}
-
-/// Now, in seconds since the Unix epoch (0 if the clock is before it).
-pub fn unix_now() -> f64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// Peak resident memory of this process (`VmHWM` in `/proc/self/status`), bytes.

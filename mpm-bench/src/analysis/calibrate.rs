@@ -681,7 +681,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     if let Some(parent) = path.parent() {
         std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
     }
-    mpm_cli::atomic::write_atomic(&path, serde_json::to_string_pretty(&c)?.as_bytes())
+    mpm_host::atomic::write_atomic(&path, serde_json::to_string_pretty(&c)?.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))?;
     println!("wrote {}", path.display());
     Ok(())

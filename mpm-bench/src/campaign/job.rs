@@ -29,7 +29,7 @@ use super::watch::{HostWatch, WatchSettings};
 use crate::machine::fingerprint;
 use crate::machine::topology::Machine;
 use anyhow::{bail, Context, Result};
-use mpm_cli::atomic::write_atomic;
+use mpm_host::atomic::write_atomic;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Duration;

@@ -8,8 +8,8 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use mpm_cli::atomic::write_atomic;
-use mpm_cli::group_digits;
+use mpm_host::atomic::write_atomic;
+use mpm_host::human::group_digits;
 use mpm_spec::identity::Provenance;
 use mpm_spec::summary::{EnergyReport, Summary};
 use std::path::{Path, PathBuf};

@@ -5,7 +5,7 @@ use super::comparison::{row_counts, Set};
 use super::doc::{Block, Section};
 use crate::campaign::manifest::Manifest;
 use crate::machine::topology::human_bytes;
-use mpm_cli::identity::HostIdentity;
+use mpm_host::identity::HostIdentity;
 
 type Getter = fn(&Manifest) -> String;
 

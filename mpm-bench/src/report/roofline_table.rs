@@ -9,7 +9,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use mpm_cli::atomic::write_atomic;
+use mpm_host::atomic::write_atomic;
 use mpm_spec::summary::Summary;
 use std::path::PathBuf;
 
@@ -111,7 +111,7 @@ pub fn table(runs: &[(String, Summary)], stream: &dyn Fn(usize) -> Option<f64>) 
         out.push_str(&format!(
             "| {label} | **step** ({} x{workers}, {} particles) | {ns:.1} | {bytes:.0} | {flops:.0} | {gb:.2} | {share} | {:.2} |\n",
             s.strategy,
-            mpm_cli::group_digits(s.particles as u64),
+            mpm_host::human::group_digits(s.particles as u64),
             flops / ns,
         ));
     }
