@@ -48,6 +48,7 @@ mod inject;
 pub mod locate;
 pub mod material;
 pub mod math;
+pub mod node_index;
 pub mod order;
 pub mod parallel;
 pub mod particles;
@@ -63,8 +64,9 @@ pub mod work;
 
 pub use error::SimError;
 pub use exchange::{Collectives, Exchange, OneProcess, RankBoxes, SingleProcess};
-pub use grid::{GridGeom, GridMode, GridSpec, NodeIndex, Wall, WallKind};
+pub use grid::{GridGeom, GridMode, GridSpec, Wall, WallKind};
 pub use material::{BulkViscosity, Material, MgForm};
+pub use node_index::NodeIndex;
 pub use particles::Particles;
 pub use scenario::Setup;
 pub use simd::SimdLevel;

@@ -27,25 +27,25 @@ use crate::blocks::BlockMap;
 use crate::energy::{EnergyBalance, Partial};
 use crate::error::SimError;
 use crate::exchange::{reduce_partial, Exchange, ExchangeStats, OneProcess};
-use crate::grid::{
-    GridGeom, GridMode, GridSpec, NodeArrays, NodeIndex, Records, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH,
-};
+use crate::grid::{GridGeom, GridMode, GridSpec, NodeArrays, Records, Wall, WallLayers, P2G_WIDTH, REMAP_WIDTH};
 use crate::inject::Injection;
 use crate::locate::Located;
 use crate::material::{BulkViscosity, Eos, Material, PointConsts};
 use crate::math::{norm, Vec3};
+use crate::node_index::NodeIndex;
 use crate::order::{CellOrder, SORT_EVERY};
 use crate::parallel::{Exec, RegionError, Team};
 use crate::particles::Particles;
 use crate::scenario::Setup;
 use crate::simd::SimdLevel;
 use crate::strategy::{DomainDecomposition, Engine, EngineState, Strategy};
-use crate::timers::{Lap, StageTimes, Substage};
+use crate::timers::{StageTimes, Substage};
 use crate::transfer;
 use crate::work::{WorkCounts, WorkMeter};
 use rayon::ThreadPool;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
+use std::time::Instant;
 
 /// Default CFL number. The paper does not give its value; 0.5 of the cell crossing time of
 /// the fastest signal (`c_p + |v_p|`) keeps the explicit update stable through impacts and
@@ -942,5 +942,26 @@ impl Simulation {
         self.dt_next = self.config.cfl * geom.dx / total.max_speed;
         self.migrated += self.exchange.migrate(&mut self.particles)? as u64;
         Ok(())
+    }
+}
+
+/// A running stopwatch that charges elapsed time, and the work counted meanwhile, to
+/// sub-stages.
+struct Lap<'w> {
+    last: Instant,
+    work: &'w WorkMeter,
+}
+
+impl<'w> Lap<'w> {
+    fn start(work: &'w WorkMeter) -> Self {
+        Self { last: Instant::now(), work }
+    }
+
+    /// Charge the time since the previous lap, and the work counted since, to `s`.
+    fn lap(&mut self, times: &mut StageTimes, s: Substage) {
+        let now = Instant::now();
+        times.add(s, (now - self.last).as_secs_f64());
+        self.work.close(s);
+        self.last = now;
     }
 }

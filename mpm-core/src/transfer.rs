@@ -10,10 +10,11 @@
 
 use crate::blocks::{BlockMap, BLOCK, BLOCK_NODES};
 use crate::energy::Partial;
-use crate::grid::{records, CellNodes, GridGeom, NodeArrays, NodeIndex, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
+use crate::grid::{records, GridGeom, NodeArrays, WallLayers, KIN_WIDTH, P2G_WIDTH, REMAP_WIDTH};
 use crate::locate::Located;
 use crate::material::{update_block, LaneState, PointConsts, PressureModel};
 use crate::math::{Sym, Vec3};
+use crate::node_index::{CellNodes, NodeIndex};
 use crate::parallel::{partition, DisjointSlice, Exec, Split};
 use crate::particles::Particles;
 use crate::simd::{array, Block, Real, SimdLevel, F4, F8, LANES, LANES8};

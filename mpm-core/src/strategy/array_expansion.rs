@@ -17,8 +17,9 @@
 
 use super::{Cursors, Kernel, ScatterStrategy};
 use crate::blocks::BlockMap;
-use crate::grid::{GridGeom, NodeIndex, Records};
+use crate::grid::{GridGeom, Records};
 use crate::math::Vec3;
+use crate::node_index::NodeIndex;
 use crate::parallel::{partition, Exec, Split, Table};
 use crate::work::Tally;
 use std::mem::size_of;

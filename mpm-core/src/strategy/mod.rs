@@ -22,17 +22,20 @@
 pub mod array_expansion;
 pub mod cuts;
 pub mod domain_decomposition;
+pub mod patch;
 pub mod serial;
 
 use crate::blocks::BlockMap;
-use crate::grid::{CellNodes, GridGeom, NodeIndex, Records};
+use crate::grid::{GridGeom, Records};
 use crate::math::Vec3;
+use crate::node_index::{CellNodes, NodeIndex};
 use crate::parallel::Exec;
 use serde::{Deserialize, Serialize};
 
 pub use array_expansion::ArrayExpansion;
 pub use cuts::{imbalance, layouts, quantile_cuts, Cuts, LayoutChooser, PatchLoad, LAYOUT_SLACK};
-pub use domain_decomposition::{patch_layout, Binning, DomainDecomposition, Patch};
+pub use domain_decomposition::{patch_layout, Binning, DomainDecomposition};
+pub use patch::Patch;
 pub use serial::Serial;
 
 /// Which scatter strategy the solver uses: the one type for the solver, the `mpm` program,
