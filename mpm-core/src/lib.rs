@@ -21,18 +21,21 @@
 //!   relations ([`scenario::plate`]).
 //!
 //! Units are SI throughout. The crate has no OS-specific code and starts no threads: the
-//! caller passes the [`rayon::ThreadPool`] to run in (and pins its workers if it wants to).
+//! caller builds the simulation with the [`rayon::ThreadPool`] to run on (and pins its
+//! workers if it wants to); the pool's thread count is the simulation's worker count.
 //!
 //! ```
 //! use mpm_core::{scenario::taylor::TaylorBar, SimConfig, Simulation, Strategy};
+//! use std::sync::Arc;
 //!
 //! let setup = TaylorBar { model: 1, ..Default::default() }.setup()?;
 //! assert_eq!(setup.particles.len(), 56_056);
-//! let config = SimConfig { strategy: Strategy::DomainDecomposition, threads: 2, ..Default::default() };
-//! let mut sim = Simulation::new(setup, config)?;
-//! let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+//! let pool = Arc::new(rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap());
+//! let config = SimConfig { strategy: Strategy::DomainDecomposition, ..Default::default() };
+//! let mut sim = Simulation::new(setup, config, pool)?;
+//! assert_eq!(sim.threads(), 2);
 //! for _ in 0..3 {
-//!     sim.step(&pool, f64::INFINITY)?;
+//!     sim.step(f64::INFINITY)?;
 //! }
 //! assert!(sim.diagnostics().kinetic < sim.initial().kinetic);
 //! println!("grid stage {:.3} s, particle stage {:.3} s", sim.times().grid_stage(), sim.times().particle_stage());
@@ -83,6 +86,13 @@ pub(crate) fn capacity_bytes<T>(v: &Vec<T>) -> usize {
 /// Helpers of the crate's unit tests.
 #[cfg(test)]
 pub(crate) mod testing {
+    use std::sync::Arc;
+
+    /// A rayon pool of `threads` threads, as a simulation or a team takes it.
+    pub(crate) fn pool(threads: usize) -> Arc<rayon::ThreadPool> {
+        Arc::new(rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap())
+    }
+
     /// A reproducible stream of uniform numbers in `[0, 1)` (a 64-bit LCG, top 53 bits):
     /// the random inputs of the unit tests, the same on every machine.
     pub(crate) fn unit_stream(seed: u64) -> impl FnMut() -> f64 {

@@ -58,11 +58,9 @@ pub const DEFAULT_ENERGY_RISE_LIMIT: f64 = 0.05;
 /// Solver settings that are not part of the scenario.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct SimConfig {
-    /// Scatter strategy.
+    /// Scatter strategy. Its worker count is the thread count of the pool the simulation
+    /// is built with ([`Simulation::new`]): 1 for the serial strategy.
     pub strategy: Strategy,
-    /// Worker threads (the pool passed to [`Simulation::step`] must have this many; 1 for
-    /// the serial strategy).
-    pub threads: usize,
     /// Fixed or adaptive grid.
     pub grid_mode: GridMode,
     /// CFL number in `(0, 1]`.
@@ -100,7 +98,6 @@ impl Default for SimConfig {
     fn default() -> Self {
         Self {
             strategy: Strategy::Serial,
-            threads: 1,
             grid_mode: GridMode::Fixed,
             cfl: DEFAULT_CFL,
             body_force: [0.0; 3],
@@ -148,7 +145,7 @@ impl Diagnostics {
 pub struct SimState {
     /// The strategy the state was saved with.
     pub strategy: Strategy,
-    /// Worker threads it was saved with.
+    /// Worker threads it was saved with (its pool's thread count).
     pub threads: usize,
     /// Steps taken.
     pub steps: u64,
@@ -239,9 +236,12 @@ pub struct Simulation {
     released: bool,
     /// The instruction-set level the particle kernels run at (available on this CPU).
     simd: SimdLevel,
+    /// The pool the simulation runs on: its thread count is the simulation's worker count.
+    pool: Arc<ThreadPool>,
     /// The buffers of the cell order's sort.
     order: CellOrder,
-    /// The workers of the parallel strategies, built once; `None` for the serial strategy.
+    /// The workers of the parallel strategies, built once on `pool`; `None` for the serial
+    /// strategy.
     /// Shared (`Arc`) only so that a step can hold the team while it borrows the rest of
     /// the simulation mutably.
     team: Option<Arc<Team>>,
@@ -262,9 +262,10 @@ struct Parts {
     spacing: Vec3,
 }
 
-/// The checks of a configuration every set-up makes; the SIMD level it runs at.
-fn check_config(config: &SimConfig, material: &Material) -> Result<SimdLevel, SimError> {
-    config.strategy.check_threads(config.threads).map_err(SimError::Config)?;
+/// The checks of a configuration every set-up makes, for a pool of `threads` threads (the
+/// one check of the thread count against the strategy); the SIMD level it runs at.
+fn check_config(config: &SimConfig, material: &Material, threads: usize) -> Result<SimdLevel, SimError> {
+    config.strategy.check_threads(threads).map_err(SimError::Config)?;
     if !(config.cfl > 0.0 && config.cfl <= 1.0) {
         return Err(SimError::Config(format!("CFL number must be in (0, 1], got {}", config.cfl)));
     }
@@ -293,9 +294,10 @@ fn check_config(config: &SimConfig, material: &Material) -> Result<SimdLevel, Si
 }
 
 impl Simulation {
-    /// Set up a simulation of `setup` with `config`.
-    pub fn new(setup: Setup, config: SimConfig) -> Result<Self, SimError> {
-        Self::with_exchange(setup, config, Box::new(OneProcess::default()))
+    /// Set up a simulation of `setup` with `config`, running on `pool`: the pool's thread
+    /// count is the simulation's worker count (1 for the serial strategy, checked here).
+    pub fn new(setup: Setup, config: SimConfig, pool: Arc<ThreadPool>) -> Result<Self, SimError> {
+        Self::with_exchange(setup, config, pool, Box::new(OneProcess::default()))
     }
 
     /// Set up this rank's part of a simulation split over ranks by `exchange`.
@@ -304,8 +306,13 @@ impl Simulation {
     /// this rank's part of it ([`crate::scenario::Pick`], which never holds the whole set);
     /// the initial figures (dt, energies, grid) are the whole set's, through the exchange's
     /// reductions.
-    pub fn with_exchange(setup: Setup, config: SimConfig, mut exchange: Box<dyn Exchange>) -> Result<Self, SimError> {
-        let simd = check_config(&config, &setup.material)?;
+    pub fn with_exchange(
+        setup: Setup,
+        config: SimConfig,
+        pool: Arc<ThreadPool>,
+        mut exchange: Box<dyn Exchange>,
+    ) -> Result<Self, SimError> {
+        let simd = check_config(&config, &setup.material, pool.current_num_threads())?;
         let total = setup.part.as_ref().map_or(setup.particles.len() as u64, |p| p.total);
         if total == 0 {
             return Err(SimError::Config("the scenario has no particles".into()));
@@ -366,7 +373,7 @@ impl Simulation {
         let geom = exchange.local_grid(&global);
         let state = SimState {
             strategy: config.strategy,
-            threads: config.threads,
+            threads: pool.current_num_threads(),
             steps: 0,
             time: 0.0,
             dt_next: dt,
@@ -388,7 +395,7 @@ impl Simulation {
             exchange: exchange.stats(),
             work: WorkCounts::default(),
         };
-        Ok(Self::assemble(Parts { material, spec, walls, spacing }, config, exchange, particles, simd, state))
+        Ok(Self::assemble(Parts { material, spec, walls, spacing }, config, pool, exchange, particles, simd, state))
     }
 
     /// The simulation of `state` (with this rank's grid `state.geom`) and `particles`: the
@@ -398,12 +405,14 @@ impl Simulation {
     fn assemble(
         parts: Parts,
         config: SimConfig,
+        pool: Arc<ThreadPool>,
         mut exchange: Box<dyn Exchange>,
         particles: Particles,
         simd: SimdLevel,
         state: SimState,
     ) -> Self {
         let Parts { material, spec, walls, spacing } = parts;
+        let threads = pool.current_num_threads();
         let geom = state.geom;
         let consts = material.consts().with_viscosity(config.bulk_viscosity, spec.dx);
         let mut wall_layers = WallLayers::with_capacity(walls.len());
@@ -415,9 +424,9 @@ impl Simulation {
         });
         let mut nodes = NodeArrays::default();
         nodes.resize(NodeIndex::of(&geom, blocks.as_ref()).num_nodes());
-        let mut engine = Engine::new(config.strategy, config.threads);
+        let mut engine = Engine::new(config.strategy, threads);
         let parts_len = engine.reserve(&geom, blocks.as_ref());
-        let same = state.strategy == config.strategy && state.threads == config.threads;
+        let same = state.strategy == config.strategy && state.threads == threads;
         if same {
             engine.restore(&state.engine);
         }
@@ -425,7 +434,7 @@ impl Simulation {
         Self {
             engine,
             spacing,
-            partials: vec![Partial::default(); config.threads],
+            partials: vec![Partial::default(); threads],
             located: Located::default(),
             consts,
             mass_tol: state.mass_tol,
@@ -457,18 +466,19 @@ impl Simulation {
             released: false,
             simd,
             order: CellOrder::default(),
-            team: config.strategy.is_parallel().then(|| Arc::new(Team::new(config.threads))),
-            busy_before: state.busy.filter(|b| same && b.len() == config.threads),
+            team: config.strategy.is_parallel().then(|| Arc::new(Team::new(Arc::clone(&pool)))),
+            pool,
+            busy_before: state.busy.filter(|b| same && b.len() == threads),
             work: {
                 // The counts go on with the workers they were counted on (a restart with
                 // another strategy or thread count counts afresh, like the busy time).
-                let meter = WorkMeter::new(config.threads);
+                let meter = WorkMeter::new(threads);
                 if same {
                     meter.restore(&state.work);
                 }
                 meter
             },
-            inject: (config.inject_slowdown > 0.0 && config.strategy.is_parallel() && config.threads > 1)
+            inject: (config.inject_slowdown > 0.0 && config.strategy.is_parallel() && threads > 1)
                 .then(|| Injection::new(config.inject_slowdown)),
             config,
         }
@@ -480,7 +490,7 @@ impl Simulation {
     pub fn state(&self) -> SimState {
         SimState {
             strategy: self.config.strategy,
-            threads: self.config.threads,
+            threads: self.threads(),
             steps: self.steps,
             time: self.time,
             dt_next: self.dt_next,
@@ -506,8 +516,8 @@ impl Simulation {
 
     /// Continue a run from its saved `state` and `particles` (in the order they were saved):
     /// the next step is bitwise the one the saved simulation would have taken, when
-    /// `config` has the strategy and thread count `state` was saved with. Another strategy
-    /// or thread count continues the same physics (to round-off, as any two of them agree)
+    /// `config` and `pool` have the strategy and thread count `state` was saved with. Another
+    /// strategy or thread count continues the same physics (to round-off, as any two of them agree)
     /// and starts its strategy's own figures (DD's patch load) and the workers' busy time
     /// afresh.
     ///
@@ -520,12 +530,13 @@ impl Simulation {
     pub fn resume(
         setup: Setup,
         config: SimConfig,
+        pool: Arc<ThreadPool>,
         mut exchange: Box<dyn Exchange>,
         mut particles: Particles,
         ids: Option<Vec<u64>>,
         state: SimState,
     ) -> Result<Self, SimError> {
-        let simd = check_config(&config, &setup.material)?;
+        let simd = check_config(&config, &setup.material, pool.current_num_threads())?;
         let Setup { material, grid: spec, walls, spacing, .. } = setup;
         if exchange.ranks() == 1 && particles.len() as u64 != state.total {
             return Err(SimError::Config(format!(
@@ -551,7 +562,7 @@ impl Simulation {
                 "this rank's part of the grid differs from the saved one: continue the run with the rank count and layout it was saved with".into(),
             ));
         }
-        Ok(Self::assemble(Parts { material, spec, walls, spacing }, config, exchange, particles, simd, state))
+        Ok(Self::assemble(Parts { material, spec, walls, spacing }, config, pool, exchange, particles, simd, state))
     }
 
     /// The particles.
@@ -577,6 +588,16 @@ impl Simulation {
     /// The configuration.
     pub fn config(&self) -> &SimConfig {
         &self.config
+    }
+
+    /// The pool the simulation runs on.
+    pub fn pool(&self) -> &Arc<ThreadPool> {
+        &self.pool
+    }
+
+    /// Worker threads: the pool's thread count.
+    pub fn threads(&self) -> usize {
+        self.pool.current_num_threads()
     }
 
     /// The grid of the last step (the initial grid before the first step); with several
@@ -759,15 +780,14 @@ impl Simulation {
         self.released = true;
     }
 
-    /// Advance one step of at most `dt_max` seconds inside `pool`.
+    /// Advance one step of at most `dt_max` seconds on the simulation's pool.
     ///
-    /// The step runs on the pool's threads (serial: `pool.install`; AE and DD: one
-    /// parallel region of the simulation's team, which needs a pool of exactly
-    /// `config.threads` threads). A caller that steps many times should call this from
-    /// inside `pool.install` itself, which saves a hand-over to the pool per step (100-300 µs
-    /// measured). On error the state is left as the failing step made it and further steps
-    /// return [`SimError::Poisoned`].
-    pub fn step(&mut self, pool: &ThreadPool, dt_max: f64) -> Result<(), SimError> {
+    /// The step runs on the pool's threads (serial: inside the pool's `install`; AE and DD:
+    /// one parallel region of the simulation's team). A caller that steps many times should
+    /// call this from inside the pool's `install` itself ([`Simulation::pool`]), which saves
+    /// a hand-over to the pool per step (100-300 µs measured). On error the state is left as
+    /// the failing step made it and further steps return [`SimError::Poisoned`].
+    pub fn step(&mut self, dt_max: f64) -> Result<(), SimError> {
         if let Some(s) = self.poisoned {
             return Err(SimError::Poisoned(s));
         }
@@ -777,17 +797,16 @@ impl Simulation {
         let every = self.config.sort_every;
         if every > 0 && self.steps.is_multiple_of(every) {
             let start = std::time::Instant::now();
-            let Self { order, geom, particles, exchange, .. } = self;
+            let Self { order, geom, particles, exchange, pool, .. } = self;
             pool.install(|| order.sort(geom, particles, exchange.as_mut()));
             self.times.add(Substage::Reorder, start.elapsed().as_secs_f64());
         }
         let result = match self.team.clone() {
-            None => pool.install(|| self.step_inner(&Exec::serial(), dt_max)),
+            None => Arc::clone(&self.pool).install(|| self.step_inner(&Exec::serial(), dt_max)),
             // One parallel region: worker 0 drives the step, the other workers serve its
             // phases and stay awake in between.
-            Some(team) => match team.region(pool, |exec| self.step_inner(exec, dt_max)) {
+            Some(team) => match team.region(|exec| self.step_inner(exec, dt_max)) {
                 Ok(result) => result,
-                Err(RegionError::PoolSize { got, want }) => return Err(SimError::PoolSize { got, want }),
                 Err(RegionError::Busy) => {
                     unreachable!("only a step enters the simulation's team, and steps take &mut self")
                 }

@@ -772,10 +772,9 @@ mod tests {
     fn update_in_runs_of_one_cell_is_bitwise_each_particle_alone() {
         use crate::material::Eos;
         let setup = crate::scenario::taylor::TaylorBar::default().setup().unwrap();
-        let mut sim = crate::Simulation::new(setup, crate::SimConfig::default()).unwrap();
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let mut sim = crate::Simulation::new(setup, crate::SimConfig::default(), crate::testing::pool(1)).unwrap();
         for _ in 0..3 {
-            sim.step(&pool, f64::INFINITY).unwrap();
+            sim.step(f64::INFINITY).unwrap();
         }
         let geom = *sim.geom();
         let index = NodeIndex::of(&geom, None);

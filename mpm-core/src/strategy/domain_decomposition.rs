@@ -669,8 +669,7 @@ mod tests {
 
     /// Run `f` in a parallel region of `threads` workers: the executor the solver uses.
     fn in_region<R: Send>(threads: usize, f: impl FnOnce(&Exec<'_>) -> R + Send) -> R {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        Team::new(threads).region(&pool, f).unwrap()
+        Team::new(crate::testing::pool(threads)).region(f).unwrap()
     }
 
     /// The paper's worked example: 16 particles, 4 patches, 4 threads.

@@ -439,14 +439,13 @@ mod tests {
                     let len = engine.reserve(&geom, blocks);
                     let (mut global, mut parts) =
                         (vec![[0.0; 1]; index.num_nodes()], crate::grid::Records::<1>::zeroed(len));
-                    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
                     let mut run = |exec: &Exec<'_>| {
                         engine.prepare(exec, &geom, blocks, &x);
                         engine.scatter(exec, &geom, &index, x.len(), &mut global, &mut parts, &kernel);
                         engine.assemble(exec, &geom, &index, &mut global, &mut parts);
                     };
                     if strategy.is_parallel() {
-                        Team::new(threads).region(&pool, run).unwrap();
+                        Team::new(crate::testing::pool(threads)).region(run).unwrap();
                     } else {
                         run(&Exec::serial());
                     }

@@ -22,6 +22,7 @@ use mpm_core::{Collectives, OneProcess, Simulation};
 use mpm_spec::scenario::Prepared;
 use mpm_spec::RunSpec;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// How long `mpm resume` waits for another process to release the checkpoint folder.
@@ -251,7 +252,8 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
     let model_name = setup.model.clone();
     let same = (saved.sim.strategy, saved.sim.threads) == (spec.strategy, spec.threads);
     let exchange = exchange.unwrap_or_else(|| Box::new(OneProcess::default()));
-    let sim = Simulation::resume(setup, sim_config(&spec), exchange, loaded.particles, loaded.ids, saved.sim)
+    let sim_pool = Arc::clone(&pool.pool);
+    let sim = Simulation::resume(setup, sim_config(&spec), sim_pool, exchange, loaded.particles, loaded.ids, saved.sim)
         .context("cannot continue the simulation from the checkpoint")?;
     let mut bytes = [loaded.bytes];
     ranks.collectives().sum_counts(&mut bytes)?;

@@ -138,12 +138,11 @@ pub fn start_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool> 
     Ok(pool)
 }
 
-/// The solver settings the spec asks for: strategy, threads, grid, physics, the injected
-/// slowdown.
+/// The solver settings the spec asks for: strategy, grid, physics, the injected slowdown
+/// (the threads are the pool's).
 pub fn sim_config(spec: &RunSpec) -> SimConfig {
     SimConfig {
         strategy: spec.strategy,
-        threads: spec.threads,
         grid_mode: spec.grid,
         cfl: spec.physics.cfl,
         bulk_viscosity: spec.physics.q,
@@ -153,16 +152,17 @@ pub fn sim_config(spec: &RunSpec) -> SimConfig {
     }
 }
 
-/// The simulation of a built scenario as the spec asks ([`sim_config`]).
+/// The simulation of a built scenario as the spec asks ([`sim_config`]), on `pool`.
 fn simulation(
     spec: &RunSpec,
     setup: mpm_core::Setup,
+    pool: &PinnedPool,
     exchange: Option<Box<dyn mpm_core::Exchange>>,
 ) -> Result<Simulation> {
-    let config = sim_config(spec);
+    let (config, pool) = (sim_config(spec), Arc::clone(&pool.pool));
     match exchange {
-        Some(exchange) => Simulation::with_exchange(setup, config, exchange),
-        None => Simulation::new(setup, config),
+        Some(exchange) => Simulation::with_exchange(setup, config, pool, exchange),
+        None => Simulation::new(setup, config, pool),
     }
     .context("cannot set up the simulation")
 }
@@ -431,7 +431,7 @@ fn step_loop(
                 return Err(Interrupted(sim.steps()).into());
             }
             let dt_max = budget.end_time_s.map_or(f64::INFINITY, |end| end - sim.time());
-            if let Err(e) = sim.step(&ctx.pool.pool, dt_max) {
+            if let Err(e) = sim.step(dt_max) {
                 ctx.progress.inspect(|p| p.bar.abandon());
                 return Err(anyhow::Error::new(e).context(format!(
                     "the simulation failed in the step starting at t = {:.6e} s ({}, strategy {}, {} thread(s)); no summary written",
@@ -548,7 +548,7 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
     let model_name = setup.model.clone();
     // A paired run builds its one-thread reference from the same set-up.
     let reference_setup = spec.paired.map(|_| setup.clone());
-    let sim = simulation(&spec, setup, exchange)?;
+    let sim = simulation(&spec, setup, &pool, exchange)?;
     let (cells, nodes) = (sim.global_geom().num_cells(), sim.global_geom().num_nodes());
     let warmup = spec.budget.warmup.unwrap_or_else(|| spec.default_warmup(sim.dt_first()));
     spec.budget.warmup = Some(warmup);
