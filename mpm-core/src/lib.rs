@@ -9,8 +9,11 @@
 //! * J2 plasticity with hardening `A + B eps_p^n`, the Mie-Grüneisen EOS (Hugoniot-referenced
 //!   by default; the paper's printed Eq. 18 on request), artificial bulk viscosity and
 //!   failure: [`material`];
+//! * the kernels of each phase of the step (P2G, the node passes, the gather fused with the
+//!   re-map, the particle update), shared by every strategy: [`transfer`];
 //! * the three ways to do the nodal scatter, serial, array expansion and domain
-//!   decomposition, which is all that differs between them: [`strategy`];
+//!   decomposition (uniform or balanced cuts), which is all that differs between them:
+//!   [`strategy`];
 //! * the parallel region a step runs in, its phases and the per-worker parts of shared
 //!   arrays, with a safe API: [`parallel`];
 //! * what a step needs from other processes when a run is split over ranks (halo sums,

@@ -20,7 +20,7 @@
 //! particles' global ids (index in the initial set) for dumps and for the scenarios'
 //! figures that tell particles apart by id.
 //!
-//! It runs before a step, in the caller's rayon pool (`install`), on its threads: keys,
+//! It runs before a step, in the simulation's rayon pool (`install`), on its threads: keys,
 //! sort (`par_sort_unstable` on unique keys: the result does not depend on the schedule),
 //! then the arrays gathered component by component through one `f64` buffer. Its memory is
 //! 16 bytes per particle (keys and that buffer), allocated at the first sort and kept. A key

@@ -179,9 +179,9 @@ impl Crew {
     /// are done; re-raise the first panic of a serving worker's share.
     ///
     /// # Safety
-    /// Only the driver of this team's current region may call it (the thread that runs the
-    /// closure of [`Team::region`](super::Team::region); in the loom model, the thread that started the serving
-    /// workers), and not from inside a share of a phase it posted.
+    /// Only the driver of this crew's current region may call it (the thread that runs the
+    /// closure of [`Team::region`](super::Team::region); in the loom model, the thread that
+    /// started the serving workers), and not from inside a share of a phase it posted.
     pub(super) unsafe fn run<F: Fn(usize) + Sync>(&self, f: &F) {
         if self.panicked.swap(false, Ordering::Relaxed) {
             // Left from a phase whose share 0 panicked as well (that panic won).

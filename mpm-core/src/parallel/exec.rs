@@ -10,9 +10,9 @@ use std::marker::PhantomData;
 /// when all shares have finished (a barrier).
 ///
 /// Made by [`Exec::serial`] (one share, on the calling thread) or handed to the closure of
-/// [`Team::region`](super::Team::region) (share `w` on pool thread `w`). An `Exec` is neither `Send` nor `Sync`:
-/// it stays on the thread that drives the phases, and a phase's shares (which must be `Sync`)
-/// cannot capture it, so phases never nest.
+/// [`Team::region`](super::Team::region) (share `w` on pool thread `w`). An `Exec` is neither
+/// `Send` nor `Sync`: it stays on the thread that drives the phases, and a phase's shares
+/// (which must be `Sync`) cannot capture it, so phases never nest.
 pub struct Exec<'a> {
     kind: Kind<'a>,
     workers: usize,

@@ -23,9 +23,10 @@
 //!
 //! The unsafe code lives in `crew.rs` (the team's protocol: the phase closure is shared with
 //! the workers through a raw pointer; its lifetime is guarded by the barrier) and in
-//! `disjoint.rs` (a slice shared by the workers of a phase, reached part by part). `sync.rs` picks the atomics and cells
-//! the protocol uses: std's in normal builds, loom's model-checked ones under `--cfg loom`
-//! (`RUSTFLAGS="--cfg loom" cargo test -p mpm-core --lib parallel::`).
+//! `disjoint.rs` (a slice shared by the workers of a phase, reached part by part).
+//! `sync.rs` picks the atomics and cells the protocol uses: std's in normal builds, loom's
+//! model-checked ones under `--cfg loom` (`RUSTFLAGS="--cfg loom" cargo test -p mpm-core
+//! --lib parallel::`).
 
 mod crew;
 mod disjoint;

@@ -71,9 +71,9 @@ impl Team {
         self.crew.busy_seconds()
     }
 
-    /// Run `f` as one parallel region on the team's pool: `f` runs on pool thread 0 (the driver) and
-    /// runs phases through the [`Exec`] it is given; the other pool threads serve those
-    /// phases and stay awake in between. Returns `f`'s result.
+    /// Run `f` as one parallel region on the team's pool: `f` runs on pool thread 0 (the
+    /// driver) and runs phases through the [`Exec`] it is given; the other pool threads serve
+    /// those phases and stay awake in between. Returns `f`'s result.
     ///
     /// Returns (or re-raises a panic of `f` or of any share) only after every worker has
     /// left the region, so nothing `f` borrows is used after it. Refused with

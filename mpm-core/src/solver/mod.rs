@@ -76,7 +76,8 @@ pub struct SimConfig {
     /// reported as a blow-up.
     pub blowup_factor: f64,
     /// A step after which the total energy (less the body forces' work) exceeds the initial
-    /// total by more than this fraction ends the run with [`SimError::EnergyRise`](crate::SimError::EnergyRise)
+    /// total by more than this fraction ends the run with
+    /// [`SimError::EnergyRise`](crate::SimError::EnergyRise)
     /// (default 0.05; `f64::INFINITY` turns the check off). See [`EnergyBalance`].
     pub energy_rise_limit: f64,
     /// Artificial bulk viscosity (shock capturing), on by default with `c1 = 1.5`,
@@ -202,7 +203,8 @@ pub struct Simulation {
     spec: GridSpec,
     /// The whole problem's grid; `geom` is this rank's part of it (the same with one rank).
     global: GridGeom,
-    /// Halo sums, migration and reductions over ranks (one process: [`OneProcess`](crate::OneProcess)).
+    /// Halo sums, migration and reductions over ranks (one process:
+    /// [`OneProcess`](crate::OneProcess)).
     exchange: Box<dyn Exchange>,
     /// Particles that left this rank over the steps taken.
     migrated: u64,

@@ -31,9 +31,9 @@ use crate::simd::SimdLevel;
 use crate::strategy::Cursors;
 
 /// A scatter kernel's loop over a strategy's particles, which the kernel may run a block
-/// of particles at a time ([`P2g`]: the shape functions of [`LANES`](crate::simd::LANES) particles as
-/// vectors, [`Located::shape_block`](crate::locate::Located::shape_block), then each
-/// particle's additions to its 8 nodes).
+/// of particles at a time ([`P2g`]: the shape functions of [`LANES`](crate::simd::LANES)
+/// particles as vectors, [`Located::shape_block`](crate::locate::Located::shape_block), then
+/// each particle's additions to its 8 nodes).
 trait Blocked<const K: usize> {
     /// Add the values of the particles `ids`, in order, into `data`.
     fn blocks(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; K]]);
