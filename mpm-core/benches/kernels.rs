@@ -16,15 +16,16 @@ use mpm_core::scenario::taylor::TaylorBar;
 use mpm_core::strategy::{array_expansion, serial, DomainDecomposition, ScatterStrategy};
 use mpm_core::{transfer, NodeIndex, SimConfig, Simulation};
 use std::hint::black_box;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// A simulation of `model` after a few steps, so nodes and stresses are not trivial.
 fn warmed(model: u8) -> Simulation {
     let setup = TaylorBar { model, ..Default::default() }.setup().unwrap();
-    let mut sim = Simulation::new(setup, SimConfig::default()).unwrap();
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let pool = Arc::new(rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap());
+    let mut sim = Simulation::new(setup, SimConfig::default(), pool).unwrap();
     for _ in 0..5 {
-        sim.step(&pool, f64::INFINITY).unwrap();
+        sim.step(f64::INFINITY).unwrap();
     }
     sim
 }
@@ -86,15 +87,15 @@ fn serial_kernels(c: &mut Criterion) {
 
 /// Time `iters` runs of `kernel` as phases of one region of `team` (workers awake between
 /// phases, as in a step).
-fn in_region(team: &Team, pool: &rayon::ThreadPool, iters: u64, mut kernel: impl FnMut(&Exec<'_>) + Send) -> Duration {
-    team.region(pool, |exec| {
+fn in_region(team: &Team, iters: u64, mut kernel: impl FnMut(&Exec<'_>) + Send) -> Duration {
+    team.region(|exec| {
         let start = Instant::now();
         for _ in 0..iters {
             kernel(exec);
         }
         start.elapsed()
     })
-    .expect("the team matches the pool")
+    .expect("one region of the team at a time")
 }
 
 fn strategy_kernels(c: &mut Criterion) {
@@ -102,8 +103,7 @@ fn strategy_kernels(c: &mut Criterion) {
     let geom = *sim.geom();
     let x = sim.particles().x.clone();
     let threads = 2;
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-    let team = Team::new(threads);
+    let team = Team::new(Arc::new(rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap()));
     let nn = geom.num_nodes();
     let mut g = c.benchmark_group("model2-2threads");
     g.sample_size(20);
@@ -121,7 +121,7 @@ fn strategy_kernels(c: &mut Criterion) {
     g.throughput(Throughput::Elements(x.len() as u64));
     g.bench_function("ae_p2g_scatter_assembly", |b| {
         b.iter_custom(|iters| {
-            in_region(&team, &pool, iters, |exec| {
+            in_region(&team, iters, |exec| {
                 array_expansion::scatter(exec, nn, &index, x.len(), &mut copies, black_box(&p2g));
                 array_expansion::assemble(exec, &mut global, &mut copies);
             })
@@ -131,14 +131,14 @@ fn strategy_kernels(c: &mut Criterion) {
     let mut dd = DomainDecomposition::new(threads);
     g.throughput(Throughput::Elements(x.len() as u64));
     g.bench_function("dd_binning", |b| {
-        b.iter_custom(|iters| in_region(&team, &pool, iters, |exec| dd.prepare(exec, &geom, None, black_box(&x))))
+        b.iter_custom(|iters| in_region(&team, iters, |exec| dd.prepare(exec, &geom, None, black_box(&x))))
     });
 
     let mut subgrids = vec![[1.0; 8]; dd.subgrid_nodes()];
     g.throughput(Throughput::Elements(nn as u64));
     g.bench_function("dd_assembly", |b| {
         b.iter_custom(|iters| {
-            in_region(&team, &pool, iters, |exec| {
+            in_region(&team, iters, |exec| {
                 dd.assemble(exec, &geom, &NodeIndex::of(&geom, None), &mut global, black_box(&mut subgrids))
             })
         })

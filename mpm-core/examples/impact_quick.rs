@@ -11,12 +11,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let spacing: f64 = a.get(4).map_or(Ok(0.53), |s| s.parse())?;
     let (setup, geometry) = Impact { cell: cell * 1e-3, spacing: spacing * 1e-3, ..Default::default() }.setup()?;
     println!("{} particles", setup.particles.len());
-    let config = SimConfig { strategy, threads, grid_mode: GridMode::Adaptive, ..Default::default() };
-    let mut sim = Simulation::new(setup, config)?;
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let config = SimConfig { strategy, grid_mode: GridMode::Adaptive, ..Default::default() };
+    let pool = std::sync::Arc::new(rayon::ThreadPoolBuilder::new().num_threads(threads).build()?);
+    let mut sim = Simulation::new(setup, config, pool)?;
     let t = std::time::Instant::now();
     while sim.time() < DEFAULT_END_TIME * (1.0 - 1e-12) {
-        sim.step(&pool, DEFAULT_END_TIME - sim.time())?;
+        sim.step(DEFAULT_END_TIME - sim.time())?;
     }
     let f = measure(sim.particles(), &geometry);
     println!(

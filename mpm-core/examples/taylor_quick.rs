@@ -11,11 +11,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let max_steps: u64 = a.get(4).map_or(Ok(u64::MAX), |s| s.parse())?;
     let setup = TaylorBar { model, ..Default::default() }.setup()?;
     let spacing = setup.spacing;
-    let mut sim = Simulation::new(setup, SimConfig { strategy, threads, ..Default::default() })?;
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let pool = std::sync::Arc::new(rayon::ThreadPoolBuilder::new().num_threads(threads).build()?);
+    let mut sim = Simulation::new(setup, SimConfig { strategy, ..Default::default() }, pool)?;
     let t = std::time::Instant::now();
     while sim.time() < 40e-6 * (1.0 - 1e-12) && sim.steps() < max_steps {
-        sim.step(&pool, 40e-6 - sim.time())?;
+        sim.step(40e-6 - sim.time())?;
     }
     let wall = t.elapsed().as_secs_f64();
     let f = measure(sim.particles(), spacing);

@@ -344,9 +344,9 @@ mod tests {
         let mut one = BlockMap::default();
         one.build(&Exec::serial(), &geom, &x);
         for threads in [2, 3, 5] {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let team = crate::parallel::Team::new(crate::testing::pool(threads));
             let mut many = BlockMap::default();
-            crate::parallel::Team::new(threads).region(&pool, |exec| many.build(exec, &geom, &x)).unwrap();
+            team.region(|exec| many.build(exec, &geom, &x)).unwrap();
             assert_eq!((many.table.clone(), many.blocks.clone()), (one.table.clone(), one.blocks.clone()));
         }
     }

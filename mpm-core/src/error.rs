@@ -20,14 +20,6 @@ pub enum SimError {
         /// Which constant is wrong, its admissible range and its value.
         problem: String,
     },
-    /// The thread pool does not match the configured thread count.
-    #[error("the thread pool has {got} threads but the simulation was set up for {want}: build the pool with ThreadPoolBuilder::new().num_threads({want})")]
-    PoolSize {
-        /// Threads in the pool.
-        got: usize,
-        /// Threads in the configuration.
-        want: usize,
-    },
     /// NaN or infinity appeared: the run has blown up.
     #[error("step {step}: {count} particle(s) have non-finite (NaN or infinite) state; the run blew up. Reduce the CFL number (now {cfl}) or check the material and initial conditions")]
     NonFinite {

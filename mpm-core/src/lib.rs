@@ -9,8 +9,11 @@
 //! * J2 plasticity with hardening `A + B eps_p^n`, the Mie-Grüneisen EOS (Hugoniot-referenced
 //!   by default; the paper's printed Eq. 18 on request), artificial bulk viscosity and
 //!   failure: [`material`];
+//! * the kernels of each phase of the step (P2G, the node passes, the gather fused with the
+//!   re-map, the particle update), shared by every strategy: [`transfer`];
 //! * the three ways to do the nodal scatter, serial, array expansion and domain
-//!   decomposition, which is all that differs between them: [`strategy`];
+//!   decomposition (uniform or balanced cuts), which is all that differs between them:
+//!   [`strategy`];
 //! * the parallel region a step runs in, its phases and the per-worker parts of shared
 //!   arrays, with a safe API: [`parallel`];
 //! * what a step needs from other processes when a run is split over ranks (halo sums,
@@ -21,18 +24,21 @@
 //!   relations ([`scenario::plate`]).
 //!
 //! Units are SI throughout. The crate has no OS-specific code and starts no threads: the
-//! caller passes the [`rayon::ThreadPool`] to run in (and pins its workers if it wants to).
+//! caller builds the simulation with the [`rayon::ThreadPool`] to run on (and pins its
+//! workers if it wants to); the pool's thread count is the simulation's worker count.
 //!
 //! ```
 //! use mpm_core::{scenario::taylor::TaylorBar, SimConfig, Simulation, Strategy};
+//! use std::sync::Arc;
 //!
 //! let setup = TaylorBar { model: 1, ..Default::default() }.setup()?;
 //! assert_eq!(setup.particles.len(), 56_056);
-//! let config = SimConfig { strategy: Strategy::DomainDecomposition, threads: 2, ..Default::default() };
-//! let mut sim = Simulation::new(setup, config)?;
-//! let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+//! let pool = Arc::new(rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap());
+//! let config = SimConfig { strategy: Strategy::DomainDecomposition, ..Default::default() };
+//! let mut sim = Simulation::new(setup, config, pool)?;
+//! assert_eq!(sim.threads(), 2);
 //! for _ in 0..3 {
-//!     sim.step(&pool, f64::INFINITY)?;
+//!     sim.step(f64::INFINITY)?;
 //! }
 //! assert!(sim.diagnostics().kinetic < sim.initial().kinetic);
 //! println!("grid stage {:.3} s, particle stage {:.3} s", sim.times().grid_stage(), sim.times().particle_stage());
@@ -48,6 +54,7 @@ mod inject;
 pub mod locate;
 pub mod material;
 pub mod math;
+pub mod node_index;
 pub mod order;
 pub mod parallel;
 pub mod particles;
@@ -63,8 +70,9 @@ pub mod work;
 
 pub use error::SimError;
 pub use exchange::{Collectives, Exchange, OneProcess, RankBoxes, SingleProcess};
-pub use grid::{GridGeom, GridMode, GridSpec, NodeIndex, Wall, WallKind};
+pub use grid::{GridGeom, GridMode, GridSpec, Wall, WallKind};
 pub use material::{BulkViscosity, Material, MgForm};
+pub use node_index::NodeIndex;
 pub use particles::Particles;
 pub use scenario::Setup;
 pub use simd::SimdLevel;
@@ -81,6 +89,13 @@ pub(crate) fn capacity_bytes<T>(v: &Vec<T>) -> usize {
 /// Helpers of the crate's unit tests.
 #[cfg(test)]
 pub(crate) mod testing {
+    use std::sync::Arc;
+
+    /// A rayon pool of `threads` threads, as a simulation or a team takes it.
+    pub(crate) fn pool(threads: usize) -> Arc<rayon::ThreadPool> {
+        Arc::new(rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap())
+    }
+
     /// A reproducible stream of uniform numbers in `[0, 1)` (a 64-bit LCG, top 53 bits):
     /// the random inputs of the unit tests, the same on every machine.
     pub(crate) fn unit_stream(seed: u64) -> impl FnMut() -> f64 {

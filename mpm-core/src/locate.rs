@@ -250,10 +250,10 @@ mod tests {
         x.rotate_right(4);
         for simd in SimdLevel::ALL.into_iter().filter(|s| s.is_available()) {
             for workers in [1, 2] {
-                let pool = rayon::ThreadPoolBuilder::new().num_threads(workers).build().unwrap();
+                let team = Team::new(crate::testing::pool(workers));
                 for len in [0, 1, 3, 4, 7, 8, 9, 17, x.len()] {
                     let mut located = Located::default();
-                    Team::new(workers).region(&pool, |exec| located.locate(exec, &geom, &x[..len], simd)).unwrap();
+                    team.region(|exec| located.locate(exec, &geom, &x[..len], simd)).unwrap();
                     assert_eq!(located.len(), len);
                     for (p, &xp) in x[..len].iter().enumerate() {
                         let (cell, r) = local_coords(xp, geom.origin, geom.inv_dx, geom.cells);

@@ -7,7 +7,7 @@
 //! Why: the scatters and the particle update read and write the 8 nodes of each particle's
 //! cell. Neighbouring particles in memory then touch neighbouring nodes, so the node records
 //! a block of particles needs stay in the caches while it goes through, and the repeated
-//! cell look-ups of [`crate::grid::CellNodes`] hit; and the particles of one cell are
+//! cell look-ups of [`crate::node_index::CellNodes`] hit; and the particles of one cell are
 //! neighbours in memory, so the particle update reads a run of them's 8 node records once
 //! (`transfer::update`). The particles start in the order their
 //! scenario made them (layer by layer); the debris of an impact mixes that order within tens
@@ -20,7 +20,7 @@
 //! particles' global ids (index in the initial set) for dumps and for the scenarios'
 //! figures that tell particles apart by id.
 //!
-//! It runs before a step, in the caller's rayon pool (`install`), on its threads: keys,
+//! It runs before a step, in the simulation's rayon pool (`install`), on its threads: keys,
 //! sort (`par_sort_unstable` on unique keys: the result does not depend on the schedule),
 //! then the arrays gathered component by component through one `f64` buffer. Its memory is
 //! 16 bytes per particle (keys and that buffer), allocated at the first sort and kept. A key

@@ -3,7 +3,6 @@
 //! enough to leave on in every run.
 
 use serde::{Deserialize, Serialize};
-use std::time::Instant;
 
 /// One sub-stage of the MUSL step, in execution order (which is also its order: `Ord`).
 /// Serialised by its [`Substage::name`].
@@ -146,26 +145,5 @@ impl<'de> Deserialize<'de> for StageTimes {
             times.add(s, *secs);
         }
         Ok(times)
-    }
-}
-
-/// A running stopwatch that charges elapsed time, and the work counted meanwhile, to
-/// sub-stages.
-pub(crate) struct Lap<'w> {
-    last: Instant,
-    work: &'w crate::work::WorkMeter,
-}
-
-impl<'w> Lap<'w> {
-    pub fn start(work: &'w crate::work::WorkMeter) -> Self {
-        Self { last: Instant::now(), work }
-    }
-
-    /// Charge the time since the previous lap, and the work counted since, to `s`.
-    pub fn lap(&mut self, times: &mut StageTimes, s: Substage) {
-        let now = Instant::now();
-        times.add(s, (now - self.last).as_secs_f64());
-        self.work.close(s);
-        self.last = now;
     }
 }

@@ -35,19 +35,19 @@ static GLOBAL: Counting = Counting;
 fn allocations_per_step(model: u8, strategy: Strategy, threads: usize, grid: GridMode) -> f64 {
     let setup = TaylorBar { model, ..Default::default() }.setup().unwrap();
     // Sorts into cell order before steps 1, 8 and 15: the window below holds two of them.
-    let config = SimConfig { strategy, threads, grid_mode: grid, sort_every: SORT_EVERY, ..Default::default() };
-    let mut sim = Simulation::new(setup, config).unwrap();
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+    let config = SimConfig { strategy, grid_mode: grid, sort_every: SORT_EVERY, ..Default::default() };
+    let pool = std::sync::Arc::new(rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap());
+    let mut sim = Simulation::new(setup, config, pool).unwrap();
     let warmup = 5;
     for _ in 0..warmup {
-        sim.step(&pool, f64::INFINITY).unwrap();
+        sim.step(f64::INFINITY).unwrap();
     }
     let before = ALLOCATIONS.load(Ordering::Relaxed);
     // Across sorts into cell order: the sorts after the first allocate nothing either.
     let steps = 10;
     assert!((warmup..warmup + steps).any(|s| s % SORT_EVERY == 0));
     for _ in 0..steps {
-        sim.step(&pool, f64::INFINITY).unwrap();
+        sim.step(f64::INFINITY).unwrap();
     }
     (ALLOCATIONS.load(Ordering::Relaxed) - before) as f64 / steps as f64
 }

@@ -11,11 +11,10 @@ use mpm_core::{GridMode, Particles, Setup, SimConfig, SimdLevel, Simulation, Str
 const THREADS: [usize; 6] = [1, 2, 3, 4, 6, 8];
 
 fn run(setup: &Setup, strategy: Strategy, threads: usize, grid_mode: GridMode, steps: usize) -> Simulation {
-    let config = SimConfig { strategy, threads, grid_mode, ..Default::default() };
-    let mut sim = Simulation::new(setup.clone(), config).unwrap();
-    let pool = pool(threads);
+    let config = SimConfig { strategy, grid_mode, ..Default::default() };
+    let mut sim = Simulation::new(setup.clone(), config, pool(threads)).unwrap();
     for _ in 0..steps {
-        sim.step(&pool, f64::INFINITY).unwrap();
+        sim.step(f64::INFINITY).unwrap();
     }
     sim
 }
@@ -133,13 +132,20 @@ fn balanced_cuts_even_out_the_impact() {
     assert!(imbalance[1] < 1.15, "balanced imbalance {}", imbalance[1]);
 }
 
+/// The thread count is the pool's: a simulation built on a pool of 4 threads runs 4 workers
+/// and saves 4 in its state; the serial strategy on a pool of 2 threads is refused where the
+/// pool is handed in.
 #[test]
-fn a_pool_of_the_wrong_size_is_an_error() {
+fn the_thread_count_is_the_pools() {
     let setup = TaylorBar::default().setup().unwrap();
-    let config = SimConfig { strategy: Strategy::ArrayExpansion, threads: 4, ..Default::default() };
-    let mut sim = Simulation::new(setup, config).unwrap();
-    let err = sim.step(&pool(2), f64::INFINITY).unwrap_err();
-    assert!(err.to_string().contains("num_threads(4)"), "{err}");
+    let config = SimConfig { strategy: Strategy::ArrayExpansion, ..Default::default() };
+    let mut sim = Simulation::new(setup.clone(), config, pool(4)).unwrap();
+    sim.step(f64::INFINITY).unwrap();
+    assert_eq!((sim.threads(), sim.state().threads), (4, 4));
+    assert_eq!(sim.worker_busy().map(|b| b.len()), Some(4));
+    assert_eq!(sim.work().threads(), 4);
+    let err = Simulation::new(setup, SimConfig::default(), pool(2)).err().unwrap();
+    assert!(err.to_string().contains("exactly 1 thread, not 2"), "{err}");
 }
 
 /// The sparse grid stores only the blocks of nodes the particles touch, and gives bitwise the
@@ -207,13 +213,11 @@ fn dispatch_levels_agree_bitwise() {
     for (setup, grid_mode, steps) in &cases {
         for (strategy, threads) in [(Strategy::Serial, 1), (Strategy::DomainDecomposition, 2)] {
             let at = |simd| {
-                let config =
-                    SimConfig { strategy, threads, grid_mode: *grid_mode, simd: Some(simd), ..Default::default() };
-                let mut sim = Simulation::new(setup.clone(), config).unwrap();
+                let config = SimConfig { strategy, grid_mode: *grid_mode, simd: Some(simd), ..Default::default() };
+                let mut sim = Simulation::new(setup.clone(), config, pool(threads)).unwrap();
                 assert_eq!(sim.simd_level(), simd);
-                let pool = pool(threads);
                 for _ in 0..*steps {
-                    sim.step(&pool, f64::INFINITY).unwrap();
+                    sim.step(f64::INFINITY).unwrap();
                 }
                 sim
             };

@@ -14,8 +14,8 @@ fn coarse() -> (Setup, ImpactGeometry) {
     Impact { spacing: 2.5e-3, cell: 5.0e-3, ..Default::default() }.setup().unwrap()
 }
 
-fn config(strategy: Strategy, threads: usize) -> SimConfig {
-    SimConfig { strategy, threads, grid_mode: GridMode::Adaptive, ..Default::default() }
+fn config(strategy: Strategy) -> SimConfig {
+    SimConfig { strategy, grid_mode: GridMode::Adaptive, ..Default::default() }
 }
 
 #[test]
@@ -24,15 +24,14 @@ fn coarse_impact_conserves_mass_momentum_and_energy_fails_material_and_measures_
     let n = setup.particles.len();
     assert!((5_000..20_000).contains(&n), "{n} particles");
     let mass = setup.particles.total_mass();
-    let mut sim = Simulation::new(setup, config(Strategy::Serial, 1)).unwrap();
-    let pool = pool(1);
+    let mut sim = Simulation::new(setup, config(Strategy::Serial), pool(1)).unwrap();
     let p0 = sim.initial().momentum;
     let ke0 = sim.initial().kinetic;
     let end = 30.6e-6;
     let mut history = History::new(DEFAULT_HISTORY_INTERVAL).unwrap();
     assert!(history.observe(&sim, &geometry, &mut SingleProcess).unwrap(), "the initial state is the first sample");
     while sim.time() < end * (1.0 - 1e-12) {
-        sim.step(&pool, end - sim.time()).unwrap();
+        sim.step(end - sim.time()).unwrap();
         history.observe(&sim, &geometry, &mut SingleProcess).unwrap();
         // Mass: the grid carries exactly the particles' mass (Eq. 1, partition of unity).
         let grid_mass: f64 = sim.nodes().p2g[..sim.geom().num_nodes()].iter().map(|n| n[0]).sum();
@@ -104,11 +103,10 @@ fn failed_particles_keep_no_negative_internal_energy_and_the_balance_books_what_
     // cells), which left up to 60 particles below zero to the end: failed particles whose
     // work deficit (see mpm_core::material::failure) froze once their pressure was clipped.
     let (setup, _) = Impact { spacing: 1.06e-3, cell: 5.0e-3, ..Default::default() }.setup().unwrap();
-    let mut sim = Simulation::new(setup, config(Strategy::Serial, 1)).unwrap();
-    let pool = pool(1);
+    let mut sim = Simulation::new(setup, config(Strategy::Serial), pool(1)).unwrap();
     let end = 30.6e-6;
     while sim.time() < end * (1.0 - 1e-12) {
-        sim.step(&pool, end - sim.time()).unwrap();
+        sim.step(end - sim.time()).unwrap();
     }
     let (b, d, e0) = (*sim.energy_balance(), sim.diagnostics(), sim.initial().total());
     println!("{} steps, {b:?}", sim.steps());
@@ -131,10 +129,9 @@ fn failed_particles_keep_no_negative_internal_energy_and_the_balance_books_what_
 fn coarse_impact_ae_and_dd_match_serial() {
     let (setup, _) = coarse();
     let run = |strategy, threads| {
-        let mut sim = Simulation::new(setup.clone(), config(strategy, threads)).unwrap();
-        let pool = pool(threads);
+        let mut sim = Simulation::new(setup.clone(), config(strategy), pool(threads)).unwrap();
         for _ in 0..40 {
-            sim.step(&pool, f64::INFINITY).unwrap();
+            sim.step(f64::INFINITY).unwrap();
         }
         sim
     };

@@ -59,14 +59,13 @@ fn try_run(
     let velocity = plate.velocity;
     let (setup, geometry) = plate.setup()?;
     let config = SimConfig { cfl: CFL, bulk_viscosity: bulk_viscosity.unwrap_or_default(), ..Default::default() };
-    let mut sim = Simulation::new(setup, config)?;
-    let pool = pool(1);
+    let mut sim = Simulation::new(setup, config, pool(1))?;
     let mut tracker = ShockTracker::new(geometry);
     let end = geometry.end_time();
     let e0 = sim.initial().total();
     let mut worst = 0.0f64;
     while sim.time() < end * (1.0 - 1e-12) {
-        sim.step(&pool, end - sim.time())?;
+        sim.step(end - sim.time())?;
         tracker.observe(&sim, &mut SingleProcess)?;
         worst = worst.max((sim.diagnostics().total() / e0 - 1.0).abs());
     }

@@ -10,22 +10,33 @@ use common::*;
 use mpm_core::scenario::taylor::TaylorBar;
 use mpm_core::{GridMode, OneProcess, Particles, SimConfig, SimState, Simulation, Strategy};
 
-fn config(strategy: Strategy, threads: usize, grid_mode: GridMode) -> SimConfig {
-    SimConfig { strategy, threads, grid_mode, ..Default::default() }
+/// A configuration and the thread count of the pool it runs on.
+#[derive(Clone)]
+struct Run {
+    config: SimConfig,
+    threads: usize,
 }
 
-fn step(sim: &mut Simulation, threads: usize, steps: u64) {
-    let pool = pool(threads);
+fn config(strategy: Strategy, threads: usize, grid_mode: GridMode) -> Run {
+    Run { config: SimConfig { strategy, grid_mode, ..Default::default() }, threads }
+}
+
+/// A fresh simulation of `setup` as `run` says.
+fn start(setup: &mpm_core::Setup, run: &Run) -> Simulation {
+    Simulation::new(setup.clone(), run.config.clone(), pool(run.threads)).unwrap()
+}
+
+fn step(sim: &mut Simulation, steps: u64) {
     for _ in 0..steps {
-        sim.step(&pool, f64::INFINITY).unwrap();
+        sim.step(f64::INFINITY).unwrap();
     }
 }
 
 /// `setup` stepped `first` steps under `before`, saved, dropped, continued under `after`
 /// from the saved state and particles only, for `then` more steps.
-fn continued(setup: &mpm_core::Setup, before: SimConfig, after: SimConfig, first: u64, then: u64) -> Simulation {
-    let mut sim = Simulation::new(setup.clone(), before.clone()).unwrap();
-    step(&mut sim, before.threads, first);
+fn continued(setup: &mpm_core::Setup, before: Run, after: Run, first: u64, then: u64) -> Simulation {
+    let mut sim = start(setup, &before);
+    step(&mut sim, first);
     let (state, particles) = (sim.state(), sim.particles().clone());
     // The particles' global ids: the cell order has moved them from their indices.
     let ids: Vec<u64> = (0..particles.len()).map(|p| sim.exchange().global_id(p)).collect();
@@ -33,18 +44,25 @@ fn continued(setup: &mpm_core::Setup, before: SimConfig, after: SimConfig, first
     drop(sim);
     // What a restart has: the set-up without particles, the saved state and particles.
     let bare = mpm_core::Setup { particles: Particles::default(), ..setup.clone() };
-    let threads = after.threads;
-    let same = (before.strategy, before.threads) == (after.strategy, after.threads);
-    let mut sim =
-        Simulation::resume(bare, after, Box::new(OneProcess::default()), particles, Some(ids.clone()), state.clone())
-            .unwrap();
+    let same = (before.config.strategy, before.threads) == (after.config.strategy, after.threads);
+    let exchange = Box::new(OneProcess::default());
+    let mut sim = Simulation::resume(
+        bare,
+        after.config,
+        pool(after.threads),
+        exchange,
+        particles,
+        Some(ids.clone()),
+        state.clone(),
+    )
+    .unwrap();
     assert!((0..ids.len()).all(|p| sim.exchange().global_id(p) == ids[p]), "the ids are taken back");
     if same {
         // Taken back whole: the state before any step is the saved one (the balanced cuts'
         // layout in use included, which only a later step's choice would show).
         assert_eq!(untimed(sim.state()), untimed(state), "the state right after the restart");
     }
-    step(&mut sim, threads, then);
+    step(&mut sim, then);
     sim
 }
 
@@ -71,8 +89,8 @@ fn a_continued_run_is_bitwise_the_uninterrupted_one() {
     for (setup, grid, strategy, threads) in cases {
         let what = format!("{} {grid:?} {strategy} x{threads}", setup.model);
         let c = config(strategy, threads, grid);
-        let mut whole = Simulation::new(setup.clone(), c.clone()).unwrap();
-        step(&mut whole, threads, 30);
+        let mut whole = start(setup, &c);
+        step(&mut whole, 30);
         let resumed = continued(setup, c.clone(), c, 13, 17);
         assert!(whole.particles() == resumed.particles(), "{what}: particles differ");
         assert_eq!(untimed(whole.state()), untimed(resumed.state()), "{what}: state");
@@ -94,11 +112,10 @@ fn a_continued_run_is_bitwise_the_uninterrupted_one() {
 fn the_balanced_layout_in_use_survives_a_restart() {
     let impact = mini_impact();
     let c = config(Strategy::DdBalanced, 6, GridMode::Adaptive);
-    let mut whole = Simulation::new(impact.clone(), c.clone()).unwrap();
+    let mut whole = start(&impact, &c);
     let mut layouts = Vec::new();
-    let pool = pool(6);
     for _ in 0..40 {
-        whole.step(&pool, f64::INFINITY).unwrap();
+        whole.step(f64::INFINITY).unwrap();
         layouts.push(whole.domain_decomposition().unwrap().layout());
     }
     for split in [5, 11, 23] {
@@ -114,13 +131,13 @@ fn the_balanced_layout_in_use_survives_a_restart() {
 fn another_strategy_after_a_restart_agrees_to_round_off() {
     let taylor = TaylorBar::default().setup().unwrap();
     let serial = config(Strategy::Serial, 1, GridMode::Fixed);
-    let mut whole = Simulation::new(taylor.clone(), serial.clone()).unwrap();
-    step(&mut whole, 1, 40);
+    let mut whole = start(&taylor, &serial);
+    step(&mut whole, 40);
     for other in [
         config(Strategy::DomainDecomposition, 2, GridMode::Fixed),
         config(Strategy::ArrayExpansion, 3, GridMode::Fixed),
     ] {
-        let what = format!("serial -> {} x{}", other.strategy, other.threads);
+        let what = format!("serial -> {} x{}", other.config.strategy, other.threads);
         let resumed = continued(&taylor, serial.clone(), other, 20, 20);
         let rel = |a: f64, b: f64| ((a - b) / a).abs();
         let (a, b) = (whole.diagnostics(), resumed.diagnostics());
@@ -144,10 +161,11 @@ fn another_strategy_after_a_restart_agrees_to_round_off() {
 fn particles_of_another_run_are_refused() {
     let taylor = TaylorBar::default().setup().unwrap();
     let c = config(Strategy::Serial, 1, GridMode::Fixed);
-    let sim = Simulation::new(taylor.clone(), c.clone()).unwrap();
+    let sim = start(&taylor, &c);
     let mut particles = sim.particles().clone();
     particles.swap_remove(0);
     let bare = mpm_core::Setup { particles: Particles::default(), ..taylor };
-    let err = Simulation::resume(bare, c, Box::new(OneProcess::default()), particles, None, sim.state()).err().unwrap();
+    let exchange = Box::new(OneProcess::default());
+    let err = Simulation::resume(bare, c.config, pool(1), exchange, particles, None, sim.state()).err().unwrap();
     assert!(err.to_string().contains("different runs"), "{err}");
 }

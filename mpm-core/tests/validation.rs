@@ -27,13 +27,12 @@ fn elastic_wave_speed_in_a_confined_bar_is_within_2_percent_of_theory() {
     let (dx, h) = (0.5e-3, 60e-3);
     let v0 = 1.0;
     let setup = confined_column(m, 2.0 * dx, h, dx, |_| [0.0, 0.0, -v0]);
-    let mut sim = Simulation::new(setup, SimConfig { cfl: 0.2, ..Default::default() }).unwrap();
-    let pool = pool(1);
+    let mut sim = Simulation::new(setup, SimConfig { cfl: 0.2, ..Default::default() }, pool(1)).unwrap();
     let (z1, z2) = (15e-3, 45e-3);
     let (mut t1, mut t2) = (None, None);
     let (mut prev1, mut prev2, mut prev_t) = (-v0, -v0, 0.0);
     while t2.is_none() && sim.time() < 2.0 * h / c_theory {
-        sim.step(&pool, f64::INFINITY).unwrap();
+        sim.step(f64::INFINITY).unwrap();
         let (a, b, t) = (layer_velocity(&sim, z1, dx / 2.0), layer_velocity(&sim, z2, dx / 2.0), sim.time());
         // The compression front brings the bar to rest: the arrival time is when the layer's
         // velocity crosses -v0/2 (linear interpolation between steps).
@@ -61,13 +60,12 @@ fn vibrating_bar_period_is_within_2_percent_of_theory() {
     let (dx, l, v0) = (1.0e-3, 25e-3, 0.5);
     let setup =
         confined_column(m, 2.0 * dx, l, dx, |x| [0.0, 0.0, v0 * (std::f64::consts::PI * x[2] / (2.0 * l)).sin()]);
-    let mut sim = Simulation::new(setup, SimConfig { cfl: 0.3, ..Default::default() }).unwrap();
-    let pool = pool(1);
+    let mut sim = Simulation::new(setup, SimConfig { cfl: 0.3, ..Default::default() }, pool(1)).unwrap();
     let period = 4.0 * l / c;
     let mut crossings = Vec::new();
     let mut prev = (sim.initial().momentum[2], 0.0);
     while crossings.len() < 3 && sim.time() < 2.0 * period {
-        sim.step(&pool, f64::INFINITY).unwrap();
+        sim.step(f64::INFINITY).unwrap();
         let (p, t) = (sim.diagnostics().momentum[2], sim.time());
         if (p > 0.0) != (prev.0 > 0.0) {
             crossings.push(prev.1 + prev.0 / (prev.0 - p) * (t - prev.1));
@@ -87,12 +85,11 @@ fn colliding_elastic_spheres_conserve_total_energy_within_2_percent() {
     let (r, dx, v) = (0.1, 0.02, 1.0);
     let setup = two_spheres(m, r, dx, v, 2);
     let config = SimConfig { grid_mode: GridMode::Adaptive, cfl: 0.4, ..Default::default() };
-    let mut sim = Simulation::new(setup, config).unwrap();
-    let pool = pool(1);
+    let mut sim = Simulation::new(setup, config, pool(1)).unwrap();
     let e0 = sim.initial().kinetic;
     let (mut worst, mut min_ke, mut rebounded) = (0.0f64, f64::INFINITY, false);
     while sim.time() < 0.12 {
-        sim.step(&pool, f64::INFINITY).unwrap();
+        sim.step(f64::INFINITY).unwrap();
         let d = sim.diagnostics();
         worst = worst.max(((d.kinetic + d.internal) / e0 - 1.0).abs());
         min_ke = min_ke.min(d.kinetic);
@@ -122,13 +119,12 @@ fn momentum_is_conserved_to_round_off_in_free_flight() {
     }
     for strategy in [Strategy::Serial, Strategy::DomainDecomposition, Strategy::ArrayExpansion] {
         let threads = if strategy == Strategy::Serial { 1 } else { 2 };
-        let config = SimConfig { strategy, threads, grid_mode: GridMode::Adaptive, ..Default::default() };
-        let mut sim = Simulation::new(setup.clone(), config).unwrap();
-        let pool = pool(threads);
+        let config = SimConfig { strategy, grid_mode: GridMode::Adaptive, ..Default::default() };
+        let mut sim = Simulation::new(setup.clone(), config, pool(threads)).unwrap();
         let p0 = sim.initial().momentum;
         let scale = sim.particles().total_mass() * 10.0;
         for _ in 0..100 {
-            sim.step(&pool, f64::INFINITY).unwrap();
+            sim.step(f64::INFINITY).unwrap();
         }
         let p = sim.diagnostics().momentum;
         for d in 0..3 {
@@ -142,11 +138,10 @@ fn momentum_is_conserved_to_round_off_in_free_flight() {
 fn taylor_bar_model1_final_length_and_rest() {
     let setup = TaylorBar::default().setup().unwrap();
     let spacing = setup.spacing;
-    let mut sim = Simulation::new(setup, SimConfig::default()).unwrap();
-    let pool = pool(1);
+    let mut sim = Simulation::new(setup, SimConfig::default(), pool(1)).unwrap();
     let end = 40e-6;
     while sim.time() < end * (1.0 - 1e-12) {
-        sim.step(&pool, end - sim.time()).unwrap();
+        sim.step(end - sim.time()).unwrap();
     }
     assert!((sim.time() - end).abs() < 1e-15);
     let f = measure(sim.particles(), spacing);
@@ -177,10 +172,10 @@ fn kinetic_plus_internal_energy_is_conserved_to_round_off_with_walls_plasticity_
         (WallKind::Slip, BulkViscosity::OFF),
     ] {
         let setup = TaylorBar { velocity: 200.0, wall, ..Default::default() }.setup().unwrap();
-        let mut sim = Simulation::new(setup, SimConfig { bulk_viscosity: viscosity, ..Default::default() }).unwrap();
-        let pool = pool(1);
+        let mut sim =
+            Simulation::new(setup, SimConfig { bulk_viscosity: viscosity, ..Default::default() }, pool(1)).unwrap();
         for _ in 0..150 {
-            sim.step(&pool, f64::INFINITY).unwrap();
+            sim.step(f64::INFINITY).unwrap();
         }
         let b = sim.energy_balance();
         let d = sim.diagnostics();
@@ -194,20 +189,19 @@ fn kinetic_plus_internal_energy_is_conserved_to_round_off_with_walls_plasticity_
     }
 }
 
-/// Taylor bar Model 1 after three serial steps, and its pool.
-fn model1_after_three_steps() -> (Simulation, rayon::ThreadPool) {
+/// Taylor bar Model 1 after three serial steps.
+fn model1_after_three_steps() -> Simulation {
     let setup = TaylorBar::default().setup().unwrap();
-    let mut sim = Simulation::new(setup, SimConfig::default()).unwrap();
-    let pool = pool(1);
+    let mut sim = Simulation::new(setup, SimConfig::default(), pool(1)).unwrap();
     for _ in 0..3 {
-        sim.step(&pool, f64::INFINITY).unwrap();
+        sim.step(f64::INFINITY).unwrap();
     }
-    (sim, pool)
+    sim
 }
 
 #[test]
 fn energy_created_outside_the_scheme_stops_the_run_at_that_step() {
-    let (mut sim, pool) = model1_after_three_steps();
+    let mut sim = model1_after_three_steps();
     assert!(sim.energy_balance().max_rise < 1e-12);
     // Heat every particle by 10 % of the initial total energy.
     let heat = |sim: &mut Simulation| {
@@ -215,7 +209,7 @@ fn energy_created_outside_the_scheme_stops_the_run_at_that_step() {
         sim.particles_mut().e_int.iter_mut().for_each(|e| *e += de);
     };
     heat(&mut sim);
-    let err = sim.step(&pool, f64::INFINITY).unwrap_err();
+    let err = sim.step(f64::INFINITY).unwrap_err();
     let SimError::EnergyRise { step, rise, limit, .. } = err else { panic!("expected an energy rise, got {err:?}") };
     assert_eq!((step, limit), (4, 0.05));
     assert!((rise - 0.1).abs() < 1e-9, "{rise}");
@@ -224,35 +218,36 @@ fn energy_created_outside_the_scheme_stops_the_run_at_that_step() {
     assert!((sim.energy_balance().max_rise - 0.1).abs() < 1e-9);
     // A limit of infinity turns the check off.
     let setup = TaylorBar::default().setup().unwrap();
-    let mut sim = Simulation::new(setup, SimConfig { energy_rise_limit: f64::INFINITY, ..Default::default() }).unwrap();
-    sim.step(&pool, f64::INFINITY).unwrap();
+    let mut sim =
+        Simulation::new(setup, SimConfig { energy_rise_limit: f64::INFINITY, ..Default::default() }, pool(1)).unwrap();
+    sim.step(f64::INFINITY).unwrap();
     heat(&mut sim);
-    sim.step(&pool, f64::INFINITY).unwrap();
+    sim.step(f64::INFINITY).unwrap();
 }
 
 #[test]
 fn bad_material_viscosity_and_rise_limit_are_clear_errors() {
     let mut setup = TaylorBar::default().setup().unwrap();
     setup.material.poisson = 0.55;
-    let e = Simulation::new(setup, SimConfig::default()).err().unwrap();
+    let e = Simulation::new(setup, SimConfig::default(), pool(1)).err().unwrap();
     assert!(matches!(e, SimError::Material { .. }) && e.to_string().contains("Poisson"), "{e}");
     let setup = TaylorBar::default().setup().unwrap();
     let bad_q = SimConfig { bulk_viscosity: BulkViscosity { c1: -1.5, c2: 0.06 }, ..Default::default() };
-    let e = Simulation::new(setup.clone(), bad_q).err().unwrap();
+    let e = Simulation::new(setup.clone(), bad_q, pool(1)).err().unwrap();
     assert!(matches!(e, SimError::Config(_)) && e.to_string().contains("c1"), "{e}");
-    let e = Simulation::new(setup, SimConfig { energy_rise_limit: 0.0, ..Default::default() }).err().unwrap();
+    let e = Simulation::new(setup, SimConfig { energy_rise_limit: 0.0, ..Default::default() }, pool(1)).err().unwrap();
     assert!(e.to_string().contains("energy rise limit"), "{e}");
 }
 
 #[test]
 fn nan_is_reported_with_its_step_number() {
-    let (mut sim, pool) = model1_after_three_steps();
+    let mut sim = model1_after_three_steps();
     sim.particles_mut().v[1234] = [f64::NAN, 0.0, 0.0];
-    let err = sim.step(&pool, f64::INFINITY).unwrap_err();
+    let err = sim.step(f64::INFINITY).unwrap_err();
     assert!(matches!(err, SimError::NonFinite { step: 4, .. }), "{err:?}");
     assert!(err.to_string().contains("step 4"));
     // The simulation refuses to continue.
-    assert!(matches!(sim.step(&pool, f64::INFINITY), Err(SimError::Poisoned(4))));
+    assert!(matches!(sim.step(f64::INFINITY), Err(SimError::Poisoned(4))));
 }
 
 /// After the last step the grid's arrays can be freed (before a state dump gathers every
@@ -260,7 +255,7 @@ fn nan_is_reported_with_its_step_number() {
 /// refuses another step instead of stepping on empty arrays.
 #[test]
 fn released_grid_arrays_free_their_memory_and_refuse_another_step() {
-    let (mut sim, pool) = model1_after_three_steps();
+    let mut sim = model1_after_three_steps();
     let (before, nodes, located) = (sim.memory_bytes(), sim.nodes().bytes(), sim.located().bytes());
     let (x, energy) = (sim.particles().x.clone(), sim.diagnostics());
     assert!(nodes > 0 && located >= 36 * sim.particles().len());
@@ -268,7 +263,7 @@ fn released_grid_arrays_free_their_memory_and_refuse_another_step() {
     assert_eq!((sim.nodes().bytes(), sim.located().bytes()), (0, 0));
     assert_eq!(sim.memory_bytes(), before - nodes - located);
     assert_eq!((&sim.particles().x, sim.diagnostics()), (&x, energy));
-    let err = sim.step(&pool, f64::INFINITY).unwrap_err();
+    let err = sim.step(f64::INFINITY).unwrap_err();
     assert!(matches!(err, SimError::Released(3)), "{err:?}");
     assert_eq!(sim.particles().x, x, "the refused step changed nothing");
 }
@@ -280,35 +275,34 @@ fn released_grid_arrays_free_their_memory_and_refuse_another_step() {
 #[test]
 fn created_energy_stops_the_run_at_its_step() {
     for (factor, blow_up) in [(3.0, true), (1.10, false)] {
-        let (mut sim, pool) = model1_after_three_steps();
+        let mut sim = model1_after_three_steps();
         let mass: f64 = sim.particles().mass.iter().sum();
         let total = sim.diagnostics().total();
         let add = (factor - 1.0) * total / mass;
         sim.particles_mut().e_int.iter_mut().for_each(|e| *e += add);
-        let err = sim.step(&pool, f64::INFINITY).unwrap_err();
+        let err = sim.step(f64::INFINITY).unwrap_err();
         if blow_up {
             assert!(matches!(err, SimError::EnergyBlowUp { step: 4, .. }), "{err:?}");
         } else {
             assert!(matches!(err, SimError::EnergyRise { step: 4, rise, .. } if (rise - 0.10).abs() < 0.01), "{err:?}");
         }
         assert!(err.to_string().starts_with("step 4:"), "{err}");
-        assert!(matches!(sim.step(&pool, f64::INFINITY), Err(SimError::Poisoned(4))), "no step after the error");
+        assert!(matches!(sim.step(f64::INFINITY), Err(SimError::Poisoned(4))), "no step after the error");
     }
 }
 
 #[test]
 fn leaving_the_fixed_grid_is_an_error_not_a_clamp() {
     let setup = TaylorBar { velocity: 0.0, ..Default::default() }.setup().unwrap();
-    let mut sim = Simulation::new(setup, SimConfig::default()).unwrap();
+    let mut sim = Simulation::new(setup, SimConfig::default(), pool(1)).unwrap();
     // The top layer flies upwards out of the grid (z > L0).
     let n = sim.particles().len();
     for v in &mut sim.particles_mut().v[n - 616..] {
         *v = [0.0, 0.0, 2000.0];
     }
-    let pool = pool(1);
     let mut err = None;
     for _ in 0..20 {
-        if let Err(e) = sim.step(&pool, f64::INFINITY) {
+        if let Err(e) = sim.step(f64::INFINITY) {
             err = Some(e);
             break;
         }

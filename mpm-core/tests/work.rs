@@ -16,12 +16,11 @@ fn run(strategy: Strategy, threads: usize, inject: f64) -> Simulation {
     let dx = 1e-3;
     let setup = confined_column(elastic_copper(), 4.0 * dx, 8.0 * dx, dx, |_| [0.0, 0.0, -50.0]);
     assert_eq!(setup.particles.len() as u64, PARTICLES);
-    let config = SimConfig { strategy, threads, inject_slowdown: inject, ..SimConfig::default() };
-    let mut sim = Simulation::new(setup, config).unwrap();
+    let config = SimConfig { strategy, inject_slowdown: inject, ..SimConfig::default() };
+    let mut sim = Simulation::new(setup, config, pool(threads)).unwrap();
     assert_eq!(sim.stored_nodes() as u64, NODES);
-    let pool = pool(threads);
     for _ in 0..STEPS {
-        sim.step(&pool, f64::INFINITY).unwrap();
+        sim.step(f64::INFINITY).unwrap();
     }
     sim
 }
@@ -123,13 +122,8 @@ fn a_bad_injection_is_refused() {
     let dx = 1e-3;
     for f in [1.0, -0.1, f64::NAN] {
         let setup = confined_column(elastic_copper(), 4.0 * dx, 8.0 * dx, dx, |_| [0.0; 3]);
-        let config = SimConfig {
-            strategy: Strategy::DomainDecomposition,
-            threads: 2,
-            inject_slowdown: f,
-            ..SimConfig::default()
-        };
-        let err = Simulation::new(setup, config).err().unwrap().to_string();
+        let config = SimConfig { strategy: Strategy::DomainDecomposition, inject_slowdown: f, ..SimConfig::default() };
+        let err = Simulation::new(setup, config, pool(2)).err().unwrap().to_string();
         assert!(err.contains("injected slowdown"), "{err}");
     }
 }

@@ -74,7 +74,7 @@ impl<'p> Contender<'p> {
             let mut taken = 0;
             while taken < steps {
                 let Some(dt_max) = limit(sim) else { break };
-                sim.step(pool, dt_max)?;
+                sim.step(dt_max)?;
                 taken += 1;
             }
             Ok::<u64, SimError>(taken)

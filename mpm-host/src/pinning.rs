@@ -258,8 +258,9 @@ pub struct WorkerPlacement {
 /// The pool of one run and what its workers report about their placement.
 #[derive(Debug)]
 pub struct PinnedPool {
-    /// The pool, with exactly the requested number of workers.
-    pub pool: ThreadPool,
+    /// The pool, with exactly the requested number of workers (shared with the simulation
+    /// that runs on it).
+    pub pool: Arc<ThreadPool>,
     /// The requested CPU list (empty when not pinned).
     pub requested: Vec<usize>,
     /// One entry per worker, in worker order.
@@ -354,7 +355,7 @@ pub fn build_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool, 
             Ok(WorkerPlacement { worker: j, requested: requested.get(j).copied(), affinity, cpu })
         })
         .collect::<Result<Vec<_>, PinError>>()?;
-    Ok(PinnedPool { pool, requested, workers })
+    Ok(PinnedPool { pool: Arc::new(pool), requested, workers })
 }
 
 #[cfg(test)]

@@ -18,6 +18,7 @@ use mpm_core::strategy::{imbalance, patch_layout, Cuts, LayoutChooser};
 use mpm_core::{GridMode, Setup, SimConfig, Simulation};
 use serde::Serialize;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 /// Predict the work imbalance of uniform and balanced DD cuts over a run (no timing).
 #[derive(clap::Args, Debug, Clone)]
@@ -171,8 +172,8 @@ pub fn measure(a: &ImbalanceArgs) -> Result<ImbalanceReport> {
     let (setup, grid_mode, end_time) = scenario(a)?;
     let model_name = setup.model.clone();
     let spec = setup.grid.clone();
-    let mut sim = Simulation::new(setup, SimConfig { grid_mode, ..SimConfig::default() })?;
     let pool = mpm_host::pinning::build_pool(1, None)?.pool;
+    let mut sim = Simulation::new(setup, SimConfig { grid_mode, ..SimConfig::default() }, Arc::clone(&pool))?;
     let mut ev = Evaluator {
         cell_of: Vec::new(),
         marginals: Default::default(),
@@ -204,7 +205,7 @@ pub fn measure(a: &ImbalanceArgs) -> Result<ImbalanceReport> {
             });
         }
         let dt_max = if a.steps.is_some() { f64::INFINITY } else { end_time - sim.time() };
-        pool.install(|| sim.step(&pool, dt_max)).with_context(|| format!("step {} failed", step + 1))?;
+        pool.install(|| sim.step(dt_max)).with_context(|| format!("step {} failed", step + 1))?;
         step += 1;
     }
     let rows = a.threads.iter().map(|&t| row_of(t, &samples)).collect();

@@ -44,6 +44,7 @@ use mpm_host::paired::{alternate, max_position_difference, unlimited, Contender}
 use mpm_host::pinning::{self, PinnedPool};
 use serde::Serialize;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 /// Measure parallel efficiency as paired ratios of interleaved blocks in one process.
 ///
@@ -254,8 +255,8 @@ fn configurations<'p>(
     let solvers = configs
         .iter()
         .map(|&(strategy, threads)| {
-            let config = SimConfig { strategy, threads, ..SimConfig::default() };
-            Ok(Contender::new(Simulation::new(setup.clone(), config)?, pools.of(threads)))
+            let (config, pool) = (SimConfig { strategy, ..SimConfig::default() }, pools.of(threads));
+            Ok(Contender::new(Simulation::new(setup.clone(), config, Arc::clone(&pool.pool))?, pool))
         })
         .collect::<Result<_>>()?;
     Ok((configs, solvers, particles))

@@ -1,18 +1,18 @@
-//! [`Exec`]: runs a phase on every worker, on the calling thread (serial) or on the team of
+//! [`Exec`]: runs a phase on every worker, on the calling thread (serial) or on the crew of
 //! the current parallel region.
 
+use super::crew::Crew;
 use super::disjoint::ChunkSet;
 use super::tally::{Counters, Tally};
-use super::team::Team;
 use std::marker::PhantomData;
 
 /// Runs a phase on every worker: share `w` once for each `w` in `0..workers()`, and returns
 /// when all shares have finished (a barrier).
 ///
 /// Made by [`Exec::serial`] (one share, on the calling thread) or handed to the closure of
-/// [`Team::region`] (share `w` on pool thread `w`). An `Exec` is neither `Send` nor `Sync`:
-/// it stays on the thread that drives the phases, and a phase's shares (which must be `Sync`)
-/// cannot capture it, so phases never nest.
+/// [`Team::region`](super::Team::region) (share `w` on pool thread `w`). An `Exec` is neither
+/// `Send` nor `Sync`: it stays on the thread that drives the phases, and a phase's shares
+/// (which must be `Sync`) cannot capture it, so phases never nest.
 pub struct Exec<'a> {
     kind: Kind<'a>,
     workers: usize,
@@ -24,7 +24,7 @@ pub struct Exec<'a> {
 #[derive(Clone, Copy)]
 enum Kind<'a> {
     Serial,
-    Team(&'a Team),
+    Crew(&'a Crew),
 }
 
 impl Exec<'static> {
@@ -35,10 +35,10 @@ impl Exec<'static> {
 }
 
 impl<'a> Exec<'a> {
-    /// The executor of `team`'s current region: only [`Team::region`] makes one, on the
-    /// region's driver.
-    pub(super) fn team(team: &'a Team) -> Self {
-        Self { kind: Kind::Team(team), workers: team.workers(), counters: None, _driver_only: PhantomData }
+    /// The executor of `crew`'s current region: only [`Team::region`](super::Team::region)
+    /// makes one, on the region's driver.
+    pub(super) fn team(crew: &'a Crew) -> Self {
+        Self { kind: Kind::Crew(crew), workers: crew.workers(), counters: None, _driver_only: PhantomData }
     }
 
     /// This executor with its shares' tallies adding to `counters` (one row per worker).
@@ -69,12 +69,12 @@ impl<'a> Exec<'a> {
     pub fn run<F: Fn(usize) + Sync>(&self, f: F) {
         match self.kind {
             Kind::Serial => f(0),
-            // SAFETY: `Team::run` must be called by the driver of the team's current region,
+            // SAFETY: `Crew::run` must be called by the driver of the crew's current region,
             // not from inside one of its phases. An `Exec` of this kind is made only by
             // `Team::region`, on its driver, and lives no longer than the region; it cannot
             // leave the driver's thread (neither `Send` nor `Sync`), and a share cannot
             // capture it (shares are `Sync`), so this call is the driver's, between phases.
-            Kind::Team(team) => unsafe { team.run(&f) },
+            Kind::Crew(crew) => unsafe { crew.run(&f) },
         }
     }
 
@@ -134,8 +134,7 @@ mod tests {
             if workers == 1 {
                 phase(&Exec::serial());
             } else {
-                let pool = rayon::ThreadPoolBuilder::new().num_threads(workers).build().unwrap();
-                Team::new(workers).region(&pool, phase).unwrap();
+                Team::new(crate::testing::pool(workers)).region(phase).unwrap();
             }
             for (i, v) in even.iter().enumerate() {
                 let owner = (0..workers).find(|&w| partition(n, workers, w).contains(&i)).unwrap();

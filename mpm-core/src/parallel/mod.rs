@@ -1,6 +1,7 @@
-//! The parallel primitives of the solver: a [`Team`] of pool workers that runs a whole time
-//! step as one parallel region, the [`Exec`] that runs the step's phases on it, and
-//! [`Exec::for_each_chunk_mut`], which hands worker `w` part `w` of shared arrays.
+//! The parallel primitives of the solver: a [`Team`] of the workers of a pool (one per pool
+//! thread) that runs a whole time step as one parallel region, the [`Exec`] that runs the
+//! step's phases on it, and [`Exec::for_each_chunk_mut`], which hands worker `w` part `w` of
+//! shared arrays.
 //!
 //! Every parallel phase follows one pattern: worker `w` of `T` runs share `w` once, on pool
 //! thread `w`, and owns part `w` of a fixed [`Split`] of the arrays it writes (a particle
@@ -10,9 +11,9 @@
 //!
 //! The public API is safe:
 //!
-//! * [`Team::region`] is the only way into a parallel region. It refuses a second entry
-//!   while a region runs, refuses a pool of the wrong size, and returns (or unwinds) only
-//!   after every worker has left, whatever the region's closure does, panics included.
+//! * [`Team::region`] is the only way into a parallel region, on the pool the team was built
+//!   with. It refuses a second entry while a region runs, and returns (or unwinds) only after
+//!   every worker has left, whatever the region's closure does, panics included.
 //! * [`Exec::run`] runs a phase and returns after every share finished (a barrier); a panic
 //!   in any share is re-raised on the caller after the other shares finished.
 //! * [`Exec::for_each_chunk_mut`] checks the split once per phase and hands each worker its
@@ -20,12 +21,14 @@
 //! * [`Exec::tally`] gives the shares per-worker [`Counters`] to add their work to (once per
 //!   share, on lines the worker owns; [`crate::work`] says what is counted).
 //!
-//! The unsafe code lives in `team.rs` (the phase closure is shared with the workers through a
-//! raw pointer; its lifetime is guarded by the barrier) and in `disjoint.rs` (a slice shared
-//! by the workers of a phase, reached part by part). `sync.rs` picks the atomics and cells
-//! the protocol uses: std's in normal builds, loom's model-checked ones under `--cfg loom`
-//! (`RUSTFLAGS="--cfg loom" cargo test -p mpm-core --lib parallel::`).
+//! The unsafe code lives in `crew.rs` (the team's protocol: the phase closure is shared with
+//! the workers through a raw pointer; its lifetime is guarded by the barrier) and in
+//! `disjoint.rs` (a slice shared by the workers of a phase, reached part by part).
+//! `sync.rs` picks the atomics and cells the protocol uses: std's in normal builds, loom's
+//! model-checked ones under `--cfg loom` (`RUSTFLAGS="--cfg loom" cargo test -p mpm-core
+//! --lib parallel::`).
 
+mod crew;
 mod disjoint;
 mod exec;
 mod sync;

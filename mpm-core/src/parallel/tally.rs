@@ -105,8 +105,7 @@ mod tests {
             if workers == 1 {
                 phase(&Exec::serial());
             } else {
-                let pool = rayon::ThreadPoolBuilder::new().num_threads(workers).build().unwrap();
-                Team::new(workers).region(&pool, phase).unwrap();
+                Team::new(crate::testing::pool(workers)).region(phase).unwrap();
             }
             for w in 0..workers {
                 let row = counters.take(w);

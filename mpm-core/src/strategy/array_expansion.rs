@@ -17,8 +17,9 @@
 
 use super::{Cursors, Kernel, ScatterStrategy};
 use crate::blocks::BlockMap;
-use crate::grid::{GridGeom, NodeIndex, Records};
+use crate::grid::{GridGeom, Records};
 use crate::math::Vec3;
+use crate::node_index::NodeIndex;
 use crate::parallel::{partition, Exec, Split, Table};
 use crate::work::Tally;
 use std::mem::size_of;
@@ -172,7 +173,7 @@ mod tests {
     fn assembly_gives_each_steps_sums_alone_and_leaves_the_columns_zero() {
         let mut unit = crate::testing::unit_stream(17);
         for threads in [1, 2, 3, 4] {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let team = Team::new(crate::testing::pool(threads));
             let mut columns = Records::<2>::zeroed(0);
             for (step, cells) in [[6, 5, 7], [6, 5, 7], [7, 5, 7], [4, 5, 6], [6, 5, 7]].into_iter().enumerate() {
                 let geom = GridGeom::fixed(&GridSpec { dx: 1.0, anchor: [0.0; 3], cells });
@@ -210,7 +211,7 @@ mod tests {
                     scatter(exec, nn, &index, x.len(), &mut columns, &kernel);
                     assemble(exec, &mut global, &mut columns);
                 };
-                Team::new(threads).region(&pool, run).unwrap();
+                team.region(run).unwrap();
                 let what = format!("{threads} threads, step {step} on {cells:?} cells");
                 for (i, (g, w)) in global.iter().zip(&want).enumerate() {
                     assert_eq!(g.map(f64::to_bits), w.map(f64::to_bits), "{what}: node {i}");

@@ -21,7 +21,7 @@
 //! boxes of a distributed run) computes the same boxes. Its cost is O(cells along an axis x
 //! patches); once the tables have reached their largest size it allocates nothing.
 
-use super::domain_decomposition::Patch;
+use super::patch::Patch;
 use serde::{Deserialize, Serialize};
 
 /// Place the `parts - 1` inner cut planes of one axis at the particle-count quantiles of

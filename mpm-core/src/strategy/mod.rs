@@ -22,17 +22,20 @@
 pub mod array_expansion;
 pub mod cuts;
 pub mod domain_decomposition;
+pub mod patch;
 pub mod serial;
 
 use crate::blocks::BlockMap;
-use crate::grid::{CellNodes, GridGeom, NodeIndex, Records};
+use crate::grid::{GridGeom, Records};
 use crate::math::Vec3;
+use crate::node_index::{CellNodes, NodeIndex};
 use crate::parallel::Exec;
 use serde::{Deserialize, Serialize};
 
 pub use array_expansion::ArrayExpansion;
 pub use cuts::{imbalance, layouts, quantile_cuts, Cuts, LayoutChooser, PatchLoad, LAYOUT_SLACK};
-pub use domain_decomposition::{patch_layout, Binning, DomainDecomposition, Patch};
+pub use domain_decomposition::{patch_layout, Binning, DomainDecomposition};
+pub use patch::Patch;
 pub use serial::Serial;
 
 /// Which scatter strategy the solver uses: the one type for the solver, the `mpm` program,
@@ -436,14 +439,13 @@ mod tests {
                     let len = engine.reserve(&geom, blocks);
                     let (mut global, mut parts) =
                         (vec![[0.0; 1]; index.num_nodes()], crate::grid::Records::<1>::zeroed(len));
-                    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
                     let mut run = |exec: &Exec<'_>| {
                         engine.prepare(exec, &geom, blocks, &x);
                         engine.scatter(exec, &geom, &index, x.len(), &mut global, &mut parts, &kernel);
                         engine.assemble(exec, &geom, &index, &mut global, &mut parts);
                     };
                     if strategy.is_parallel() {
-                        Team::new(threads).region(&pool, run).unwrap();
+                        Team::new(crate::testing::pool(threads)).region(run).unwrap();
                     } else {
                         run(&Exec::serial());
                     }

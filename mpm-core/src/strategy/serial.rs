@@ -3,8 +3,9 @@
 
 use super::{Cursors, Kernel, ScatterStrategy};
 use crate::blocks::BlockMap;
-use crate::grid::{GridGeom, NodeIndex, Records};
+use crate::grid::{GridGeom, Records};
 use crate::math::Vec3;
+use crate::node_index::NodeIndex;
 use crate::parallel::Exec;
 use crate::work::Tally;
 

@@ -119,7 +119,7 @@ pub fn mini_impact() -> Setup {
     }
 }
 
-/// A rayon pool of `n` threads.
-pub fn pool(n: usize) -> rayon::ThreadPool {
-    rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap()
+/// A rayon pool of `n` threads, as a simulation takes it.
+pub fn pool(n: usize) -> std::sync::Arc<rayon::ThreadPool> {
+    std::sync::Arc::new(rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap())
 }

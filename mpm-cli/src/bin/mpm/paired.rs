@@ -15,6 +15,7 @@ use mpm_host::pinning::{self, PinnedPool};
 use mpm_spec::summary::{EndReason, NoiseReport, PairedReport, StageSeconds, MIN_CPU_SHARE};
 use mpm_spec::RunSpec;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 /// What a paired run hands back to the summary.
 pub struct PairedOutcome {
@@ -54,8 +55,9 @@ pub fn run(
     let one_pool = reference_pool(spec.cpus.as_deref())?;
     // The reference runs the same strategy on one worker, without the injected slowdown
     // (which needs a second worker anyway).
-    let one_config = SimConfig { threads: 1, inject_slowdown: 0.0, ..config };
-    let one = Simulation::new(setup, one_config).context("cannot set up the paired reference (1 thread)")?;
+    let one_config = SimConfig { inject_slowdown: 0.0, ..config };
+    let one = Simulation::new(setup, one_config, Arc::clone(&one_pool.pool))
+        .context("cannot set up the paired reference (1 thread)")?;
     let end = spec.budget.end_time_s;
     let stop = |s: &Simulation| -> Option<f64> {
         if interrupted.load(Ordering::Relaxed) {

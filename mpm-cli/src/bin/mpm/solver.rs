@@ -3,14 +3,15 @@
 
 use anyhow::{Context, Result};
 use mpm_core::{Exchange, OneProcess, Particles, SimConfig, SimState, Simulation};
+use mpm_host::pinning::PinnedPool;
 use mpm_spec::RunSpec;
+use std::sync::Arc;
 
-/// The solver settings the spec asks for: strategy, threads, grid, physics, the injected
-/// slowdown.
+/// The solver settings the spec asks for: strategy, grid, physics, the injected slowdown
+/// (the threads are the pool's).
 pub fn sim_config(spec: &RunSpec) -> SimConfig {
     SimConfig {
         strategy: spec.strategy,
-        threads: spec.threads,
         grid_mode: spec.grid,
         cfl: spec.physics.cfl,
         bulk_viscosity: spec.physics.q,
@@ -20,27 +21,34 @@ pub fn sim_config(spec: &RunSpec) -> SimConfig {
     }
 }
 
-/// The simulation of a built scenario as the spec asks ([`sim_config`]).
-pub fn simulation(spec: &RunSpec, setup: mpm_core::Setup, exchange: Option<Box<dyn Exchange>>) -> Result<Simulation> {
-    let config = sim_config(spec);
+/// The simulation of a built scenario as the spec asks ([`sim_config`]), on `pool`.
+pub fn simulation(
+    spec: &RunSpec,
+    setup: mpm_core::Setup,
+    pool: &PinnedPool,
+    exchange: Option<Box<dyn Exchange>>,
+) -> Result<Simulation> {
+    let (config, pool) = (sim_config(spec), Arc::clone(&pool.pool));
     match exchange {
-        Some(exchange) => Simulation::with_exchange(setup, config, exchange),
-        None => Simulation::new(setup, config),
+        Some(exchange) => Simulation::with_exchange(setup, config, pool, exchange),
+        None => Simulation::new(setup, config, pool),
     }
     .context("cannot set up the simulation")
 }
 
 /// The simulation of a scenario built without its particles, continued from a checkpoint's
-/// particles (`ids`: their global ids, where saved) and solver state, as the spec asks.
+/// particles (`ids`: their global ids, where saved) and solver state, as the spec asks, on
+/// `pool`.
 pub fn resumed(
     spec: &RunSpec,
     setup: mpm_core::Setup,
+    pool: &PinnedPool,
     exchange: Option<Box<dyn Exchange>>,
     particles: Particles,
     ids: Option<Vec<u64>>,
     state: SimState,
 ) -> Result<Simulation> {
     let exchange = exchange.unwrap_or_else(|| Box::new(OneProcess::default()));
-    Simulation::resume(setup, sim_config(spec), exchange, particles, ids, state)
+    Simulation::resume(setup, sim_config(spec), Arc::clone(&pool.pool), exchange, particles, ids, state)
         .context("cannot continue the simulation from the checkpoint")
 }

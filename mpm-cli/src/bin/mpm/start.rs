@@ -16,6 +16,7 @@ use mpm_cli::summary::{HistoryRecorder, Timing};
 use mpm_core::{Exchange, Simulation};
 use mpm_host::checkpoint::{Folder, Loaded};
 use mpm_host::lock::FolderLock;
+use mpm_host::pinning::PinnedPool;
 use mpm_spec::scenario::Prepared;
 use mpm_spec::summary::CheckpointReport;
 use mpm_spec::RunSpec;
@@ -92,8 +93,8 @@ pub fn start(mut spec: RunSpec, force: bool, origin: Origin, ranks: &mut Ranks) 
     let model_name = prepared.setup.model.clone();
     let (impact, plate) = (prepared.impact, prepared.plate);
     let begun = match origin {
-        Origin::Fresh(invocation) => fresh(&mut spec, prepared, exchange, invocation, &mut outputs, ranks)?,
-        Origin::Checkpoint(restart) => restored(&spec, prepared, exchange, *restart, ranks)?,
+        Origin::Fresh(invocation) => fresh(&mut spec, prepared, &pool, exchange, invocation, &mut outputs, ranks)?,
+        Origin::Checkpoint(restart) => restored(&spec, prepared, &pool, exchange, *restart, ranks)?,
     };
     let Begun { sim, carry, checkpoints, reference_setup, restart } = begun;
     let run = Ready {
@@ -131,6 +132,7 @@ fn claim_folder(spec: &RunSpec, lead: bool) -> Result<Option<FolderLock>> {
 fn fresh(
     spec: &mut RunSpec,
     Prepared { setup, impact, plate }: Prepared,
+    pool: &PinnedPool,
     exchange: Option<Box<dyn Exchange>>,
     invocation: Invocation,
     outputs: &mut Outputs,
@@ -139,7 +141,7 @@ fn fresh(
     let taylor = matches!(spec.scenario, mpm_spec::Scenario::Taylor(_));
     // A paired run builds its one-thread reference from the same set-up.
     let reference_setup = spec.paired.map(|_| setup.clone());
-    let sim = simulation(spec, setup, exchange)?;
+    let sim = simulation(spec, setup, pool, exchange)?;
     let (cells, nodes) = (sim.global_geom().num_cells(), sim.global_geom().num_nodes());
     let warmup = spec.budget.warmup.unwrap_or_else(|| spec.default_warmup(sim.dt_first()));
     spec.budget.warmup = Some(warmup);
@@ -169,6 +171,7 @@ fn fresh(
 fn restored(
     spec: &RunSpec,
     Prepared { setup, impact, plate }: Prepared,
+    pool: &PinnedPool,
     exchange: Option<Box<dyn Exchange>>,
     restart: Restart,
     ranks: &mut Ranks,
@@ -176,7 +179,7 @@ fn restored(
     let Restart { loaded, saved, binary_sha256, t0 } = restart;
     let step = loaded.header.step;
     let same = (saved.sim.strategy, saved.sim.threads) == (spec.strategy, spec.threads);
-    let sim = resumed(spec, setup, exchange, loaded.particles, loaded.ids, saved.sim)?;
+    let sim = resumed(spec, setup, pool, exchange, loaded.particles, loaded.ids, saved.sim)?;
     let mut bytes = [loaded.bytes];
     ranks.collectives().sum_counts(&mut bytes)?;
     let mut carry = Carry::restored(saved.program, impact, plate)?;

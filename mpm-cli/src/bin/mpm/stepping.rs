@@ -159,7 +159,7 @@ fn step_loop(
                 return Err(Interrupted(sim.steps()).into());
             }
             let dt_max = budget.end_time_s.map_or(f64::INFINITY, |end| end - sim.time());
-            if let Err(e) = sim.step(&ctx.pool.pool, dt_max) {
+            if let Err(e) = sim.step(dt_max) {
                 ctx.progress.inspect(|p| p.bar.abandon());
                 return Err(anyhow::Error::new(e).context(format!(
                     "the simulation failed in the step starting at t = {:.6e} s ({}, strategy {}, {} thread(s)); no summary written",
