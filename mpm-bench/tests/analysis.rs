@@ -558,6 +558,35 @@ fn every_committed_campaign_loads_in_every_analysis_command() {
     }
 }
 
+/// The tables made from committed JSON summaries load them: `impact-table` on
+/// results/impact and `roofline-table` on the roofline runs with their bandwidth ceiling.
+#[test]
+fn every_committed_table_source_loads() {
+    let results = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results");
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_mpm-bench")).args(args).output().unwrap();
+        (o.status.code(), String::from_utf8_lossy(&o.stdout).into_owned(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let impact = results.join("impact");
+    let (code, out, err) = run(&["impact-table", "--results", impact.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "impact-table: {err}");
+    assert!(out.lines().filter(|l| l.starts_with("| ")).count() >= 5, "{out}");
+    let roof = results.join("roofline");
+    let mut args = vec!["roofline-table".to_string()];
+    for e in std::fs::read_dir(&roof).unwrap().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name.starts_with("model") && name.ends_with(".json") {
+            args.extend(["--summary".to_string(), e.path().display().to_string()]);
+        }
+    }
+    assert!(args.len() >= 7, "{args:?}");
+    args.extend(["--bandwidth".to_string(), roof.join("bandwidth.json").display().to_string()]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (code, out, err) = run(&args);
+    assert_eq!(code, Some(0), "roofline-table: {err}");
+    assert!(out.contains("**step**"), "{out}");
+}
+
 /// The stage panels use the steady-state stage times: a 1-thread run whose one warm-up step
 /// took most of its particle stage (as Model 4's set-up step did) gives that stage a speedup
 /// within the 2 cores, where the whole-run times gave 5.5; a speedup above the cores (here

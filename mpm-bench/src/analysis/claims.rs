@@ -1,6 +1,6 @@
-//! `mpm-bench claims`: the paper's claims C1-C6 (spec paper.md section 5), and C7 on the
-//! balanced DD cuts of issue 15, tested on a campaign, each with a verdict, the reason and
-//! the numbers behind it.
+//! `mpm-bench claims`: the paper's claims C1-C6 (spec paper.md section 5), and C7 (this
+//! study's own claim) on the balanced DD cuts, tested on a campaign, each with a verdict, the
+//! reason and the numbers behind it.
 //!
 //! Rules shared by every claim:
 //!
@@ -140,7 +140,7 @@ pub const CLAIMS: [(&str, &str); 7] = [
     ("C4", "Without compiler optimisation, parallel efficiency is higher than with O3."),
     ("C5", "Past 4 threads (the second socket) efficiency drops: cross-socket traffic."),
     ("C6", "AE could not run Model4 at 4-8 threads: not enough memory on the 8 GB machine."),
-    ("C7", "Balanced cuts reduce the work imbalance and the time per step of DD (issue 15)."),
+    ("C7", "Balanced cuts reduce the work imbalance and the time per step of DD (this study's claim, not the paper's)."),
 ];
 
 /// Array expansion, the subject of claims C3 and C6.
@@ -660,7 +660,7 @@ pub fn run(args: ClaimsArgs) -> Result<()> {
     Ok(())
 }
 
-/// C7 (issue 15, not the paper's): balanced cuts (`dd-balanced`) against uniform cuts (`dd`).
+/// C7 (this study's claim, not the paper's): balanced cuts (`dd-balanced`) against uniform cuts (`dd`).
 /// Kept apart from C1-C6: it reads the recorded work imbalance straight from the rows.
 mod c7 {
     use super::{result, ClaimResult, Tally, Verdict, DD};
