@@ -390,7 +390,7 @@ fn summary_reads_back_as_the_typed_summary() {
     let (v, _) = run_json(&["--model", "1", "--steps", "3", "--strategy", "dd", "--threads", "2", "--quiet"]);
     let s: Summary = serde_json::from_value(v.clone()).unwrap();
     assert_eq!(s.strategy, Strategy::DomainDecomposition);
-    assert_eq!(s.end_reason.name(), v["end_reason"]);
+    assert_eq!(s.figures.progress.end_reason.name(), v["end_reason"]);
     assert_eq!(serde_json::to_value(&s).unwrap(), v);
 }
 

@@ -733,10 +733,7 @@ pub fn go(run: Ready, ranks: &mut Ranks) -> Result<()> {
         _ => ranks.gather_reports(rank_report(&sim, &pool, ranks, rank_oversubscribed))?,
     };
     let Some(mut summary) = summary else { return Ok(()) };
-    summary.ranks = reports;
-    summary.noise = noise;
-    summary.paired = paired;
-    summary.peak_rss_bytes = mpm_cli::summary::peak_rss_bytes();
+    summary::finish(&mut summary, reports, noise, paired);
     outputs.commit_json(&summary)?;
     if !quiet {
         print_human(&summary, spec.outputs.json.as_deref(), outputs.snapshots());
