@@ -14,7 +14,7 @@ use mpm_bench::campaign::schedule::{self};
 use mpm_bench::machine::topology::Machine;
 use mpm_bench::machine::{bandwidth, fingerprint};
 use mpm_bench::report::{comparison, figures, imbalance as imbalance_figure, impact_table, roofline_table};
-use mpm_cli::atomic::write_atomic;
+use mpm_host::atomic::write_atomic;
 use std::path::{Path, PathBuf};
 
 mod cli;

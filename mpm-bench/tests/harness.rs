@@ -901,7 +901,7 @@ fn temp_files(dir: &Path) -> Vec<std::path::PathBuf> {
         let p = e.path();
         if p.is_dir() {
             out.extend(temp_files(&p));
-        } else if mpm_cli::atomic::temp_file_pid(&e.file_name().to_string_lossy()).is_some() {
+        } else if mpm_host::atomic::temp_file_pid(&e.file_name().to_string_lossy()).is_some() {
             out.push(p);
         }
     }

@@ -1,25 +1,45 @@
-//! Pictures: the font every figure uses, the radiograph-style side view of the debris cloud
-//! (paper Section 6) and the cloud's history (front and width against time).
+//! Pictures: the radiograph-style side view of the debris cloud (paper Section 6) and the
+//! cloud's history (front and width against time).
 //!
-//! Text is rendered with DejaVu Sans compiled into the program (crate `dejavu`), registered
-//! with plotters' `ab_glyph` backend: no figure depends on the fonts a machine has installed.
+//! Text is rendered with the font compiled into the program ([`mpm_host::fonts`]): no figure
+//! depends on the fonts a machine has installed.
 
-use anyhow::{Context, Result};
 use mpm_core::scenario::impact::{radiograph, HistorySample};
 use mpm_core::Particles;
+use mpm_host::fonts::register_fonts;
+use plotters::backend::DrawingBackend;
+use plotters::drawing::DrawingAreaErrorKind;
 use plotters::prelude::*;
-use plotters::style::FontStyle;
-use std::path::Path;
-use std::sync::Once;
+use std::path::{Path, PathBuf};
 
-/// Register the embedded DejaVu Sans as `sans-serif` (normal and bold). Idempotent.
-pub fn register_fonts() {
-    static ONCE: Once = Once::new();
-    ONCE.call_once(|| {
-        // The embedded fonts are valid TrueType files: registration cannot fail.
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular());
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Bold, dejavu::sans::bold());
-    });
+/// What plotters says when a figure cannot be drawn or saved.
+pub type DrawError = DrawingAreaErrorKind<<BitMapBackend<'static> as DrawingBackend>::ErrorType>;
+
+/// Why a picture was not written.
+#[derive(Debug, thiserror::Error)]
+pub enum PictureError {
+    /// Drawing failed.
+    #[error(transparent)]
+    Draw(#[from] DrawError),
+    /// The radiograph's pixels do not fill the plotting area.
+    #[error("radiograph buffer does not match the plotting area")]
+    Buffer,
+    /// The PNG file cannot be written.
+    #[error("cannot write the {what} {path}")]
+    Write {
+        /// `radiograph` or `history plot`.
+        what: &'static str,
+        /// The file.
+        path: PathBuf,
+        /// What plotters said.
+        source: DrawError,
+    },
+}
+
+/// The error of a PNG file `path` (a `what`) that cannot be written.
+fn unwritten(what: &'static str, path: &Path) -> impl FnOnce(DrawError) -> PictureError {
+    let path = path.to_path_buf();
+    move |source| PictureError::Write { what, path, source }
 }
 
 /// What to annotate on a radiograph.
@@ -43,7 +63,7 @@ pub fn write_radiograph(
     spacing: f64,
     notes: &RadiographNotes,
     size: (u32, u32),
-) -> Result<()> {
+) -> Result<(), PictureError> {
     register_fonts();
     let (lo, hi) = particles.bounding_box();
     let clamp = |v: f64| v.clamp(-0.5, 0.5);
@@ -84,8 +104,7 @@ pub fn write_radiograph(
             buf[o..o + 3].copy_from_slice(&[g, g, g]);
         }
     }
-    let bitmap = BitMapElement::with_owned_buffer((xr.start, zr.end), (w, h), buf)
-        .context("radiograph buffer does not match the plotting area")?;
+    let bitmap = BitMapElement::with_owned_buffer((xr.start, zr.end), (w, h), buf).ok_or(PictureError::Buffer)?;
     chart.draw_series(std::iter::once(bitmap))?;
 
     let dashed = RED.mix(0.6).stroke_width(1);
@@ -101,14 +120,13 @@ pub fn write_radiograph(
         ))?;
         y += 18;
     }
-    root.present().with_context(|| format!("cannot write the radiograph {}", path.display()))?;
-    Ok(())
+    root.present().map_err(unwritten("radiograph", path))
 }
 
 /// Draw the debris cloud's leading edge and width against time (µs) as a PNG of `size`
 /// pixels: extreme values as dashed lines, robust ones (ignoring the outermost 0.1 % of the
 /// debris mass) as solid lines with markers at the samples.
-pub fn write_history_plot(path: &Path, samples: &[HistorySample], size: (u32, u32)) -> Result<()> {
+pub fn write_history_plot(path: &Path, samples: &[HistorySample], size: (u32, u32)) -> Result<(), PictureError> {
     register_fonts();
     let t_end = samples.iter().map(|s| s.time * 1e6).fold(0.0f64, f64::max).max(1e-3);
     let top = samples.iter().map(|s| s.cloud_front.max(s.cloud_width) * 1e3).fold(0.0f64, f64::max);
@@ -158,8 +176,7 @@ pub fn write_history_plot(path: &Path, samples: &[HistorySample], size: (u32, u3
         .border_style(BLACK)
         .label_font(("sans-serif", 14))
         .draw()?;
-    root.present().with_context(|| format!("cannot write the history plot {}", path.display()))?;
-    Ok(())
+    root.present().map_err(unwritten("history plot", path))
 }
 
 #[cfg(test)]

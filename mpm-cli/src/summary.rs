@@ -7,13 +7,13 @@
 //! [`mpm_spec::summary`], shared with the harness: each figure is computed here, once, in
 //! the function of its group.
 
-use crate::identity::provenance_of_this_process;
-use crate::pinning::PinnedPool;
 use mpm_core::grid::Occupancy;
 use mpm_core::scenario::impact::{CloudFigures, History};
 use mpm_core::scenario::plate::{PlateGeometry, PlateResult};
 use mpm_core::scenario::taylor;
 use mpm_core::{Simulation, StageTimes, Substage};
+use mpm_host::identity::provenance_of_this_process;
+use mpm_host::pinning::PinnedPool;
 use mpm_spec::summary::{
     figures, load_imbalance, Balance, CheckpointReport, EndReason, EnergyReport, EosKind, Figures, HistoryPoint,
     ImpactFigures, Memory, NoiseReport, PairedReport, PatchCounts, Physics, Pinning, PlateFigures, Progress,
@@ -88,11 +88,6 @@ impl HistoryRecorder {
         }
         out
     }
-}
-
-/// Now, in seconds since the Unix epoch (0 if the clock is before it).
-pub fn unix_now() -> f64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// Peak resident memory of this process (`VmHWM` in `/proc/self/status`), bytes.

@@ -31,12 +31,11 @@
 //! The collection file `<prefix>.pvd` lists every snapshot with its time and is
 //! rewritten (atomically) after each one, so it is valid even if the run stops early.
 
-use crate::atomic::write_atomic;
-use anyhow::{Context, Result};
 use flate2::write::ZlibEncoder;
 use flate2::Compression;
 use mpm_core::math::{deviator, trace, von_mises};
 use mpm_core::Particles;
+use mpm_host::atomic::{write_atomic, WriteError};
 use std::fmt::Display;
 use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
@@ -44,6 +43,46 @@ use std::path::{Path, PathBuf};
 
 /// How the arrays of a `.vtu` are stored (the spec's `outputs.vtk.encoding`).
 pub use mpm_spec::spec::VtkEncoding as Encoding;
+
+/// Why a snapshot or the collection was not written.
+#[derive(Debug, thiserror::Error)]
+pub enum VtkError {
+    /// A snapshot file cannot be created.
+    #[error("cannot create VTU snapshot {path}")]
+    Create {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A snapshot cannot be written.
+    #[error("cannot write VTU snapshot {path}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The snapshot folder cannot be created.
+    #[error("cannot create the VTK directory {dir}")]
+    CreateDir {
+        /// The folder.
+        dir: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The snapshot folder cannot be written into.
+    #[error("the VTK directory {dir} is not writable")]
+    NotWritable {
+        /// The folder.
+        dir: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The `.pvd` collection cannot be written.
+    #[error(transparent)]
+    Collection(#[from] WriteError),
+}
 
 /// A value type of a VTK `DataArray`.
 trait VtkScalar: Copy + Display {
@@ -179,8 +218,8 @@ fn data_array<T: VtkScalar, W: Write>(
 }
 
 /// Write the particles as a `.vtu` file at `path` (see the module docs for its content).
-pub fn write_vtu(path: &Path, particles: &Particles, time: f64, step: u64, enc: Encoding) -> Result<()> {
-    let file = File::create(path).with_context(|| format!("cannot create VTU snapshot {}", path.display()))?;
+pub fn write_vtu(path: &Path, particles: &Particles, time: f64, step: u64, enc: Encoding) -> Result<(), VtkError> {
+    let file = File::create(path).map_err(|source| VtkError::Create { path: path.to_path_buf(), source })?;
     let w = BufWriter::with_capacity(1 << 20, file);
     let written = match enc {
         Encoding::Compressed => write_appended(w, particles, time, step),
@@ -189,7 +228,7 @@ pub fn write_vtu(path: &Path, particles: &Particles, time: f64, step: u64, enc: 
             snapshot_inline(&mut inline, particles, time, step).and_then(|_| inline.w.flush())
         }
     };
-    written.with_context(|| format!("cannot write VTU snapshot {}", path.display()))
+    written.map_err(|source| VtkError::Write { path: path.to_path_buf(), source })
 }
 
 /// What [`snapshot`] hands each part of a `.vtu` to: the XML around the arrays, and the
@@ -456,10 +495,10 @@ pub struct SnapshotWriter {
 
 impl SnapshotWriter {
     /// Create `dir` (and parents) if needed and check that it is writable.
-    pub fn new(dir: &Path, prefix: &str, encoding: Encoding) -> Result<Self> {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create the VTK directory {}", dir.display()))?;
+    pub fn new(dir: &Path, prefix: &str, encoding: Encoding) -> Result<Self, VtkError> {
+        std::fs::create_dir_all(dir).map_err(|source| VtkError::CreateDir { dir: dir.to_path_buf(), source })?;
         let probe = dir.join(format!(".mpm-write-test.{}", std::process::id()));
-        File::create(&probe).with_context(|| format!("the VTK directory {} is not writable", dir.display()))?;
+        File::create(&probe).map_err(|source| VtkError::NotWritable { dir: dir.to_path_buf(), source })?;
         let _ = std::fs::remove_file(&probe);
         Ok(Self {
             dir: dir.to_path_buf(),
@@ -478,7 +517,12 @@ impl SnapshotWriter {
 
     /// A writer that continues the collection of `written` snapshots (those after the
     /// checkpoint a run continues from are written again).
-    pub fn resumed(dir: &Path, prefix: &str, encoding: Encoding, written: Vec<(u64, f64, String)>) -> Result<Self> {
+    pub fn resumed(
+        dir: &Path,
+        prefix: &str,
+        encoding: Encoding,
+        written: Vec<(u64, f64, String)>,
+    ) -> Result<Self, VtkError> {
         let mut w = Self::new(dir, prefix, encoding)?;
         for (s, t, f) in written {
             w.steps.push(s);
@@ -509,7 +553,7 @@ impl SnapshotWriter {
 
     /// Write the snapshot of `step` at simulated `time` and rewrite the `.pvd`.
     /// A step already written is skipped.
-    pub fn write(&mut self, step: u64, time: f64, particles: &Particles) -> Result<()> {
+    pub fn write(&mut self, step: u64, time: f64, particles: &Particles) -> Result<(), VtkError> {
         if self.steps.last() == Some(&step) {
             return Ok(());
         }
@@ -517,7 +561,7 @@ impl SnapshotWriter {
         write_vtu(&self.dir.join(&name), particles, time, step, self.encoding)?;
         self.entries.push((time, name));
         self.steps.push(step);
-        write_atomic(&self.pvd_path(), pvd_text(&self.entries).as_bytes())
+        Ok(write_atomic(&self.pvd_path(), pvd_text(&self.entries).as_bytes())?)
     }
 }
 

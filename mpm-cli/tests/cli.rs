@@ -358,9 +358,9 @@ fn json_has_exactly_the_golden_keys() {
 fn summary_and_version_carry_provenance() {
     let (v, _) = run_json(&["--model", "1", "--steps", "1", "--quiet"]);
     let p = &v["provenance"];
-    let want = mpm_cli::identity::sha256_file(Path::new(MPM)).unwrap();
+    let want = mpm_host::identity::sha256_file(Path::new(MPM)).unwrap();
     assert_eq!(p["binary_sha256"], want.as_str(), "{p}");
-    assert_eq!(p["git_commit"], mpm_cli::identity::GIT_COMMIT);
+    assert_eq!(p["git_commit"], mpm_host::identity::GIT_COMMIT);
     assert!(p["git_commit"].as_str().unwrap().len() == 40 || p["git_commit"] == "unknown", "{p}");
     assert!(p["git_dirty"].is_boolean() || p["git_dirty"].is_null(), "{p}");
     assert!(p["rustc"].as_str().unwrap().starts_with("rustc "), "{p}");
@@ -378,7 +378,7 @@ fn summary_and_version_carry_provenance() {
     let out = mpm(&["--version"]);
     let line = text(&out.stdout);
     assert!(out.status.success());
-    let commit: String = mpm_cli::identity::GIT_COMMIT.chars().take(12).collect();
+    let commit: String = mpm_host::identity::GIT_COMMIT.chars().take(12).collect();
     assert!(line.contains(&format!("commit {commit}")), "{line}");
     assert!(line.contains(&format!("profile {}", env!("MPM_PROFILE"))), "{line}");
 }

@@ -1,8 +1,8 @@
 //! What identifies the host and the build a measurement came from: the CPU (vendor, family,
 //! model, stepping, microcode, per-level cache sizes, SMT state), a hash of `/etc/machine-id`,
 //! the kernel, and the binary's commit, rustc and SHA-256 ([`Provenance`]): the types, and
-//! the parsing of the kernel's texts. Reading them from `/proc` and `/sys` is the program's
-//! (`mpm_cli::identity`).
+//! the parsing of the kernel's texts. Reading them from `/proc` and `/sys` is the host
+//! crate's (`mpm_host::identity`).
 
 use serde::{Deserialize, Serialize};
 
@@ -115,7 +115,7 @@ pub fn smt_state(active: Option<&str>, control: Option<&str>) -> String {
 }
 
 /// Where a binary and its build came from, written into every JSON summary (by
-/// `mpm_cli::identity::provenance_of_this_process`).
+/// `mpm_host::identity::provenance_of_this_process`).
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Provenance {
     /// The host the run ran on (kernel included).

@@ -13,7 +13,7 @@
 //! * [`OptLevel`] and the host's [`identity`] types, shared by both programs.
 //!
 //! No MPI and no OS-specific code: the harness builds against this crate without an MPI
-//! library. Reading `/proc`, pinning and MPI live in `mpm-cli`.
+//! library. Reading `/proc` and pinning live in `mpm-host`, MPI in `mpm-cli`.
 //!
 //! ```
 //! use mpm_spec::{RunSpec, Scenario, scenario::TaylorSpec};

@@ -6,7 +6,7 @@
 //! The kernel is STREAM's triad, `a[i] = b[i] + s * c[i]`, over three `f64` arrays each much
 //! larger than the last-level cache (by default 4 x the total last-level cache, at least
 //! 64 MiB per array). For every thread count and pinning policy a fresh rayon pool is built
-//! with [`mpm_cli::pinning::build_pool`] (worker `j` pinned to the policy's `j`-th CPU from
+//! with [`mpm_host::pinning::build_pool`] (worker `j` pinned to the policy's `j`-th CPU from
 //! [`Machine::place`], its placement read back), the arrays are allocated anew and first
 //! touched by the workers that will use them (worker `j` owns the `j`-th
 //! contiguous chunk, as in the solver, so pages land on the worker's NUMA node), one untimed
@@ -24,7 +24,7 @@ use super::placement::PinPolicy;
 use super::topology::{human_bytes, Machine};
 use crate::util::{median, now_rfc3339};
 use anyhow::{bail, Context, Result};
-use mpm_cli::pinning;
+use mpm_host::pinning;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;

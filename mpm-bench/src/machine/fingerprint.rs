@@ -12,7 +12,7 @@
 
 use super::topology::{CacheLevel, Machine, NumaNode};
 use crate::util::hex;
-use mpm_cli::identity::HostIdentity;
+use mpm_host::identity::HostIdentity;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::path::Path;
@@ -61,7 +61,7 @@ pub struct MachineInfo {
 /// Stable fingerprint of a machine (12 hex digits): of `m` and, when `m` is this host, of
 /// its [`HostIdentity`].
 pub fn fingerprint(m: &Machine) -> String {
-    let identity = m.is_this_system.then(mpm_cli::identity::read_host);
+    let identity = m.is_this_system.then(mpm_host::identity::read_host);
     fingerprint_with(m, identity.as_ref())
 }
 
@@ -87,7 +87,7 @@ pub fn fingerprint_with(m: &Machine, identity: Option<&HostIdentity>) -> String 
 
 /// Machine part of the manifest for `m` (this host).
 pub fn machine_info(m: &Machine) -> MachineInfo {
-    let identity = m.is_this_system.then(mpm_cli::identity::read_host);
+    let identity = m.is_this_system.then(mpm_host::identity::read_host);
     MachineInfo {
         fingerprint: fingerprint_with(m, identity.as_ref()),
         cpu_model: m.cpu_model.clone(),
@@ -163,7 +163,7 @@ mod tests {
     #[test]
     fn identity_separates_look_alike_hosts() {
         let m = Machine::synthetic("pack:1 core:2 pu:1").unwrap();
-        let id = mpm_cli::identity::parse_cpuinfo(
+        let id = mpm_host::identity::parse_cpuinfo(
             "vendor_id : AuthenticAMD\ncpu family : 25\nmodel : 17\nstepping : 1\nmicrocode : 0x1000065\n",
         );
         let base = fingerprint_with(&m, Some(&id));
@@ -176,7 +176,7 @@ mod tests {
         other.machine_id_sha256 = Some("ab".repeat(32));
         assert_ne!(base, fingerprint_with(&m, Some(&other)));
         let mut other = id.clone();
-        other.caches.push(mpm_cli::identity::CacheSize { level: 3, kind: "unified".into(), size_bytes: 1 << 25 });
+        other.caches.push(mpm_host::identity::CacheSize { level: 3, kind: "unified".into(), size_bytes: 1 << 25 });
         assert_ne!(base, fingerprint_with(&m, Some(&other)));
     }
 }

@@ -28,8 +28,8 @@ pub const STEAL_MAX: f64 = 0.05;
 pub const CALIBRATION_MAX: f64 = 1.25;
 
 /// `/proc/stat` and its reader live with the solver program's own measurement of noise
-/// (`mpm_cli::usage`), which reads the steal of each worker's CPU.
-pub use mpm_cli::usage::{parse_proc_stat, CpuTimes, StatSnapshot};
+/// (`mpm_host::usage`), which reads the steal of each worker's CPU.
+pub use mpm_host::usage::{parse_proc_stat, CpuTimes, StatSnapshot};
 
 /// The 1-minute load average (`/proc/loadavg`).
 pub fn load1() -> Option<f64> {

@@ -40,7 +40,7 @@
 
 use super::topology::{format_cpu_list, Core, Machine};
 use anyhow::{bail, Context, Result};
-use mpm_cli::pinning::parse_cpu_list;
+use mpm_host::pinning::parse_cpu_list;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::fmt::Write as _;

@@ -397,7 +397,7 @@ pub fn export_xml() -> Result<String> {
     Ok(xml.as_str().to_string())
 }
 
-pub use mpm_cli::memory::human_bytes;
+pub use mpm_host::human::human_bytes;
 
 #[cfg(test)]
 mod tests {

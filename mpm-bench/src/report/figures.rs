@@ -249,7 +249,7 @@ fn write_points(path: &Path, points: &[FigurePoint]) -> Result<()> {
         w.serialize(p)?;
     }
     let bytes = w.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
-    mpm_cli::atomic::write_atomic(path, &bytes).with_context(|| format!("cannot write {}", path.display()))
+    mpm_host::atomic::write_atomic(path, &bytes).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// The three panels of one of Figures 7-14.

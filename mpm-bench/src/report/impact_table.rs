@@ -7,8 +7,8 @@
 //! written before the figure existed) shows as `-`.
 
 use anyhow::{bail, Context, Result};
-use mpm_cli::atomic::write_atomic;
-use mpm_cli::group_digits;
+use mpm_host::atomic::write_atomic;
+use mpm_host::human::group_digits;
 use mpm_spec::identity::Provenance;
 use mpm_spec::summary::{EnergyReport, ImpactFigures, Summary};
 use std::path::{Path, PathBuf};

@@ -5,7 +5,7 @@ use super::doc::{Block, Section};
 use super::sets::{row_counts, Set};
 use crate::campaign::store::manifest::Manifest;
 use crate::machine::topology::human_bytes;
-use mpm_cli::identity::HostIdentity;
+use mpm_host::identity::HostIdentity;
 
 type Getter = fn(&Manifest) -> String;
 

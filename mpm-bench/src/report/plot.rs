@@ -1,10 +1,10 @@
 //! Drawing: panels of lines with interval bars, hollow (oversubscribed) and grey (busy host)
 //! markers, a legend
 //! strip, footnotes, and a figure written as PNG and SVG with the embedded font
-//! ([`mpm_cli::picture::register_fonts`]).
+//! ([`mpm_host::fonts::register_fonts`]).
 
 use anyhow::{anyhow, Context, Result};
-use mpm_cli::picture::register_fonts;
+use mpm_host::fonts::register_fonts;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};

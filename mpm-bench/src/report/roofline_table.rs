@@ -8,7 +8,7 @@
 //! is for single runs (the README's Models 1-3 and the impact).
 
 use anyhow::{bail, Context, Result};
-use mpm_cli::atomic::write_atomic;
+use mpm_host::atomic::write_atomic;
 use mpm_spec::summary::Summary;
 use std::path::PathBuf;
 
@@ -107,7 +107,7 @@ pub fn table(runs: &[(String, Summary)], stream: &dyn Fn(usize) -> Option<f64>) 
         out.push_str(&format!(
             "| {label} | **step** ({} x{workers}, {} particles) | {ns:.1} | {bytes:.0} | {flops:.0} | {gb:.2} | {share} | {:.2} |\n",
             s.strategy,
-            mpm_cli::group_digits(s.figures.size.particles as u64),
+            mpm_host::human::group_digits(s.figures.size.particles as u64),
             flops / ns,
         ));
     }

@@ -103,8 +103,8 @@ impl RunRequest {
 
     /// Write the spec file (TOML) for the solver.
     pub fn write_spec(&self) -> std::io::Result<()> {
-        mpm_cli::atomic::write_atomic(&self.spec_path, self.spec.to_toml().as_bytes())
-            .map_err(|e| std::io::Error::other(format!("{e:#}")))
+        mpm_host::atomic::write_atomic(&self.spec_path, self.spec.to_toml().as_bytes())
+            .map_err(|e| std::io::Error::other(format!("{:#}", anyhow::Error::new(e))))
     }
 }
 
@@ -183,7 +183,7 @@ pub fn remove_stale_temp_files(dir: &Path) -> usize {
     let mut removed = 0;
     for e in rd.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let Some(pid) = mpm_cli::atomic::temp_file_pid(&name) else { continue };
+        let Some(pid) = mpm_host::atomic::temp_file_pid(&name) else { continue };
         if pid != std::process::id() && !process_runs(pid) && std::fs::remove_file(e.path()).is_ok() {
             removed += 1;
         }
@@ -281,7 +281,7 @@ impl Runner for ProcessRunner {
                 };
             }
         };
-        let tmp = mpm_cli::atomic::temp_path_for_pid(&req.json_path, child.id());
+        let tmp = mpm_host::atomic::temp_path_for_pid(&req.json_path, child.id());
         *LIVE_CHILD.lock().unwrap_or_else(|e| e.into_inner()) = Some((child.id(), tmp.clone(), group));
         let mut stderr = child.stderr.take();
         let reader = std::thread::spawn(move || {

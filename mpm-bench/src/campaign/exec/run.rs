@@ -83,7 +83,7 @@ impl RunCheckpoints {
 
     /// Whether the folder holds a checkpoint to continue from.
     pub fn resumable(&self) -> bool {
-        matches!(mpm_cli::checkpoint::newest_header(&self.dir), Ok(Some(_)))
+        matches!(mpm_host::checkpoint::newest_header(&self.dir), Ok(Some(_)))
     }
 
     /// The attempts that did not finish, oldest first.
@@ -99,7 +99,7 @@ impl RunCheckpoints {
     /// Book an attempt from `started` to `ended` (Unix seconds) that did not finish: it lost
     /// its time after the newest checkpoint it wrote, or all of it.
     pub fn record_loss(&self, started: f64, ended: f64, reason: &str) -> Result<()> {
-        let saved_at = mpm_cli::checkpoint::newest_header(&self.dir)
+        let saved_at = mpm_host::checkpoint::newest_header(&self.dir)
             .ok()
             .flatten()
             .map(|(_, h)| h.written_unix_s)
@@ -108,7 +108,7 @@ impl RunCheckpoints {
         let mut all = self.attempts();
         all.push(LostAttempt { started_unix_s: started, ended_unix_s: ended, lost_s, reason: reason.into() });
         std::fs::create_dir_all(self.log.parent().unwrap_or(Path::new(".")))?;
-        mpm_cli::atomic::write_atomic(&self.log, serde_json::to_string_pretty(&all)?.as_bytes())
+        Ok(mpm_host::atomic::write_atomic(&self.log, serde_json::to_string_pretty(&all)?.as_bytes())?)
     }
 
     /// A finished run needs neither its checkpoints nor its list of attempts.
@@ -188,9 +188,9 @@ impl RunContext<'_> {
             let before = w.before_run(&probe_cpus);
             (w, before)
         });
-        let started = mpm_cli::summary::unix_now();
+        let started = mpm_host::clock::unix_now();
         let out = runner.run(&req);
-        let ended = mpm_cli::summary::unix_now();
+        let ended = mpm_host::clock::unix_now();
         if out.interrupted || self.interrupted.load(Ordering::SeqCst) {
             let _ = std::fs::remove_file(&req.json_path);
             if let Some(c) = &checkpoints {
@@ -469,9 +469,9 @@ mod tests {
         c.record_loss(100.0, 160.0, "timed out after 1m").unwrap();
         assert_eq!(c.lost_s(), 60.0);
         // An attempt that wrote one (now, by the clock) lost only its time after it.
-        let folder = mpm_cli::checkpoint::Folder::new(&c.dir);
+        let folder = mpm_host::checkpoint::Folder::new(&c.dir);
         let partial = folder.begin(40).unwrap();
-        let meta = mpm_cli::checkpoint::Meta {
+        let meta = mpm_host::checkpoint::Meta {
             rank: 0,
             ranks: 1,
             step: 40,
@@ -480,10 +480,10 @@ mod tests {
             binary_sha256: "b".into(),
         };
         let p = mpm_core::Particles::default();
-        mpm_cli::checkpoint::write_file(&partial.join("rank-0000.ckpt"), &meta, toml::Table::new(), &p, None).unwrap();
+        mpm_host::checkpoint::write_file(&partial.join("rank-0000.ckpt"), &meta, toml::Table::new(), &p, None).unwrap();
         folder.commit(40).unwrap();
         assert!(c.resumable());
-        let now = mpm_cli::summary::unix_now();
+        let now = mpm_host::clock::unix_now();
         c.record_loss(now - 100.0, now + 5.0, "killed by signal 9").unwrap();
         let lost = c.lost_s() - 60.0;
         assert!((4.0..6.0).contains(&lost), "{lost}");

@@ -71,7 +71,7 @@ pub fn target_dir(workspace: &Path) -> PathBuf {
 
 /// SHA-256 of a file, hex.
 pub fn sha256_file(path: &Path) -> Result<String> {
-    mpm_cli::identity::sha256_file(path).with_context(|| format!("cannot hash {}", path.display()))
+    mpm_host::identity::sha256_file(path).with_context(|| format!("cannot hash {}", path.display()))
 }
 
 /// Build (when `build`) and locate the `mpm` binary of each level in `opts`.

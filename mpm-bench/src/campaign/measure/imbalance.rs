@@ -167,7 +167,7 @@ pub fn measure(a: &ImbalanceOptions) -> Result<ImbalanceReport> {
     let model_name = setup.model.clone();
     let spec = setup.grid.clone();
     let mut sim = Simulation::new(setup, SimConfig { grid_mode, ..SimConfig::default() })?;
-    let pool = mpm_cli::pinning::build_pool(1, None)?.pool;
+    let pool = mpm_host::pinning::build_pool(1, None)?.pool;
     let mut ev = Evaluator {
         cell_of: Vec::new(),
         marginals: Default::default(),

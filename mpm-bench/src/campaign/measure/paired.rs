@@ -16,7 +16,7 @@
 //! simulated steps (the solvers agree to round-off), so the ratio
 //! `e_b = t1_b / (T x tT_b)` of two blocks a few hundred milliseconds apart compares the same
 //! work under nearly the same host conditions. The blocks run through the solver program's
-//! own alternation ([`mpm_cli::paired`], which `mpm run` uses for a campaign's paired cells);
+//! own alternation ([`mpm_host::paired`], which `mpm run` uses for a campaign's paired cells);
 //! this module measures, [`crate::analysis::paired::report`] estimates (the median of the
 //! `e_b` with a percentile-bootstrap interval over the blocks, the efficiency of the medians
 //! and of the best blocks).
@@ -38,10 +38,10 @@ use crate::machine::topology::{human_bytes, Machine};
 use crate::util::now_rfc3339;
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use mpm_cli::paired::{alternate, max_position_difference, unlimited, Contender};
-use mpm_cli::pinning::{self, PinnedPool};
 use mpm_core::scenario::taylor::TaylorBar;
 use mpm_core::{SimConfig, Simulation, Strategy};
+use mpm_host::paired::{alternate, max_position_difference, unlimited, Contender};
+use mpm_host::pinning::{self, PinnedPool};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -316,8 +316,8 @@ pub fn measure(a: &PairedOptions) -> Result<PairedMeasurement> {
         serial_s_per_step: serial,
         strategies: out,
         debug_build: cfg!(debug_assertions),
-        git_commit: mpm_cli::identity::GIT_COMMIT.to_string(),
-        git_dirty: mpm_cli::identity::GIT_DIRTY != "false",
+        git_commit: mpm_host::identity::GIT_COMMIT.to_string(),
+        git_dirty: mpm_host::identity::GIT_DIRTY != "false",
         timestamp: now_rfc3339(),
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
     })

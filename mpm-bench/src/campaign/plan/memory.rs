@@ -46,7 +46,7 @@ pub fn estimate_run_memory(spec: &mpm_spec::RunSpec) -> u64 {
     one + (spec.ranks.max(1) as u64 - 1) * RANK_OVERHEAD_BYTES
 }
 
-pub use mpm_cli::memory::available_memory;
+pub use mpm_host::memory::available_memory;
 
 /// Fraction of the available memory a run may use.
 pub const MEMORY_HEADROOM: f64 = 0.9;

@@ -30,7 +30,7 @@ use crate::campaign::store::record::Row;
 use crate::machine::fingerprint;
 use crate::machine::topology::Machine;
 use anyhow::{bail, Context, Result};
-use mpm_cli::atomic::write_atomic;
+use mpm_host::atomic::write_atomic;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Duration;

@@ -402,7 +402,7 @@ fn submit(
         shell_quote(&exe.display().to_string()),
         shell_quote(&job_file.display().to_string())
     );
-    mpm_cli::atomic::write_atomic(&script, text.as_bytes())?;
+    mpm_host::atomic::write_atomic(&script, text.as_bytes())?;
     let out = Command::new("sbatch")
         .args(&args)
         .arg(&script)

@@ -423,7 +423,7 @@ impl ManifestLog {
         let topo = dir.join("topology.xml");
         if here && machine.is_this_system && !topo.exists() {
             match crate::machine::topology::export_xml() {
-                Ok(xml) => mpm_cli::atomic::write_atomic(&topo, xml.as_bytes())?,
+                Ok(xml) => mpm_host::atomic::write_atomic(&topo, xml.as_bytes())?,
                 Err(e) => eprintln!("warning: no topology.xml: {e:#}"),
             }
         }

@@ -105,10 +105,10 @@ pub fn repair_garbage(path: &Path) -> Result<Option<PathBuf>> {
     let name = path.file_name().map_or_else(|| "runs.csv".into(), |n| n.to_string_lossy().into_owned());
     let aside = path.with_file_name(format!("{name}.garbage-{stamp}"));
     let set_aside: Vec<u8> = parsed.garbage.iter().flat_map(|g| g.bytes.iter().copied()).collect();
-    mpm_cli::atomic::write_atomic(&aside, &set_aside)?;
+    mpm_host::atomic::write_atomic(&aside, &set_aside)?;
     let mut kept: Vec<u8> = parsed.good.iter().flat_map(|r| bytes[r.clone()].iter().copied()).collect();
     kept.extend_from_slice(&bytes[good..]);
-    mpm_cli::atomic::write_atomic(path, &kept)?;
+    mpm_host::atomic::write_atomic(path, &kept)?;
     warn_garbage(path, &parsed.garbage, &format!("moved to {}; their runs will be redone", aside.display()));
     Ok(Some(aside))
 }
@@ -124,7 +124,7 @@ pub fn repair_torn_tail(path: &Path) -> Result<Option<PathBuf>> {
     let stamp: String = crate::util::now_rfc3339().chars().filter(|c| c.is_ascii_alphanumeric()).collect();
     let name = path.file_name().map_or_else(|| "runs.csv".into(), |n| n.to_string_lossy().into_owned());
     let aside = path.with_file_name(format!("{name}.torn-{stamp}"));
-    mpm_cli::atomic::write_atomic(&aside, &bytes[good..])?;
+    mpm_host::atomic::write_atomic(&aside, &bytes[good..])?;
     let f = OpenOptions::new().write(true).open(path).with_context(|| format!("cannot repair {}", path.display()))?;
     f.set_len(good as u64).with_context(|| format!("cannot repair {}", path.display()))?;
     f.sync_all().ok();

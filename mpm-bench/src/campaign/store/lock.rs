@@ -3,14 +3,14 @@
 //! kernel drops the lock with the last open handle, so a killed harness leaves no stale
 //! lock). The file holds the holder's pid and host, so a second `mpm-bench run` into the same
 //! folder can say who is there; it refuses, or with `--wait` waits. The lock itself is
-//! `mpm_cli::lock`'s, which `mpm` takes on a run's checkpoint folder too.
+//! `mpm_host::lock`'s, which `mpm` takes on a run's checkpoint folder too.
 
 use anyhow::{bail, Result};
-use mpm_cli::lock::LockError;
+use mpm_host::lock::LockError;
 use std::path::Path;
 use std::time::Duration;
 
-pub use mpm_cli::lock::FolderLock;
+pub use mpm_host::lock::FolderLock;
 
 /// Take the lock of the campaign folder `dir` (created if needed). Held by another
 /// process: wait for it when `wait` (saying so once), else refuse naming the holder.

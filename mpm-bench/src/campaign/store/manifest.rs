@@ -282,7 +282,7 @@ pub fn read(path: &Path) -> Result<Manifest> {
 
 /// Write a manifest (atomically).
 pub fn write(path: &Path, m: &Manifest) -> Result<()> {
-    mpm_cli::atomic::write_atomic(path, serde_json::to_string_pretty(m)?.as_bytes())
+    Ok(mpm_host::atomic::write_atomic(path, serde_json::to_string_pretty(m)?.as_bytes())?)
 }
 
 #[cfg(test)]

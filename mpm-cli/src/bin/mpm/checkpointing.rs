@@ -2,14 +2,14 @@
 //! state ([`Saved`]: the spec, the initial grid, the timing so far, the histories and
 //! trackers, the snapshots written), when ([`Checkpointer::due`]), and how every rank
 //! writes its part into one checkpoint ([`Checkpointer::write`]). The file format and the
-//! folder are `mpm_cli::checkpoint`'s.
+//! folder are `mpm_host::checkpoint`'s.
 
 use anyhow::{anyhow, Context, Result};
-use mpm_cli::checkpoint::{write_file, Folder, Meta};
 use mpm_cli::summary::{HistoryRecorder, Timing};
 use mpm_core::scenario::impact::HistorySample;
 use mpm_core::scenario::taylor::TaylorFigures;
 use mpm_core::{Collectives, SimState, Simulation};
+use mpm_host::checkpoint::{write_file, Folder, Meta};
 use mpm_spec::spec::CheckpointEvery;
 use mpm_spec::summary::CheckpointReport;
 use mpm_spec::RunSpec;
@@ -138,7 +138,7 @@ impl Checkpointer {
                 ranks: spec.ranks,
                 step: 0,
                 time_s: 0.0,
-                spec_key: mpm_cli::checkpoint::run_key(spec),
+                spec_key: mpm_host::checkpoint::run_key(spec),
                 binary_sha256,
             },
         })
@@ -208,7 +208,7 @@ impl Checkpointer {
         let step = sim.steps();
         let rank = ranks.rank();
         // 1. Rank 0 opens the partial folder; the others wait for it.
-        let opened = if rank == 0 { self.folder.begin(step).map(|_| ()) } else { Ok(()) };
+        let opened = if rank == 0 { self.folder.begin(step).map(|_| ()).map_err(Into::into) } else { Ok(()) };
         agree(ranks, opened)?;
         // 2. Every rank its file.
         let meta = Meta { step, time_s: sim.time(), ..self.meta.clone() };
@@ -221,13 +221,13 @@ impl Checkpointer {
             let n = sim.particles().len();
             let ids =
                 (ranks.ranks() > 1 || (0..n).any(|p| id(p) != p as u64)).then(|| (0..n).map(id).collect::<Vec<u64>>());
-            write_file(&path, &meta, state, sim.particles(), ids.as_deref())
+            Ok(write_file(&path, &meta, state, sim.particles(), ids.as_deref())?)
         });
         let mut bytes = [*written.as_ref().unwrap_or(&0)];
         agree(ranks, written.map(|_| ()))?;
         ranks.sum_counts(&mut bytes).map_err(|e| Failure::Collective(e.into()))?;
         // 3. Rank 0 completes it.
-        let committed = if rank == 0 { self.folder.commit(step).map(|_| ()) } else { Ok(()) };
+        let committed = if rank == 0 { self.folder.commit(step).map(|_| ()).map_err(Into::into) } else { Ok(()) };
         agree(ranks, committed)?;
         Ok(bytes[0])
     }

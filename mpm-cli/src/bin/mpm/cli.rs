@@ -13,6 +13,7 @@ use mpm_spec::spec::{
 };
 use mpm_spec::{RunSpec, SpecError};
 use std::path::PathBuf;
+use std::sync::OnceLock;
 
 pub const EXAMPLES: &str = "\
 Examples:
@@ -86,10 +87,21 @@ relative errors *_rel_error (measured / Rankine-Hugoniot - 1).";
 /// human summary and writes a machine-readable JSON summary (timings per stage, memory,
 /// pinning, physics checks) and optional VTU snapshots for ParaView.
 #[derive(Debug, Parser)]
-#[command(name = "mpm", version = mpm_cli::identity::version_line(), after_help = EXAMPLES, propagate_version = true)]
+#[command(name = "mpm", version = version_line(), after_help = EXAMPLES, propagate_version = true)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+}
+
+/// The `--version` line: version, commit (with `-dirty`), build profile and opt-level,
+/// compiler.
+fn version_line() -> &'static str {
+    use mpm_cli::summary::{CARGO_OPT_LEVEL, PROFILE};
+    use mpm_host::identity::{GIT_COMMIT_SHORT, RUSTC, VERSION};
+    static LINE: OnceLock<String> = OnceLock::new();
+    LINE.get_or_init(|| {
+        format!("{VERSION} (commit {GIT_COMMIT_SHORT}, profile {PROFILE}, opt-level {CARGO_OPT_LEVEL}, {RUSTC})")
+    })
 }
 
 #[derive(Debug, Subcommand)]
@@ -484,9 +496,9 @@ pub struct RunOptions {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct CpuList(pub Vec<usize>);
 
-/// `--cpus`: a CPU list such as `0,1` or `0-3`.
+/// `--cpus`: a CPU list such as `0,1` or `0-3` (an error says its causes on one line).
 fn parse_cpus(s: &str) -> Result<CpuList, String> {
-    mpm_cli::pinning::parse_cpu_list(s).map(CpuList).map_err(|e| format!("{e:#}"))
+    mpm_host::pinning::parse_cpu_list(s).map(CpuList).map_err(|e| format!("{:#}", anyhow::Error::new(e)))
 }
 
 /// `2x1x1` as `[2, 1, 1]`.

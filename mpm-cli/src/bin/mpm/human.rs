@@ -1,7 +1,8 @@
 //! The summary of a run for people (stdout), unless `--quiet`.
 
 use mpm_cli::vtk::SnapshotWriter;
-use mpm_cli::{group_digits, pinning};
+use mpm_host::human::group_digits;
+use mpm_host::pinning;
 use mpm_spec::summary::{EndReason, WallContact};
 use mpm_spec::{ScenarioKind, Summary};
 use std::path::Path;
@@ -102,6 +103,15 @@ fn timing(s: &Summary) -> Vec<String> {
         ),
         _ => "steady state: no steps after the warm-up".to_string(),
     });
+    lines.extend(balance(s));
+    lines.extend(checkpoints(s));
+    lines.extend(efficiency_notes(s));
+    lines
+}
+
+/// The workers' busy time and the DD patches' work, when measured.
+fn balance(s: &Summary) -> Vec<String> {
+    let mut lines = Vec::new();
     if let (Some(busy), Some(imb)) = (&s.figures.balance.worker_busy_s, s.figures.balance.load_imbalance) {
         let list = busy.iter().map(|b| format!("{b:.3}")).collect::<Vec<_>>().join(" / ");
         let uneven_patches = s.figures.balance.dd_patch_particles.is_some_and(|p| p.imbalance_mean > 1.1);
@@ -118,7 +128,12 @@ fn timing(s: &Summary) -> Vec<String> {
             p.min, p.mean, p.max, p.imbalance_mean, p.imbalance_max
         ));
     }
-    if let Some(c) = &s.figures.checkpoint {
+    lines
+}
+
+/// The checkpoints written and the restarts, when there were any.
+fn checkpoints(s: &Summary) -> Option<String> {
+    s.figures.checkpoint.as_ref().map(|c| {
         let restarts = match c.restarts {
             0 => String::new(),
             n => format!(
@@ -127,13 +142,19 @@ fn timing(s: &Summary) -> Vec<String> {
                 c.restart_setup_s
             ),
         };
-        lines.push(format!(
+        format!(
             "checkpoints: {} written in {:.3} s (the last {}){restarts}; none of it in the times above",
             c.written,
             c.write_s,
-            mpm_cli::memory::human_bytes(c.last_bytes)
-        ));
-    }
+            mpm_host::human::human_bytes(c.last_bytes)
+        )
+    })
+}
+
+/// What bounds or qualifies the parallel efficiency: the work counters' bound, a paired
+/// measurement, workers kept off their CPUs, the injected slowdown.
+fn efficiency_notes(s: &Summary) -> Vec<String> {
+    let mut lines = Vec::new();
     if let Some(w) = s.figures.work.as_ref().filter(|w| w.worker_bytes.len() > 1) {
         lines.push(format!(
             "work counters: efficiency bound {:.3} from the traffic alone (balance {:.3}, the strategy's overhead {:.1} %)",

@@ -2,22 +2,31 @@
 //! snapshots). See `mpm run taylor --help`.
 //!
 //! A run in steps: [`cli`] parses the command line into a run spec (`mpm_spec::RunSpec`,
-//! or reads one with `--spec`), [`run`] checks it against the machine, builds the scenario,
-//! the pinned pool and the simulation and steps it
-//! ([`output`] writes snapshots and pictures on the way, [`checkpointing`] the run's
-//! checkpoints, [`progress`] shows a bar), then writes the summary; [`human`] prints it for
-//! people. `mpm resume DIR` ([`resume`]) takes a run back from its newest checkpoint and
-//! goes on through the same loop.
+//! or reads one with `--spec`, [`run`]); [`start`] sets the run up, fresh or from a
+//! checkpoint: checks it against the machine ([`machine`]), builds the scenario ([`ranks`]:
+//! over MPI ranks too), the pinned pool and the simulation ([`solver`]); [`stepping`] steps
+//! it ([`output`] writes snapshots and pictures on the way, [`checkpointing`] the run's
+//! checkpoints, [`tracking`] the scenario's histories, [`progress`] shows a bar, [`paired`]
+//! runs a paired measurement instead), then writes the summary; [`human`] prints it for
+//! people. `mpm resume DIR` ([`resume`]) chooses and checks the checkpoint to take a run
+//! back from and goes on through the same set-up and loop. Ctrl-C ([`interrupt`]) stops a
+//! run between steps.
 
 mod checkpointing;
 mod cli;
 mod human;
+mod interrupt;
+mod machine;
 mod output;
 mod paired;
 mod progress;
 mod ranks;
 mod resume;
 mod run;
+mod solver;
+mod start;
+mod stepping;
+mod tracking;
 
 use anyhow::Result;
 use clap::Parser;
@@ -31,7 +40,7 @@ fn main() {
         for cause in e.chain().skip(1) {
             eprintln!("  caused by: {cause}");
         }
-        let code = if e.downcast_ref::<run::Interrupted>().is_some() { 130 } else { 1 };
+        let code = if e.downcast_ref::<interrupt::Interrupted>().is_some() { 130 } else { 1 };
         std::process::exit(code);
     }
 }

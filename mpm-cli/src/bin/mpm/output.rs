@@ -3,11 +3,11 @@
 //! spent writing them (left out of the run's wall time).
 
 use anyhow::{bail, Context, Result};
-use mpm_cli::atomic;
 use mpm_cli::picture::{write_history_plot, write_radiograph, RadiographNotes};
 use mpm_cli::vtk::SnapshotWriter;
 use mpm_core::scenario::impact::{self, History, ImpactGeometry};
 use mpm_core::Simulation;
+use mpm_host::atomic;
 use mpm_spec::{RunSpec, Summary};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -26,14 +26,10 @@ pub struct Outputs {
 
 impl Outputs {
     /// Check and reserve every output before the run: the JSON summary's file, the snapshot
-    /// directory, the radiograph directory.
-    pub fn open(spec: &RunSpec) -> Result<Self> {
-        Self::open_continued(spec, Vec::new())
-    }
-
-    /// [`Outputs::open`] for a run continued from a checkpoint, whose snapshot collection
-    /// already lists the `written` snapshots `(step, time, file)`.
-    pub fn open_continued(spec: &RunSpec, written: Vec<(u64, f64, String)>) -> Result<Self> {
+    /// directory, the radiograph directory. `written`: the snapshots `(step, time, file)`
+    /// the collection of a run continued from a checkpoint already lists (none for a fresh
+    /// run).
+    pub fn open(spec: &RunSpec, written: Vec<(u64, f64, String)>) -> Result<Self> {
         let o = &spec.outputs;
         let json = o.json.as_deref().map(PendingFile::reserve).transpose()?;
         let name = spec.scenario.kind().name();
@@ -56,7 +52,7 @@ impl Outputs {
     /// The snapshot of the initial state (before the timed loop).
     pub fn initial(&mut self, sim: &Simulation) -> Result<()> {
         match self.snapshots.as_mut() {
-            Some(w) => w.write(0, 0.0, sim.particles()),
+            Some(w) => Ok(w.write(0, 0.0, sim.particles())?),
             None => Ok(()),
         }
     }

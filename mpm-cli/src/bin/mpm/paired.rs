@@ -2,16 +2,16 @@
 //! a one-thread solver of the same strategy, built from the same set-up in this process, the
 //! one-thread worker pinned to the first CPU of the run's placement. Both take the warm-up
 //! steps, then `blocks` timed blocks of `(steps - warmup) / blocks` steps each, alternating
-//! ([`mpm_cli::paired::alternate`]: the reference first in even blocks, second in odd ones).
+//! ([`mpm_host::paired::alternate`]: the reference first in even blocks, second in odd ones).
 //! The summary is the `T`-thread solver's (its times are its warm-up and its blocks); its
 //! `paired` section holds both solvers' seconds per step per block and their ratio.
 
-use crate::run::Interrupted;
+use crate::interrupt::Interrupted;
 use anyhow::{Context, Result};
-use mpm_cli::paired::{alternate, max_position_difference, Contender};
-use mpm_cli::pinning::{self, PinnedPool};
 use mpm_cli::summary::Timing;
 use mpm_core::{SimConfig, Simulation};
+use mpm_host::paired::{alternate, max_position_difference, Contender};
+use mpm_host::pinning::{self, PinnedPool};
 use mpm_spec::summary::{EndReason, NoiseReport, PairedReport, StageSeconds, MIN_CPU_SHARE};
 use mpm_spec::RunSpec;
 use std::sync::atomic::{AtomicBool, Ordering};

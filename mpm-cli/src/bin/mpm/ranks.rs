@@ -6,9 +6,9 @@
 
 use anyhow::{bail, Context, Result};
 use mpm_cli::distributed::{launcher_ranks, MPI_COMPILED};
-use mpm_cli::pinning;
 use mpm_core::scenario::Pick;
 use mpm_core::{Collectives, Exchange, MgForm, Particles, Simulation, SingleProcess};
+use mpm_host::pinning;
 use mpm_spec::scenario::Prepared;
 use mpm_spec::summary::RankReport;
 use mpm_spec::Scenario;
@@ -80,7 +80,7 @@ fn put_record(out: &mut [u8], id: u64, values: impl Iterator<Item = f64>) {
 
 /// Write the `--dump-state` file's `bytes`.
 fn write_state(path: &Path, bytes: &[u8]) -> Result<()> {
-    mpm_cli::atomic::write_atomic(path, bytes)
+    mpm_host::atomic::write_atomic(path, bytes)
         .with_context(|| format!("cannot write the particle state to {}", path.display()))
 }
 

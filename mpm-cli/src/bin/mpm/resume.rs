@@ -6,20 +6,19 @@
 //! `--spec FILE`, and a rank count other than the launcher's are refused with a message
 //! that says what to do; nothing in the folder or the outputs is touched. Then every rank
 //! reads its own file (checksum checked), the scenario is built without its particles, and
-//! the simulation and the program's state are taken back ([`mpm_core::Simulation::resume`],
-//! [`crate::run::Carry::restored`]); the run goes on through the same loop as a fresh one
-//! ([`crate::run::go`]), its set-up time booked as the restart's.
+//! the simulation and the program's state are taken back by the same set-up as a fresh
+//! run's ([`crate::start::start`] from [`Origin::Checkpoint`]); the run goes on through the
+//! same loop, its set-up time booked as the restart's.
 
-use crate::checkpointing::{Checkpointer, Saved};
+use crate::checkpointing::Saved;
 use crate::cli::ResumeCmd;
-use crate::output::Outputs;
 use crate::ranks::Ranks;
-use crate::run::{go, place_rank, sim_config, start_pool, Carry, Checkpoints, Plan, Ready};
+use crate::start::{start, Origin, Restart};
 use anyhow::{bail, Context, Result};
-use mpm_cli::checkpoint::{read_file, read_header, Damage, Entry, Folder, Loaded};
 use mpm_cli::distributed::launcher_ranks;
-use mpm_core::{Collectives, OneProcess, Simulation};
-use mpm_spec::scenario::Prepared;
+use mpm_core::Collectives;
+use mpm_host::checkpoint::{read_file, read_header, Damage, Entry, Folder, Header, Loaded};
+use mpm_host::lock::FolderLock;
 use mpm_spec::RunSpec;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -155,6 +154,26 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
     let t0 = Instant::now();
     // The rank count, from the checkpoint as it is now (before MPI starts).
     let (peek, ranks_needed, _) = choose(&cmd)?;
+    launched_as_written(&cmd, &peek, ranks_needed)?;
+    let mut ranks = Ranks::start(Some(ranks_needed))?;
+    let rank = ranks.rank();
+    let _lock = hold_folder(&cmd, &mut ranks)?;
+    let (pick, _, passed_over) = choose(&cmd)?;
+    let loaded = load(&cmd, &pick, passed_over.as_ref(), ranks_needed, &mut ranks)?;
+    let binary_sha256 = check_writer(&loaded.header, &pick, &ranks)?;
+    let saved = Saved::from_table(loaded.header.state.clone())?;
+    let spec = continued_spec(&cmd, saved.spec.clone())?;
+    if let (Some(newest), 0) = (&passed_over, rank) {
+        let aside = Folder::new(&cmd.dir).set_aside(newest)?;
+        eprintln!("note: the damaged checkpoint {} is kept as {}", newest.path.display(), aside.display());
+    }
+    let restart = Restart { loaded, saved, binary_sha256, t0 };
+    start(spec, cmd.force, Origin::Checkpoint(Box::new(restart)), &mut ranks)
+}
+
+/// Refuse a launch over another rank count than the checkpoint `peek`'s (`ranks_needed`),
+/// saying how to launch it.
+fn launched_as_written(cmd: &ResumeCmd, peek: &Entry, ranks_needed: usize) -> Result<()> {
     let launched = launcher_ranks().unwrap_or(1);
     if launched != ranks_needed {
         let how = if ranks_needed == 1 {
@@ -168,20 +187,34 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
             peek.path.display()
         );
     }
-    let mut ranks = Ranks::start(Some(ranks_needed))?;
-    let rank = ranks.rank();
-    // Rank 0 holds the folder from here on: a run still writing into it (the ranks of a run
-    // killed with its launcher end a moment after it) is waited for. Then the choice is
-    // final.
-    let lock = if rank == 0 { Some(Folder::new(&cmd.dir).lock(LOCK_WAIT)) } else { None };
+    Ok(())
+}
+
+/// Rank 0 holds the folder from here on: a run still writing into it (the ranks of a run
+/// killed with its launcher end a moment after it) is waited for. Then the choice of the
+/// checkpoint is final. Every rank fails when rank 0 cannot lock it.
+fn hold_folder(cmd: &ResumeCmd, ranks: &mut Ranks) -> Result<Option<FolderLock>> {
+    let lock =
+        if ranks.rank() == 0 { Some(Folder::new(&cmd.dir).lock(LOCK_WAIT).map_err(anyhow::Error::from)) } else { None };
     if failures(ranks.collectives(), lock.as_ref().is_none_or(Result::is_ok))? > 0 {
         return Err(lock
             .and_then(Result::err)
             .unwrap_or_else(|| anyhow::anyhow!("rank 0 cannot lock the checkpoint folder")));
     }
-    let _lock = lock.transpose()?;
-    let (pick, _, passed_over) = choose(&cmd)?;
-    // Every rank its own file, checked; all ranks refuse together.
+    lock.transpose()
+}
+
+/// Every rank reads its own file of the checkpoint `pick`, checked; all ranks refuse
+/// together, offering the older checkpoint for a damaged newest one. `--older`
+/// (`passed_over`: the newest) only when the newest is damaged.
+fn load(
+    cmd: &ResumeCmd,
+    pick: &Entry,
+    passed_over: Option<&Entry>,
+    ranks_needed: usize,
+    ranks: &mut Ranks,
+) -> Result<Loaded> {
+    let rank = ranks.rank();
     let loaded = read_file(&pick.rank_file(rank));
     let failed = failures(ranks.collectives(), loaded.is_ok())?;
     let loaded: Loaded = match loaded {
@@ -193,10 +226,10 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
         Err(e) if passed_over.is_some() => bail!("the older checkpoint is damaged too ({e}): nothing to continue from"),
         Err(e) => {
             let older = Folder::new(&cmd.dir).list()?.into_iter().rev().nth(1);
-            return Err(damaged_newest(&cmd.dir, &pick, &e.to_string(), older.as_ref(), ranks_needed));
+            return Err(damaged_newest(&cmd.dir, pick, &e.to_string(), older.as_ref(), ranks_needed));
         }
     };
-    if let Some(newest) = &passed_over {
+    if let Some(newest) = passed_over {
         // --older only when the newest is damaged: an intact one is the run's latest state.
         let damaged = read_file(&newest.rank_file(rank)).is_err();
         if failures(ranks.collectives(), !damaged)? == 0 {
@@ -206,8 +239,14 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
             );
         }
     }
-    let header = &loaded.header;
-    let this_binary = mpm_cli::identity::this_binary_sha256();
+    Ok(loaded)
+}
+
+/// Refuse a checkpoint file written by another binary (it would not continue the run bit
+/// for bit) or for another rank; returns this binary's SHA-256.
+fn check_writer(header: &Header, pick: &Entry, ranks: &Ranks) -> Result<String> {
+    let rank = ranks.rank();
+    let this_binary = mpm_host::identity::this_binary_sha256();
     if header.binary_sha256 != this_binary {
         bail!(
             "the checkpoint {} was written by another mpm binary (version {}, commit {}, sha256 {}...); this one is \
@@ -218,7 +257,7 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
             header.git_commit,
             header.binary_sha256.chars().take(16).collect::<String>(),
             mpm_cli::summary::VERSION,
-            mpm_cli::identity::GIT_COMMIT,
+            mpm_host::identity::GIT_COMMIT,
             this_binary.chars().take(16).collect::<String>()
         );
     }
@@ -231,68 +270,7 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
             ranks.size()
         );
     }
-    let saved = Saved::from_table(loaded.header.state.clone())?;
-    let step = loaded.header.step;
-    let spec = continued_spec(&cmd, saved.spec.clone())?;
-    if let (Some(newest), 0) = (&passed_over, rank) {
-        let aside = Folder::new(&cmd.dir).set_aside(newest)?;
-        eprintln!("note: the damaged checkpoint {} is kept as {}", newest.path.display(), aside.display());
-    }
-
-    let lead = rank == 0;
-    let mut plan = Plan::check(&spec, cmd.force)?;
-    let (cpus, rank_oversubscribed) = place_rank(&spec, &mut plan, &ranks)?;
-    let written = saved.program.snapshots.iter().map(|s| (s.step, s.time, s.file.clone())).collect();
-    let outputs = if lead { Outputs::open_continued(&spec, written)? } else { Outputs::none() };
-    let pool = start_pool(spec.threads, cpus.as_deref())?;
-    let (Prepared { setup, impact, plate }, exchange) =
-        ranks.build(&spec.scenario, spec.physics.eos, spec.rank_layout, spec.split_wait, true)?;
-    let taylor = matches!(spec.scenario, mpm_spec::Scenario::Taylor(_));
-    let model_name = setup.model.clone();
-    let same = (saved.sim.strategy, saved.sim.threads) == (spec.strategy, spec.threads);
-    let exchange = exchange.unwrap_or_else(|| Box::new(OneProcess::default()));
-    let sim = Simulation::resume(setup, sim_config(&spec), exchange, loaded.particles, loaded.ids, saved.sim)
-        .context("cannot continue the simulation from the checkpoint")?;
-    let mut bytes = [loaded.bytes];
-    ranks.collectives().sum_counts(&mut bytes)?;
-    let mut carry = Carry::restored(saved.program, impact, plate)?;
-    carry.log.report.restarts += 1;
-    carry.log.report.restart_steps.push(step);
-    carry.log.report.last_bytes = bytes[0];
-    if !same {
-        // Steps of another strategy or thread count time something else: the steady state
-        // starts here.
-        let t = &mut carry.log.timing;
-        (t.warmup_steps, t.warmup_wall_s, t.warmup_times, t.warmup_busy) = (step, t.wall_s, *sim.times(), None);
-        if lead {
-            eprintln!(
-                "note: continued with strategy {} on {} thread(s): the same physics to round-off, not bit for bit; the \
-                 steady-state figures cover the steps from {step} on",
-                spec.strategy, spec.threads
-            );
-        }
-    }
-    let checkpoints = match &spec.outputs.checkpoint {
-        Some(c) => Some(Checkpoints::new(Checkpointer::new(&c.dir, c.every, &spec, rank, this_binary)?)),
-        None => None,
-    };
-    let run = Ready {
-        spec,
-        plan,
-        rank_oversubscribed,
-        pool,
-        sim,
-        outputs,
-        carry,
-        impact,
-        plate,
-        taylor,
-        model_name,
-        checkpoints,
-        restart: Some(t0),
-        reference_setup: None,
-    };
-    go(run, &mut ranks)
+    Ok(this_binary)
 }
 
 /// The spec the continued run runs: the checkpoint's, with `--spec FILE`'s outputs and CPUs
@@ -328,7 +306,7 @@ fn continued_spec(cmd: &ResumeCmd, saved: RunSpec) -> Result<RunSpec> {
         spec.threads = cmd.threads.unwrap_or(spec.threads);
         match cmd.cpus.as_deref() {
             Some("none") => spec.cpus = None,
-            Some(list) => spec.cpus = Some(mpm_cli::pinning::parse_cpu_list(list).context("invalid --cpus")?),
+            Some(list) => spec.cpus = Some(mpm_host::pinning::parse_cpu_list(list).context("invalid --cpus")?),
             None if changed && spec.cpus.as_ref().is_some_and(|c| c.len() != spec.threads) => {
                 eprintln!(
                     "note: the run's CPU list was for {} thread(s): continuing unpinned (give --cpus)",

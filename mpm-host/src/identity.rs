@@ -12,8 +12,14 @@ use sha2::{Digest, Sha256};
 use std::io::Read;
 use std::path::Path;
 
+/// Version of the workspace's crates (one version for all: the `mpm` that writes a
+/// checkpoint or a summary is this version).
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");
 /// Git commit of the workspace this binary was built from (`unknown` without git).
 pub const GIT_COMMIT: &str = env!("MPM_GIT_COMMIT");
+/// Its first 12 hex digits, with `-dirty` when [`GIT_DIRTY`] is `true` (`unknown` without
+/// git): what `mpm --version` prints.
+pub const GIT_COMMIT_SHORT: &str = env!("MPM_GIT_COMMIT_SHORT");
 /// `true` / `false`: the work tree had uncommitted changes to tracked files when this binary
 /// was built; `unknown` without git.
 pub const GIT_DIRTY: &str = env!("MPM_GIT_DIRTY");
@@ -73,22 +79,6 @@ pub fn this_binary_sha256() -> String {
     let proc_exe = Path::new("/proc/self/exe");
     let exe = if proc_exe.exists() { Some(proc_exe.to_path_buf()) } else { std::env::current_exe().ok() };
     exe.and_then(|p| sha256_file(&p).ok()).unwrap_or_else(|| "unknown".into())
-}
-
-/// The `--version` line: crate version, commit (with `-dirty`), build profile.
-pub fn version_line() -> &'static str {
-    concat!(
-        env!("CARGO_PKG_VERSION"),
-        " (commit ",
-        env!("MPM_GIT_COMMIT_SHORT"),
-        ", profile ",
-        env!("MPM_PROFILE"),
-        ", opt-level ",
-        env!("MPM_OPT_LEVEL"),
-        ", ",
-        env!("MPM_RUSTC"),
-        ")"
-    )
 }
 
 /// SHA-256 of `bytes`, lower-case hex.

@@ -1,8 +1,8 @@
 //! Building the rayon pool of one run, with worker `j` pinned to CPU `cpus[j]`, and
 //! verifying where the workers really are.
 //!
-//! The solver library never pins: `mpm` builds the pool here and passes it to
-//! [`mpm_core::Simulation::step`]. Pinning happens inside each worker, in
+//! The solver library never pins: `mpm` and the harness build the pool here and hand it to
+//! the simulation ([`mpm_core::Simulation::step`]). Pinning happens inside each worker, in
 //! [`rayon::ThreadPoolBuilder::start_handler`], before the worker takes any job. After the
 //! pool is built, one [`rayon::ThreadPool::broadcast`] asks every worker for its actual
 //! affinity mask (`sched_getaffinity`) and the CPU it runs on (`sched_getcpu`), so a
@@ -11,38 +11,145 @@
 //! CPU lists use the Linux/`taskset` syntax: comma-separated CPU numbers and inclusive
 //! ranges, e.g. `0,1` or `0-3,6` (strides such as `0-7:2` are not supported).
 
-use anyhow::{bail, Context, Result};
-use rayon::{ThreadPool, ThreadPoolBuilder};
+use rayon::{ThreadPool, ThreadPoolBuildError, ThreadPoolBuilder};
 use serde::{Deserialize, Serialize};
+use std::num::ParseIntError;
 use std::sync::{Arc, Mutex};
+
+/// Why a CPU list, a pinning or a pool was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum PinError {
+    /// An empty CPU list.
+    #[error("empty CPU list: give CPU numbers like '0,1' or ranges like '0-3,6'")]
+    EmptyList,
+    /// A CPU list with an empty item (`0,,1`).
+    #[error("CPU list '{list}' has an empty item: give CPU numbers like '0,1' or ranges like '0-3,6'")]
+    EmptyItem {
+        /// The list.
+        list: String,
+    },
+    /// An item that is not a number.
+    #[error("'{item}' in CPU list '{list}' is not a CPU number (use numbers like '0,1' or ranges like '0-3,6')")]
+    NotANumber {
+        /// The item.
+        item: String,
+        /// The list.
+        list: String,
+        /// The parser's complaint.
+        source: ParseIntError,
+    },
+    /// A range whose end is below its start.
+    #[error("range '{item}' in CPU list '{list}' runs backwards: write it as '{end}-{start}'")]
+    Backwards {
+        /// The range.
+        item: String,
+        /// The list.
+        list: String,
+        /// Its first number.
+        start: usize,
+        /// Its last number.
+        end: usize,
+    },
+    /// A range of more than 4096 CPUs.
+    #[error("range '{item}' in CPU list '{list}' is too long (more than 4096 CPUs)")]
+    TooLong {
+        /// The range.
+        item: String,
+        /// The list.
+        list: String,
+    },
+    /// Not one CPU per worker.
+    #[error(
+        "--cpus lists {} CPU(s) ({}) but the run has {threads} thread(s): give exactly one CPU per worker thread",
+        .cpus.len(),
+        .cpus.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(",")
+    )]
+    Count {
+        /// The CPUs listed.
+        cpus: Vec<usize>,
+        /// The worker threads.
+        threads: usize,
+    },
+    /// A CPU the machine does not have.
+    #[error(
+        "CPU {cpu} does not exist on this machine: it has {configured} CPU(s), numbered 0-{} (usable by this process: {})",
+        .configured - 1,
+        format_cpu_list(.usable)
+    )]
+    Missing {
+        /// The CPU.
+        cpu: usize,
+        /// CPUs configured on the machine.
+        configured: usize,
+        /// CPUs this process may run on.
+        usable: Vec<usize>,
+    },
+    /// A CPU outside this process's affinity mask.
+    #[error(
+        "CPU {cpu} exists but this process may not run on it (its affinity mask allows {}): pick CPUs from that list",
+        format_cpu_list(.usable)
+    )]
+    NotAllowed {
+        /// The CPU.
+        cpu: usize,
+        /// CPUs this process may run on.
+        usable: Vec<usize>,
+    },
+    /// The kernel did not say a thread's affinity mask.
+    #[error("sched_getaffinity failed")]
+    Affinity(#[source] std::io::Error),
+    /// A pool of no threads.
+    #[error("the pool needs at least 1 thread")]
+    NoThreads,
+    /// rayon could not start the workers.
+    #[error("could not start a pool of {threads} worker thread(s)")]
+    Pool {
+        /// The worker threads asked for.
+        threads: usize,
+        /// rayon's error.
+        source: ThreadPoolBuildError,
+    },
+    /// Workers that could not pin themselves (one line each).
+    #[error("pinning failed: {}", .0.join("; "))]
+    Pinning(Vec<String>),
+    /// A worker that could not read its placement back.
+    #[error("worker {worker}: reading its placement")]
+    Placement {
+        /// The worker.
+        worker: usize,
+        /// Why.
+        source: Box<PinError>,
+    },
+}
 
 /// Parse a CPU list such as `0,1`, `3` or `0-3,6` into CPU numbers, in the given order
 /// (ranges expand upwards). Whitespace around items is ignored. Duplicates are kept: two
 /// workers on one CPU is legal, if rarely wise.
-pub fn parse_cpu_list(s: &str) -> Result<Vec<usize>> {
+pub fn parse_cpu_list(s: &str) -> Result<Vec<usize>, PinError> {
     let s = s.trim();
     if s.is_empty() {
-        bail!("empty CPU list: give CPU numbers like '0,1' or ranges like '0-3,6'");
+        return Err(PinError::EmptyList);
     }
     let mut out = Vec::new();
     for item in s.split(',') {
         let item = item.trim();
         if item.is_empty() {
-            bail!("CPU list '{s}' has an empty item: give CPU numbers like '0,1' or ranges like '0-3,6'");
+            return Err(PinError::EmptyItem { list: s.into() });
         }
-        let num = |t: &str| -> Result<usize> {
-            t.trim().parse::<usize>().with_context(|| {
-                format!("'{t}' in CPU list '{s}' is not a CPU number (use numbers like '0,1' or ranges like '0-3,6')")
-            })
+        let num = |t: &str| {
+            t.trim().parse::<usize>().map_err(|source| PinError::NotANumber { item: t.into(), list: s.into(), source })
         };
         match item.split_once('-') {
             Some((a, b)) => {
                 let (a, b) = (num(a)?, num(b)?);
+                let range = || (item.to_string(), s.to_string());
                 if a > b {
-                    bail!("range '{item}' in CPU list '{s}' runs backwards: write it as '{b}-{a}'");
+                    let (item, list) = range();
+                    return Err(PinError::Backwards { item, list, start: a, end: b });
                 }
                 if b - a > 4096 {
-                    bail!("range '{item}' in CPU list '{s}' is too long (more than 4096 CPUs)");
+                    let (item, list) = range();
+                    return Err(PinError::TooLong { item, list });
                 }
                 out.extend(a..=b);
             }
@@ -83,14 +190,14 @@ pub fn configured_cpus() -> usize {
 }
 
 /// The affinity mask of the calling thread as a sorted CPU list.
-pub fn current_affinity() -> Result<Vec<usize>> {
+pub fn current_affinity() -> Result<Vec<usize>, PinError> {
     // SAFETY: cpu_set_t is a plain bit array for which all-zero is a valid (empty) value.
     let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
     // SAFETY: `set` is a valid, writable cpu_set_t and we pass its exact size; pid 0 means
     // the calling thread.
     let rc = unsafe { libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) };
     if rc != 0 {
-        return Err(std::io::Error::last_os_error()).context("sched_getaffinity failed");
+        return Err(PinError::Affinity(std::io::Error::last_os_error()));
     }
     let max = 8 * std::mem::size_of::<libc::cpu_set_t>();
     // SAFETY: CPU_ISSET only reads `set`, and every index is below CPU_SETSIZE.
@@ -106,7 +213,7 @@ pub fn current_cpu() -> Option<usize> {
 
 /// CPUs this process may run on: the affinity mask of the calling thread (the main thread
 /// before any pinning, i.e. what `taskset` or the container allows).
-pub fn usable_cpus() -> Result<Vec<usize>> {
+pub fn usable_cpus() -> Result<Vec<usize>, PinError> {
     current_affinity()
 }
 
@@ -118,29 +225,18 @@ pub fn available_cores() -> usize {
 
 /// Check a requested CPU list against the thread count and the machine: one CPU per
 /// worker, every CPU present and usable by this process.
-pub fn validate_cpus(cpus: &[usize], threads: usize) -> Result<()> {
+pub fn validate_cpus(cpus: &[usize], threads: usize) -> Result<(), PinError> {
     if cpus.len() != threads {
-        bail!(
-            "--cpus lists {} CPU(s) ({}) but the run has {threads} thread(s): give exactly one CPU per worker thread",
-            cpus.len(),
-            cpus.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(",")
-        );
+        return Err(PinError::Count { cpus: cpus.to_vec(), threads });
     }
     let configured = configured_cpus();
     let usable = usable_cpus()?;
-    for &c in cpus {
-        if c >= configured {
-            bail!(
-                "CPU {c} does not exist on this machine: it has {configured} CPU(s), numbered 0-{} (usable by this process: {})",
-                configured - 1,
-                format_cpu_list(&usable)
-            );
+    for &cpu in cpus {
+        if cpu >= configured {
+            return Err(PinError::Missing { cpu, configured, usable });
         }
-        if !usable.contains(&c) {
-            bail!(
-                "CPU {c} exists but this process may not run on it (its affinity mask allows {}): pick CPUs from that list",
-                format_cpu_list(&usable)
-            );
+        if !usable.contains(&cpu) {
+            return Err(PinError::NotAllowed { cpu, usable });
         }
     }
     Ok(())
@@ -219,9 +315,9 @@ impl PinnedPool {
 /// Build a pool of `threads` workers named `mpm-worker-j`; with `cpus`, worker `j` pins
 /// itself to `cpus[j]` when it starts. Validates `cpus` first ([`validate_cpus`]) and fails
 /// if any worker could not pin itself. Then reads back every worker's placement.
-pub fn build_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool> {
+pub fn build_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool, PinError> {
     if threads == 0 {
-        bail!("the pool needs at least 1 thread");
+        return Err(PinError::NoThreads);
     }
     if let Some(c) = cpus {
         validate_cpus(c, threads)?;
@@ -243,22 +339,21 @@ pub fn build_pool(threads: usize, cpus: Option<&[usize]>) -> Result<PinnedPool> 
             }
         });
     }
-    let pool = builder.build().with_context(|| format!("could not start a pool of {threads} worker thread(s)"))?;
+    let pool = builder.build().map_err(|source| PinError::Pool { threads, source })?;
     // Every worker has run its start handler before it takes the broadcast job.
-    let placements: Vec<Result<(Vec<usize>, Option<usize>)>> =
-        pool.broadcast(|_| Ok((current_affinity()?, current_cpu())));
+    let placements = pool.broadcast(|_| Ok::<_, PinError>((current_affinity()?, current_cpu())));
     let failures = std::mem::take(&mut *failures.lock().unwrap_or_else(|e| e.into_inner()));
     if !failures.is_empty() {
-        bail!("pinning failed: {}", failures.join("; "));
+        return Err(PinError::Pinning(failures));
     }
     let workers = placements
         .into_iter()
         .enumerate()
         .map(|(j, r)| {
-            let (affinity, cpu) = r.with_context(|| format!("worker {j}: reading its placement"))?;
+            let (affinity, cpu) = r.map_err(|e| PinError::Placement { worker: j, source: Box::new(e) })?;
             Ok(WorkerPlacement { worker: j, requested: requested.get(j).copied(), affinity, cpu })
         })
-        .collect::<Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>, PinError>>()?;
     Ok(PinnedPool { pool, requested, workers })
 }
 

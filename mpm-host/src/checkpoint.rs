@@ -67,7 +67,6 @@
 //! ```
 
 use crate::lock::{FolderLock, LockError};
-use anyhow::{bail, Context, Result};
 use mpm_core::Particles;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
@@ -172,6 +171,116 @@ pub enum Damage {
     },
 }
 
+/// Why a checkpoint could not be written, or its folder not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    /// The header does not serialise (a state value TOML cannot hold).
+    #[error("cannot write the checkpoint's header")]
+    Header(#[source] toml::ser::Error),
+    /// A rank's file cannot be created.
+    #[error("cannot create the checkpoint file {path}")]
+    Create {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A rank's file cannot be written.
+    #[error("cannot write the checkpoint file {path} (is the disk full?)")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The folder cannot be listed.
+    #[error("cannot list {dir}")]
+    List {
+        /// The folder.
+        dir: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The folder cannot be created.
+    #[error("cannot create the checkpoint folder {dir}")]
+    CreateFolder {
+        /// The folder.
+        dir: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A checkpoint being written cannot be begun ([`Folder::partial`]).
+    #[error("cannot create {path}")]
+    CreatePartial {
+        /// Its folder.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// An old or unfinished checkpoint cannot be removed.
+    #[error("cannot remove {path}")]
+    Remove {
+        /// Its folder.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A written checkpoint cannot be made complete (synced and renamed).
+    #[error("cannot complete the checkpoint {path}")]
+    Complete {
+        /// The checkpoint's folder.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A damaged checkpoint cannot be moved aside.
+    #[error("cannot move {path} aside")]
+    SetAside {
+        /// The checkpoint's folder.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// Another run holds the folder's lock.
+    #[error(
+        "the checkpoint folder {dir} is in use by {who}: another run is writing checkpoints into it; wait for it to end, or give this run a folder of its own"
+    )]
+    Busy {
+        /// The folder.
+        dir: PathBuf,
+        /// The holder (program, pid, host).
+        who: String,
+    },
+    /// The folder's lock cannot be taken.
+    #[error(transparent)]
+    Lock(LockError),
+    /// The newest checkpoint's header cannot be read.
+    #[error(transparent)]
+    Damaged(#[from] Damage),
+    /// A new run's folder already holds checkpoints of this run.
+    #[error(
+        "the checkpoint folder {dir} already holds checkpoints of this run (the newest at step {step}): continue it with \
+         `mpm resume {dir}`, or give an empty folder to start over"
+    )]
+    SameRun {
+        /// The folder.
+        dir: PathBuf,
+        /// Step of its newest checkpoint.
+        step: u64,
+    },
+    /// A new run's folder holds checkpoints of another run.
+    #[error(
+        "the checkpoint folder {dir} holds checkpoints of another run (the newest at step {step}): give a folder of its own \
+         to every run"
+    )]
+    OtherRun {
+        /// The folder.
+        dir: PathBuf,
+        /// Step of its newest checkpoint.
+        step: u64,
+    },
+}
+
 /// A writer that hashes what passes through it.
 struct Hashing<W: Write> {
     inner: W,
@@ -235,7 +344,13 @@ pub struct Meta {
 
 /// Write one rank's checkpoint file at `path` (created; flushed and `fsync`ed): the
 /// particles (`ids`: their global ids, where they are not the indices) and `state`. Returns its bytes.
-pub fn write_file(path: &Path, meta: &Meta, state: toml::Table, p: &Particles, ids: Option<&[u64]>) -> Result<u64> {
+pub fn write_file(
+    path: &Path,
+    meta: &Meta,
+    state: toml::Table,
+    p: &Particles,
+    ids: Option<&[u64]>,
+) -> Result<u64, CheckpointError> {
     let n = p.len() as u64;
     let mut infos = Vec::new();
     let mut offset = 0u64;
@@ -252,8 +367,8 @@ pub fn write_file(path: &Path, meta: &Meta, state: toml::Table, p: &Particles, i
         step: meta.step,
         time_s: meta.time_s,
         particles: n,
-        written_unix_s: crate::summary::unix_now(),
-        mpm_version: crate::summary::VERSION.into(),
+        written_unix_s: crate::clock::unix_now(),
+        mpm_version: crate::identity::VERSION.into(),
         git_commit: crate::identity::GIT_COMMIT.into(),
         binary_sha256: meta.binary_sha256.clone(),
         spec_key: meta.spec_key.clone(),
@@ -261,11 +376,11 @@ pub fn write_file(path: &Path, meta: &Meta, state: toml::Table, p: &Particles, i
         arrays: infos,
         state,
     };
-    let mut text = toml::to_string(&header).context("cannot write the checkpoint's header")?;
+    let mut text = toml::to_string(&header).map_err(CheckpointError::Header)?;
     while text.len() % 8 != 0 {
         text.push(' ');
     }
-    let file = File::create(path).with_context(|| format!("cannot create the checkpoint file {}", path.display()))?;
+    let file = File::create(path).map_err(|source| CheckpointError::Create { path: path.to_path_buf(), source })?;
     let mut w = Hashing { inner: BufWriter::with_capacity(1 << 22, file), hash: Sha256::new(), written: 0 };
     let written = (|| -> std::io::Result<u64> {
         w.write_all(MAGIC)?;
@@ -280,7 +395,7 @@ pub fn write_file(path: &Path, meta: &Meta, state: toml::Table, p: &Particles, i
         file.sync_all()?;
         Ok(w.written + HASH_BYTES)
     })()
-    .with_context(|| format!("cannot write the checkpoint file {} (is the disk full?)", path.display()))?;
+    .map_err(|source| CheckpointError::Write { path: path.to_path_buf(), source })?;
     Ok(written)
 }
 
@@ -469,6 +584,11 @@ fn step_name(step: u64) -> String {
     format!("step-{step:010}")
 }
 
+/// The error of a folder that cannot be removed.
+fn remove(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
+    move |source| CheckpointError::Remove { path: path.to_path_buf(), source }
+}
+
 /// `fsync` a folder, so that the names in it are on disk.
 fn sync_dir(dir: &Path) -> std::io::Result<()> {
     File::open(dir)?.sync_all()
@@ -488,30 +608,28 @@ impl Folder {
     /// Take the folder's lock for the run that writes its checkpoints (one process: rank
     /// 0), waiting up to `wait` for another holder to end (the ranks of a run killed with its
     /// launcher end a moment after it). Held until dropped.
-    pub fn lock(&self, wait: Duration) -> Result<FolderLock> {
+    pub fn lock(&self, wait: Duration) -> Result<FolderLock, CheckpointError> {
         let waiting = |who: &str| {
             eprintln!("waiting for the checkpoint folder {} (in use by {who})", self.dir.display());
         };
         match FolderLock::acquire(&self.dir, "mpm", Some(wait), waiting) {
             Ok(lock) => Ok(lock),
-            Err(LockError::Busy(who)) => bail!(
-                "the checkpoint folder {} is in use by {who}: another run is writing checkpoints into it; wait for it to end, or give this run a folder of its own",
-                self.dir.display()
-            ),
-            Err(e) => Err(e.into()),
+            Err(LockError::Busy(who)) => Err(CheckpointError::Busy { dir: self.dir.clone(), who }),
+            Err(e) => Err(CheckpointError::Lock(e)),
         }
     }
 
     /// Its complete checkpoints, oldest first (none when the folder does not exist).
-    pub fn list(&self) -> Result<Vec<Entry>> {
+    pub fn list(&self) -> Result<Vec<Entry>, CheckpointError> {
+        let failed = |source| CheckpointError::List { dir: self.dir.clone(), source };
         let rd = match std::fs::read_dir(&self.dir) {
             Ok(rd) => rd,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-            Err(e) => return Err(e).with_context(|| format!("cannot list {}", self.dir.display())),
+            Err(e) => return Err(failed(e)),
         };
         let mut out = Vec::new();
         for e in rd {
-            let e = e.with_context(|| format!("cannot list {}", self.dir.display()))?;
+            let e = e.map_err(failed)?;
             let name = e.file_name().to_string_lossy().into_owned();
             let step = name.strip_prefix("step-").filter(|s| s.len() == 10).and_then(|s| s.parse::<u64>().ok());
             if let Some(step) = step.filter(|_| e.path().is_dir()) {
@@ -530,14 +648,15 @@ impl Folder {
     /// Make an empty [`Folder::partial`] for `step` (removing one a killed run left behind),
     /// creating the folder itself if needed. One process (rank 0) calls it before any rank
     /// writes.
-    pub fn begin(&self, step: u64) -> Result<PathBuf> {
+    pub fn begin(&self, step: u64) -> Result<PathBuf, CheckpointError> {
         std::fs::create_dir_all(&self.dir)
-            .with_context(|| format!("cannot create the checkpoint folder {}", self.dir.display()))?;
+            .map_err(|source| CheckpointError::CreateFolder { dir: self.dir.clone(), source })?;
         let partial = self.partial(step);
         if partial.exists() {
-            std::fs::remove_dir_all(&partial).with_context(|| format!("cannot remove {}", partial.display()))?;
+            std::fs::remove_dir_all(&partial).map_err(remove(&partial))?;
         }
-        std::fs::create_dir(&partial).with_context(|| format!("cannot create {}", partial.display()))?;
+        std::fs::create_dir(&partial)
+            .map_err(|source| CheckpointError::CreatePartial { path: partial.clone(), source })?;
         Ok(partial)
     }
 
@@ -545,7 +664,7 @@ impl Folder {
     /// checkpoint `step-N` (synced, renamed, the parent synced), then remove the
     /// checkpoints older than the last two and any other unfinished ones. Returns the
     /// checkpoint's entry.
-    pub fn commit(&self, step: u64) -> Result<Entry> {
+    pub fn commit(&self, step: u64) -> Result<Entry, CheckpointError> {
         let partial = self.partial(step);
         let path = self.dir.join(step_name(step));
         (|| -> std::io::Result<()> {
@@ -558,10 +677,10 @@ impl Folder {
             std::fs::rename(&partial, &path)?;
             sync_dir(&self.dir)
         })()
-        .with_context(|| format!("cannot complete the checkpoint {}", path.display()))?;
+        .map_err(|source| CheckpointError::Complete { path: path.clone(), source })?;
         let entries = self.list()?;
         for old in entries.iter().rev().skip(2) {
-            std::fs::remove_dir_all(&old.path).with_context(|| format!("cannot remove {}", old.path.display()))?;
+            std::fs::remove_dir_all(&old.path).map_err(remove(&old.path))?;
         }
         if let Ok(rd) = std::fs::read_dir(&self.dir) {
             for e in rd.flatten() {
@@ -576,7 +695,7 @@ impl Folder {
 
     /// Move the checkpoint `entry` aside as `damaged-step-N` (numbered if that exists): it
     /// is kept for inspection, and no later checkpoint of the same step replaces it.
-    pub fn set_aside(&self, entry: &Entry) -> Result<PathBuf> {
+    pub fn set_aside(&self, entry: &Entry) -> Result<PathBuf, CheckpointError> {
         let base = format!("damaged-{}", step_name(entry.step));
         let mut to = self.dir.join(&base);
         let mut k = 2;
@@ -584,7 +703,8 @@ impl Folder {
             to = self.dir.join(format!("{base}-{k}"));
             k += 1;
         }
-        std::fs::rename(&entry.path, &to).with_context(|| format!("cannot move {} aside", entry.path.display()))?;
+        std::fs::rename(&entry.path, &to)
+            .map_err(|source| CheckpointError::SetAside { path: entry.path.clone(), source })?;
         Ok(to)
     }
 }
@@ -601,7 +721,7 @@ pub fn run_key(spec: &mpm_spec::RunSpec) -> String {
 /// The rank count and run key of the newest checkpoint in `dir` and when it was written, from
 /// rank 0's header (not checked further): what the harness and `mpm resume` need before
 /// they start a run. `None` when `dir` holds no checkpoint.
-pub fn newest_header(dir: &Path) -> Result<Option<(Entry, Header)>> {
+pub fn newest_header(dir: &Path) -> Result<Option<(Entry, Header)>, CheckpointError> {
     let Some(entry) = Folder::new(dir).list()?.pop() else { return Ok(None) };
     let header = read_header(&entry.rank_file(0))?;
     Ok(Some((entry, header)))
@@ -610,25 +730,12 @@ pub fn newest_header(dir: &Path) -> Result<Option<(Entry, Header)>> {
 /// Refuse `dir` as a new run's checkpoint folder when it already holds checkpoints, so
 /// that nothing in it is overwritten: of this run (`key`, its [`run_key`]), continue it with
 /// `mpm resume`; of another, choose another folder.
-pub fn refuse_used_folder(dir: &Path, key: &str) -> Result<()> {
+pub fn refuse_used_folder(dir: &Path, key: &str) -> Result<(), CheckpointError> {
     let entries = Folder::new(dir).list()?;
     let Some(newest) = entries.last() else { return Ok(()) };
     let same = read_header(&newest.rank_file(0)).is_ok_and(|h| h.spec_key == key);
-    if same {
-        bail!(
-            "the checkpoint folder {} already holds checkpoints of this run (the newest at step {}): continue it with \
-             `mpm resume {}`, or give an empty folder to start over",
-            dir.display(),
-            newest.step,
-            dir.display()
-        );
-    }
-    bail!(
-        "the checkpoint folder {} holds checkpoints of another run (the newest at step {}): give a folder of its own \
-         to every run",
-        dir.display(),
-        newest.step
-    )
+    let (dir, step) = (dir.to_path_buf(), newest.step);
+    Err(if same { CheckpointError::SameRun { dir, step } } else { CheckpointError::OtherRun { dir, step } })
 }
 
 #[cfg(test)]

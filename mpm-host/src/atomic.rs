@@ -1,9 +1,18 @@
 //! Atomic file writes: a temporary file beside the target, synced, then renamed over it, so
 //! a reader never sees a half-written summary, manifest or snapshot list.
 
-use anyhow::{Context, Result};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+
+/// A file that could not be written (its temporary file is removed).
+#[derive(Debug, thiserror::Error)]
+#[error("cannot write {path}")]
+pub struct WriteError {
+    /// The destination.
+    pub path: PathBuf,
+    /// What the system said.
+    pub source: std::io::Error,
+}
 
 /// Whether `path` exists and is neither a regular file nor a directory: a device such as
 /// `/dev/null` or `/dev/stdout`, a FIFO, a terminal. Such a destination is written in place:
@@ -15,9 +24,10 @@ pub fn is_special(path: &Path) -> bool {
 
 /// Write `bytes` to `path` atomically; on failure the temporary file is removed. A special
 /// destination ([`is_special`]) is written in place instead.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), WriteError> {
+    let failed = |source| WriteError { path: path.to_path_buf(), source };
     if is_special(path) {
-        return std::fs::write(path, bytes).with_context(|| format!("cannot write {}", path.display()));
+        return std::fs::write(path, bytes).map_err(failed);
     }
     let tmp = temp_path_for(path);
     let result = (|| -> std::io::Result<()> {
@@ -29,7 +39,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
-    result.with_context(|| format!("cannot write {}", path.display()))
+    result.map_err(failed)
 }
 
 /// `dir/.name.tmp.<pid>` for a target `dir/name` (this process's id).

@@ -1,0 +1,38 @@
+//! # mpm-host
+//!
+//! What the two programs, `mpm` (crate `mpm-cli`) and the benchmark harness `mpm-bench`,
+//! know of the host and do on it, in one library both build on:
+//!
+//! * [`identity`]: the host's identity (CPU, caches, SMT, machine id) and the build's
+//!   provenance (commit, dirty flag, rustc, binary SHA-256);
+//! * [`memory`]: the memory available to a new process (`MemAvailable`, cgroup v2);
+//! * [`pinning`]: the rayon pool of a run with worker `j` pinned to CPU `j`, the workers'
+//!   placement read back, and the one CPU-list parser;
+//! * [`usage`]: what each worker thread got of the wall time (its CPU time, context
+//!   switches, its CPU's steal), the noise a run can see;
+//! * [`paired`]: solvers advancing in alternating timed blocks on their pinned pools (the
+//!   paired design), in `mpm run` and in the harness's own process;
+//! * [`atomic`]: atomic file writes;
+//! * [`lock`]: one writer per folder (`flock`): a campaign's, a run's checkpoints;
+//! * [`checkpoint`]: checkpoint files (a TOML header, the particle arrays, a SHA-256) and
+//!   the folder that keeps a run's last two, which `mpm` writes and both programs read;
+//! * [`clock`]: the wall clock as both programs stamp files and rows with it;
+//! * [`fonts`]: the font every figure is drawn with, compiled in, whatever the host has
+//!   installed;
+//! * [`human`]: bytes and counts printed for people.
+//!
+//! Reading `/proc` and `/sys`, pinning and `flock` live here; the solver crate `mpm-core` and
+//! the contract crate `mpm-spec` have no OS code. No command-line parsing: errors are typed
+//! (`thiserror`), with messages that say what to do, for the programs to report.
+
+pub mod atomic;
+pub mod checkpoint;
+pub mod clock;
+pub mod fonts;
+pub mod human;
+pub mod identity;
+pub mod lock;
+pub mod memory;
+pub mod paired;
+pub mod pinning;
+pub mod usage;
