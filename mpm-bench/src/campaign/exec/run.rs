@@ -200,12 +200,14 @@ impl RunContext<'_> {
         }
         let mut attempt = Attempt::of(&req, &out);
         if let Some(c) = &checkpoints {
-            if attempt.status == Status::Ok {
-                c.remove();
-            } else {
+            if attempt.status != Status::Ok {
                 c.record_loss(started, ended, &attempt.reason)?;
             }
+            // What the attempts before this one lost (and this one, if it did not finish).
             attempt.lost_compute_s = Some(c.lost_s());
+            if attempt.status == Status::Ok {
+                c.remove();
+            }
         }
         attempt.host = watched.map(|(w, before)| w.after_run(&probe_cpus, before));
         Ok(Some(attempt))

@@ -19,8 +19,9 @@
 //!   (`noise.workers.cpu_share` = `0.98 0.97`), a field some records lack as an empty cell;
 //!   a list of records with nested parts is not a column (it stays in the JSON summary);
 //! * the columns are those of a *template*, a value of the row type with every optional part
-//!   present (for enums with variants of different fields, several templates merged), so
-//!   the header does not depend on which options a run had.
+//!   present (for enums with variants of different fields, several templates merged; the
+//!   row's parts are filled from their types by [`super::filled`]), so the header does not
+//!   depend on which options a run had.
 //!
 //! Reading uses the template's leaf at each column as the type of the cell.
 
