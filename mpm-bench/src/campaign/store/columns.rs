@@ -7,15 +7,21 @@
 //! Rules ([`Layout`]):
 //! * the row is a JSON object whose fields are *groups* (objects): their fields become
 //!   columns by their own names (no prefix); objects deeper down join their path with `.`
-//!   (`scenario.model`, `physics.q.c1`, `substages.scatter`);
+//!   (`scenario.model`, `physics.q.c1`, `substages.scatter`); a name an earlier group
+//!   already gave a column is qualified by its group's name (`measured.paired.blocks`, the
+//!   blocks a paired run completed, beside the plan's `paired.blocks`);
 //! * a cell holds a scalar as text (numbers in shortest round-trip form, so floats read
 //!   back bit for bit), `true` / `false`, or is empty for `null` (not measured);
 //! * a list of scalars is written space-separated (`0 1`), a list of lists `|`-separated
 //!   (`0 1|2 3`); an empty list or string as an empty cell, which reads as absent (so such a
 //!   field needs a serde default);
+//! * a list of records whose fields are scalars is written as one list column per field
+//!   (`noise.workers.cpu_share` = `0.98 0.97`), a field some records lack as an empty cell;
+//!   a list of records with nested parts is not a column (it stays in the JSON summary);
 //! * the columns are those of a *template*, a value of the row type with every optional part
-//!   present (for enums with variants of different fields, several templates merged), so
-//!   the header does not depend on which options a run had.
+//!   present (for enums with variants of different fields, several templates merged; the
+//!   row's parts are filled from their types by [`super::filled`]), so the header does not
+//!   depend on which options a run had.
 //!
 //! Reading uses the template's leaf at each column as the type of the cell.
 
@@ -24,8 +30,11 @@ use serde::de::DeserializeOwned;
 use serde::Serialize;
 use serde_json::{Map, Number, Value};
 
-/// One column: its name, the path of its value in the row's JSON, and a template value that
-/// gives the cell's type.
+/// The path segment that stands for every element of a list of records.
+const EACH: &str = "*";
+
+/// One column: its name, the path of its value in the row's JSON (with [`EACH`] for the
+/// elements of a list of records), and a template value that gives the cell's type.
 #[derive(Clone, Debug, PartialEq)]
 struct Column {
     name: String,
@@ -72,9 +81,15 @@ impl Layout {
                 collect(vec![group.clone(), name.clone()], name.clone(), v, exclude, &mut columns)?;
             }
         }
+        // A name a group shares with an earlier group is qualified by its group's name.
         let mut seen = std::collections::HashSet::new();
-        if let Some(c) = columns.iter().find(|c| !seen.insert(c.name.clone())) {
-            bail!("two columns are named `{}`: rename a field", c.name);
+        for c in &mut columns {
+            if !seen.insert(c.name.clone()) {
+                c.name = format!("{}.{}", c.path[0], c.name);
+                if !seen.insert(c.name.clone()) {
+                    bail!("two columns are named `{}`: rename a field", c.name);
+                }
+            }
         }
         Ok(Self { columns })
     }
@@ -87,13 +102,7 @@ impl Layout {
     /// The cells of `row` (of the layout's type), in column order.
     pub fn record<T: Serialize>(&self, row: &T) -> Result<Vec<String>> {
         let v = serde_json::to_value(row).context("a row does not serialise")?;
-        self.columns
-            .iter()
-            .map(|c| {
-                let leaf = c.path.iter().try_fold(&v, |v, k| v.get(k)).unwrap_or(&Value::Null);
-                cell(leaf).with_context(|| format!("column {}", c.name))
-            })
-            .collect()
+        self.columns.iter().map(|c| cell(&leaf(&v, &c.path)).with_context(|| format!("column {}", c.name))).collect()
     }
 
     /// The row whose cells under `header` are `record`. Every column of the header must be
@@ -102,10 +111,16 @@ impl Layout {
         let mut root = Value::Object(Map::new());
         for (name, text) in header.iter().zip(record.iter()) {
             let c = self.columns.iter().find(|c| c.name == *name).ok_or_else(|| anyhow!("unknown column `{name}`"))?;
-            let Some(v) = parse_cell(text, &c.hint).with_context(|| format!("column {name}: '{text}'"))? else {
+            let each = c.path.iter().position(|k| k == EACH);
+            let hint = if each.is_some() { Value::Array(vec![c.hint.clone()]) } else { c.hint.clone() };
+            let Some(v) = parse_cell(text, &hint).with_context(|| format!("column {name}: '{text}'"))? else {
                 continue;
             };
-            insert(&mut root, &c.path, v);
+            match each {
+                Some(at) => insert_each(&mut root, &c.path[..at], &c.path[at + 1..], v)
+                    .with_context(|| format!("column {name}: '{text}'"))?,
+                None => insert(&mut root, &c.path, v),
+            }
         }
         // Groups with no cells still exist, so their fields' defaults apply.
         for c in &self.columns {
@@ -135,11 +150,66 @@ fn collect(path: Vec<String>, name: String, v: &Value, exclude: &[&[&str]], out:
         Value::Array(items) if items.is_empty() => {
             bail!("the row template's list `{name}` is empty: give it one element (its type)")
         }
+        Value::Array(items) => match &items[0] {
+            Value::Object(fields) if fields.values().all(|f| !f.is_object() && !f.is_array() && !f.is_null()) => {
+                for (k, f) in fields {
+                    let mut p = path.clone();
+                    p.extend([EACH.to_string(), k.clone()]);
+                    out.push(Column { name: format!("{name}.{k}"), path: p, hint: f.clone() });
+                }
+                Ok(())
+            }
+            // Records with nested parts stay in the JSON summary.
+            Value::Object(_) => Ok(()),
+            _ => {
+                out.push(Column { name, path, hint: v.clone() });
+                Ok(())
+            }
+        },
         _ => {
             out.push(Column { name, path, hint: v.clone() });
             Ok(())
         }
     }
+}
+
+/// The value at `path` in `v` (`null` where absent); at [`EACH`], the list of the field
+/// that follows over the list's records (`null` when a record lacks it).
+fn leaf(v: &Value, path: &[String]) -> Value {
+    let Some(at) = path.iter().position(|k| k == EACH) else {
+        return path.iter().try_fold(v, |v, k| v.get(k)).cloned().unwrap_or(Value::Null);
+    };
+    let Some(Value::Array(records)) = path[..at].iter().try_fold(v, |v, k| v.get(k)) else { return Value::Null };
+    let values: Vec<Value> = records.iter().map(|r| leaf(r, &path[at + 1..])).collect();
+    if values.is_empty() || values.iter().any(Value::is_null) {
+        return Value::Null;
+    }
+    Value::Array(values)
+}
+
+/// Put the elements of the list `v` into the records of the list at `list` in `root`, each
+/// at `field` (the records are made where absent; a list of another length is an error).
+fn insert_each(root: &mut Value, list: &[String], field: &[String], v: Value) -> Result<()> {
+    let Value::Array(values) = v else { bail!("not a list") };
+    let mut at = root;
+    for (i, k) in list.iter().enumerate() {
+        let Value::Object(m) = at else { bail!("not an object") };
+        let last = i + 1 == list.len();
+        at = m
+            .entry(k.clone())
+            .or_insert_with(|| if last { Value::Array(Vec::new()) } else { Value::Object(Map::new()) });
+    }
+    let Value::Array(records) = at else { bail!("not a list of records") };
+    if records.is_empty() {
+        records.resize(values.len(), Value::Object(Map::new()));
+    }
+    if records.len() != values.len() {
+        bail!("{} values where other columns of these records have {}", values.len(), records.len());
+    }
+    for (r, x) in records.iter_mut().zip(values) {
+        insert(r, field, x);
+    }
+    Ok(())
 }
 
 /// Put `v` at `path` in `root`, creating objects on the way.
@@ -317,6 +387,69 @@ mod tests {
         let empty = R { a: A { cpus: vec![], per_rank: vec![], ..row.a.clone() }, ..row.clone() };
         let rec = csv::StringRecord::from(layout.record(&empty).unwrap());
         assert_eq!(layout.parse::<R>(&layout.header(), &rec).unwrap(), empty);
+    }
+
+    #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+    struct Worker {
+        share: f64,
+        switches: u64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        steal: Option<f64>,
+    }
+
+    #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+    struct Noisy {
+        #[serde(default)]
+        workers: Vec<Worker>,
+        #[serde(default)]
+        nested: Vec<Inner2>,
+    }
+
+    #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+    struct Inner2 {
+        q: Inner,
+    }
+
+    #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+    struct N {
+        n: Noisy,
+    }
+
+    /// A list of records is one list column per field (a field some records lack: empty);
+    /// a list of records with nested parts is not a column; both read back.
+    #[test]
+    fn lists_of_records_are_a_column_per_field() {
+        let w = Worker { share: 0.5, switches: 1, steal: Some(0.0) };
+        let t = N { n: Noisy { workers: vec![w.clone()], nested: vec![Inner2::default()] } };
+        let layout = Layout::of(&[t], &[]).unwrap();
+        assert_eq!(layout.header(), ["workers.share", "workers.switches", "workers.steal"]);
+        let row = N {
+            n: Noisy {
+                workers: vec![Worker { share: 0.25, switches: 3, steal: None }, Worker { share: 1.0, ..w }],
+                nested: vec![],
+            },
+        };
+        let cells = layout.record(&row).unwrap();
+        assert_eq!(cells, ["0.25 1.0", "3 1", ""]);
+        let back: N = layout.parse(&layout.header(), &csv::StringRecord::from(cells)).unwrap();
+        let mut want = row.clone();
+        want.n.workers[1].steal = None;
+        assert_eq!(back, want);
+        let none = N::default();
+        let rec = csv::StringRecord::from(layout.record(&none).unwrap());
+        assert_eq!(layout.parse::<N>(&layout.header(), &rec).unwrap(), none);
+    }
+
+    /// A name two groups give is qualified by the later group's name.
+    #[test]
+    fn a_name_of_two_groups_is_qualified() {
+        #[derive(Serialize)]
+        struct Two {
+            a: B,
+            b: B,
+        }
+        let layout = Layout::of(&[Two { a: B { wall_s: Some(1.0) }, b: B { wall_s: Some(2.0) } }], &[]).unwrap();
+        assert_eq!(layout.header(), ["wall_s", "b.wall_s"]);
     }
 
     #[test]

@@ -2,8 +2,8 @@
 //! mpm`), locate (`target/<profile>/mpm`, or `MPM_BENCH_SOLVER_O3` / `MPM_BENCH_SOLVER_O0`)
 //! and hash (SHA-256, recorded in the manifest and, abbreviated, in every row).
 
-use super::manifest::BinaryInfo;
-use super::preset::OptLevel;
+use crate::campaign::plan::preset::OptLevel;
+use crate::campaign::store::manifest::BinaryInfo;
 use anyhow::{anyhow, bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -19,13 +19,14 @@
 //! campaign hashed (the binaries must be the same on every node); if not, it fails with
 //! exit code 2 and says so in the job's output.
 
-use super::manifest::{GitInfo, NodeInfo};
-use super::matrix::{Campaign, PlannedRun};
-use super::process::ProcessRunner;
-use super::record::Row;
-use super::runner::{install_interrupt_handler, RunContext};
-use super::solver::{sha256_file, Solver};
-use super::watch::{HostWatch, WatchSettings};
+use crate::campaign::exec::process::ProcessRunner;
+use crate::campaign::exec::run::RunContext;
+use crate::campaign::exec::solver::{sha256_file, Solver};
+use crate::campaign::exec::watch::{HostWatch, WatchSettings};
+use crate::campaign::plan::matrix::{Campaign, PlannedRun};
+use crate::campaign::schedule::install_interrupt_handler;
+use crate::campaign::store::manifest::{GitInfo, NodeInfo};
+use crate::campaign::store::record::Row;
 use crate::machine::fingerprint;
 use crate::machine::topology::Machine;
 use anyhow::{bail, Context, Result};

@@ -24,13 +24,16 @@
 //! `sacct`), found on `PATH` and configured as the user's shell would (`SLURM_CONF`).
 
 use super::job::{self, JobFile};
-use super::matrix::{sanitize_id, PlannedRun};
-use super::memory::estimate_run_memory;
-use super::preset::OptLevel;
-use super::record::{Row, RunKey, Status};
-use super::runner::{next_run_id, planned_row, solver_for, Books, Plan, RunContext};
-use super::solver::Solver;
-use super::watch::WatchSettings;
+pub use super::kind::{SlurmOptions, JOBS_FILE};
+use super::scheduler::Scheduler;
+use super::state::{next_run_id, solver_for, Books, CampaignState, Plan};
+use crate::campaign::exec::run::{planned_row, RunContext};
+use crate::campaign::exec::solver::Solver;
+use crate::campaign::exec::watch::WatchSettings;
+use crate::campaign::plan::matrix::{PlannedRun, RunKey};
+use crate::campaign::plan::memory::estimate_run_memory;
+use crate::campaign::plan::preset::OptLevel;
+use crate::campaign::store::record::{Row, Status};
 use crate::util::now_rfc3339;
 use anyhow::{anyhow, bail, Context, Result};
 use serde::{Deserialize, Serialize};
@@ -41,70 +44,12 @@ use std::sync::atomic::Ordering;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-/// The file of submitted jobs in a campaign folder.
-pub const JOBS_FILE: &str = "slurm-jobs.json";
-
 /// How often `squeue` is asked (the row files are looked for more often).
 const POLL: Duration = Duration::from_secs(2);
 
 /// How long a job Slurm calls `COMPLETED` may take to show its row (a shared filesystem's
 /// attribute cache) before it counts as having ended without one.
 const ROW_GRACE: Duration = Duration::from_secs(30);
-
-/// `--scheduler slurm` and its options.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct SlurmOptions {
-    /// The cluster's name (`scontrol show config`): the campaign folder is
-    /// `<out>/slurm-<cluster>/<campaign>`.
-    pub cluster: String,
-    /// `--partition` of every job (default: the cluster's default partition).
-    pub partition: Option<String>,
-    /// `--account` of every job.
-    pub account: Option<String>,
-    /// `--time` of every job, as `sbatch` takes it (`30`, `1:30:00`, `1-00:00:00`); default:
-    /// the preset's per-run timeout plus two minutes, else the partition's default.
-    pub time_limit: Option<String>,
-    /// At most this many of the campaign's jobs in the queue at once.
-    pub max_jobs: Option<usize>,
-    /// Submit, then exit without waiting: a later invocation collects the jobs.
-    pub detach: bool,
-}
-
-impl SlurmOptions {
-    /// The folder under the results root: `slurm-<cluster>`.
-    pub fn folder(&self) -> String {
-        format!("slurm-{}", sanitize_id(&self.cluster))
-    }
-
-    /// `slurm cluster C, partition P, account A, time T` (what was given).
-    pub fn describe(&self) -> String {
-        let mut s = format!("slurm cluster {}", self.cluster);
-        for (name, v) in [("partition", &self.partition), ("account", &self.account), ("time limit", &self.time_limit)]
-        {
-            if let Some(v) = v {
-                s.push_str(&format!(", {name} {v}"));
-            }
-        }
-        s
-    }
-
-    /// The `sbatch` options every job of the campaign shares: a node of its own, and the
-    /// partition, account and time limit (`timeout`: the campaign's per-run limit).
-    pub fn sbatch_args(&self, timeout: Option<Duration>) -> Vec<String> {
-        let mut a: Vec<String> = ["--parsable", "--nodes=1", "--ntasks=1", "--exclusive"].map(String::from).to_vec();
-        if let Some(p) = &self.partition {
-            a.push(format!("--partition={p}"));
-        }
-        if let Some(acc) = &self.account {
-            a.push(format!("--account={acc}"));
-        }
-        let time = self.time_limit.clone().or_else(|| timeout.map(|t| (t.as_secs() + 120).div_ceil(60).to_string()));
-        if let Some(t) = time {
-            a.push(format!("--time={t}"));
-        }
-        a
-    }
-}
 
 /// The cluster's name, from `scontrol show config`: also the check that Slurm answers.
 pub fn cluster_name() -> Result<String> {
@@ -385,14 +330,30 @@ fn shell_quote(text: &str) -> String {
 // Submitting and collecting
 // ------------------------------------------------------------------------------------------
 
-/// What every job of one invocation is submitted with.
-pub(super) struct Submission<'a> {
+/// The Slurm scheduler: one batch job per run, at most `--max-jobs` in the queue at once
+/// ([`run_jobs`]).
+pub struct Slurm<'o> {
     /// The options of `--scheduler slurm`.
-    pub(super) options: &'a SlurmOptions,
+    pub options: &'o SlurmOptions,
     /// The host watch each job keeps around its run.
-    pub(super) watch: Option<WatchSettings>,
+    pub watch: Option<WatchSettings>,
+}
+
+impl Scheduler for Slurm<'_> {
+    fn run_all(&mut self, s: &mut CampaignState<'_>) -> Result<()> {
+        let sub = Submission { options: self.options, watch: self.watch, solvers: &s.solvers };
+        run_jobs(&s.ctx, &sub, s.plan, &mut s.attempts, &mut s.books)
+    }
+}
+
+/// What every job of one invocation is submitted with.
+struct Submission<'a> {
+    /// The options of `--scheduler slurm`.
+    options: &'a SlurmOptions,
+    /// The host watch each job keeps around its run.
+    watch: Option<WatchSettings>,
     /// The solver binary of each optimisation level.
-    pub(super) solvers: &'a HashMap<OptLevel, &'a Solver>,
+    solvers: &'a HashMap<OptLevel, &'a Solver>,
 }
 
 /// A job in the queue, by this invocation or an earlier one.
@@ -515,7 +476,7 @@ fn failed_row(
     let out_path = ctx.json_dir.join(format!("{}.slurm.out", f.record.run_id));
     match std::fs::read_to_string(&out_path) {
         Ok(output) => {
-            let tail = super::process::tail(&output, 3);
+            let tail = crate::campaign::exec::process::tail(&output, 3);
             if !tail.is_empty() {
                 why.push_str(": ");
                 why.push_str(&tail);
@@ -578,7 +539,7 @@ fn ended_row(
 /// each finished job's row through `books` as it ends. Returns when every job has been
 /// collected, on Ctrl-C (after cancelling this invocation's jobs), or with `--detach` once
 /// everything that may be submitted is.
-pub(super) fn run_jobs(
+fn run_jobs(
     ctx: &RunContext,
     sub: &Submission,
     plan: &Plan,
@@ -619,7 +580,8 @@ pub(super) fn run_jobs(
     result
 }
 
-/// The loop of [`run_jobs`].
+/// The loop of [`run_jobs`]: submit while there is room, ask Slurm how the jobs are, append
+/// the rows of those that ended, until none is left (or Ctrl-C, or `--detach`).
 #[allow(clippy::too_many_arguments)]
 fn drive<'p>(
     ctx: &RunContext,
@@ -635,22 +597,12 @@ fn drive<'p>(
     let max = sub.options.max_jobs.unwrap_or(usize::MAX);
     let mut done = 0;
     let mut last = String::from("waiting for the first job to end");
-    let mut states: Option<BTreeMap<String, QueueEntry>> = None;
-    let mut polled: Option<Instant> = None;
-    let mut squeue_error: Option<String> = None;
+    let mut poll = Poll::default();
     loop {
-        let mut submitted_now = false;
         if ctx.interrupted.load(Ordering::SeqCst) {
-            let own: Vec<String> = flight.iter().filter(|f| f.own).map(|f| f.record.job_id.clone()).collect();
-            if !own.is_empty() {
-                books.progress.say(&format!("interrupt: cancelling this invocation's jobs {}", own.join(" ")));
-                scancel(&own)?;
-                file.forget(dir, &own)?;
-            }
-            books.counts.interrupted = true;
-            books.counts.queued = flight.len() - own.len();
-            return Ok(());
+            return cancel_own(flight, file, books, dir);
         }
+        let mut submitted_now = false;
         while flight.len() < max {
             let Some((order_index, run)) = queue.pop_front() else { break };
             let run_id = next_run_id(attempts, run);
@@ -669,45 +621,9 @@ fn drive<'p>(
             flight.push(InFlight { record, run, own: true, ended: None });
             submitted_now = true;
         }
-        // A job submitted since the last answer is not in it: ask again.
-        if submitted_now || polled.is_none_or(|t| t.elapsed() >= POLL) {
-            let ids: Vec<String> = flight.iter().map(|f| f.record.job_id.clone()).collect();
-            match squeue(&ids) {
-                Ok(s) => {
-                    states = Some(s);
-                    squeue_error = None;
-                }
-                Err(e) => {
-                    if squeue_error.is_none() {
-                        books.progress.say(&format!("warning: {e:#}; asking again"));
-                    }
-                    squeue_error = Some(format!("{e:#}"));
-                    states = None;
-                }
-            }
-            polled = Some(Instant::now());
-        }
-        let mut i = 0;
-        while i < flight.len() {
-            let answer = states.as_ref().map(|s| s.get(&flight[i].record.job_id));
-            match ended_row(ctx, sub, &mut flight[i], answer)? {
-                Some(row) => {
-                    let f = flight.remove(i);
-                    books.record(done, f.run, &row)?;
-                    done += 1;
-                    last = format!("{}: {}", f.run.describe(), row.outcome.status.as_str());
-                    file.forget(dir, std::slice::from_ref(&f.record.job_id))?;
-                    if let Some((_, ids)) = submitted().as_mut() {
-                        ids.retain(|id| *id != f.record.job_id);
-                    }
-                }
-                None => i += 1,
-            }
-        }
-        let phases: Vec<Phase> = flight
-            .iter()
-            .map(|f| states.as_ref().and_then(|s| s.get(&f.record.job_id)).map_or(Phase::Pending, |q| phase(&q.state)))
-            .collect();
+        poll.ask(flight, submitted_now, books);
+        collect_ended(ctx, sub, flight, &poll, file, books, dir, (&mut done, &mut last))?;
+        let phases: Vec<Phase> = flight.iter().map(|f| poll.phase(&f.record.job_id)).collect();
         let running = phases.iter().filter(|p| **p != Phase::Pending).count();
         books.progress.queue(phases.len() - running + queue.len(), running, done, &last);
         if flight.is_empty() && queue.is_empty() {
@@ -719,6 +635,98 @@ fn drive<'p>(
         }
         std::thread::sleep(Duration::from_millis(250));
     }
+}
+
+/// Ctrl-C: cancel this invocation's jobs (and forget them), keep the others for a later
+/// invocation.
+fn cancel_own(flight: &[InFlight], file: &mut JobsFile, books: &mut Books, dir: &Path) -> Result<()> {
+    let own: Vec<String> = flight.iter().filter(|f| f.own).map(|f| f.record.job_id.clone()).collect();
+    if !own.is_empty() {
+        books.progress.say(&format!("interrupt: cancelling this invocation's jobs {}", own.join(" ")));
+        scancel(&own)?;
+        file.forget(dir, &own)?;
+    }
+    books.counts.interrupted = true;
+    books.counts.queued = flight.len() - own.len();
+    Ok(())
+}
+
+/// What `squeue` last said about the jobs in flight (`None` after an error), and when.
+#[derive(Default)]
+struct Poll {
+    states: Option<BTreeMap<String, QueueEntry>>,
+    at: Option<Instant>,
+    error: Option<String>,
+}
+
+impl Poll {
+    /// Ask again when a job was submitted since the last answer (it is not in it) or the
+    /// answer is older than [`POLL`]; an error is said once and asked again.
+    fn ask(&mut self, flight: &[InFlight], submitted_now: bool, books: &Books) {
+        if !submitted_now && self.at.is_some_and(|t| t.elapsed() < POLL) {
+            return;
+        }
+        let ids: Vec<String> = flight.iter().map(|f| f.record.job_id.clone()).collect();
+        match squeue(&ids) {
+            Ok(s) => {
+                self.states = Some(s);
+                self.error = None;
+            }
+            Err(e) => {
+                if self.error.is_none() {
+                    books.progress.say(&format!("warning: {e:#}; asking again"));
+                }
+                self.error = Some(format!("{e:#}"));
+                self.states = None;
+            }
+        }
+        self.at = Some(Instant::now());
+    }
+
+    /// What the last answer said about job `id`: `None` without an answer, `Some(None)` when
+    /// the answer did not name it.
+    fn entry(&self, id: &str) -> Option<Option<&QueueEntry>> {
+        self.states.as_ref().map(|s| s.get(id))
+    }
+
+    /// The phase of job `id` by the last answer (pending when unknown).
+    fn phase(&self, id: &str) -> Phase {
+        self.entry(id).flatten().map_or(Phase::Pending, |q| phase(&q.state))
+    }
+}
+
+/// Append the rows of the jobs in `flight` that ended (and forget them), counting them in
+/// `progress.0` and naming the last in `progress.1`.
+#[allow(clippy::too_many_arguments)]
+fn collect_ended(
+    ctx: &RunContext,
+    sub: &Submission,
+    flight: &mut Vec<InFlight>,
+    poll: &Poll,
+    file: &mut JobsFile,
+    books: &mut Books,
+    dir: &Path,
+    progress: (&mut usize, &mut String),
+) -> Result<()> {
+    let (done, last) = progress;
+    let mut i = 0;
+    while i < flight.len() {
+        let answer = poll.entry(&flight[i].record.job_id);
+        match ended_row(ctx, sub, &mut flight[i], answer)? {
+            Some(row) => {
+                let f = flight.remove(i);
+                books.record(*done, f.run, &row)?;
+                *done += 1;
+                *last = format!("{}: {}", f.run.describe(), row.outcome.status.as_str());
+                file.forget(dir, std::slice::from_ref(&f.record.job_id))?;
+                if let Some((_, ids)) = submitted().as_mut() {
+                    ids.retain(|id| *id != f.record.job_id);
+                }
+            }
+            None => i += 1,
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -13,11 +13,12 @@
 //! ([`remove_stale_temp_files`]).
 
 use super::launcher::Launcher;
-use super::matrix::PlannedRun;
-use super::preset::OptLevel;
+use crate::campaign::plan::matrix::PlannedRun;
+use crate::campaign::plan::preset::OptLevel;
 use mpm_core::{Strategy, Substage};
 use mpm_spec::summary::{
-    EndReason, NoiseReport, PairedReport, RankReport, StageSeconds, Summary, WorkReport, WorkerUsage, MIN_CPU_SHARE,
+    EndReason, Figures, Memory, NoiseReport, PairedReport, Physics, Pinning, Progress, RankReport, ScenarioFigures,
+    Size, StageSeconds, Summary, TaylorFigures, Timing, WorkReport, WorkerUsage, MIN_CPU_SHARE,
 };
 use mpm_spec::RunSpec;
 use std::io::Read;
@@ -370,7 +371,7 @@ fn remove_temp_files_for(json_path: &Path) {
 }
 
 /// The last `lines` lines of `s` that are not blank, joined by ` | `.
-pub(super) fn tail(s: &str, lines: usize) -> String {
+pub fn tail(s: &str, lines: usize) -> String {
     let v: Vec<&str> = s.lines().filter(|l| !l.trim().is_empty()).collect();
     v[v.len().saturating_sub(lines)..].join(" | ")
 }
@@ -431,11 +432,11 @@ impl Runner for MockRunner {
         let observed: Vec<usize> = if wrong { requested.iter().map(|c| c + 1).collect() } else { requested.clone() };
         let mut summary = mock_summary(req, requested, observed);
         let low_cpu = self.low_cpu_when.as_ref().is_some_and(|f| desc.contains(f.as_str()));
-        mock_noise_work_paired(req, &mut summary, low_cpu, self.process_spread.unwrap_or(0.03));
-        if req.spec.ranks > 1 {
-            summary.ranks = Some(mock_ranks(req, &summary, wrong, split_wait));
-        }
-        let wall = summary.wall_s;
+        let (noise, paired) = mock_noise_work_paired(req, &mut summary, low_cpu, self.process_spread.unwrap_or(0.03));
+        let ranks = (req.spec.ranks > 1).then(|| mock_ranks(req, &summary, wrong, split_wait));
+        let peak = summary.figures.memory.peak_rss_bytes;
+        summary.finish(ranks, noise, paired, peak);
+        let wall = summary.figures.timing.wall_s;
         let text = match serde_json::to_string(&summary) {
             Ok(t) => t,
             Err(e) => return RunOutput { error: Some(format!("mock cannot write JSON: {e}")), ..RunOutput::default() },
@@ -453,6 +454,7 @@ impl Runner for MockRunner {
 /// `split_wait` each rank's waiting (the later ranks wait less).
 fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool, split_wait: bool) -> Vec<RankReport> {
     let (ranks, threads) = (req.spec.ranks, req.spec.threads);
+    let (particles, steps, wall_s) = (s.figures.size.particles, s.figures.progress.steps, s.figures.timing.wall_s);
     let mask = req.mask.clone().unwrap_or_default();
     let fits = mask.len() >= ranks * threads;
     (0..ranks)
@@ -462,26 +464,26 @@ fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool, split_wait: bool) -> V
             } else {
                 (0..threads).map(|j| mask[(r * threads + j) % mask.len()] + usize::from(wrong)).collect()
             };
-            let halo = (s.particles as u64 / 100) * 80 * s.steps;
+            let halo = (particles as u64 / 100) * 80 * steps;
             RankReport {
                 rank: r,
                 cpus,
                 oversubscribed: !fits,
-                particles: s.particles / ranks,
+                particles: particles / ranks,
                 migrated: 3,
-                busy_s: s.wall_s * 0.9 * threads as f64,
-                steps: s.steps,
+                busy_s: wall_s * 0.9 * threads as f64,
+                steps,
                 exchange: mpm_core::exchange::ExchangeStats {
                     halo_bytes: halo,
-                    halo_messages: 2 * s.steps,
+                    halo_messages: 2 * steps,
                     migration_bytes: 1000,
-                    migration_messages: 2 * s.steps,
-                    reduction_bytes: 48 * s.steps,
-                    reductions: 3 * s.steps,
-                    seconds: s.wall_s * 0.02 * (r + 1) as f64,
-                    wait_seconds: split_wait.then(|| s.wall_s * 0.04 * (ranks - r) as f64),
+                    migration_messages: 2 * steps,
+                    reduction_bytes: 48 * steps,
+                    reductions: 3 * steps,
+                    seconds: wall_s * 0.02 * (r + 1) as f64,
+                    wait_seconds: split_wait.then(|| wall_s * 0.04 * (ranks - r) as f64),
                 },
-                peak_rss_bytes: s.peak_rss_bytes.map(|b| b / ranks as u64 + (20 << 20)),
+                peak_rss_bytes: s.figures.memory.peak_rss_bytes.map(|b| b / ranks as u64 + (20 << 20)),
             }
         })
         .collect()
@@ -509,15 +511,21 @@ fn mock_normal(rng: &mut crate::util::SplitMix64) -> f64 {
 /// spec its blocks: the one-thread time, and the `T`-thread time at an efficiency of 0.9
 /// times a process effect (`spread`, in logs) times block noise (1 %), slowed by an injected
 /// slowdown `F` to `1 / (1 - F)`.
-fn mock_noise_work_paired(req: &RunRequest, s: &mut Summary, low_cpu: bool, spread: f64) {
+fn mock_noise_work_paired(
+    req: &RunRequest,
+    s: &mut Summary,
+    low_cpu: bool,
+    spread: f64,
+) -> (Option<NoiseReport>, Option<PairedReport>) {
     let spec = &req.spec;
     let t = spec.threads;
     let share = |w: usize| if low_cpu && w + 1 == t { 0.5 } else { 0.99 };
+    let wall_s = s.figures.timing.wall_s;
     let workers = (0..t)
-        .map(|w| WorkerUsage { cpu_s: share(w) * s.wall_s, cpu_share: share(w), ..WorkerUsage::default() })
+        .map(|w| WorkerUsage { cpu_s: share(w) * wall_s, cpu_share: share(w), ..WorkerUsage::default() })
         .collect();
-    s.noise = Some(NoiseReport::new(s.wall_s, workers, MIN_CPU_SHARE));
-    let serial = (s.particles as u64) * s.steps * 1000;
+    let noise = Some(NoiseReport::new(wall_s, workers, MIN_CPU_SHARE));
+    let serial = (s.figures.size.particles as u64) * s.figures.progress.steps * 1000;
     let extra = match spec.strategy {
         Strategy::Serial => 0,
         Strategy::ArrayExpansion => serial / 10 * t as u64,
@@ -531,7 +539,7 @@ fn mock_noise_work_paired(req: &RunRequest, s: &mut Summary, low_cpu: bool, spre
             .collect();
     let worker_bytes: Vec<u64> = (0..t).map(|w| bytes.values().map(|v| v[w]).sum()).collect();
     let max = worker_bytes.iter().copied().max().unwrap_or(1).max(1);
-    s.work = Some(WorkReport {
+    s.figures.work = Some(WorkReport {
         workers: Vec::new(),
         bytes,
         serial_bytes: serial,
@@ -543,14 +551,14 @@ fn mock_noise_work_paired(req: &RunRequest, s: &mut Summary, low_cpu: bool, spre
     let inject = spec.inject_slowdown.unwrap_or(0.0);
     s.inject_slowdown = spec.inject_slowdown;
     if inject > 0.0 && t > 1 {
-        s.injected_s = Some(inject * s.wall_s);
+        s.figures.injected_s = Some(inject * wall_s);
     }
-    let Some(p) = spec.paired else { return };
+    let Some(p) = spec.paired else { return (noise, None) };
     let warmup = spec.budget.warmup.unwrap_or(0);
-    let Ok(block_steps) = spec.paired_block_steps(warmup) else { return };
+    let Ok(block_steps) = spec.paired_block_steps(warmup) else { return (noise, None) };
     let mut rng = mock_rng(req);
     // The one-thread time: the mock's T-thread step (slowed by the injection) at 0.9.
-    let t1 = s.steady_s_per_step.unwrap_or(1e-3) * (1.0 - inject) * t as f64 * 0.9;
+    let t1 = s.figures.timing.steady_s_per_step.unwrap_or(1e-3) * (1.0 - inject) * t as f64 * 0.9;
     let effect = (spread * mock_normal(&mut rng)).exp();
     let (mut t1s, mut tts) = (Vec::new(), Vec::new());
     for _ in 0..p.blocks {
@@ -559,21 +567,21 @@ fn mock_noise_work_paired(req: &RunRequest, s: &mut Summary, low_cpu: bool, spre
         tts.push(t1 / (t as f64 * e) / (1.0 - inject));
     }
     let eff: Vec<f64> = t1s.iter().zip(&tts).map(|(a, b)| a / (t as f64 * b)).collect();
-    s.steady_s_per_step = Some(crate::util::median(&tts));
-    s.paired = Some(PairedReport {
+    s.figures.timing.steady_s_per_step = Some(crate::util::median(&tts));
+    let paired = Some(PairedReport {
         reference_threads: 1,
         blocks: p.blocks,
         block_steps,
-        reference_cpus: s.requested_cpus.first().copied().into_iter().collect(),
+        reference_cpus: s.pinning.requested_cpus.first().copied().into_iter().collect(),
         efficiency: PairedReport::geometric_mean(&eff),
         block_efficiency: eff,
         reference_first: (0..p.blocks).map(|b| b % 2 == 0).collect(),
         t1_s_per_step: t1s,
         tt_s_per_step: tts,
-        reference_steady_substages: s.steady_substages.clone(),
-        reference_noise: None,
-        max_position_difference: 0.0,
+        reference_steady_substages: s.figures.timing.steady_substages.clone(),
+        ..PairedReport::default()
     });
+    (noise, paired)
 }
 
 /// A plausible summary of `req`: times from the model size, strategy, threads and
@@ -594,59 +602,85 @@ fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -
         / (1.0 - inject);
     let wall = per_step * steps as f64;
     let steady = per_step * (steps - warmup) as f64;
-    let split = |total: f64| {
-        StageSeconds(
-            [
-                (Substage::Scatter, 0.3),
-                (Substage::Assembly, 0.1),
-                (Substage::GridUpdate, 0.05),
-                (Substage::Gather, 0.2),
-                (Substage::StressUpdate, 0.35),
-            ]
-            .into_iter()
-            .map(|(k, f)| (k, total * f))
-            .collect(),
-        )
-    };
     Summary {
         spec: Some(s.clone()),
-        scenario: s.scenario.kind(),
         model: s.scenario.model(),
         strategy: s.strategy,
         threads: s.threads,
         opt_level: req.planned.opt,
         grid_mode: s.grid,
-        particles: size.particles as usize,
-        cells: (size.nodes / 2) as usize,
-        nodes: size.nodes as usize,
-        mean_nodes: size.nodes as f64,
-        steps,
-        warmup_steps: warmup,
-        steady_steps: steps - warmup,
-        dt_first: 1e-8,
-        sim_time: steps as f64 * 1e-8,
-        end_reason: EndReason::StepLimit,
-        wall_s: wall,
-        grid_stage_s: wall * 0.45,
-        particle_stage_s: wall * 0.55,
-        substages: split(wall),
-        steady_wall_s: steady,
-        steady_grid_stage_s: steady * 0.45,
-        steady_particle_stage_s: steady * 0.55,
-        steady_substages: split(steady),
-        ns_per_particle_step: Some(per_step * 1e9 / size.particles as f64),
-        particle_steps_per_s: Some(size.particles as f64 / per_step),
-        steady_s_per_step: Some(per_step),
-        peak_rss_bytes: Some(size.memory_bytes(s.strategy, s.threads)),
-        requested_cpus: requested,
-        observed_cpus: observed,
-        kinetic_energy_initial: 1000.0,
-        kinetic_energy: 900.0,
-        internal_energy: 99.0,
-        initial_length_m: Some(0.0254),
-        final_length_m: Some(0.0253),
-        face_diameter_m: Some(0.0077),
+        pinning: Pinning { requested_cpus: requested, observed_cpus: observed, ..Pinning::default() },
+        figures: Figures {
+            size: Size {
+                particles: size.particles as usize,
+                cells: (size.nodes / 2) as usize,
+                nodes: size.nodes as usize,
+                mean_nodes: size.nodes as f64,
+                ..Size::default()
+            },
+            progress: Progress {
+                steps,
+                warmup_steps: warmup,
+                steady_steps: steps - warmup,
+                dt_first: 1e-8,
+                sim_time: steps as f64 * 1e-8,
+                end_reason: EndReason::StepLimit,
+                ..Progress::default()
+            },
+            timing: Timing {
+                wall_s: wall,
+                grid_stage_s: wall * 0.45,
+                particle_stage_s: wall * 0.55,
+                substages: mock_split(wall),
+                steady_wall_s: steady,
+                steady_grid_stage_s: Some(steady * 0.45),
+                steady_particle_stage_s: Some(steady * 0.55),
+                steady_substages: mock_split(steady),
+                ns_per_particle_step: Some(per_step * 1e9 / size.particles as f64),
+                particle_steps_per_s: Some(size.particles as f64 / per_step),
+                steady_s_per_step: Some(per_step),
+                ..Timing::default()
+            },
+            memory: Memory { peak_rss_bytes: Some(size.memory_bytes(s.strategy, s.threads)), ..Memory::default() },
+            physics: Physics {
+                kinetic_energy_initial: 1000.0,
+                kinetic_energy: 900.0,
+                internal_energy: 99.0,
+                ..Physics::default()
+            },
+            scenario: mock_scenario(s),
+            ..Figures::default()
+        },
         ..Summary::default()
+    }
+}
+
+/// `total` seconds split over the sub-stages as the mock's steps spend them.
+fn mock_split(total: f64) -> StageSeconds {
+    StageSeconds(
+        [
+            (Substage::Scatter, 0.3),
+            (Substage::Assembly, 0.1),
+            (Substage::GridUpdate, 0.05),
+            (Substage::Gather, 0.2),
+            (Substage::StressUpdate, 0.35),
+        ]
+        .into_iter()
+        .map(|(k, f)| (k, total * f))
+        .collect(),
+    )
+}
+
+/// The mock's scenario figures: a Taylor bar that shortened a little; the others empty.
+fn mock_scenario(s: &RunSpec) -> ScenarioFigures {
+    match ScenarioFigures::empty(s.scenario.kind()) {
+        ScenarioFigures::Taylor(_) => ScenarioFigures::Taylor(TaylorFigures {
+            initial_length_m: Some(0.0254),
+            final_length_m: Some(0.0253),
+            face_diameter_m: Some(0.0077),
+            ..TaylorFigures::default()
+        }),
+        other => other,
     }
 }
 
@@ -674,7 +708,7 @@ mod tests {
         assert_eq!(req.spec.outputs.json, Some(PathBuf::from("x.json")));
         assert!(req.spec.outputs.quiet);
         assert_eq!(RunSpec { cpus: None, ..req.spec.clone() }.key(), planned.spec.key(), "the planned computation");
-        let launcher = crate::campaign::launcher::Launcher::parse("mpirun --bind-to none -n {ranks}").unwrap();
+        let launcher = crate::campaign::exec::launcher::Launcher::parse("mpirun --bind-to none -n {ranks}").unwrap();
         let hybrid = RunRequest { launcher: Some(launcher.expand(2, 2)), mask: Some(vec![0, 1, 2, 3]), ..req };
         let (program, args) = hybrid.command_line();
         assert_eq!(program, "mpirun");

@@ -21,24 +21,19 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 /// Predict the work imbalance of uniform and balanced DD cuts over a run (no timing).
-#[derive(clap::Args, Debug, Clone)]
-pub struct ImbalanceArgs {
+#[derive(Debug, Clone)]
+pub struct ImbalanceOptions {
     /// Scenario: taylor (the Taylor bar) or impact (sphere on plate).
-    #[arg(long, value_parser = ["taylor", "impact"])]
     pub scenario: String,
     /// Model: Taylor bar 1-4; impact 1-3 = the small model with 2.12, 1.59, 1.06 mm cells,
     /// 4 = the large model.
-    #[arg(long, default_value_t = 1)]
     pub model: u32,
     /// Thread counts (one patch per thread; the layouts of `dd`), comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "2,4,6,8")]
     pub threads: Vec<usize>,
     /// Steps to run (default: to the scenario's end time, 40 us for the bar, 30.6 us for
     /// the impact).
-    #[arg(long)]
     pub steps: Option<u64>,
     /// Folder for `imbalance-<scenario>-m<model>.{csv,png,svg}`.
-    #[arg(long, value_name = "DIR", default_value = "paper-figures")]
     pub out: PathBuf,
 }
 
@@ -101,7 +96,7 @@ pub struct ImbalanceReport {
 }
 
 /// The scenario's set-up, grid mode and default end time.
-fn scenario(a: &ImbalanceArgs) -> Result<(Setup, GridMode, f64)> {
+fn scenario(a: &ImbalanceOptions) -> Result<(Setup, GridMode, f64)> {
     match a.scenario.as_str() {
         "taylor" => {
             let model = u8::try_from(a.model).ok().filter(|m| (1..=4).contains(m));
@@ -110,7 +105,7 @@ fn scenario(a: &ImbalanceArgs) -> Result<(Setup, GridMode, f64)> {
             Ok((setup, GridMode::Fixed, taylor::DEFAULT_END_TIME))
         }
         _ => {
-            let Some((spacing, cell)) = crate::campaign::memory::impact_variant(a.model) else {
+            let Some((spacing, cell)) = crate::campaign::plan::memory::impact_variant(a.model) else {
                 bail!("unknown impact model {}: use 1-3 (small model, 2.12/1.59/1.06 mm cells) or 4 (large)", a.model)
             };
             let (setup, _) = Impact { spacing, cell, ..Impact::default() }.setup()?;
@@ -165,7 +160,7 @@ impl Evaluator {
 }
 
 /// Run the scenario serially and evaluate the cuts before every step (no printing).
-pub fn measure(a: &ImbalanceArgs) -> Result<ImbalanceReport> {
+pub fn measure(a: &ImbalanceOptions) -> Result<ImbalanceReport> {
     if a.threads.is_empty() || a.threads.contains(&0) {
         bail!("--threads needs thread counts of at least 1, e.g. 2,4,6,8");
     }
@@ -301,8 +296,8 @@ pub fn write_csv(r: &ImbalanceReport, path: &std::path::Path) -> Result<()> {
 mod tests {
     use super::*;
 
-    fn args(scenario: &str, model: u32, steps: u64) -> ImbalanceArgs {
-        ImbalanceArgs {
+    fn args(scenario: &str, model: u32, steps: u64) -> ImbalanceOptions {
+        ImbalanceOptions {
             scenario: scenario.into(),
             model,
             threads: vec![1, 2, 4, 8],
@@ -346,7 +341,7 @@ mod tests {
         assert!(e.contains("use 1-4"), "{e}");
         let e = measure(&args("impact", 9, 1)).unwrap_err().to_string();
         assert!(e.contains("use 1-3"), "{e}");
-        let e = measure(&ImbalanceArgs { threads: vec![0], ..args("taylor", 1, 1) }).unwrap_err().to_string();
+        let e = measure(&ImbalanceOptions { threads: vec![0], ..args("taylor", 1, 1) }).unwrap_err().to_string();
         assert!(e.contains("at least 1"), "{e}");
     }
 }

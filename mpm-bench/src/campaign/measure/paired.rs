@@ -32,7 +32,7 @@
 //! `j`-th CPU). Build the harness optimised (`--profile o3`): the solver runs in this
 //! process, so this binary's optimisation level is the one measured.
 
-use crate::campaign::memory::{available_memory, estimate_memory};
+use crate::campaign::plan::memory::{available_memory, estimate_memory};
 use crate::machine::placement::PinPolicy;
 use crate::machine::topology::{human_bytes, Machine};
 use crate::util::now_rfc3339;
@@ -53,39 +53,30 @@ use std::sync::Arc;
 /// rotating order, so the 1-thread and the `T`-thread block of each pair are timed a few
 /// hundred milliseconds apart. On a noisy or shared machine this gives a much tighter
 /// efficiency than separate runs. Build with `--profile o3`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct PairedArgs {
+#[derive(Debug, Clone)]
+pub struct PairedOptions {
     /// Taylor bar model, 1-4 (Model 4 needs several GiB per configuration).
-    #[arg(long, default_value_t = 2)]
     pub model: u8,
     /// Strategies to measure, comma-separated: ae, dd, dd-balanced. Each after the first is
     /// also compared with the first at `--threads` threads, block by block (e.g.
     /// `dd,dd-balanced`: the cost or gain of balanced cuts).
-    #[arg(long, value_delimiter = ',', default_value = "ae,dd")]
     pub strategies: Vec<String>,
     /// Workers of the parallel configurations (the reference configurations use 1).
-    #[arg(long, default_value_t = 2)]
     pub threads: usize,
     /// Pinning: close, spread, none, or a CPU list such as 0,1. The 1-thread
     /// configurations run on the first CPU of the placement.
-    #[arg(long, default_value = "close")]
     pub pin: String,
     /// Paired samples: blocks per configuration.
-    #[arg(long, default_value_t = 15)]
     pub blocks: usize,
     /// Steps per configuration and block (default: enough for about 0.2 s of the serial
     /// solver, from its warm-up steps: short enough to follow the host's drift, long enough
     /// to time).
-    #[arg(long)]
     pub block_steps: Option<u64>,
     /// Untimed steps of every configuration before the first block.
-    #[arg(long, default_value_t = 3)]
     pub warmup: u64,
     /// Write the measurement, every block included, as JSON.
-    #[arg(long, value_name = "FILE")]
     pub json: Option<PathBuf>,
     /// No progress bar.
-    #[arg(long)]
     pub quiet: bool,
 }
 
@@ -170,7 +161,7 @@ fn parse_strategies(list: &[String]) -> Result<Vec<Strategy>> {
     Ok(out)
 }
 
-fn check_args(a: &PairedArgs) -> Result<()> {
+fn check_args(a: &PairedOptions) -> Result<()> {
     if !(1..=4).contains(&a.model) {
         bail!("unknown model {}: the Taylor bar has Models 1-4", a.model);
     }
@@ -227,7 +218,7 @@ impl Pools {
 /// the same Taylor bar set-up, refused up front when together they would not fit in memory.
 #[allow(clippy::type_complexity)]
 fn configurations<'p>(
-    a: &PairedArgs,
+    a: &PairedOptions,
     strategies: &[Strategy],
     pools: &'p Pools,
 ) -> Result<(Vec<(Strategy, usize)>, Vec<Contender<'p>>, usize)> {
@@ -265,7 +256,7 @@ fn configurations<'p>(
 /// Untimed warm-up steps of every configuration (`labels`: strategy and threads of each
 /// solver), then `blocks` rounds of timed blocks in rotating order. Returns the steps per
 /// block (from the serial warm-up's speed unless `--block-steps` is given).
-fn run_blocks(a: &PairedArgs, labels: &[(Strategy, usize)], solvers: &mut [Contender<'_>]) -> Result<u64> {
+fn run_blocks(a: &PairedOptions, labels: &[(Strategy, usize)], solvers: &mut [Contender<'_>]) -> Result<u64> {
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new((a.blocks * solvers.len()) as u64) };
     bar.set_style(
         ProgressStyle::with_template("[{elapsed_precise}] {bar:24.cyan/blue} {pos}/{len} blocks ETA {eta} | {msg}")
@@ -289,7 +280,7 @@ fn run_blocks(a: &PairedArgs, labels: &[(Strategy, usize)], solvers: &mut [Conte
 }
 
 /// Run the measurement (no printing; the statistics are [`crate::analysis::paired::report`]).
-pub fn measure(a: &PairedArgs) -> Result<PairedMeasurement> {
+pub fn measure(a: &PairedOptions) -> Result<PairedMeasurement> {
     check_args(a)?;
     let strategies = parse_strategies(&a.strategies)?;
     let policy: PinPolicy = a.pin.parse()?;
@@ -337,8 +328,8 @@ pub fn measure(a: &PairedArgs) -> Result<PairedMeasurement> {
 pub(crate) mod tests {
     use super::*;
 
-    pub(crate) fn args() -> PairedArgs {
-        PairedArgs {
+    pub(crate) fn args() -> PairedOptions {
+        PairedOptions {
             model: 1,
             strategies: vec!["dd".into(), "dd-balanced".into()],
             threads: 2,
@@ -353,14 +344,14 @@ pub(crate) mod tests {
 
     #[test]
     fn bad_arguments_are_refused_with_advice() {
-        let cases: Vec<(PairedArgs, &str)> = vec![
-            (PairedArgs { model: 5, ..args() }, "Models 1-4"),
-            (PairedArgs { threads: 1, ..args() }, "use 2 or more"),
-            (PairedArgs { blocks: 1, ..args() }, "at least 2"),
-            (PairedArgs { block_steps: Some(0), ..args() }, "at least 1"),
-            (PairedArgs { warmup: 0, ..args() }, "page faults"),
-            (PairedArgs { strategies: vec!["xx".into()], ..args() }, "unknown strategy 'xx'"),
-            (PairedArgs { strategies: vec!["serial".into()], ..args() }, "always measured"),
+        let cases: Vec<(PairedOptions, &str)> = vec![
+            (PairedOptions { model: 5, ..args() }, "Models 1-4"),
+            (PairedOptions { threads: 1, ..args() }, "use 2 or more"),
+            (PairedOptions { blocks: 1, ..args() }, "at least 2"),
+            (PairedOptions { block_steps: Some(0), ..args() }, "at least 1"),
+            (PairedOptions { warmup: 0, ..args() }, "page faults"),
+            (PairedOptions { strategies: vec!["xx".into()], ..args() }, "unknown strategy 'xx'"),
+            (PairedOptions { strategies: vec!["serial".into()], ..args() }, "always measured"),
         ];
         for (a, want) in cases {
             let e = measure(&a).unwrap_err().to_string();

@@ -51,9 +51,9 @@
 //! # opt = "o0"
 //! ```
 //!
-//! [`crate::campaign::matrix`] resolves a preset and the command-line overrides into runs.
+//! [`crate::campaign::plan::matrix`] resolves a preset and the command-line overrides into runs.
 
-use super::launcher::Launcher;
+use crate::campaign::exec::launcher::Launcher;
 use crate::machine::placement::{PinPolicy, Places};
 use anyhow::{anyhow, bail, Context, Result};
 use mpm_core::{BulkViscosity, GridMode, MgForm, Strategy};
@@ -65,13 +65,13 @@ use std::path::{Path, PathBuf};
 /// Presets shipped with the harness (embedded; `configs/<name>.toml` in the workspace wins
 /// when present, so edits there apply without rebuilding).
 pub const BUILTIN_PRESETS: [(&str, &str); 7] = [
-    ("smoke", include_str!("../../../configs/smoke.toml")),
-    ("ci", include_str!("../../../configs/ci.toml")),
-    ("quick", include_str!("../../../configs/quick.toml")),
-    ("paper", include_str!("../../../configs/paper.toml")),
-    ("impact", include_str!("../../../configs/impact.toml")),
-    ("balanced", include_str!("../../../configs/balanced.toml")),
-    ("hybrid", include_str!("../../../configs/hybrid.toml")),
+    ("smoke", include_str!("../../../../configs/smoke.toml")),
+    ("ci", include_str!("../../../../configs/ci.toml")),
+    ("quick", include_str!("../../../../configs/quick.toml")),
+    ("paper", include_str!("../../../../configs/paper.toml")),
+    ("impact", include_str!("../../../../configs/impact.toml")),
+    ("balanced", include_str!("../../../../configs/balanced.toml")),
+    ("hybrid", include_str!("../../../../configs/hybrid.toml")),
 ];
 
 /// Optimisation level = Cargo profile of the solver binary (`o3`, `o0`).
@@ -214,7 +214,7 @@ pub struct Preset {
     #[serde(default = "one_rank")]
     pub ranks: Vec<usize>,
     /// Launcher template of runs with several ranks (`{ranks}`, `{threads}` placeholders;
-    /// default [`super::launcher::DEFAULT_LAUNCHER`]; `--launcher` and `MPM_BENCH_LAUNCHER`
+    /// default [`crate::campaign::exec::launcher::DEFAULT_LAUNCHER`]; `--launcher` and `MPM_BENCH_LAUNCHER`
     /// win over it).
     #[serde(default)]
     pub launcher: Option<Launcher>,

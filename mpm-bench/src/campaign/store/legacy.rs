@@ -1,19 +1,27 @@
-//! Rows of CSV schemas 1-5 (before the run spec): read with the flat row type they were
-//! written with ([`LegacyRow`]) and converted into today's [`Row`] ([`LegacyRow::into_row`]):
-//! their configuration becomes a planned run with the solver spec those harnesses asked
-//! for (the physics then was the spec's defaults; the impact's models are the
-//! [`impact_variant`]s), their measurements the measured columns. Old rows carry no
-//! steady-state stage times (`steady_*` read empty).
+//! Rows of older CSV schemas, converted into today's [`Row`]:
+//!
+//! * schemas 1-5 (before the run spec): read with the flat row type they were written with
+//!   ([`LegacyRow`]) and converted ([`LegacyRow::into_row`]): their configuration becomes a
+//!   planned run with the solver spec those harnesses asked for (the physics then was the
+//!   spec's defaults; the impact's models are the [`impact_variant`]s), their measurements
+//!   the summary's figures they recorded. Old rows carry no steady-state stage times
+//!   (`steady_*` read empty);
+//! * schemas 6-7 (the run spec's columns, the measurements under the harness's own names):
+//!   their header renamed to the summary's keys ([`v7_header_as_current`]) and each record
+//!   completed ([`v7_as_current`]), then read as this schema's.
 
-use super::matrix::PlannedRun;
-use super::memory::impact_variant;
-use super::record::{HostColumns, Measured, Outcome, Placement, Row, RowId, Status};
+use super::record::{HostColumns, Outcome, Placement, Row, RowId, Status};
+use crate::campaign::plan::matrix::PlannedRun;
+use crate::campaign::plan::memory::impact_variant;
 use crate::machine::placement::PinPolicy;
 use anyhow::{anyhow, Context, Result};
 use mpm_core::{GridMode, Strategy, Substage};
 use mpm_spec::scenario::{ImpactSpec, TaylorSpec};
 use mpm_spec::spec::Budget;
-use mpm_spec::summary::{EndReason, StageSeconds};
+use mpm_spec::summary::{
+    Balance, Communication, EndReason, Figures, ImpactFigures, Memory, PatchCounts, Physics, Progress, ScenarioFigures,
+    Size, StageSeconds, TaylorFigures, Timing,
+};
 use mpm_spec::{OptLevel, RunSpec, Scenario};
 use serde::{Deserialize, Serialize};
 
@@ -366,23 +374,7 @@ impl LegacyRow {
     /// Today's row of this old one.
     pub fn into_row(self) -> Result<Row> {
         let run = self.planned()?;
-        let sub = [
-            (Substage::GridFit, self.sub_grid_fit_s),
-            (Substage::Binning, self.sub_binning_s),
-            (Substage::Scatter, self.sub_scatter_s),
-            (Substage::Assembly, self.sub_assembly_s),
-            (Substage::GridUpdate, self.sub_grid_update_s),
-            (Substage::Gather, self.sub_gather_s),
-            (Substage::RemapScatter, self.sub_remap_scatter_s),
-            (Substage::RemapAssembly, self.sub_remap_assembly_s),
-            (Substage::StressUpdate, self.sub_stress_update_s),
-        ];
-        let substages = StageSeconds(sub.into_iter().filter_map(|(k, v)| v.map(|v| (k, v))).collect());
-        let end_reason = match self.end_reason.as_str() {
-            "end_time" => Some(EndReason::EndTime),
-            "step_limit" => Some(EndReason::StepLimit),
-            _ => None,
-        };
+        let measured = self.figures(&run);
         Ok(Row {
             id: RowId {
                 schema_version: self.schema_version,
@@ -410,47 +402,7 @@ impl LegacyRow {
                 },
                 oversubscribed: self.oversubscribed,
             },
-            measured: Measured {
-                particles: self.particles,
-                cells: self.cells,
-                nodes: self.nodes,
-                mean_nodes: self.mean_nodes,
-                steps: self.steps,
-                sim_time_s: self.sim_time_s,
-                end_reason,
-                dt_first_s: self.dt_first_s,
-                wall_s: self.wall_s,
-                grid_stage_s: self.grid_stage_s,
-                particle_stage_s: self.particle_stage_s,
-                substages,
-                steady_s_per_step: self.steady_s_per_step,
-                ns_per_particle_step: self.ns_per_particle_step,
-                particle_steps_per_s: self.particle_steps_per_s,
-                worker_busy_s: self.worker_busy_s.split_whitespace().filter_map(|t| t.parse().ok()).collect(),
-                load_imbalance: self.load_imbalance,
-                dd_work_imbalance: self.dd_work_imbalance,
-                peak_rss_bytes: self.peak_rss_bytes,
-                peak_rss_sum_bytes: self.peak_rss_sum_bytes,
-                rank_particles: self.rank_particles.split_whitespace().filter_map(|t| t.parse().ok()).collect(),
-                rank_busy_imbalance: self.rank_busy_imbalance,
-                migrated_particles: self.migrated_particles,
-                comm_s_per_step: self.comm_s_per_step,
-                comm_frac: self.comm_frac,
-                wait_s_per_step: self.wait_s_per_step,
-                wait_frac: self.wait_frac,
-                comm_bytes_per_step: self.comm_bytes_per_step,
-                comm_messages_per_step: self.comm_messages_per_step,
-                kinetic_energy_initial_j: self.kinetic_energy_initial_j,
-                kinetic_energy_j: self.kinetic_energy_j,
-                internal_energy_j: self.internal_energy_j,
-                initial_length_m: self.initial_length_m,
-                final_length_m: self.final_length_m,
-                face_diameter_m: self.face_diameter_m,
-                cloud_front_m: self.cloud_front_m,
-                cloud_width_m: self.cloud_width_m,
-                failed_particles: self.failed_particles,
-                ..Measured::default()
-            },
+            measured,
             host: HostColumns {
                 host_load1_before: self.host_load1_before,
                 host_load1_after: self.host_load1_after,
@@ -473,6 +425,111 @@ impl LegacyRow {
                 lost_compute_s: None,
             },
         })
+    }
+
+    /// The figures this row recorded (none for a run skipped or failed before it was timed);
+    /// the figures these schemas did not record read as their defaults (the steady-state
+    /// stage times as not measured).
+    fn figures(&self, run: &PlannedRun) -> Option<Figures> {
+        if self.wall_s.is_none() && matches!(self.status, Status::Skipped | Status::Failed) {
+            return None;
+        }
+        let wall_s = self.wall_s.unwrap_or(0.0);
+        let worker_busy_s: Vec<f64> = self.worker_busy_s.split_whitespace().filter_map(|t| t.parse().ok()).collect();
+        Some(Figures {
+            size: Size {
+                particles: self.particles.unwrap_or(0) as usize,
+                cells: self.cells.unwrap_or(0) as usize,
+                nodes: self.nodes.unwrap_or(0) as usize,
+                mean_nodes: self.mean_nodes.or(self.nodes.map(|n| n as f64)).unwrap_or(0.0),
+                ..Size::default()
+            },
+            progress: Progress {
+                steps: self.steps.unwrap_or(0),
+                sim_time: self.sim_time_s.unwrap_or(0.0),
+                dt_first: self.dt_first_s.unwrap_or(0.0),
+                end_reason: if self.end_reason == "end_time" { EndReason::EndTime } else { EndReason::StepLimit },
+                ..Progress::default()
+            },
+            timing: Timing {
+                wall_s,
+                grid_stage_s: self.grid_stage_s.unwrap_or(0.0),
+                particle_stage_s: self.particle_stage_s.unwrap_or(0.0),
+                substages: self.substages(),
+                steady_s_per_step: self.steady_s_per_step,
+                ns_per_particle_step: self.ns_per_particle_step,
+                particle_steps_per_s: self.particle_steps_per_s,
+                ..Timing::default()
+            },
+            balance: Balance {
+                worker_busy_s: (!worker_busy_s.is_empty()).then_some(worker_busy_s),
+                load_imbalance: self.load_imbalance,
+                dd_patch_particles: self
+                    .dd_work_imbalance
+                    .map(|imbalance_mean| PatchCounts { imbalance_mean, ..PatchCounts::default() }),
+                ..Balance::default()
+            },
+            memory: Memory {
+                peak_rss_bytes: self.peak_rss_bytes,
+                peak_rss_sum_bytes: self.peak_rss_sum_bytes,
+                ..Memory::default()
+            },
+            physics: Physics {
+                kinetic_energy_initial: self.kinetic_energy_initial_j.unwrap_or(0.0),
+                kinetic_energy: self.kinetic_energy_j.unwrap_or(0.0),
+                internal_energy: self.internal_energy_j.unwrap_or(0.0),
+                failed_particles: self.failed_particles.unwrap_or(0) as usize,
+                ..Physics::default()
+            },
+            communication: Communication {
+                rank_particles: self.rank_particles.split_whitespace().filter_map(|t| t.parse().ok()).collect(),
+                rank_busy_imbalance: self.rank_busy_imbalance,
+                migrated_particles: self.migrated_particles,
+                comm_s_per_step: self.comm_s_per_step,
+                comm_frac: self.comm_frac,
+                wait_s_per_step: self.wait_s_per_step,
+                wait_frac: self.wait_frac,
+                comm_bytes_per_step: self.comm_bytes_per_step,
+                comm_messages_per_step: self.comm_messages_per_step,
+            },
+            scenario: self.scenario_figures(run),
+            ..Figures::default()
+        })
+    }
+
+    /// The sub-stage seconds this row recorded (`sub_<stage>_s`).
+    fn substages(&self) -> StageSeconds {
+        let sub = [
+            (Substage::GridFit, self.sub_grid_fit_s),
+            (Substage::Binning, self.sub_binning_s),
+            (Substage::Scatter, self.sub_scatter_s),
+            (Substage::Assembly, self.sub_assembly_s),
+            (Substage::GridUpdate, self.sub_grid_update_s),
+            (Substage::Gather, self.sub_gather_s),
+            (Substage::RemapScatter, self.sub_remap_scatter_s),
+            (Substage::RemapAssembly, self.sub_remap_assembly_s),
+            (Substage::StressUpdate, self.sub_stress_update_s),
+        ];
+        StageSeconds(sub.into_iter().filter_map(|(k, v)| v.map(|v| (k, v))).collect())
+    }
+
+    /// The scenario's figures these schemas recorded: the bar's lengths, the cloud's front
+    /// and width.
+    fn scenario_figures(&self, run: &PlannedRun) -> ScenarioFigures {
+        match ScenarioFigures::empty(run.spec.scenario.kind()) {
+            ScenarioFigures::Taylor(_) => ScenarioFigures::Taylor(TaylorFigures {
+                initial_length_m: self.initial_length_m,
+                final_length_m: self.final_length_m,
+                face_diameter_m: self.face_diameter_m,
+                ..TaylorFigures::default()
+            }),
+            ScenarioFigures::Impact(_) => ScenarioFigures::Impact(ImpactFigures {
+                cloud_front_m: self.cloud_front_m,
+                cloud_width_m: self.cloud_width_m,
+                ..ImpactFigures::default()
+            }),
+            other => other,
+        }
     }
 }
 
@@ -509,4 +566,72 @@ pub fn legacy_header() -> Vec<String> {
     let bytes = w.into_inner().expect("in-memory writer");
     let mut r = csv::ReaderBuilder::new().has_headers(true).from_reader(bytes.as_slice());
     r.headers().expect("header line").iter().map(str::to_string).collect()
+}
+
+/// Schema 6-7 columns whose name changed in schema 8 (the summary's own keys), old -> new.
+const RENAMED_V7: [(&str, &str); 24] = [
+    ("sim_time_s", "sim_time"),
+    ("dt_first_s", "dt_first"),
+    ("dd_work_imbalance", "dd_patch_particles.imbalance_mean"),
+    ("kinetic_energy_initial_j", "kinetic_energy_initial"),
+    ("kinetic_energy_j", "kinetic_energy"),
+    ("internal_energy_j", "internal_energy"),
+    ("checkpoints_written", "checkpoint.written"),
+    ("checkpoint_write_s", "checkpoint.write_s"),
+    ("restarts", "checkpoint.restarts"),
+    ("restart_setup_s", "checkpoint.restart_setup_s"),
+    ("paired_blocks", "measured.paired.blocks"),
+    ("paired_block_steps", "paired.block_steps"),
+    ("paired_t1_s", "paired.t1_s_per_step"),
+    ("paired_tt_s", "paired.tt_s_per_step"),
+    ("paired_efficiency", "paired.efficiency"),
+    ("paired_t1_grid_stage_s", "paired.reference_grid_stage_s"),
+    ("paired_t1_particle_stage_s", "paired.reference_particle_stage_s"),
+    ("cpu_share", "noise.workers.cpu_share"),
+    ("cpu_share_min", "noise.min_cpu_share"),
+    ("involuntary_switches", "noise.workers.involuntary_switches"),
+    ("work_serial_bytes", "work.serial_bytes"),
+    ("work_bound", "work.efficiency_bound"),
+    ("work_balance", "work.balance"),
+    ("work_overhead", "work.overhead"),
+];
+
+/// Whether a header is of schema 6 or 7: the planned run's columns (`run_key`) without the
+/// summary's scenario tag (`scenario`) that schema 8 writes.
+pub fn is_v7_header(have: &[String]) -> bool {
+    have.iter().any(|c| c == "run_key") && !have.iter().any(|c| c == "scenario")
+}
+
+/// A schema 6-7 header as today's: the columns renamed to the summary's keys
+/// ([`RENAMED_V7`], `work_bytes.<stage>` to `work.bytes.<stage>`) and the scenario's tag
+/// `scenario` added.
+pub fn v7_header_as_current(have: &[String]) -> Vec<String> {
+    let mut header: Vec<String> = have
+        .iter()
+        .map(|name| match RENAMED_V7.iter().find(|(old, _)| old == name) {
+            Some((_, new)) => new.to_string(),
+            None => match name.strip_prefix("work_bytes.") {
+                Some(stage) => format!("work.bytes.{stage}"),
+                None => name.clone(),
+            },
+        })
+        .collect();
+    header.push("scenario".into());
+    header
+}
+
+/// A schema 6-7 record under `have` as today's, under [`v7_header_as_current`]: the
+/// scenario's tag added to a row that measured anything (its wall time), and
+/// `checkpoint.restarts` left empty where no checkpoint was written (those schemas wrote 0
+/// there).
+pub fn v7_as_current(have: &[String], rec: &csv::StringRecord) -> csv::StringRecord {
+    let cell = |name: &str| have.iter().position(|c| c == name).and_then(|i| rec.get(i)).unwrap_or("");
+    let no_checkpoint = cell("checkpoints_written").is_empty();
+    let mut cells: Vec<&str> = have
+        .iter()
+        .zip(rec.iter())
+        .map(|(name, text)| if name == "restarts" && no_checkpoint { "" } else { text })
+        .collect();
+    cells.push(if cell("wall_s").is_empty() { "" } else { cell("scenario.kind") });
+    csv::StringRecord::from(cells)
 }

@@ -11,15 +11,14 @@
 //! a seeded Fisher-Yates (SplitMix64, stable across versions), so machine drift spreads over
 //! every cell instead of biasing one.
 
-use super::launcher::Launcher;
 use super::memory::impact_variant;
 use super::preset::{parse_size, BudgetOverride, BudgetSpec, OptLevel, Preset};
-use super::record::RunKey;
+use crate::campaign::exec::launcher::Launcher;
 use crate::machine::placement::{PinPolicy, Places};
 use crate::util::SplitMix64;
 use anyhow::{anyhow, bail, Context, Result};
 use mpm_core::{GridMode, Strategy};
-use mpm_spec::scenario::{ImpactSpec, TaylorSpec};
+use mpm_spec::scenario::{ImpactSpec, PlateSpec, TaylorSpec};
 use mpm_spec::spec::{hex_sha256, Budget, CheckpointEvery, Outputs};
 use mpm_spec::{RunSpec, Scenario, ScenarioKind};
 use serde::{Deserialize, Serialize};
@@ -145,6 +144,11 @@ impl Overrides {
     }
 }
 
+/// What identifies a configuration for resuming: two rows with the same key ran the same
+/// thing.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct RunKey(pub String);
+
 /// One run of the matrix: the solver's spec and what the harness adds to it. Its
 /// serialisation is the run's configuration columns in the CSV (the spec flattened).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -178,6 +182,27 @@ impl PlannedRun {
         spec.threads = threads;
         spec.budget = Budget { steps: Some(steps), end_time_s: None, warmup: Some(0) };
         Self { spec, model, opt, pin: PinPolicy::CLOSE, launcher: None, rep: 0 }
+    }
+
+    /// One planned run per scenario with every optional part of the plan present (ranks'
+    /// layout, budget, paired design, injected slowdown, launcher): the planned run's columns.
+    pub fn shapes() -> Vec<Self> {
+        [
+            Scenario::Taylor(TaylorSpec::model(1)),
+            Scenario::Impact(ImpactSpec::default()),
+            Scenario::Plate(PlateSpec::default()),
+        ]
+        .into_iter()
+        .map(|scenario| {
+            let mut spec = RunSpec::new(scenario).expect("the default scenarios build");
+            spec.rank_layout = Some([1, 1, 1]);
+            spec.budget.steps = Some(1);
+            spec.budget.warmup = Some(0);
+            spec.paired = Some(mpm_spec::spec::Paired { blocks: 0 });
+            spec.inject_slowdown = Some(0.0);
+            Self { spec, model: 1, opt: OptLevel::O3, pin: PinPolicy::CLOSE, launcher: Some("mpirun".into()), rep: 0 }
+        })
+        .collect()
     }
 
     /// Short human description: `Model4 ae o0 8 thr pin close rep 0`, with several ranks
@@ -232,7 +257,7 @@ impl PlannedRun {
 }
 
 /// A resolved campaign: preset plus overrides, validated. Its serialised form is the
-/// manifest's `campaign`, and travels in a Slurm job's file ([`super::job`]).
+/// manifest's `campaign`, and travels in a Slurm job's file ([`crate::campaign::schedule::job`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Campaign {
     /// Campaign id: the preset name, plus a slug of the overrides when there are any.
@@ -522,7 +547,9 @@ fn check_budget(budget: &BudgetSpec) -> Result<()> {
     Ok(())
 }
 
-pub(super) fn sanitize_id(s: &str) -> String {
+/// `s` as a folder name: ASCII letters (lower-cased), digits, `-`, `_` and `.` kept, every
+/// other character `-`; a name over 80 characters shortened with a hash of the whole.
+pub fn sanitize_id(s: &str) -> String {
     let mut id: String = s
         .chars()
         .map(|c| if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') { c.to_ascii_lowercase() } else { '-' })
@@ -541,7 +568,7 @@ pub(super) fn sanitize_id(s: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::campaign::preset::{load_preset, BUILTIN_PRESETS};
+    use crate::campaign::plan::preset::{load_preset, BUILTIN_PRESETS};
 
     #[test]
     fn builtin_presets_parse_and_expand() {
@@ -611,8 +638,8 @@ mod tests {
         let ov = Overrides { grid: Some(GridMode::Sparse), ranks: Some(vec![1, 2]), ..Overrides::default() };
         let err = Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap_err().to_string();
         assert!(err.contains("one process only"), "{err}");
-        let text = include_str!("../../../configs/smoke.toml").replace("grid = \"fixed\"", "grid = \"dense\"");
-        let err = format!("{:#}", crate::campaign::preset::parse_preset(&text).unwrap_err());
+        let text = include_str!("../../../../configs/smoke.toml").replace("grid = \"fixed\"", "grid = \"dense\"");
+        let err = format!("{:#}", crate::campaign::plan::preset::parse_preset(&text).unwrap_err());
         assert!(err.contains("dense") && err.contains("`fixed`, `adaptive`, `sparse`"), "{err}");
         drop(p);
     }
@@ -621,15 +648,15 @@ mod tests {
     /// checked; a bad template in a preset is an error naming it.
     #[test]
     fn preset_ranks_and_launcher_parse() {
-        let text = include_str!("../../../configs/smoke.toml").to_string() + "\n";
+        let text = include_str!("../../../../configs/smoke.toml").to_string() + "\n";
         let with = text.replace(
             "threads = [1, 2]",
             "threads = [1, 2]\nranks = [1, 2, 4]\nlauncher = \"srun -n {ranks} -c {threads}\"",
         );
-        let p = crate::campaign::preset::parse_preset(&with).unwrap();
+        let p = crate::campaign::plan::preset::parse_preset(&with).unwrap();
         assert_eq!(p.ranks, vec![1, 2, 4]);
         let c = Campaign::resolve(p.clone(), "file".into(), &Overrides::default()).unwrap();
-        if std::env::var(crate::campaign::launcher::LAUNCHER_ENV).is_err() {
+        if std::env::var(crate::campaign::exec::launcher::LAUNCHER_ENV).is_err() {
             assert_eq!(c.launcher.expand(4, 2), ["srun", "-n", "4", "-c", "2"]);
         }
         let ov = Overrides { launcher: Some("mpiexec -np {ranks}".into()), ..Overrides::default() };
@@ -640,10 +667,10 @@ mod tests {
         let err = Campaign::resolve(p, "file".into(), &ov).unwrap_err().to_string();
         assert!(err.contains("{ranks}"), "{err}");
         let bad = with.replace("srun -n {ranks} -c {threads}", "srun -n {nodes}");
-        let err = format!("{:#}", crate::campaign::preset::parse_preset(&bad).unwrap_err());
+        let err = format!("{:#}", crate::campaign::plan::preset::parse_preset(&bad).unwrap_err());
         assert!(err.contains("unknown placeholder '{nodes}'"), "{err}");
         let bad = text.replace("threads = [1, 2]", "threads = [1, 2]\nranks = 2");
-        assert!(crate::campaign::preset::parse_preset(&bad).is_err(), "ranks is a list");
+        assert!(crate::campaign::plan::preset::parse_preset(&bad).is_err(), "ranks is a list");
     }
 
     #[test]
