@@ -12,8 +12,12 @@
 //!   switches, its CPU's steal), the noise a run can see;
 //! * [`paired`]: solvers advancing in alternating timed blocks on their pinned pools (the
 //!   paired design), in `mpm run` and in the harness's own process;
-//! * [`atomic`]: atomic file writes;
-//! * [`lock`]: one writer per folder (`flock`): a campaign's, a run's checkpoints;
+//! * [`atomic`]: atomic file writes, synced with their folder;
+//! * [`durable`]: `fsync` of files and folders whose failure is an error, and lines
+//!   appended durably;
+//! * [`lock`]: one writer per folder (`flock`, or a lock file where the file system has no
+//!   `flock`): a campaign's, a run's checkpoints;
+//! * [`fault`]: failures of `fsync` and `flock` injected by tests;
 //! * [`checkpoint`]: checkpoint files (a TOML header, the particle arrays, a SHA-256) and
 //!   the folder that keeps a run's last two, which `mpm` writes and both programs read;
 //! * [`clock`]: the wall clock as both programs stamp files and rows with it;
@@ -28,6 +32,8 @@
 pub mod atomic;
 pub mod checkpoint;
 pub mod clock;
+pub mod durable;
+pub mod fault;
 pub mod fonts;
 pub mod human;
 pub mod identity;
