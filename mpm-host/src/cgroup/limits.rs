@@ -13,7 +13,9 @@
 //! headroom, not the limit: the limit binds this process together with every other process
 //! of its cgroup (the harness beside its runs, the other tasks of a Slurm job) and the
 //! pages they already hold. A `memory.stat` that is not there counts no cache (the
-//! headroom is then, if anything, too small).
+//! headroom is then, if anything, too small). cgroup v1 with `memory.use_hierarchy` 0
+//! (where an ancestor's limit does not bind its children, a mode newer kernels no longer
+//! offer) is read the same way, erring on the small side too.
 //!
 //! CPUs. cgroup v2: `cpu.max`, `quota period` in microseconds (`max period`: none); cgroup
 //! v1: `cpu.cfs_quota_us` (`-1`: none) over `cpu.cfs_period_us`. The quota is `quota /
