@@ -27,7 +27,8 @@ if [ -z "$work" ]; then
     work=$(mktemp -d "${TMPDIR:-/tmp}/mpm-bundle-test.XXXXXX")
     trap 'rm -rf "$work"' EXIT
 fi
-work=$(cd "$work" && pwd)
+work=$(cd "$work" && pwd -P)
+rm -rf "$work/results" "$work/dry" # a kept folder's earlier campaign would be resumed, not run
 start=$(date +%s)
 step() { printf '\n==> bundle test: %s\n' "$*" >&2; }
 fail() { echo "bundle test FAILED: $*" >&2; exit 1; }
@@ -44,9 +45,11 @@ for exe in "$root/libexec/mpm-bench" "$root"/libexec/*/mpm; do
     while read -r soname arrow path _; do
         [ "$arrow" = "=>" ] || continue
         is_c_runtime "$soname" && continue
-        case "$path" in
-            "$root"/lib/*) echo "  ${exe#"$root"/}: $soname -> ${path#"$root"/}" ;;
-            *) fail "${exe#"$root"/} loads $soname from $path, outside the bundle" ;;
+        # The run path resolves to libexec/../lib/...: compared as the file it names.
+        real=$(realpath -e -- "$path" 2>/dev/null) || fail "${exe#"$root"/} needs $soname: not found ($path)"
+        case "$real" in
+            "$root"/lib/*) echo "  ${exe#"$root"/}: $soname -> ${real#"$root"/}" ;;
+            *) fail "${exe#"$root"/} loads $soname from $real, outside the bundle" ;;
         esac
     done < <(ldd "$exe")
 done
@@ -96,7 +99,7 @@ step "3. the manycore preset's dry run from the bundle, capped to this machine's
 cores=$(borrowed "$root/bin/mpm-bench" topology | sed -n 's/^Summary .* \([0-9][0-9]*\) core(s), .*/\1/p')
 dry=$(borrowed "$root/bin/mpm-bench" run --preset manycore --dry-run --out "$work/dry" 2>&1) ||
     fail "the dry run failed: $dry"
-above=$(for t in 1 2 4 8 16; do [ "$t" -gt "$cores" ] && printf '%s/' "$t"; done)
+above=$(for t in 1 2 4 8 16; do if [ "$t" -gt "$cores" ]; then printf "%s/" "$t"; fi; done)
 above=${above%/}
 if [ -n "$above" ]; then
     grep -q "^note: $cores usable core(s) here: the runs of $above threads are skipped, not run oversubscribed" <<<"$dry" ||

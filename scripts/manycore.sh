@@ -82,7 +82,7 @@ analyse() { # analyse WHAT COMMAND...
     step "$what"
     "$@" || broken+=("$what")
 }
-threads=$(for t in 1 2 4 8 16; do [ "$t" -le "${cores:-1}" ] && printf '%s,' "$t"; done)
+threads=$(for t in 1 2 4 8 16; do if [ "$t" -le "${cores:-1}" ]; then printf "%s," "$t"; fi; done)
 analyse "memory-bandwidth ceiling (STREAM triad, threads ${threads%,}, close and spread)" \
     "$bench" bandwidth --threads "${threads%,}" --pin close --pin spread --out "$campaign/bandwidth.json"
 analyse "figures 7-14, the memory figure and points.csv" \

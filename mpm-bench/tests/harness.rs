@@ -620,7 +620,8 @@ fn thread_counts_above_the_cores_are_skipped_not_oversubscribed() {
     let planned = |listing: &str| -> Vec<usize> {
         let runs: Vec<&str> = listing.lines().filter(|l| l.contains(" thr pin ")).collect();
         assert!(runs.iter().all(|l| !l.contains("oversubscribed")), "{listing}");
-        let mut t: Vec<usize> = runs.iter().filter_map(|l| l.split(" thr pin").next()?.split(' ').next_back()?.parse().ok()).collect();
+        let mut t: Vec<usize> =
+            runs.iter().filter_map(|l| l.split(" thr pin").next()?.split(' ').next_back()?.parse().ok()).collect();
         t.sort_unstable();
         t.dedup();
         t
@@ -643,7 +644,10 @@ fn thread_counts_above_the_cores_are_skipped_not_oversubscribed() {
     let (listing, _) =
         dry(&["--preset", "smoke", "--threads", "1,4096", "--skip-above-cores", "--assume-cores", "4096", "--mock"]);
     assert!(listing.contains("planned for a machine of 4096 usable core(s)"), "{listing}");
-    assert!(listing.lines().any(|l| l.starts_with("estimated duration: about") && l.contains("on 4096 core(s)")), "{listing}");
+    assert!(
+        listing.lines().any(|l| l.starts_with("estimated duration: about") && l.contains("on 4096 core(s)")),
+        "{listing}"
+    );
     assert_eq!(planned(&listing), vec![1, 4096]);
     fails_cleanly(
         &["run", "--preset", "smoke", "--threads", "4096", "--skip-above-cores", "--dry-run", "--out", out],

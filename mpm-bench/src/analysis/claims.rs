@@ -460,9 +460,7 @@ fn c5(c: &Campaign) -> ClaimResult {
         return result(
             "C5",
             Verdict::CannotTell,
-            format!(
-                "no thread count was run both in one {what} and across two: rerun with --bind close --bind spread"
-            ),
+            format!("no thread count was run both in one {what} and across two: rerun with --bind close --bind spread"),
             ev,
         );
     }
