@@ -6,7 +6,9 @@
 #
 #   scripts/bundle.sh                        # -> target/bundle/mpm-bench-<version>-x86_64-linux.tar.gz
 #   scripts/bundle.sh --mpi                  # `mpm` with MPI: the machine then needs its own Open MPI
-#   scripts/bundle.sh --o3-profile o3-test --out DIR   # what the bundle test does (no LTO link)
+#   scripts/bundle.sh --o3-profile o3-test --out DIR   # no LTO link (the bundle test)
+#   scripts/bundle.sh --mpm-bench FILE       # take this mpm-bench (built with this workspace's
+#                                            # build.rs) instead of building one
 #
 # On the borrowed machine:
 #   tar xzf mpm-bench-<version>-x86_64-linux.tar.gz
@@ -32,14 +34,16 @@ cd "$(dirname "$0")/.."
 . scripts/c-runtime.sh
 
 o3_profile=o3
+bench=""
 mpi=0
 out=target/bundle
 while [ $# -gt 0 ]; do
     case "$1" in
         --mpi) mpi=1; shift ;;
         --o3-profile) o3_profile="$2"; shift 2 ;;
+        --mpm-bench) bench="$2"; shift 2 ;;
         --out) out="$2"; shift 2 ;;
-        -h|--help) sed -n '2,28p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h|--help) sed -n '2,31p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *) echo "bundle.sh: unknown option '$1' (see --help)" >&2; exit 2 ;;
     esac
 done
@@ -73,11 +77,15 @@ build_mpm() {
         if [ -f "$saved" ]; then mv -f "$saved" "$bin"; else rm -f "$bin"; fi
     fi
 }
-step "building mpm ($o3_profile as o3, and o0; ${features[*]}) and mpm-bench ($o3_profile)"
+step "building mpm ($o3_profile as o3, and o0; ${features[*]})${bench:+; mpm-bench: $bench}"
 build_mpm "$o3_profile" "$root/libexec/o3/mpm"
 build_mpm o0 "$root/libexec/o0/mpm"
-cargo build --profile "$o3_profile" -p mpm-bench --bin mpm-bench
-install -m 755 "$target/$o3_profile/mpm-bench" "$root/libexec/mpm-bench"
+if [ -z "$bench" ]; then
+    step "building mpm-bench ($o3_profile)"
+    cargo build --profile "$o3_profile" -p mpm-bench --bin mpm-bench
+    bench="$target/$o3_profile/mpm-bench"
+fi
+install -m 755 "$bench" "$root/libexec/mpm-bench"
 cp configs/*.toml "$root/configs/"
 install -m 755 scripts/manycore.sh "$root/manycore.sh"
 
