@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The test command: formatting, lints with warnings as errors, every test of the workspace
 # (unit, integration, CLI, end-to-end harness, doc tests), built optimised (profile o3-test:
-# o3 without its LTO, see Cargo.toml) so the physics tests run fast, and the loom model check
-# of mpm-core's parallel primitives. mpm-bench's Slurm test starts a one-node Slurm of its own
+# o3 without its LTO, see Cargo.toml) so the physics tests run fast, the bundle test, and the
+# loom model check of mpm-core's parallel primitives. mpm-bench's Slurm test starts a one-node Slurm of its own
 # (scripts/slurm-local.sh) and stops it: it needs root and the packages the bootstrap installs.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -25,6 +25,13 @@ export MPM_CPU_HAS_AVX512=0
 if grep -qw avx512f /proc/cpuinfo 2>/dev/null && grep -qw avx2 /proc/cpuinfo; then MPM_CPU_HAS_AVX512=1; fi
 step "cargo test (profile o3-test: o3 without LTO; MPM_CPU_HAS_AVX512=$MPM_CPU_HAS_AVX512)"
 cargo test --workspace --profile o3-test
+
+# The self-contained bundle for a machine without a toolchain (scripts/bundle.sh), made at
+# profile o3-test from the builds above and run unpacked without cargo: its libraries, the
+# smoke campaign through ./manycore.sh and its archive's size, the manycore preset's dry run
+# capped to this machine's cores. A few minutes.
+step "the bundle (scripts/bundle-test.sh)"
+scripts/bundle-test.sh
 
 # loom swaps the team's atomics for model-checked ones under `--cfg loom`; its own target
 # directory keeps the normal build's artefacts valid. About 1.5 minutes from scratch, a few

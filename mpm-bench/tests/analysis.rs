@@ -185,6 +185,29 @@ fn c5_compares_one_socket_with_two_at_the_same_thread_count() {
     assert_eq!(v[4].1, Verdict::Holds, "{v:?}");
 }
 
+/// One socket of two NUMA nodes: C5 compares one node with two at the same thread count
+/// (close keeps 2 and 4 threads on node 0, spread crosses); one socket of one node: cannot
+/// tell, saying why.
+#[test]
+fn c5_crosses_numa_nodes_on_one_socket() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Close and spread rows of one machine; spread 25 % slower.
+    let c5_on = |dir: &Path, topo: &'static str| {
+        let close = Craft { topo: Some(topo), ..Craft::default() };
+        write_campaign(dir, &close);
+        write_campaign(dir, &Craft { pin: "spread", slow_parallel: 1.25, ..close });
+        let c = load_campaign(dir, &RowFilter::analysis(false)).unwrap();
+        claims::evaluate(&c, &c.analyse(None)).swap_remove(4)
+    };
+    let c5 = c5_on(&tmp.path().join("a"), "pack:1 numa:2 core:4 pu:1");
+    assert_eq!(c5.verdict, Verdict::Holds, "{c5:?}");
+    assert!(c5.evidence.iter().any(|e| e.contains("4 threads") && e.contains("spread (2 NUMA nodes)")), "{c5:?}");
+    assert!(c5.evidence.iter().any(|e| e.contains("close (1 NUMA node)")), "{c5:?}");
+    let c5 = c5_on(&tmp.path().join("b"), "pack:1 core:8 pu:1");
+    assert_eq!(c5.verdict, Verdict::CannotTell, "{c5:?}");
+    assert!(c5.reason.contains("1 socket and 1 NUMA node"), "{c5:?}");
+}
+
 /// Every claim on crafted rows where it holds, does not hold, and cannot be told.
 #[test]
 fn each_claim_holds_fails_and_cannot_tell() {

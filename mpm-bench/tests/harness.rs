@@ -603,6 +603,59 @@ fn cli_errors_are_clear() {
     }
 }
 
+/// The manycore preset's dry run on this machine: the thread counts above its usable cores
+/// are skipped and said, none is planned oversubscribed. `--skip-above-cores` does the same
+/// for any preset, refuses a campaign left with nothing, and `--assume-cores` plans (and
+/// estimates) for another machine.
+#[test]
+fn thread_counts_above_the_cores_are_skipped_not_oversubscribed() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    let cores = Machine::detect().unwrap().num_cores();
+    let dry = |args: &[&str]| {
+        let o = bench().args(["run", "--dry-run", "--out", out]).args(args).output().unwrap();
+        assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
+        (String::from_utf8(o.stdout).unwrap(), String::from_utf8(o.stderr).unwrap())
+    };
+    let planned = |listing: &str| -> Vec<usize> {
+        let runs: Vec<&str> = listing.lines().filter(|l| l.contains(" thr pin ")).collect();
+        assert!(runs.iter().all(|l| !l.contains("oversubscribed")), "{listing}");
+        let mut t: Vec<usize> =
+            runs.iter().filter_map(|l| l.split(" thr pin").next()?.split(' ').next_back()?.parse().ok()).collect();
+        t.sort_unstable();
+        t.dedup();
+        t
+    };
+    let (listing, err) = dry(&["--preset", "manycore"]);
+    let above: Vec<String> = [1, 2, 4, 8, 16].iter().filter(|&&t| t > cores).map(|t| t.to_string()).collect();
+    if !above.is_empty() {
+        let note = format!(
+            "note: {cores} usable core(s) here: the runs of {} threads are skipped, not run oversubscribed",
+            above.join("/")
+        );
+        assert!(err.contains(&note), "{err}");
+    }
+    let threads = planned(&listing);
+    assert!(!threads.is_empty() && threads.iter().all(|&t| t <= cores), "{threads:?} on {cores} cores");
+    // Any preset, with the flag; and as for a machine of 4096 cores, estimated (mock solver).
+    let (listing, err) = dry(&["--preset", "smoke", "--threads", "1,4096", "--skip-above-cores"]);
+    assert!(err.contains("the runs of 4096 threads are skipped"), "{err}");
+    assert_eq!(planned(&listing), vec![1]);
+    let (listing, _) =
+        dry(&["--preset", "smoke", "--threads", "1,4096", "--skip-above-cores", "--assume-cores", "4096", "--mock"]);
+    assert!(listing.contains("planned for a machine of 4096 usable core(s)"), "{listing}");
+    assert!(
+        listing.lines().any(|l| l.starts_with("estimated duration: about") && l.contains("on 4096 core(s)")),
+        "{listing}"
+    );
+    assert_eq!(planned(&listing), vec![1, 4096]);
+    fails_cleanly(
+        &["run", "--preset", "smoke", "--threads", "4096", "--skip-above-cores", "--dry-run", "--out", out],
+        "nothing is left to run",
+    );
+    fails_cleanly(&["run", "--preset", "smoke", "--assume-cores", "16", "--out", out], "--dry-run");
+}
+
 #[test]
 fn cli_mock_campaign_resumes_and_topology_prints() {
     let dir = tempfile::tempdir().unwrap();

@@ -13,12 +13,14 @@
 //! * "holds": a majority of the comparisons support the claim beyond the noise and none
 //!   contradicts it; "does not hold": some comparison contradicts it; "cannot tell": no
 //!   majority either way (mostly within the noise, missing points, or a machine that cannot
-//!   show the effect, such as one socket for C5).
+//!   show the effect, such as one socket of one NUMA node for C5).
 //! * A verdict needs intervals: with fewer than [`MIN_REPS`] repetitions in a cell it rests
 //!   on, the verdict is *indicative* and says so (`holds (indicative)`).
 //! * C5 (the socket effect) compares the same thread count pinned to one socket (`close`)
 //!   and to two (`spread`), the sockets counted from the placement on the manifest's
-//!   topology; comparing 4 against 6 threads would also show ordinary Amdahl decline.
+//!   topology; comparing 4 against 6 threads would also show ordinary Amdahl decline. On a
+//!   machine of one socket with two or more NUMA nodes, its NUMA nodes take the sockets'
+//!   place (the same cross-domain memory traffic); on one socket of one node it cannot tell.
 //! * Speedups and efficiencies are those of the total step time at optimisation O3 unless
 //!   the claim is about a stage or about optimisation.
 
@@ -26,7 +28,7 @@ use super::results::{load_campaigns, Campaign};
 use super::select::RowFilter;
 use super::stats::{compare, parallel_strategies, tag, Analysis, CellKey, Compare, Estimate, Stage, StatsOptions};
 use crate::campaign::store::record::Status;
-use crate::machine::placement::PinPolicy;
+use crate::machine::placement::{PinPolicy, Places};
 use crate::machine::topology::Machine;
 use anyhow::{Context, Result};
 use mpm_core::Strategy;
@@ -383,18 +385,33 @@ fn c4(an: &Analysis) -> ClaimResult {
     result("C4", v, reason, t.lines).with_reps(t.min_reps)
 }
 
-/// Packages used by `n` workers under the pinning label `pin` on `m` (`None`: not pinned,
-/// oversubscribed, or an unknown label).
-fn sockets_used(m: &Machine, pin: &str, n: usize) -> Option<usize> {
-    let policy: PinPolicy = pin.parse().ok()?;
-    let pl = m.place(&policy, n).ok().filter(|p| !p.oversubscribed && !p.cpus.is_empty())?;
-    let package = |cpu: &usize| m.packages.iter().position(|p| p.cores.iter().any(|c| c.pus.contains(cpu)));
-    Some(pl.cpus.iter().filter_map(package).collect::<BTreeSet<_>>().len())
+/// What C5 crosses: the sockets of a machine of two or more, else the NUMA nodes (with cores)
+/// of a machine of one socket and two or more nodes (sub-NUMA clustering, a chiplet CPU in
+/// NPS2/NPS4 mode). `None` on one socket of one NUMA node: nothing to cross.
+fn domains(m: &Machine) -> Option<(Vec<Vec<usize>>, &'static str)> {
+    let sockets = m.places(Places::Sockets);
+    let numa = m.places(Places::NumaDomains);
+    if sockets.len() >= 2 {
+        Some((sockets, "socket"))
+    } else if numa.len() >= 2 {
+        Some((numa, "NUMA node"))
+    } else {
+        None
+    }
 }
 
-/// For each thread count, a policy that keeps its workers on one socket and one that uses
+/// Domains (`domains`: each one's PUs) used by `n` workers under the pinning label `pin` on
+/// `m` (`None`: not pinned, oversubscribed, or an unknown label).
+fn domains_used(m: &Machine, domains: &[Vec<usize>], pin: &str, n: usize) -> Option<usize> {
+    let policy: PinPolicy = pin.parse().ok()?;
+    let pl = m.place(&policy, n).ok().filter(|p| !p.oversubscribed && !p.cpus.is_empty())?;
+    let domain = |cpu: &usize| domains.iter().position(|d| d.contains(cpu));
+    Some(pl.cpus.iter().filter_map(domain).collect::<BTreeSet<_>>().len())
+}
+
+/// For each thread count, a policy that keeps its workers in one domain and one that uses
 /// two or more (`close` and `spread` preferred), among the rows' policies.
-fn socket_pairs(c: &Campaign, m: &Machine) -> Vec<(usize, String, String)> {
+fn domain_pairs(c: &Campaign, m: &Machine, domains: &[Vec<usize>]) -> Vec<(usize, String, String)> {
     let mut labels: Vec<String> = c
         .rows
         .iter()
@@ -407,8 +424,8 @@ fn socket_pairs(c: &Campaign, m: &Machine) -> Vec<(usize, String, String)> {
     threads
         .into_iter()
         .filter_map(|n| {
-            let one = labels.iter().find(|l| sockets_used(m, l, n) == Some(1))?;
-            let two = labels.iter().find(|l| sockets_used(m, l, n).is_some_and(|k| k >= 2))?;
+            let one = labels.iter().find(|l| domains_used(m, domains, l, n) == Some(1))?;
+            let two = labels.iter().find(|l| domains_used(m, domains, l, n).is_some_and(|k| k >= 2))?;
             Some((n, one.to_string(), two.to_string()))
         })
         .collect()
@@ -419,36 +436,40 @@ fn c5(c: &Campaign) -> ClaimResult {
         return result(
             "C5",
             Verdict::CannotTell,
-            "no manifest.json beside runs.csv: the machine's sockets are unknown".into(),
+            "no manifest.json beside runs.csv: the machine's sockets and NUMA nodes are unknown".into(),
             vec![],
         );
     };
     let m = &man.machine.topology;
-    let sockets = m.num_packages();
-    let ev =
-        vec![format!("machine: {} socket(s), {} cores, {} NUMA node(s)", sockets, m.num_cores(), m.numa_nodes.len())];
-    if sockets < 2 {
+    let ev = vec![format!(
+        "machine: {} socket(s), {} cores, {} NUMA node(s)",
+        m.num_packages(),
+        m.num_cores(),
+        m.numa_nodes.len()
+    )];
+    let Some((domains, what)) = domains(m) else {
         return result(
             "C5",
             Verdict::CannotTell,
-            format!("this machine has {sockets} socket: there is no second socket to cross"),
+            "this machine has 1 socket and 1 NUMA node: there is no second socket or NUMA node to cross".into(),
             ev,
         );
-    }
-    let pairs = socket_pairs(c, m);
+    };
+    let pairs = domain_pairs(c, m, &domains);
     if pairs.is_empty() {
         return result(
             "C5",
             Verdict::CannotTell,
-            "no thread count was run both on one socket and on two: rerun with --bind close --bind spread".into(),
+            format!("no thread count was run both in one {what} and across two: rerun with --bind close --bind spread"),
             ev,
         );
     }
-    c5_compare(c, pairs, ev)
+    c5_compare(c, pairs, what, ev)
 }
 
-/// C5's comparisons: time per step at the same thread count on two sockets against one.
-fn c5_compare(c: &Campaign, pairs: Vec<(usize, String, String)>, mut ev: Vec<String>) -> ClaimResult {
+/// C5's comparisons: time per step at the same thread count across two domains (`what`:
+/// sockets or NUMA nodes) against one.
+fn c5_compare(c: &Campaign, pairs: Vec<(usize, String, String)>, what: &str, mut ev: Vec<String>) -> ClaimResult {
     let o = StatsOptions::default();
     let mut analyses: BTreeMap<String, Analysis> = BTreeMap::new();
     for (_, one, two) in &pairs {
@@ -465,15 +486,15 @@ fn c5_compare(c: &Campaign, pairs: Vec<(usize, String, String)>, mut ev: Vec<Str
                 let (Some(t1), Some(t2)) = (time(a1), time(a2)) else { continue };
                 t.add(
                     format!("Model{m} {} O3, {n} threads, time per step (ms)", tag(strat)),
-                    &format!("{two} (2 sockets)"),
+                    &format!("{two} (2 {what}s)"),
                     &t2,
-                    &format!("{one} (1 socket)"),
+                    &format!("{one} (1 {what})"),
                     &t1,
                 );
             }
         }
     }
-    let (v, reason) = t.verdict("the same thread count on one socket and on two");
+    let (v, reason) = t.verdict(&format!("the same thread count on one {what} and on two"));
     ev.extend(t.lines);
     result("C5", v, reason, ev).with_reps(t.min_reps)
 }

@@ -45,7 +45,8 @@ pub struct RunArgs {
     #[arg(long, value_name = "TEMPLATE")]
     launcher: Option<String>,
     /// Strategies, comma list of serial, ae (array expansion), dd (domain decomposition),
-    /// dd-balanced (DD with cuts at the particle-count quantiles).
+    /// dd-balanced (DD with cuts at the particle-count quantiles); or `all`: every parallel
+    /// strategy of this solver build.
     #[arg(long, value_name = "LIST")]
     strategies: Option<String>,
     /// Optimisation levels, comma list of o3, o0.
@@ -98,6 +99,23 @@ pub struct RunArgs {
     /// Print the runs that would run (CPUs, memory estimate, skips) and exit.
     #[arg(long)]
     dry_run: bool,
+    /// With --dry-run: first time one short calibration run per optimisation level and print
+    /// the campaign's estimated duration, as a real run prints it when it starts (needs the
+    /// solvers: built unless --no-build).
+    #[arg(long, requires = "dry_run")]
+    estimate: bool,
+    /// With --dry-run: plan and estimate (implies --estimate) as for a machine of N usable
+    /// cores, e.g. the many-core machine a campaign is meant for: its speed-up in the
+    /// estimate, and with skip_above_cores (or --skip-above-cores) its cap on thread counts.
+    /// The speed per core is still this machine's.
+    #[arg(long, value_name = "N", requires = "dry_run", value_parser = clap::value_parser!(u64).range(1..))]
+    assume_cores: Option<u64>,
+    /// Leave out the runs whose workers (ranks x threads) are more than this machine's usable
+    /// cores, saying which thread counts, instead of running them oversubscribed (what a
+    /// preset's `skip_above_cores = true` does). Not applied under --scheduler slurm, whose
+    /// nodes are not this machine.
+    #[arg(long)]
+    skip_above_cores: bool,
     /// Also run again configurations the memory guard skipped. (Failed and invalid runs are
     /// always run again on resume: a failure is not a result.)
     #[arg(long)]
@@ -204,10 +222,11 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
     let strategies = a
         .strategies
         .as_deref()
-        .map(|s| {
-            preset::parse_list(s, "strategy", |x| {
+        .map(|s| match s.trim() {
+            "all" => Ok(preset::every_parallel_strategy()),
+            _ => preset::parse_list(s, "strategy", |x| {
                 x.to_ascii_lowercase().parse::<Strategy>().map_err(anyhow::Error::msg)
-            })
+            }),
         })
         .transpose()?;
     let opt = a
@@ -240,6 +259,7 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         seed: a.seed,
         paired_blocks: a.paired_blocks,
         inject_slowdown: a.inject_slowdown,
+        skip_above_cores: a.skip_above_cores,
     })
 }
 
@@ -250,7 +270,7 @@ pub fn cmd_run(a: RunArgs) -> Result<i32> {
     let ov = overrides(&a).unwrap_or_else(|e| bad_input(e));
     let ws = solver::workspace_root();
     let (preset, source) = preset::load_preset(&a.preset, ws.as_deref()).unwrap_or_else(|e| bad_input(e));
-    let campaign = Campaign::resolve(preset, source, &ov).unwrap_or_else(|e| bad_input(e));
+    let mut campaign = Campaign::resolve(preset, source, &ov).unwrap_or_else(|e| bad_input(e));
     let machine = Machine::detect()?;
     for p in &campaign.pins {
         if let Err(e) = machine.check_policy(p) {
@@ -259,10 +279,14 @@ pub fn cmd_run(a: RunArgs) -> Result<i32> {
     }
     let scheduler = scheduler_of(&a)?;
     let here = scheduler.runs_here();
+    let assume_cores = a.assume_cores.map(|n| usize::try_from(n).unwrap_or(usize::MAX));
+    cap_to_cores(&mut campaign, assume_cores.unwrap_or_else(|| machine.num_cores()), here || assume_cores.is_some());
     let interrupted = schedule::install_interrupt_handler();
     let opts = ExecOptions {
         out_root: a.out.clone(),
         dry_run: a.dry_run,
+        estimate: a.estimate || assume_cores.is_some(),
+        assume_cores,
         retry_failed: a.retry_failed,
         wait_lock: a.wait,
         eta: !a.quiet && !a.mock && !a.dry_run && here,
@@ -305,6 +329,23 @@ pub fn cmd_run(a: RunArgs) -> Result<i32> {
         return Ok(if a.allow_failures { 0 } else { 1 });
     }
     Ok(0)
+}
+
+/// With `skip_above_cores` (the preset's or the flag): leave out the cells of more workers
+/// than `cores` and say which, or, when the runs do not run here (`applies` false: Slurm's
+/// nodes), say that nothing is left out. A campaign with nothing left is bad input.
+fn cap_to_cores(campaign: &mut Campaign, cores: usize, applies: bool) {
+    if !campaign.skip_above_cores {
+        return;
+    }
+    if !applies {
+        eprintln!("note: skip_above_cores is not applied under a scheduler: its nodes are not this machine");
+        return;
+    }
+    let above = campaign.cap_workers(cores).unwrap_or_else(|e| bad_input(e));
+    if !above.is_empty() {
+        eprintln!("{}", Campaign::cap_note(cores, &above));
+    }
 }
 
 /// The scheduler `--scheduler` names, with its options; a Slurm option without Slurm, or
@@ -356,8 +397,11 @@ fn execute_campaign(
         };
         schedule::execute(campaign, machine, &solvers, &mut r, opts, interrupted)
     } else {
-        let solvers =
-            if a.dry_run { Vec::new() } else { solver::prepare_solvers(&campaign.opts, !a.no_build, a.quiet)? };
+        let solvers = if a.dry_run && !opts.estimate {
+            Vec::new()
+        } else {
+            solver::prepare_solvers(&campaign.opts, !a.no_build, a.quiet)?
+        };
         let mut r = ProcessRunner::new(interrupted.clone());
         schedule::execute(campaign, machine, &solvers, &mut r, opts, interrupted)
     }

@@ -76,8 +76,8 @@ pub fn estimate_duration(
     let rates: Vec<String> =
         calib.iter().map(|(o, (ns, _, _))| format!("{ns:.0} ns per particle-step at {o}")).collect();
     Ok(format!(
-        "estimated duration: about {} for {} run(s){} (from a calibration run of Taylor Model 1, 20 serial steps: {}; \
-         a run costs its steps x particles at that rate over its cores, plus its set-up)",
+        "estimated duration: about {} for {} run(s) on {cores} core(s){} (from a calibration run of Taylor Model 1, \
+         20 serial steps: {}; a run costs its steps x particles at that rate over its cores, plus its set-up)",
         humantime::format_duration(Duration::from_secs(total.round() as u64)),
         todo.len() - unknown,
         if unknown > 0 { format!(", {unknown} more not estimated (impact end times)") } else { String::new() },

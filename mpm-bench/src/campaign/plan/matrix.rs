@@ -67,6 +67,9 @@ pub struct Overrides {
     pub paired_blocks: Option<u64>,
     /// `--inject-slowdown`: the test knob of every run (never a result).
     pub inject_slowdown: Option<f64>,
+    /// `--skip-above-cores`: leave out the cells of more workers than the machine's usable
+    /// cores (also when the preset does not say so).
+    pub skip_above_cores: bool,
 }
 
 impl Overrides {
@@ -306,6 +309,14 @@ pub struct Campaign {
     pub paired: Option<mpm_spec::spec::Paired>,
     /// The injected slowdown of every run (a test knob; `None`: off).
     pub inject_slowdown: Option<f64>,
+    /// Leave out the cells of more workers than the machine's usable cores (the preset's
+    /// `skip_above_cores` or `--skip-above-cores`): [`Campaign::cap_workers`] applies it.
+    #[serde(default)]
+    pub skip_above_cores: bool,
+    /// The most workers (ranks x threads) a run of this campaign may occupy, set by
+    /// [`Campaign::cap_workers`]; cells above it are not run. `None`: no limit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_workers: Option<usize>,
 }
 
 /// The preset's pinning policies with the places asked (`--places`, else the preset's
@@ -349,6 +360,8 @@ impl Campaign {
                 None => preset.paired.map(|p| mpm_spec::spec::Paired { blocks: p.blocks }),
             },
             inject_slowdown: overrides.inject_slowdown,
+            skip_above_cores: overrides.skip_above_cores || preset.skip_above_cores,
+            max_workers: None,
             preset,
         };
         c.check_matrix()?;
@@ -493,14 +506,19 @@ impl Campaign {
                     for &strategy in &self.strategies {
                         for &ranks in &self.ranks {
                             for &threads in &self.threads {
-                                if strategy.check_threads(threads).is_err()
-                                    || self.preset.exclude.iter().any(|e| e.matches(model, opt, strategy, threads))
-                                {
+                                let above = self.max_workers.is_some_and(|max| ranks * threads > max);
+                                if strategy.check_threads(threads).is_err() || above {
+                                    continue;
+                                }
+                                let excluded = |pin: &PinPolicy| {
+                                    self.preset.exclude.iter().any(|e| e.matches(model, opt, strategy, threads, pin))
+                                };
+                                if self.pins.iter().all(excluded) {
                                     continue;
                                 }
                                 let spec = self.spec_of(model, opt, strategy, ranks, threads)?;
                                 let launcher = (ranks > 1).then(|| self.launcher.expand(ranks, threads).join(" "));
-                                for pin in &self.pins {
+                                for pin in self.pins.iter().filter(|p| !excluded(p)) {
                                     out.push(PlannedRun {
                                         spec: spec.clone(),
                                         model,
@@ -517,6 +535,39 @@ impl Campaign {
             }
         }
         Ok(out)
+    }
+
+    /// Leave out the cells whose runs occupy more than `cores` workers (ranks x threads),
+    /// so that none runs oversubscribed: returns the (ranks, threads) pairs left out,
+    /// ascending (empty when every cell fits). An error when nothing would be left to run.
+    pub fn cap_workers(&mut self, cores: usize) -> Result<Vec<(usize, usize)>> {
+        let mut above: Vec<(usize, usize)> = self
+            .expand()
+            .iter()
+            .filter(|r| r.total_threads() > cores)
+            .map(|r| (r.spec.ranks, r.spec.threads))
+            .collect();
+        above.sort_unstable();
+        above.dedup();
+        self.max_workers = Some(cores);
+        if self.expand().is_empty() {
+            bail!(
+                "every run of campaign {} needs more than the {cores} usable core(s) here: nothing is left to run \
+                 (choose thread counts with --threads)",
+                self.id
+            );
+        }
+        Ok(above)
+    }
+
+    /// The line that says which cells [`Campaign::cap_workers`] left out on `cores` cores.
+    pub fn cap_note(cores: usize, above: &[(usize, usize)]) -> String {
+        let label = |&(ranks, t): &(usize, usize)| if ranks > 1 { format!("{ranks}x{t}") } else { t.to_string() };
+        format!(
+            "note: {cores} usable core(s) here: the runs of {} threads are skipped, not run oversubscribed \
+             (skip_above_cores)",
+            above.iter().map(label).collect::<Vec<_>>().join("/")
+        )
     }
 
     /// The run order: repetition by repetition, each shuffled with `seed`.
@@ -671,6 +722,84 @@ mod tests {
         assert!(err.contains("unknown placeholder '{nodes}'"), "{err}");
         let bad = text.replace("threads = [1, 2]", "threads = [1, 2]\nranks = 2");
         assert!(crate::campaign::plan::preset::parse_preset(&bad).is_err(), "ranks is a list");
+    }
+
+    /// `strategies = "all"` is every parallel strategy of this build; one name and lists are
+    /// read as the command line reads them.
+    #[test]
+    fn strategies_all_one_name_or_a_list() {
+        use crate::campaign::plan::preset::{every_parallel_strategy, parse_preset};
+        let smoke = include_str!("../../../../configs/smoke.toml");
+        let with = |value: &str| smoke.replace("strategies = [\"ae\", \"dd\"]", &format!("strategies = {value}"));
+        let all = parse_preset(&with("\"all\"")).unwrap().strategies;
+        assert_eq!(all, every_parallel_strategy());
+        assert!(all.contains(&Strategy::DdBalanced) && !all.contains(&Strategy::Serial), "{all:?}");
+        assert_eq!(parse_preset(&with("\"dd\"")).unwrap().strategies, vec![Strategy::DomainDecomposition]);
+        assert_eq!(parse_preset(&with("[\"ae\", \"array-expansion\"]")).unwrap().strategies.len(), 2);
+        let err = format!("{:#}", parse_preset(&with("[\"ae\", \"zz\"]")).unwrap_err());
+        assert!(err.contains("unknown strategy 'zz'") && err.contains("dd-balanced"), "{err}");
+    }
+
+    /// The manycore preset: Models 1-4, 1-16 threads, every parallel strategy, O0 for
+    /// Model 1 only, Model 4 at 8 threads only, spread beside close for Model 2 at 2-8
+    /// threads, paired, 3 processes a cell, thread counts above the cores skipped.
+    #[test]
+    fn manycore_preset_is_the_many_core_matrix() {
+        let (p, _) = load_preset("manycore", None).unwrap();
+        let c = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
+        assert!(c.skip_above_cores && c.paired.is_some() && c.reps >= 3, "{c:?}");
+        assert_eq!((c.models.clone(), c.threads.clone()), (vec![1, 2, 3, 4], vec![1, 2, 4, 8, 16]));
+        assert_eq!(c.strategies, crate::campaign::plan::preset::every_parallel_strategy());
+        let runs = c.expand();
+        let cells = |f: &dyn Fn(&PlannedRun) -> bool| {
+            let mut v: Vec<(u32, OptLevel, usize, String)> =
+                runs.iter().filter(|r| f(r)).map(|r| (r.model, r.opt, r.spec.threads, r.pin.label())).collect();
+            v.sort();
+            v.dedup();
+            v
+        };
+        assert!(cells(&|r| r.opt == OptLevel::O0).iter().all(|c| c.0 == 1));
+        assert_eq!(cells(&|r| r.model == 4), vec![(4, OptLevel::O3, 8, "close".to_string())]);
+        let spread: Vec<(u32, usize)> = cells(&|r| r.pin.label() == "spread").iter().map(|c| (c.0, c.2)).collect();
+        assert_eq!(spread, vec![(2, 2), (2, 4), (2, 8)]);
+        for strategy in &c.strategies {
+            for model in [1, 2, 3] {
+                let threads = cells(&|r| r.model == model && r.spec.strategy == *strategy && r.opt == OptLevel::O3);
+                let counts: Vec<usize> = threads.iter().filter(|c| c.3 == "close").map(|c| c.2).collect();
+                assert_eq!(counts, vec![1, 2, 4, 8, 16], "Model{model} {strategy}");
+            }
+        }
+    }
+
+    /// skip_above_cores: the cells of more workers than the cores are left out and said;
+    /// none left is an error.
+    #[test]
+    fn cells_above_the_cores_are_left_out() {
+        let (p, _) = load_preset("manycore", None).unwrap();
+        let mut c = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
+        let all = c.expand().len();
+        assert_eq!(c.clone().cap_workers(16).unwrap(), vec![]);
+        let above = c.cap_workers(2).unwrap();
+        assert_eq!(above, vec![(1, 4), (1, 8), (1, 16)]);
+        let runs = c.expand();
+        assert!(!runs.is_empty() && runs.len() < all && runs.iter().all(|r| r.total_threads() <= 2));
+        assert_eq!(
+            Campaign::cap_note(2, &above),
+            "note: 2 usable core(s) here: the runs of 4/8/16 threads are skipped, not run oversubscribed \
+             (skip_above_cores)"
+        );
+        // Ranks count: 2 ranks x 2 threads is 4 workers.
+        let (p, _) = load_preset("hybrid", None).unwrap();
+        let mut h = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
+        assert_eq!(h.cap_workers(3).unwrap(), vec![(2, 2)]);
+        assert!(h.expand().iter().all(|r| r.total_threads() <= 3));
+        // Nothing left: an error that says what to do.
+        let (p, _) = load_preset("smoke", None).unwrap();
+        let ov = Overrides { threads: Some(vec![4]), skip_above_cores: true, ..Overrides::default() };
+        let mut s = Campaign::resolve(p, "builtin".into(), &ov).unwrap();
+        assert!(s.skip_above_cores);
+        let err = s.cap_workers(2).unwrap_err().to_string();
+        assert!(err.contains("nothing is left to run") && err.contains("--threads"), "{err}");
     }
 
     #[test]

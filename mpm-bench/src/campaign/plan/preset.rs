@@ -14,13 +14,15 @@
 //! threads = [1, 2, 4, 6, 8]     # per rank
 //! # ranks = [1, 2]             # MPI ranks (default [1]: one process, no launcher)
 //! # launcher = "mpirun --bind-to none -n {ranks}"   # for ranks > 1, see campaign::launcher
-//! strategies = ["ae", "dd"]
+//! strategies = ["ae", "dd"]   # or "all": every parallel strategy of this solver build
 //! opt = ["o3", "o0"]
 //! reps = 1
 //! pin = "close"            # OpenMP binding (alias key: bind); a list ["close", "spread"]; a CPU list "0,1"
 //! places = "cores"         # OpenMP places: threads, cores, ll_caches, numa_domains, sockets
 //! grid = "fixed"           # or "adaptive", "sparse"
 //! seed = 2009              # run-order shuffle
+//! # skip_above_cores = true  # cells of more workers than this machine's usable cores are
+//! #                          # left out (and said), not run oversubscribed
 //! # mem_limit = "8GiB"     # pretend the machine has this much memory (memory guard)
 //! # timeout = "30m"        # per run
 //! # checkpoint_every = "10m"   # each run saves its state this often (or a step count); a
@@ -49,6 +51,7 @@
 //! # [[exclude]]             # cells of the matrix not run (every given key must match)
 //! # model = 4
 //! # opt = "o0"
+//! # pin = "spread"          # a binding matches over whichever places the campaign uses
 //! ```
 //!
 //! [`crate::campaign::plan::matrix`] resolves a preset and the command-line overrides into runs.
@@ -64,7 +67,7 @@ use std::path::{Path, PathBuf};
 
 /// Presets shipped with the harness (embedded; `configs/<name>.toml` in the workspace wins
 /// when present, so edits there apply without rebuilding).
-pub const BUILTIN_PRESETS: [(&str, &str); 7] = [
+pub const BUILTIN_PRESETS: [(&str, &str); 8] = [
     ("smoke", include_str!("../../../../configs/smoke.toml")),
     ("ci", include_str!("../../../../configs/ci.toml")),
     ("quick", include_str!("../../../../configs/quick.toml")),
@@ -72,6 +75,7 @@ pub const BUILTIN_PRESETS: [(&str, &str); 7] = [
     ("impact", include_str!("../../../../configs/impact.toml")),
     ("balanced", include_str!("../../../../configs/balanced.toml")),
     ("hybrid", include_str!("../../../../configs/hybrid.toml")),
+    ("manycore", include_str!("../../../../configs/manycore.toml")),
 ];
 
 /// Optimisation level = Cargo profile of the solver binary (`o3`, `o0`).
@@ -181,15 +185,24 @@ pub struct Exclude {
     pub strategy: Option<Strategy>,
     /// Threads (per rank).
     pub threads: Option<usize>,
+    /// Pinning policy: a binding (`close`, `spread`, `primary`) matches that binding over
+    /// whichever places the campaign uses; `none` and CPU lists match themselves.
+    pub pin: Option<PinPolicy>,
 }
 
 impl Exclude {
-    /// Whether the cell (model, opt, strategy, threads) is left out by this entry.
-    pub fn matches(&self, model: u32, opt: OptLevel, strategy: Strategy, threads: usize) -> bool {
+    /// Whether the cell (model, opt, strategy, threads) pinned by `pin` is left out by this
+    /// entry.
+    pub fn matches(&self, model: u32, opt: OptLevel, strategy: Strategy, threads: usize, pin: &PinPolicy) -> bool {
+        let same_pin = |want: &PinPolicy| match (want, pin) {
+            (PinPolicy::Bind(a, _), PinPolicy::Bind(b, _)) => a == b,
+            _ => want == pin,
+        };
         self.model.is_none_or(|m| m == model)
             && self.opt.is_none_or(|o| o == opt)
             && self.strategy.is_none_or(|s| s == strategy)
             && self.threads.is_none_or(|t| t == threads)
+            && self.pin.as_ref().is_none_or(same_pin)
     }
 }
 
@@ -218,7 +231,9 @@ pub struct Preset {
     /// win over it).
     #[serde(default)]
     pub launcher: Option<Launcher>,
-    /// Strategies.
+    /// Strategies: a list, one name, or `"all"`: every parallel strategy of this solver
+    /// build ([`every_parallel_strategy`]; the serial oracle is named on its own).
+    #[serde(deserialize_with = "strategies_or_all")]
     pub strategies: Vec<Strategy>,
     /// Optimisation levels.
     pub opt: Vec<OptLevel>,
@@ -242,6 +257,10 @@ pub struct Preset {
     /// Seed of the run-order shuffle.
     #[serde(default)]
     pub seed: u64,
+    /// Leave out the cells whose runs need more workers (ranks x threads) than this
+    /// machine's usable cores, saying which, instead of running them oversubscribed.
+    #[serde(default)]
+    pub skip_above_cores: bool,
     /// Pretend the machine has this much memory (`8GiB`), for the memory guard.
     pub mem_limit: Option<String>,
     /// Per-run time limit (`30m`), humantime syntax.
@@ -267,6 +286,22 @@ fn one_rank() -> Vec<usize> {
 }
 fn default_pin() -> OneOrMany<PinPolicy> {
     OneOrMany::One(PinPolicy::CLOSE)
+}
+
+/// Every parallel strategy of this solver build, in [`Strategy::ALL`]'s order: what
+/// `strategies = "all"` (and `--strategies all`) means.
+pub fn every_parallel_strategy() -> Vec<Strategy> {
+    Strategy::ALL.into_iter().filter(|s| s.is_parallel()).collect()
+}
+
+/// A preset's `strategies`: `"all"`, one name, or a list of names, each read as the
+/// command line reads it (the message of a bad name lists the known ones).
+fn strategies_or_all<'de, D: serde::Deserializer<'de>>(de: D) -> Result<Vec<Strategy>, D::Error> {
+    let names = match OneOrMany::<String>::deserialize(de)? {
+        OneOrMany::One(word) if word == "all" => return Ok(every_parallel_strategy()),
+        names => names.to_vec(),
+    };
+    names.iter().map(|n| n.parse::<Strategy>().map_err(serde::de::Error::custom)).collect()
 }
 
 /// Find and parse a preset: a path to a TOML file, or a built-in name.

@@ -39,7 +39,11 @@ pub fn execute(
         ..Default::default()
     };
     if opts.dry_run {
-        plan.print(campaign, machine)?;
+        if opts.estimate {
+            let cores = opts.assume_cores.unwrap_or_else(|| machine.usable_pus().len());
+            println!("{}", dry_run_estimate(runner, solvers, &plan.todo, cores)?);
+        }
+        plan.print(campaign, machine, opts.assume_cores)?;
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
     }
     let here = opts.scheduler.runs_here();
@@ -81,4 +85,19 @@ pub fn execute(
     manifest.finish(counts)?;
     debug_assert_eq!(log.path(), plan.csv_path.as_path());
     Ok(ExecSummary { dir: plan.dir, counts, wall })
+}
+
+/// A dry run's estimate: the calibration runs write into a folder of their own under the
+/// system's temporary folder, removed afterwards (a dry run writes nothing into the results).
+fn dry_run_estimate(
+    runner: &mut dyn Runner,
+    solvers: &[Solver],
+    todo: &[(usize, crate::campaign::plan::matrix::PlannedRun)],
+    cores: usize,
+) -> Result<String> {
+    let dir = std::env::temp_dir().join(format!("mpm-bench-estimate-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let estimate = estimate_duration(runner, solvers, todo, &dir, cores);
+    let _ = std::fs::remove_dir_all(&dir);
+    estimate
 }

@@ -35,6 +35,12 @@ pub struct ExecOptions {
     pub out_root: PathBuf,
     /// Print the plan only.
     pub dry_run: bool,
+    /// With `dry_run`: also time the calibration runs and print the estimated duration
+    /// before the plan (needs the solvers).
+    pub estimate: bool,
+    /// With `dry_run`: plan as for a machine of this many usable cores (the estimate's
+    /// speed-up and the plan's oversubscription); the CPUs listed are still this machine's.
+    pub assume_cores: Option<usize>,
     /// Also run again configurations whose rows are all `skipped` (by the memory guard);
     /// failed and invalid runs are always run again (a failure is not a result).
     pub retry_failed: bool,
@@ -277,8 +283,10 @@ impl Plan {
         Ok(Self { _lock: lock, dir, csv_path, planned, existing, todo })
     }
 
-    /// `--dry-run`: every run to do with its CPUs, memory estimate and the guard's verdict.
-    pub fn print(&self, campaign: &Campaign, machine: &Machine) -> Result<()> {
+    /// `--dry-run`: every run to do with its CPUs, memory estimate and the guard's verdict;
+    /// on a machine of `assumed` cores (not this one) without CPUs, oversubscribed when its
+    /// workers are more than those cores.
+    pub fn print(&self, campaign: &Campaign, machine: &Machine, assumed: Option<usize>) -> Result<()> {
         use std::io::Write as _;
         let mut out = std::io::stdout().lock();
         writeln!(
@@ -290,8 +298,16 @@ impl Plan {
             campaign.seed,
             self.csv_path.display()
         )?;
+        if let Some(cores) = assumed {
+            writeln!(out, "planned for a machine of {cores} usable core(s), not this one: no CPUs listed")?;
+        }
         for (i, r) in &self.todo {
             let pl = RunPlan::of(machine, r)?;
+            let (cpus, oversubscribed) = match assumed {
+                Some(cores) => ("-".to_string(), r.total_threads() > cores),
+                None if pl.requested().is_empty() => ("-".to_string(), pl.oversubscribed),
+                None => (format_cpu_list(pl.requested()), pl.oversubscribed),
+            };
             let est = estimate_run_memory(&r.spec);
             let verdict = memory_verdict(est, available_memory(), campaign.mem_limit);
             writeln!(
@@ -300,9 +316,9 @@ impl Plan {
                 i,
                 r.describe(),
                 r.budget_label(),
-                if pl.requested().is_empty() { "-".to_string() } else { format_cpu_list(pl.requested()) },
+                cpus,
                 human_bytes(est),
-                if pl.oversubscribed { "  oversubscribed" } else { "" },
+                if oversubscribed { "  oversubscribed" } else { "" },
                 verdict.map(|v| format!("  SKIP ({v})")).unwrap_or_default()
             )?;
         }

@@ -186,30 +186,20 @@ impl Manifest {
     }
 }
 
-/// Software part of the manifest.
+/// Software part of the manifest. Run from a bundle (`workspace` holds its
+/// [`super::bundle::BUNDLE_RECORD`]), the compiler, the Cargo profiles and the commit are the
+/// bundle's build's, as its record says.
 pub fn software_info(workspace: Option<&Path>, binaries: Vec<BinaryInfo>) -> SoftwareInfo {
-    let rustc = Command::new(std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into()))
-        .arg("-vV")
-        .output()
-        .ok()
-        .filter(|o| o.status.success())
-        .map(|o| {
-            let t = String::from_utf8_lossy(&o.stdout).to_string();
-            let first = t.lines().next().unwrap_or("").to_string();
-            let host = t.lines().find_map(|l| l.strip_prefix("host: ")).unwrap_or("");
-            if host.is_empty() {
-                first
-            } else {
-                format!("{first} (host {host})")
-            }
-        })
-        .unwrap_or_else(|| "unknown".into());
-    let cargo_profiles = workspace
-        .and_then(|w| std::fs::read_to_string(w.join("Cargo.toml")).ok())
-        .and_then(|t| t.parse::<toml::Table>().ok())
-        .and_then(|t| t.get("profile").cloned())
-        .and_then(|p| serde_json::to_value(p).ok())
-        .unwrap_or(serde_json::Value::Null);
+    let bundle = workspace.and_then(super::bundle::read);
+    let rustc = bundle.as_ref().map_or_else(rustc_version, |b| b.rustc.clone());
+    let profiles = match &bundle {
+        Some(b) => Some(toml::Value::Table(b.profile.clone())),
+        None => workspace
+            .and_then(|w| std::fs::read_to_string(w.join("Cargo.toml")).ok())
+            .and_then(|t| t.parse::<toml::Table>().ok())
+            .and_then(|t| t.get("profile").cloned()),
+    };
+    let cargo_profiles = profiles.and_then(|p| serde_json::to_value(p).ok()).unwrap_or(serde_json::Value::Null);
     let rustflags = std::env::var("RUSTFLAGS")
         .or_else(|_| std::env::var("CARGO_ENCODED_RUSTFLAGS").map(|s| s.replace('\x1f', " ")))
         .unwrap_or_default();
@@ -225,6 +215,26 @@ pub fn software_info(workspace: Option<&Path>, binaries: Vec<BinaryInfo>) -> Sof
         git: git_info(workspace),
         mpi_launcher: None,
     }
+}
+
+/// `rustc -vV`'s first line with its host, or `unknown` where there is no `rustc`.
+fn rustc_version() -> String {
+    Command::new(std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into()))
+        .arg("-vV")
+        .output()
+        .ok()
+        .filter(|o| o.status.success())
+        .map(|o| {
+            let t = String::from_utf8_lossy(&o.stdout).to_string();
+            let first = t.lines().next().unwrap_or("").to_string();
+            let host = t.lines().find_map(|l| l.strip_prefix("host: ")).unwrap_or("");
+            if host.is_empty() {
+                first
+            } else {
+                format!("{first} (host {host})")
+            }
+        })
+        .unwrap_or_else(|| "unknown".into())
 }
 
 /// Environment variables that can change a measurement.
@@ -252,8 +262,12 @@ pub fn relevant_env() -> BTreeMap<String, String> {
     std::env::vars().filter(|(k, _)| PREFIXES.iter().any(|p| k.starts_with(p)) || EXACT.contains(&k.as_str())).collect()
 }
 
-/// Git commit and dirty flag of `workspace` (or the current directory).
+/// Git commit and dirty flag of `workspace` (or the current directory); of a bundle, those
+/// its record names (a bundle unpacked inside some git checkout is not that checkout).
 pub fn git_info(workspace: Option<&Path>) -> GitInfo {
+    if let Some(b) = workspace.and_then(super::bundle::read) {
+        return GitInfo { commit: b.commit, dirty: b.dirty };
+    }
     let dir = workspace.map(Path::to_path_buf).unwrap_or_else(|| ".".into());
     let run = |args: &[&str]| -> Option<String> {
         Command::new("git")

@@ -1,6 +1,7 @@
-//! What was recorded: the CSV row and its columns, the file, older schemas, the manifest and
-//! the campaign folder's lock.
+//! What was recorded: the CSV row and its columns, the file, older schemas, the manifest (with
+//! a bundle's record of its build) and the campaign folder's lock.
 
+pub mod bundle;
 pub mod columns;
 pub mod csv;
 pub mod filled;
