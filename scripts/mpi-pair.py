@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Interleaved timing of one run over 2 MPI ranks x 1 thread against DD at 1 rank x 2 threads
-(the issue 14 acceptance measurement): PAIRS pairs in alternating order, Taylor MODEL, STEPS
+(the measurement behind results/mpi): PAIRS pairs in alternating order, Taylor MODEL, STEPS
 steps each; prints per pair and overall the ratio of ns per particle-step (median and a
 bootstrap 95 % interval), each rank's exchange time over the wall time, with `split` the
 waiting for the other rank apart (`mpm run --split-wait`), and the peak memory of both.

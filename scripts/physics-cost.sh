@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Cost of the added physics (issue 10: bulk viscosity, energy checks, the mid-step velocity
+# Cost of the added physics (bulk viscosity, energy checks, the mid-step velocity
 # gradient of the energy-conserving work) on the Taylor bar's serial step: three `mpm`
 # binaries timed in interleaved rounds (the order rotates through all six permutations), Taylor
 # Model 2, serial, STEPS steps, pinned to CPU 0; prints the median ratio of ns per

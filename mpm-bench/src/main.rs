@@ -2,24 +2,22 @@
 //! machine's topology. See `mpm-bench --help`.
 
 use anyhow::{Context, Result};
-use clap::{Args, Parser, Subcommand};
-use mpm_bench::analysis::{calibrate, claims, imbalance, paired, regress};
-use mpm_bench::campaign::matrix::{Campaign, Overrides};
-use mpm_bench::campaign::paired as paired_measure;
-use mpm_bench::campaign::preset::{self, OptLevel};
-use mpm_bench::campaign::process::{MockRunner, ProcessRunner};
-use mpm_bench::campaign::runner::{self, ExecOptions};
-use mpm_bench::campaign::scheduler::{Scheduler, SlurmOptions};
-use mpm_bench::campaign::solver::{self, Solver};
-use mpm_bench::campaign::watch::WatchSettings;
-use mpm_bench::machine::placement::{PinPolicy, Places, PAPER_THREADS};
-use mpm_bench::machine::topology::{self, Machine};
+use clap::{Parser, Subcommand};
+use mpm_bench::analysis::{calibrate, claims, paired_report, regress};
+use mpm_bench::campaign::exec::process::{MockRunner, ProcessRunner};
+use mpm_bench::campaign::exec::solver::{self};
+use mpm_bench::campaign::exec::watch::WatchSettings;
+use mpm_bench::campaign::measure::calibrate as calibrate_measure;
+use mpm_bench::campaign::measure::imbalance;
+use mpm_bench::campaign::measure::paired as paired_measure;
+use mpm_bench::campaign::schedule::{self};
+use mpm_bench::machine::topology::Machine;
 use mpm_bench::machine::{bandwidth, fingerprint};
 use mpm_bench::report::{comparison, figures, imbalance as imbalance_figure, impact_table, roofline_table};
-use mpm_core::Strategy;
 use mpm_host::atomic::write_atomic;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+
+mod cli;
 
 /// Benchmark harness for the explicit MPM parallelisation study (array expansion vs domain
 /// decomposition).
@@ -74,7 +72,7 @@ enum Cmd {
             mpm-bench topology --xml results/<fp>/<campaign>/topology.xml\n  \
             mpm-bench topology --export-xml topo.xml"
     )]
-    Topology(TopologyArgs),
+    Topology(cli::topology::TopologyArgs),
     /// Run (or resume) a benchmark campaign.
     #[command(
         long_about = "Run (or resume) a benchmark campaign: a preset matrix of models x MPI ranks x threads x \
@@ -105,13 +103,13 @@ enum Cmd {
             mpm-bench run --preset quick --scheduler slurm --partition compute --time-limit 30   # one Slurm job per run\n  \
             mpm-bench run --preset paper --scheduler slurm --max-jobs 20 --detach   # submit and log out; rerun to collect"
     )]
-    Run(Box<RunArgs>),
+    Run(Box<cli::run::RunArgs>),
     /// Regenerate the paper's Figures 7-14 (and a memory figure) from a campaign.
-    Figures(figures::FiguresArgs),
+    Figures(cli::analysis::FiguresArgs),
     /// Check the paper's claims C1-C6 and C7 (balanced cuts) on a campaign: holds / does not hold / cannot tell.
-    Claims(claims::ClaimsArgs),
+    Claims(cli::analysis::ClaimsArgs),
     /// Compare a campaign with a baseline: exit 0 pass, 1 regression or missing cell, 2 error or incomparable.
-    Regress(regress::RegressArgs),
+    Regress(cli::analysis::RegressArgs),
     /// Measure the gate itself on this host: its false-alarm rate (A/A) and what it detects (an injected slowdown).
     #[command(
         long_about = "Measure the regression gate on this host: run its campaign (a preset, by default ci) \
@@ -133,15 +131,15 @@ enum Cmd {
             mpm-bench calibrate --clean 7 --injected 3 --budget 100m --json results/<fp>/calibrate-ci/calibration.json\n  \
             mpm-bench calibrate --preset configs/my-ci.toml --inject-slowdown 0.05 --tolerance 0.03"
     )]
-    Calibrate(calibrate::CalibrateArgs),
+    Calibrate(cli::measure::CalibrateArgs),
     /// Hardware report (one HTML page, Markdown, JSON) of a campaign, or several compared with the first.
-    Report(comparison::ReportArgs),
+    Report(cli::analysis::ReportArgs),
     /// Markdown table of the impact runs under a folder, from their JSON summaries.
-    ImpactTable(impact_table::ImpactTableArgs),
+    ImpactTable(cli::tables::ImpactTableArgs),
     /// Markdown roofline table of runs (each sub-stage's bytes, flops and rates), from their JSON summaries.
-    RooflineTable(roofline_table::RooflineTableArgs),
+    RooflineTable(cli::tables::RooflineTableArgs),
     /// Measure the memory-bandwidth ceiling (STREAM triad) per thread count and pinning.
-    Bandwidth(bandwidth::BandwidthArgs),
+    Bandwidth(cli::measure::BandwidthArgs),
     /// Parallel efficiency as paired ratios of interleaved blocks in one process (noisy hosts).
     #[command(
         long_about = "Parallel efficiency T1 / (T x T_T) measured as paired ratios inside one process.\n\n\
@@ -162,7 +160,7 @@ enum Cmd {
             mpm-bench paired --model 2 --strategies dd,dd-balanced --blocks 21   # cost of balanced cuts\n  \
             mpm-bench paired --model 1 --threads 4 --pin 0-3 --block-steps 10"
     )]
-    Paired(paired_measure::PairedArgs),
+    Paired(cli::measure::PairedArgs),
     /// Predicted DD work imbalance of uniform and balanced cuts over a run (no timing).
     #[command(
         long_about = "Predicted work imbalance of DD's patches, uniform cuts (dd) against balanced \
@@ -182,7 +180,7 @@ enum Cmd {
             mpm-bench imbalance --scenario taylor --model 2 --steps 200\n  \
             mpm-bench imbalance --scenario impact --steps 50 --out /tmp/imb"
     )]
-    Imbalance(imbalance::ImbalanceArgs),
+    Imbalance(cli::measure::ImbalanceArgs),
     /// Run one run of a campaign on this node and write its row: what a Slurm job of
     /// `mpm-bench run --scheduler slurm` runs (FILE is json/<run id>.job.json).
     #[command(hide = true)]
@@ -192,231 +190,46 @@ enum Cmd {
     },
 }
 
-#[derive(Args, Debug)]
-struct TopologyArgs {
-    /// Thread counts to show (comma list).
-    #[arg(long, value_name = "LIST", value_delimiter = ',', default_values_t = PAPER_THREADS.to_vec())]
-    threads: Vec<usize>,
-    /// OpenMP place list: threads, cores, ll_caches, numa_domains, sockets.
-    #[arg(long, value_name = "PLACES", default_value = "cores")]
-    places: Places,
-    /// MPI rank counts to show as well (comma list, e.g. 2,4): each rank's CPUs for every
-    /// thread count per rank, as a hybrid campaign places them.
-    #[arg(long, value_name = "LIST", value_delimiter = ',')]
-    ranks: Vec<usize>,
-    /// Binding to show (repeatable): close, spread, primary (optionally @places, e.g.
-    /// spread@sockets), none, or a CPU list such as 0,1 or 0-3. Default: close, spread,
-    /// primary and none. `--pin` is an alias.
-    #[arg(long, visible_alias = "pin", value_name = "POLICY")]
-    bind: Vec<String>,
-    /// Use an hwloc synthetic topology instead of this machine, e.g. "pack:2 core:4 pu:2".
-    #[arg(long, value_name = "DESCRIPTION", conflicts_with = "xml")]
-    synthetic: Option<String>,
-    /// Use an hwloc XML export (e.g. a campaign's topology.xml) instead of this machine.
-    #[arg(long, value_name = "FILE")]
-    xml: Option<PathBuf>,
-    /// Write this machine's hwloc XML export to FILE.
-    #[arg(long, value_name = "FILE")]
-    export_xml: Option<PathBuf>,
-}
-
-#[derive(Args, Debug)]
-struct RunArgs {
-    /// Preset: smoke, quick, paper, impact, balanced (configs/<name>.toml), or a path to a
-    /// TOML file.
-    #[arg(long, short = 'p', value_name = "NAME|FILE")]
-    preset: String,
-    /// Models to run, comma list of 1-4 (replaces the preset's).
-    #[arg(long, value_name = "LIST")]
-    models: Option<String>,
-    /// Thread counts, comma list (e.g. 1,2,4,6,8); per rank when --ranks is above 1.
-    #[arg(long, value_name = "LIST")]
-    threads: Option<String>,
-    /// MPI rank counts, comma list (e.g. 1,2). 1 runs `mpm` directly; more start it through
-    /// the launcher, with `mpm run --split-wait`: the rows' comm_s_per_step and comm_frac are
-    /// then the communication alone and wait_s_per_step and wait_frac the waiting for other
-    /// ranks (each the largest over ranks; empty at one rank). A run occupies ranks x threads
-    /// workers (what oversubscription counts).
-    #[arg(long, value_name = "LIST")]
-    ranks: Option<String>,
-    /// Launcher of runs with several ranks: a command with {ranks} (and optionally {threads},
-    /// threads per rank), split on spaces, no shell. Default: MPM_BENCH_LAUNCHER, else the
-    /// preset's launcher, else "mpirun --bind-to none -n {ranks}". As root or with more
-    /// ranks than cores, Open MPI needs "--allow-run-as-root" / "--oversubscribe" in it.
-    #[arg(long, value_name = "TEMPLATE")]
-    launcher: Option<String>,
-    /// Strategies, comma list of serial, ae (array expansion), dd (domain decomposition),
-    /// dd-balanced (DD with cuts at the particle-count quantiles).
-    #[arg(long, value_name = "LIST")]
-    strategies: Option<String>,
-    /// Optimisation levels, comma list of o3, o0.
-    #[arg(long, value_name = "LIST")]
-    opt: Option<String>,
-    /// Repetitions of every configuration.
-    #[arg(long, value_name = "N")]
-    reps: Option<u32>,
-    /// Binding (OpenMP proc_bind over --places): close (consecutive places: fills a socket
-    /// first), spread (threads spread evenly over the places), primary (all on the first
-    /// place), none (not pinned), or a CPU list such as 0,1 or 0-3. Repeat for several
-    /// policies. `--pin` is an alias; `compact` and `scatter` mean close and spread.
-    #[arg(long, visible_alias = "pin", value_name = "POLICY")]
-    bind: Vec<String>,
-    /// OpenMP place list of every binding: threads, cores (default), ll_caches,
-    /// numa_domains, sockets. See `mpm-bench topology --places ...` for where workers go.
-    #[arg(long, value_name = "PLACES")]
-    places: Option<Places>,
-    /// Stop every run after N steps (replaces every budget of the preset).
-    #[arg(long, value_name = "N", conflicts_with = "end_time")]
-    steps: Option<u64>,
-    /// Stop every run at this simulated time: seconds (4e-5) or with a unit (40us).
-    #[arg(long, value_name = "TIME")]
-    end_time: Option<String>,
-    /// Warm-up steps (timed, excluded from the steady-state time per step).
-    #[arg(long, value_name = "K")]
-    warmup: Option<u64>,
-    /// Grid mode: fixed, adaptive, or sparse (the adaptive grid storing only the blocks of
-    /// nodes the particles touch: the same results, less memory; one process only).
-    #[arg(long, value_name = "MODE")]
-    grid: Option<String>,
-    /// Treat the machine as having at most this much memory (e.g. 8GiB) for the memory
-    /// guard: runs that would not fit are recorded as skipped.
-    #[arg(long, value_name = "SIZE")]
-    mem_limit: Option<String>,
-    /// Every run saves its state this often, as steps (`500`) or wall-clock time (`10m`)
-    /// (default: the preset's `checkpoint_every`, else none), into
-    /// <campaign>/checkpoints/<run>/: a run killed, timed out or interrupted continues from
-    /// its last checkpoint when the campaign resumes, and its row records the restarts and
-    /// the compute time lost. A finished run's checkpoints are removed.
-    #[arg(long, value_name = "N|DURATION", value_parser = mpm_spec::spec::CheckpointEvery::parse)]
-    checkpoint_every: Option<mpm_spec::spec::CheckpointEvery>,
-    /// Root folder of the results tree. The default, results/local, is not tracked by git:
-    /// the committed reference campaigns under results/<fingerprint>/ are never written.
-    #[arg(long, value_name = "DIR", default_value = "results/local")]
-    out: PathBuf,
-    /// Seed of the shuffled run order (default: the preset's). Recorded in every row.
-    #[arg(long, value_name = "N")]
-    seed: Option<u64>,
-    /// Print the runs that would run (CPUs, memory estimate, skips) and exit.
-    #[arg(long)]
-    dry_run: bool,
-    /// Also run again configurations the memory guard skipped. (Failed and invalid runs are
-    /// always run again on resume: a failure is not a result.)
-    #[arg(long)]
-    retry_failed: bool,
-    /// Exit 0 even when a run of this invocation failed, timed out or was invalid (by
-    /// default such a campaign exits 1, so a CI job sees it).
-    #[arg(long)]
-    allow_failures: bool,
-    /// When another `mpm-bench run` writes into the same campaign folder, wait for it to
-    /// finish (by default this run refuses, naming the other's pid).
-    #[arg(long)]
-    wait: bool,
-    /// Move an existing runs.csv aside and start the campaign over.
-    #[arg(long)]
-    fresh: bool,
-    /// Append to the campaign folder even when its rows came from another machine or
-    /// other solver binaries (by default a new folder <id>-2, <id>-3, ... is started).
-    /// Reference campaigns are never appended to.
-    #[arg(long)]
-    resume_foreign: bool,
-    /// Do not build the solver; use the existing target/o3/mpm and target/o0/mpm
-    /// (or MPM_BENCH_SOLVER_O3 / MPM_BENCH_SOLVER_O0).
-    #[arg(long)]
-    no_build: bool,
-    /// No progress bar or per-run lines (the closing summary still prints).
-    #[arg(long, short = 'q')]
-    quiet: bool,
-    /// Measure the cells of two or more threads in the paired design with N timed blocks per
-    /// run: each run is one process in which the T-thread solver and a 1-thread solver of the
-    /// same strategy alternate, (steps - warmup) / N steps a block; the repetitions are the
-    /// processes of a cell, whose spread the analyses' intervals cover. 0 turns a preset's
-    /// paired design off.
-    #[arg(long, value_name = "N")]
-    paired_blocks: Option<u64>,
-    /// TEST KNOB, never for results: every run's workers but the first do extra work so that
-    /// its parallel efficiency drops by about the fraction F (`mpm run --inject-slowdown`).
-    /// Recorded in every row (`inject_slowdown`) and in the campaign's name; figures, claims
-    /// and report refuse such rows unless --include-injected, regress says so in its verdict.
-    /// What `mpm-bench calibrate` measures the gate's detection with.
-    #[arg(long, value_name = "F")]
-    inject_slowdown: Option<f64>,
-    /// Use a fake solver (testing the harness itself).
-    #[arg(long, hide = true)]
-    mock: bool,
-    /// Where the runs run: local (here, one fresh process after another) or slurm (one
-    /// batch job per run, each on a node of its own, `sbatch --exclusive`; the results
-    /// folder and the binaries must be on a filesystem every node sees). Under Slurm the
-    /// campaign folder is <out>/slurm-<cluster>/<campaign>, each row names its node and that
-    /// node's machine fingerprint, and the job ids are kept in slurm-jobs.json until the
-    /// rows are in: running the same command again collects jobs an earlier invocation
-    /// submitted instead of submitting them twice. Ctrl-C cancels the jobs this invocation
-    /// submitted (only those).
-    #[arg(long, value_enum, default_value_t = SchedulerKind::Local)]
-    scheduler: SchedulerKind,
-    /// Slurm: the partition of every job (default: the cluster's default partition).
-    #[arg(long, value_name = "P")]
-    partition: Option<String>,
-    /// Slurm: the account every job is charged to.
-    #[arg(long, value_name = "A")]
-    account: Option<String>,
-    /// Slurm: the time limit of every job, as sbatch --time takes it (minutes, or
-    /// [days-]hours:minutes:seconds). Default: the preset's per-run timeout plus 2 minutes.
-    #[arg(long, value_name = "T")]
-    time_limit: Option<String>,
-    /// Slurm: at most N of the campaign's jobs in the queue at once (default: all).
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
-    max_jobs: Option<u64>,
-    /// Slurm: submit the runs and exit without waiting; run the same command again (without
-    /// --detach) to wait for them and collect their rows.
-    #[arg(long)]
-    detach: bool,
-}
-
-/// `--scheduler`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-enum SchedulerKind {
-    /// Here, one fresh child process after another.
-    Local,
-    /// One Slurm batch job per run.
-    Slurm,
-}
-
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
-        Cmd::Topology(a) => cmd_topology(a),
+        Cmd::Topology(a) => cli::topology::cmd_topology(a),
         // run: 0 done, 1 a run failed (or an error while running), 2 bad input, 130
         // interrupted.
-        Cmd::Run(a) => match cmd_run(*a) {
+        Cmd::Run(a) => match cli::run::cmd_run(*a) {
             Ok(code) => std::process::exit(code),
             Err(e) => Err(e),
         },
-        Cmd::Figures(a) => figures::run(a),
-        Cmd::Claims(a) => claims::run(a),
+        Cmd::Figures(a) => figures::run(a.into()),
+        Cmd::Claims(a) => claims::run(a.into()),
         // regress: 0 pass, 1 regression, 2 error or incomparable (a CI gate must tell a
         // regression from a broken comparison).
-        Cmd::Regress(a) => match regress::run(a) {
+        Cmd::Regress(a) => match regress::run(a.into()) {
             Ok(code) => std::process::exit(code),
             Err(e) => {
                 eprintln!("error: {e:#}");
                 std::process::exit(2);
             }
         },
-        Cmd::Report(a) => comparison::run(a),
-        Cmd::Calibrate(a) => calibrate::run(a),
-        Cmd::ImpactTable(a) => impact_table::run(a),
-        Cmd::RooflineTable(a) => roofline_table::run(&a),
+        Cmd::Report(a) => comparison::run(a.into()),
+        Cmd::Calibrate(a) => cmd_calibrate(a.into()),
+        Cmd::ImpactTable(a) => impact_table::run(a.into()),
+        Cmd::RooflineTable(a) => roofline_table::run(&a.into()),
         Cmd::Bandwidth(a) => {
+            let a: bandwidth::BandwidthOptions = a.into();
             measure_and_report(a.out.as_deref(), "--out", || bandwidth::measure_all(&a), bandwidth::table)
         }
-        Cmd::Paired(a) => measure_and_report(
-            a.json.as_deref(),
-            "--json",
-            || Ok(paired::report(paired_measure::measure(&a)?)),
-            paired::table,
-        ),
-        Cmd::Imbalance(a) => cmd_imbalance(&a),
-        Cmd::Job { file } => match mpm_bench::campaign::job::run(&file) {
+        Cmd::Paired(a) => {
+            let a: paired_measure::PairedOptions = a.into();
+            measure_and_report(
+                a.json.as_deref(),
+                "--json",
+                || Ok(paired_report::report(paired_measure::measure(&a)?)),
+                paired_report::table,
+            )
+        }
+        Cmd::Imbalance(a) => cmd_imbalance(&a.into()),
+        Cmd::Job { file } => match mpm_bench::campaign::schedule::job::run(&file) {
             Ok(code) => std::process::exit(code),
             Err(e) => {
                 eprintln!("error: {e:#}");
@@ -437,228 +250,48 @@ fn main() {
     }
 }
 
-fn cmd_topology(a: TopologyArgs) -> Result<()> {
-    if a.threads.contains(&0) || a.ranks.contains(&0) {
-        anyhow::bail!("thread and rank counts must be at least 1 (got 0)");
-    }
-    let machine = match (&a.synthetic, &a.xml) {
-        (Some(s), _) => Machine::synthetic(s)?,
-        (None, Some(x)) => Machine::from_xml_file(x)?,
-        (None, None) => Machine::detect()?,
-    };
-    use std::io::Write as _;
-    let mut out = std::io::stdout().lock();
-    writeln!(out, "{}", machine.describe())?;
-    let policies: Vec<PinPolicy> = if a.bind.is_empty() {
-        vec![PinPolicy::CLOSE, PinPolicy::SPREAD, PinPolicy::PRIMARY, PinPolicy::None]
-            .into_iter()
-            .map(|p| p.with_places(a.places))
-            .collect()
-    } else {
-        a.bind.iter().map(|b| PinPolicy::parse_with(b, a.places)).collect::<Result<_>>()?
-    };
-    for p in &policies {
-        machine.check_policy(p)?;
-    }
-    write!(out, "{}", machine.placement_table(&a.threads, &policies)?)?;
-    for &r in a.ranks.iter().filter(|&&r| r > 1) {
-        writeln!(out, "{r} MPI ranks: the CPUs of rank 0 | rank 1 | ... ('*' = oversubscribed)")?;
-        for p in policies.iter().filter(|p| !matches!(p, PinPolicy::None)) {
-            for &t in &a.threads {
-                let slices = machine.rank_slices(p, r, t)?;
-                let over = if machine.place_ranks(p, r, t)?.oversubscribed { " *" } else { "" };
-                let text: Vec<String> =
-                    slices.iter().map(|s| s.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(",")).collect();
-                writeln!(out, "  {:<16} {r} x {t:<3} {}{over}", p.label(), text.join(" | "))?;
-            }
-        }
-    }
-    if machine.is_this_system {
-        writeln!(out, "Machine fingerprint: {}", fingerprint::fingerprint(&machine))?;
-    }
-    if let Some(path) = a.export_xml {
-        let xml = topology::export_xml()?;
-        std::fs::write(&path, xml).with_context(|| format!("cannot write {}", path.display()))?;
-        writeln!(out, "hwloc XML written to {}", path.display())?;
-    }
-    Ok(())
-}
-
-fn overrides(a: &RunArgs) -> Result<Overrides> {
-    let models = a
-        .models
-        .as_deref()
-        .map(|s| {
-            preset::parse_list(s, "model", |m| {
-                let m = m.trim_start_matches(|c: char| c.is_ascii_alphabetic());
-                m.parse::<u32>().map_err(|_| anyhow::anyhow!("'{m}' is not a model number (1-4)"))
-            })
-        })
-        .transpose()?;
-    let counts = |list: Option<&str>, what: &str| {
-        list.map(|s| {
-            preset::parse_list(s, what, |t| {
-                t.parse::<usize>().map_err(|_| anyhow::anyhow!("'{t}' is not a {what} count"))
-            })
-        })
-        .transpose()
-    };
-    let threads = counts(a.threads.as_deref(), "thread")?;
-    let ranks = counts(a.ranks.as_deref(), "rank")?;
-    let strategies = a
-        .strategies
-        .as_deref()
-        .map(|s| {
-            preset::parse_list(s, "strategy", |x| {
-                x.to_ascii_lowercase().parse::<Strategy>().map_err(anyhow::Error::msg)
-            })
-        })
-        .transpose()?;
-    let opt = a
-        .opt
-        .as_deref()
-        .map(|s| preset::parse_list(s, "optimisation level", |x| x.parse::<OptLevel>().map_err(anyhow::Error::msg)))
-        .transpose()?;
-    let places = a.places.unwrap_or_default();
-    let pin = if a.bind.is_empty() {
-        None
-    } else {
-        Some(a.bind.iter().map(|p| PinPolicy::parse_with(p, places)).collect::<Result<Vec<_>>>()?)
-    };
-    Ok(Overrides {
-        models,
-        threads,
-        ranks,
-        launcher: a.launcher.clone(),
-        strategies,
-        opt,
-        reps: a.reps,
-        pin,
-        places: a.places,
-        steps: a.steps,
-        end_time: a.end_time.as_deref().map(preset::parse_seconds).transpose()?,
-        warmup: a.warmup,
-        grid: a.grid.as_deref().map(str::parse::<mpm_core::GridMode>).transpose().map_err(anyhow::Error::msg)?,
-        mem_limit: a.mem_limit.as_deref().map(preset::parse_size).transpose()?,
-        checkpoint_every: a.checkpoint_every,
-        seed: a.seed,
-        paired_blocks: a.paired_blocks,
-        inject_slowdown: a.inject_slowdown,
-    })
-}
-
 /// Print a bad-input error and exit 2 (a CI job tells a broken invocation from a failed run).
-fn bad_input(e: anyhow::Error) -> ! {
+pub(crate) fn bad_input(e: anyhow::Error) -> ! {
     eprintln!("error: {e:#}");
     std::process::exit(2);
 }
 
-/// `mpm-bench run`; the exit code: 0, or 1 when a run of this invocation failed, timed out
-/// or was invalid (unless `--allow-failures`), or 130 when interrupted. Bad input (the
-/// preset, the overrides, a pinning policy this machine cannot honour) exits 2 at once.
-fn cmd_run(a: RunArgs) -> Result<i32> {
-    let ov = overrides(&a).unwrap_or_else(|e| bad_input(e));
-    let ws = solver::workspace_root();
-    let (preset, source) = preset::load_preset(&a.preset, ws.as_deref()).unwrap_or_else(|e| bad_input(e));
-    let campaign = Campaign::resolve(preset, source, &ov).unwrap_or_else(|e| bad_input(e));
+/// `mpm-bench calibrate`: check the settings, build (unless --no-build or --mock), run, print, write the JSON.
+fn cmd_calibrate(a: calibrate_measure::CalibrateOptions) -> Result<()> {
+    calibrate::check_args(&a)?;
     let machine = Machine::detect()?;
-    for p in &campaign.pins {
-        if let Err(e) = machine.check_policy(p) {
-            bad_input(e.context(format!("bad --bind {p}")));
-        }
-    }
-    let slurm_only = [
-        ("--partition", a.partition.is_some()),
-        ("--account", a.account.is_some()),
-        ("--time-limit", a.time_limit.is_some()),
-        ("--max-jobs", a.max_jobs.is_some()),
-        ("--detach", a.detach),
-    ];
-    if let Some((flag, _)) = slurm_only.iter().find(|(_, given)| *given && a.scheduler != SchedulerKind::Slurm) {
-        bad_input(anyhow::anyhow!("{flag} is an option of --scheduler slurm"));
-    }
-    let scheduler = if a.scheduler == SchedulerKind::Slurm {
-        if a.mock {
-            bad_input(anyhow::anyhow!("--mock runs the fake solver in this process: it cannot go to Slurm"));
-        }
-        Scheduler::Slurm(SlurmOptions {
-            cluster: mpm_bench::campaign::slurm::cluster_name()?,
-            partition: a.partition.clone(),
-            account: a.account.clone(),
-            time_limit: a.time_limit.clone(),
-            max_jobs: a.max_jobs.map(|n| usize::try_from(n).unwrap_or(usize::MAX)),
-            detach: a.detach,
-        })
+    let interrupted = schedule::install_interrupt_handler();
+    let c = if a.mock {
+        let mut r = MockRunner::default();
+        let solvers = calibrate_measure::mock_solvers();
+        let campaigns = calibrate_measure::run_campaigns(&a, &machine, &solvers, &mut r, None, &interrupted)?;
+        calibrate::judge(&a, &machine, campaigns)?
     } else {
-        Scheduler::Local
-    };
-    let here = scheduler.runs_here();
-    let interrupted = runner::install_interrupt_handler();
-    let opts = ExecOptions {
-        out_root: a.out.clone(),
-        dry_run: a.dry_run,
-        retry_failed: a.retry_failed,
-        wait_lock: a.wait,
-        eta: !a.quiet && !a.mock && !a.dry_run && here,
-        fresh: a.fresh,
-        resume_foreign: a.resume_foreign,
-        watch: Some(WatchSettings::default()),
-        quiet: a.quiet,
-        command: std::env::args().collect::<Vec<_>>().join(" "),
-        scheduler,
-    };
-    if !a.dry_run {
-        check_writable(&a.out)?;
-    }
-    if !a.quiet {
-        eprintln!(
-            "campaign {} (preset {} from {}), {} runs, seed {}",
-            campaign.id,
-            campaign.preset_name,
-            campaign.preset_source,
-            campaign.expand().len(),
-            campaign.seed
-        );
-    }
-    let summary = if a.mock {
-        let solvers: Vec<Solver> =
-            campaign.opts.iter().map(|&opt| Solver { opt, path: "mock".into(), sha256: "mock".into() }).collect();
-        let delay = std::env::var("MPM_BENCH_MOCK_DELAY_MS").ok().and_then(|s| s.parse().ok()).unwrap_or(0);
-        let mut r = MockRunner {
-            delay: Duration::from_millis(delay),
-            fail_when: std::env::var("MPM_BENCH_MOCK_FAIL").ok(),
-            ..MockRunner::default()
-        };
-        runner::execute(&campaign, &machine, &solvers, &mut r, &opts, &interrupted)?
-    } else {
-        let solvers =
-            if a.dry_run { Vec::new() } else { solver::prepare_solvers(&campaign.opts, !a.no_build, a.quiet)? };
+        let opts = calibrate_measure::campaign_of(&a, false, 0)?.opts;
+        let solvers = solver::prepare_solvers(&opts, !a.no_build, a.quiet)?;
         let mut r = ProcessRunner::new(interrupted.clone());
-        runner::execute(&campaign, &machine, &solvers, &mut r, &opts, &interrupted)?
+        let watch = Some(WatchSettings::default());
+        let campaigns = calibrate_measure::run_campaigns(&a, &machine, &solvers, &mut r, watch, &interrupted)?;
+        calibrate::judge(&a, &machine, campaigns)?
     };
-    if !a.dry_run {
-        eprintln!("{}", summary.report());
-        // Machine-readable (scripts/reproduce.sh reads it): where the results are.
-        let dir = std::fs::canonicalize(&summary.dir).unwrap_or(summary.dir.clone());
-        println!("campaign folder: {}", dir.display());
+    print!("{}", calibrate::table(&c));
+    let path = a.json.clone().unwrap_or_else(|| {
+        let name =
+            std::path::Path::new(&a.preset).file_stem().map_or("preset".into(), |s| s.to_string_lossy().into_owned());
+        a.out.join(fingerprint::fingerprint(&machine)).join(format!("calibrate-{name}")).join("calibration.json")
+    });
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
     }
-    if summary.counts.interrupted {
-        return Ok(130);
-    }
-    let bad = summary.counts.failed + summary.counts.invalid;
-    if bad > 0 && !a.dry_run {
-        eprintln!(
-            "{bad} run(s) of this invocation failed or were invalid (reasons in runs.csv): exit status 1{}",
-            if a.allow_failures { ", overridden by --allow-failures" } else { "; resuming runs them again" }
-        );
-        return Ok(if a.allow_failures { 0 } else { 1 });
-    }
-    Ok(0)
+    write_atomic(&path, serde_json::to_string_pretty(&c)?.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    println!("wrote {}", path.display());
+    Ok(())
 }
 
 /// `mpm-bench imbalance`: predict, print the table, write the CSV and the figure.
-fn cmd_imbalance(a: &imbalance::ImbalanceArgs) -> Result<()> {
-    check_writable(&a.out)?;
+fn cmd_imbalance(a: &imbalance::ImbalanceOptions) -> Result<()> {
+    cli::run::check_writable(&a.out)?;
     let report = imbalance::measure(a)?;
     print!("{}", imbalance::table(&report));
     let csv = a.out.join(format!("{}.csv", imbalance::stem(&report)));
@@ -668,15 +301,6 @@ fn cmd_imbalance(a: &imbalance::ImbalanceArgs) -> Result<()> {
     for f in files {
         println!("wrote {}", f.display());
     }
-    Ok(())
-}
-
-/// Fail early, with a clear message, when the results root cannot be written.
-fn check_writable(out: &Path) -> Result<()> {
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create the output folder {}", out.display()))?;
-    let probe = out.join(format!(".mpm-bench-write-test-{}", std::process::id()));
-    std::fs::write(&probe, b"").with_context(|| format!("the output folder {} is not writable", out.display()))?;
-    let _ = std::fs::remove_file(&probe);
     Ok(())
 }
 

@@ -2,13 +2,14 @@
 //! bandwidth) on crafted campaigns written with the real CSV writer.
 
 use mpm_bench::analysis::claims::{self, Verdict};
-use mpm_bench::analysis::regress::{self, Outcome, RegressArgs};
+use mpm_bench::analysis::regress::{self, Outcome, RegressOptions};
 use mpm_bench::analysis::results::load_campaign;
 use mpm_bench::analysis::select::RowFilter;
 use mpm_bench::analysis::stats::{Analysis, CellKey, Stage, StatsOptions};
-use mpm_bench::campaign::record::{read_rows, CsvLog, Row, Status};
+use mpm_bench::campaign::store::csv::{read_rows, CsvLog};
+use mpm_bench::campaign::store::record::{Row, Status};
 use mpm_bench::machine::bandwidth;
-use mpm_bench::report::figures::{self, FiguresArgs};
+use mpm_bench::report::figures::{self, FiguresOptions};
 use std::path::{Path, PathBuf};
 
 mod common;
@@ -75,7 +76,7 @@ fn figures_are_written_as_png_and_svg() {
     let results = tmp.path().join("results");
     write_campaign(&results.join("fp").join("camp"), &Craft { cores: 2, ..Craft::default() });
     let out = tmp.path().join("figs");
-    figures::run(FiguresArgs {
+    figures::run(FiguresOptions {
         results: results.clone(),
         out: out.clone(),
         pin: None,
@@ -100,7 +101,7 @@ fn figures_are_written_as_png_and_svg() {
 #[test]
 fn figures_report_clear_errors() {
     let tmp = tempfile::tempdir().unwrap();
-    let err = figures::run(FiguresArgs {
+    let err = figures::run(FiguresOptions {
         results: tmp.path().join("nope"),
         out: tmp.path().join("o"),
         pin: None,
@@ -111,7 +112,7 @@ fn figures_report_clear_errors() {
     assert!(format!("{err:#}").contains("does not exist"), "{err:#}");
     let empty = tmp.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();
-    let err = figures::run(FiguresArgs {
+    let err = figures::run(FiguresOptions {
         results: empty,
         out: tmp.path().join("o"),
         pin: None,
@@ -123,7 +124,7 @@ fn figures_report_clear_errors() {
     let bad = tmp.path().join("bad");
     std::fs::create_dir_all(&bad).unwrap();
     std::fs::write(bad.join("runs.csv"), "model,threads\n1,1\n").unwrap();
-    let err = figures::run(FiguresArgs {
+    let err = figures::run(FiguresOptions {
         results: bad,
         out: tmp.path().join("o"),
         pin: None,
@@ -277,8 +278,8 @@ fn claims_that_the_data_contradict() {
     assert_eq!(v[5].1, Verdict::DoesNotHold, "{v:?}");
 }
 
-fn regress_args(base: &Path, cur: &Path) -> RegressArgs {
-    RegressArgs::new(base, cur)
+fn regress_args(base: &Path, cur: &Path) -> RegressOptions {
+    RegressOptions::new(base, cur)
 }
 
 #[test]
@@ -325,7 +326,7 @@ fn noisy_rows_are_excluded_unless_asked_and_grey_in_figures() {
                 let mut b = r.clone();
                 b.run.rep = rep;
                 b.id.run_id = format!("{}-busy{rep}", r.id.run_id);
-                let m = &mut b.measured;
+                let m = &mut b.measured_mut().timing;
                 for t in [&mut m.steady_s_per_step, &mut m.steady_grid_stage_s, &mut m.steady_particle_stage_s] {
                     *t = t.map(|t| 3.0 * t);
                 }
@@ -345,7 +346,7 @@ fn noisy_rows_are_excluded_unless_asked_and_grey_in_figures() {
     // With them, every repetition of a parallel cell has 3 more, three times slower: the
     // medians move (with so few repetitions over 100+ Holm-corrected checks the bootstrap
     // cannot call that beyond the noise, so the gate's verdict is not the test here).
-    let r = regress::evaluate(&RegressArgs { include_noisy: true, ..regress_args(&base, &cur) }).unwrap();
+    let r = regress::evaluate(&RegressOptions { include_noisy: true, ..regress_args(&base, &cur) }).unwrap();
     let slow: Vec<_> = r.checks.iter().filter(|c| c.current_reps > c.baseline_reps).collect();
     assert!(!slow.is_empty(), "with --include-noisy the slow rows count: {}", r.reason);
     assert!(slow.iter().any(|c| c.worse_by > 0.5), "the slow rows move the medians: {}", r.reason);
@@ -511,7 +512,7 @@ fn regress_holm_correction_is_applied_over_the_cells() {
 #[test]
 fn bandwidth_smoke() {
     let args =
-        bandwidth::BandwidthArgs { threads: vec![1, 2], pin: vec!["close".into()], size_mib: 2, reps: 2, out: None };
+        bandwidth::BandwidthOptions { threads: vec![1, 2], pin: vec!["close".into()], size_mib: 2, reps: 2, out: None };
     let r = bandwidth::measure_all(&args).unwrap();
     assert_eq!(r.results.len(), 2);
     assert!(r.results.iter().all(|p| p.best_gb_s > 0.0 && p.best_gb_s >= p.worst_gb_s));
@@ -558,6 +559,39 @@ fn every_committed_campaign_loads_in_every_analysis_command() {
     }
 }
 
+/// The tables made from committed JSON summaries load them: `impact-table` on
+/// results/impact and `roofline-table` on the roofline runs with their bandwidth ceiling.
+#[test]
+fn every_committed_table_source_loads() {
+    let results = Path::new(env!("CARGO_MANIFEST_DIR")).join("../results");
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_mpm-bench")).args(args).output().unwrap();
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stdout).into_owned(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let impact = results.join("impact");
+    let (code, out, err) = run(&["impact-table", "--results", impact.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "impact-table: {err}");
+    assert!(out.lines().filter(|l| l.starts_with("| ")).count() >= 5, "{out}");
+    let roof = results.join("roofline");
+    let mut args = vec!["roofline-table".to_string()];
+    for e in std::fs::read_dir(&roof).unwrap().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name.starts_with("model") && name.ends_with(".json") {
+            args.extend(["--summary".to_string(), e.path().display().to_string()]);
+        }
+    }
+    assert!(args.len() >= 7, "{args:?}");
+    args.extend(["--bandwidth".to_string(), roof.join("bandwidth.json").display().to_string()]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (code, out, err) = run(&args);
+    assert_eq!(code, Some(0), "roofline-table: {err}");
+    assert!(out.contains("**step**"), "{out}");
+}
+
 /// The stage panels use the steady-state stage times: a 1-thread run whose one warm-up step
 /// took most of its particle stage (as Model 4's set-up step did) gives that stage a speedup
 /// within the 2 cores, where the whole-run times gave 5.5; a speedup above the cores (here
@@ -570,7 +604,7 @@ fn stage_speedups_are_steady_state_and_impossible_ones_flagged() {
     let dir = tmp.path().join("m4");
     std::fs::create_dir_all(&dir).unwrap();
     let fp = fingerprint(Some("pack:1 core:2 pu:1"));
-    let mut log = mpm_bench::campaign::record::CsvLog::open(&dir.join("runs.csv")).unwrap();
+    let mut log = mpm_bench::campaign::store::csv::CsvLog::open(&dir.join("runs.csv")).unwrap();
     // Model 4, DD, 3 steps with 1 warm-up; per steady step 2.0 s grid + 3.0 s particle at one
     // thread, half that at two (pinned to CPUs 0 and 1); the 1-thread warm-up step spent
     // 21 s in the particle stage. Model 3: a base run 6x slow in its steady state.
@@ -582,14 +616,15 @@ fn stage_speedups_are_steady_state_and_impossible_ones_flagged() {
             r.run.spec.budget.warmup = Some(1);
             r.placement.requested_cpus = (0..threads).collect();
             r.outcome.status = Status::Ok;
-            let m = &mut r.measured;
-            (m.steps, m.steady_steps) = (Some(3), Some(2));
-            m.grid_stage_s = Some(3.0 * grid);
-            m.particle_stage_s = Some(2.0 * particle + warm_particle);
+            let f = r.measured_mut();
+            (f.progress.steps, f.progress.steady_steps) = (3, 2);
+            let m = &mut f.timing;
+            m.grid_stage_s = 3.0 * grid;
+            m.particle_stage_s = 2.0 * particle + warm_particle;
             m.steady_grid_stage_s = Some(2.0 * grid);
             m.steady_particle_stage_s = Some(2.0 * particle);
             m.steady_s_per_step = Some(grid + particle);
-            m.wall_s = Some(3.0 * (grid + particle) + warm_particle);
+            m.wall_s = 3.0 * (grid + particle) + warm_particle;
             log.append(&r).unwrap();
         }
     }
@@ -604,7 +639,7 @@ fn stage_speedups_are_steady_state_and_impossible_ones_flagged() {
     assert!(p3.flags[0].contains("above the 2 core(s)"), "{:?}", p3.flags);
     assert!(!p3.is_real_parallel(), "a flagged point is no evidence of scaling");
     let out = tmp.path().join("figs");
-    figures::run(FiguresArgs {
+    figures::run(FiguresOptions {
         results: dir.clone(),
         out: out.clone(),
         pin: None,
@@ -625,12 +660,12 @@ fn stage_speedups_are_steady_state_and_impossible_ones_flagged() {
     assert!(get("fig11", "total", "3")["flags"].contains("above the 2 core(s)"));
     assert!(std::fs::read_to_string(out.join("README.md")).unwrap().contains("flagged"));
     // The same rows without steady stage times (written before schema 6): no stage point.
-    let rows: Vec<_> = mpm_bench::campaign::record::read_rows(&dir.join("runs.csv"))
+    let rows: Vec<_> = mpm_bench::campaign::store::csv::read_rows(&dir.join("runs.csv"))
         .unwrap()
         .into_iter()
         .map(|mut r| {
-            r.measured.steady_grid_stage_s = None;
-            r.measured.steady_particle_stage_s = None;
+            r.measured_mut().timing.steady_grid_stage_s = None;
+            r.measured_mut().timing.steady_particle_stage_s = None;
             r
         })
         .collect();
@@ -679,10 +714,10 @@ fn regress_refuses_campaigns_of_different_budgets() {
 #[test]
 fn runs_of_several_machines_are_split_by_fingerprint() {
     use mpm_bench::analysis::results::load_campaigns;
-    use mpm_bench::campaign::manifest::{self, NodeInfo};
+    use mpm_bench::campaign::store::manifest::{self, NodeInfo};
     use mpm_bench::machine::fingerprint;
     use mpm_bench::machine::topology::Machine;
-    use mpm_bench::report::comparison::{self, ReportArgs};
+    use mpm_bench::report::comparison::{self, ReportOptions};
     let tmp = tempfile::tempdir().unwrap();
     let (ta, tb) = ("pack:2 core:4 pu:1", "pack:1 core:8 pu:1");
     let a = write_campaign(
@@ -739,7 +774,7 @@ fn runs_of_several_machines_are_split_by_fingerprint() {
     assert!(err.contains("2 machines") && err.contains(&fa) && err.contains(&fb), "{err}");
 
     let out = tmp.path().join("figs");
-    figures::run(FiguresArgs {
+    figures::run(FiguresOptions {
         results: both.clone(),
         out: out.clone(),
         pin: None,
@@ -754,7 +789,7 @@ fn runs_of_several_machines_are_split_by_fingerprint() {
     assert!(!out.join("fig07.svg").exists(), "no figure mixes the machines");
 
     let md = tmp.path().join("claims.md");
-    let args = claims::ClaimsArgs {
+    let args = claims::ClaimsOptions {
         results: both.clone(),
         markdown: Some(md.clone()),
         pin: None,
@@ -765,7 +800,7 @@ fn runs_of_several_machines_are_split_by_fingerprint() {
     let text = std::fs::read_to_string(&md).unwrap();
     assert!(text.contains(&format!("## Machine `{fa}`")) && text.contains(&format!("## Machine `{fb}`")), "{text}");
 
-    let report = comparison::build(&ReportArgs {
+    let report = comparison::build(&ReportOptions {
         dirs: vec![both.clone()],
         out: tmp.path().join("report"),
         pin: None,

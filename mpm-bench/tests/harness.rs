@@ -3,13 +3,15 @@
 //! real end-to-end smoke campaign through the `mpm-bench` binary and the real `mpm` solver.
 
 use mpm_bench::analysis::select::RowFilter;
-use mpm_bench::campaign::matrix::{Campaign, Overrides};
-use mpm_bench::campaign::memory;
-use mpm_bench::campaign::preset::{self, OptLevel};
-use mpm_bench::campaign::process::MockRunner;
-use mpm_bench::campaign::record::{read_rows, Row, Status};
-use mpm_bench::campaign::runner::{self, ExecOptions};
-use mpm_bench::campaign::solver::Solver;
+use mpm_bench::campaign::exec::process::MockRunner;
+use mpm_bench::campaign::exec::solver::Solver;
+use mpm_bench::campaign::plan::matrix::{Campaign, Overrides};
+use mpm_bench::campaign::plan::memory;
+use mpm_bench::campaign::plan::preset::{self, OptLevel};
+use mpm_bench::campaign::schedule;
+use mpm_bench::campaign::schedule::ExecOptions;
+use mpm_bench::campaign::store::csv::read_rows;
+use mpm_bench::campaign::store::record::{Row, Status};
 use mpm_bench::machine::fingerprint;
 use mpm_bench::machine::placement::PinPolicy;
 use mpm_bench::machine::topology::Machine;
@@ -39,16 +41,16 @@ fn opts(out: &Path) -> ExecOptions {
     ExecOptions { out_root: out.to_path_buf(), quiet: true, command: "test".into(), ..ExecOptions::default() }
 }
 
-fn run_mock(c: &Campaign, m: &Machine, out: &Path, r: &mut MockRunner) -> runner::ExecSummary {
+fn run_mock(c: &Campaign, m: &Machine, out: &Path, r: &mut MockRunner) -> schedule::ExecSummary {
     let flag = AtomicBool::new(false);
-    runner::execute(c, m, &mock_solvers(c), r, &opts(out), &flag).unwrap()
+    schedule::execute(c, m, &mock_solvers(c), r, &opts(out), &flag).unwrap()
 }
 
 /// Run `c` on `m` into `out` with the mock runner interrupted after 3 runs.
-fn interrupted_after_3(c: &Campaign, m: &Machine, out: &Path) -> runner::ExecSummary {
+fn interrupted_after_3(c: &Campaign, m: &Machine, out: &Path) -> schedule::ExecSummary {
     let flag = Arc::new(AtomicBool::new(false));
     let mut r = MockRunner { interrupt_after: Some((3, flag.clone())), ..MockRunner::default() };
-    runner::execute(c, m, &mock_solvers(c), &mut r, &opts(out), &flag).unwrap()
+    schedule::execute(c, m, &mock_solvers(c), &mut r, &opts(out), &flag).unwrap()
 }
 
 #[test]
@@ -164,7 +166,7 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
     assert_eq!(read_rows(&csv).unwrap().len(), 8);
     assert_eq!(std::fs::read(s.dir.join("manifest.json")).unwrap(), before, "a no-op run rewrote the manifest");
     // Manifest and sessions: one per session that ran something, each with its machine.
-    let man = mpm_bench::campaign::manifest::read(&s.dir.join("manifest.json")).unwrap();
+    let man = mpm_bench::campaign::store::manifest::read(&s.dir.join("manifest.json")).unwrap();
     assert_eq!(man.sessions.len(), 2);
     assert!(man
         .sessions
@@ -229,7 +231,7 @@ fn foreign_and_reference_campaigns_are_not_resumed() {
     let c = campaign("smoke", &Overrides::default());
     let (a, b) = (laptop(), Machine::synthetic("pack:1 core:4 pu:1").unwrap());
     let s = interrupted_after_3(&c, &a, dir.path());
-    let copied = runner::campaign_dir(dir.path(), &b, &c);
+    let copied = schedule::state::campaign_dir(dir.path(), &b, &c);
     assert_ne!(copied, s.dir);
     copy_campaign(&s.dir, &copied);
     // On machine b: the copy is another machine's; a new folder takes all 8 runs.
@@ -241,21 +243,21 @@ fn foreign_and_reference_campaigns_are_not_resumed() {
     // With --resume-foreign the copy is resumed: the other 5 runs.
     let o = ExecOptions { resume_foreign: true, ..opts(dir.path()) };
     let mut r = MockRunner::default();
-    let s = runner::execute(&c, &b, &mock_solvers(&c), &mut r, &o, &AtomicBool::new(false)).unwrap();
+    let s = schedule::execute(&c, &b, &mock_solvers(&c), &mut r, &o, &AtomicBool::new(false)).unwrap();
     assert_eq!((s.dir.as_path(), s.counts.already_done, r.calls.len()), (copied.as_path(), 3, 5));
     // Same machine, rebuilt solver: not resumed either.
     let rebuilt: Vec<Solver> =
         mock_solvers(&c).into_iter().map(|s| Solver { sha256: "fedcba9876543210".into(), ..s }).collect();
     let mut r = MockRunner::default();
-    let s = runner::execute(&c, &a, &rebuilt, &mut r, &opts(dir.path()), &AtomicBool::new(false)).unwrap();
+    let s = schedule::execute(&c, &a, &rebuilt, &mut r, &opts(dir.path()), &AtomicBool::new(false)).unwrap();
     assert!(s.dir.ends_with("smoke-2") && r.calls.len() == 8, "{}", s.dir.display());
     // A reference campaign is refused even with --resume-foreign.
     let mpath = copied.join("manifest.json");
-    let mut man = mpm_bench::campaign::manifest::read(&mpath).unwrap();
+    let mut man = mpm_bench::campaign::store::manifest::read(&mpath).unwrap();
     man.reference = true;
-    mpm_bench::campaign::manifest::write(&mpath, &man).unwrap();
+    mpm_bench::campaign::store::manifest::write(&mpath, &man).unwrap();
     let mut r = MockRunner::default();
-    let s = runner::execute(&c, &b, &mock_solvers(&c), &mut r, &o, &AtomicBool::new(false)).unwrap();
+    let s = schedule::execute(&c, &b, &mock_solvers(&c), &mut r, &o, &AtomicBool::new(false)).unwrap();
     assert_eq!(s.dir, copied.with_file_name("smoke-2"));
     assert_eq!(r.calls.len(), 0, "smoke-2 of machine b is complete and resumable");
 }
@@ -265,7 +267,7 @@ fn foreign_and_reference_campaigns_are_not_resumed() {
 /// session's start calibration is in the manifest.
 #[test]
 fn host_load_is_recorded_around_every_run() {
-    use mpm_bench::campaign::watch::WatchSettings;
+    use mpm_bench::campaign::exec::watch::WatchSettings;
     let dir = tempfile::tempdir().unwrap();
     let c = campaign("smoke", &Overrides::default());
     let m = laptop();
@@ -276,7 +278,7 @@ fn host_load_is_recorded_around_every_run() {
     };
     let o = ExecOptions { watch: Some(w), ..opts(dir.path()) };
     let s =
-        runner::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &o, &AtomicBool::new(false)).unwrap();
+        schedule::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &o, &AtomicBool::new(false)).unwrap();
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), 8);
     for r in &rows {
@@ -296,7 +298,7 @@ fn host_load_is_recorded_around_every_run() {
         assert_eq!(r.host.host_noisy, why.is_some());
         assert_eq!(r.host.host_noise, why.unwrap_or_default());
     }
-    let man = mpm_bench::campaign::manifest::read(&s.dir.join("manifest.json")).unwrap();
+    let man = mpm_bench::campaign::store::manifest::read(&s.dir.join("manifest.json")).unwrap();
     assert!(man.sessions[0].calibration.is_some_and(|c| c.spin_s > 0.0 && c.copy_s > 0.0));
 }
 
@@ -311,7 +313,9 @@ fn memory_guard_skips_with_a_reason() {
     assert_eq!(s.counts.skipped, 8);
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
     assert!(rows.iter().all(|r| r.outcome.status == Status::Skipped && r.outcome.reason.contains("memory guard")));
-    assert!(rows.iter().all(|r| r.measured.wall_s.is_none() && r.outcome.mem_estimate_bytes > 10 << 20));
+    assert!(rows
+        .iter()
+        .all(|r| r.measured.as_ref().map(|f| f.timing.wall_s).is_none() && r.outcome.mem_estimate_bytes > 10 << 20));
     // AE grows with threads: with a limit between, Model 4 AE at 8 threads is skipped while DD runs.
     let est_dd = memory::estimate_memory(mpm_spec::ScenarioKind::Taylor, 4, Strategy::DomainDecomposition, 8);
     let est_ae = memory::estimate_memory(mpm_spec::ScenarioKind::Taylor, 4, Strategy::ArrayExpansion, 8);
@@ -355,7 +359,7 @@ fn oversubscribed_invalid_and_failed_rows_are_flagged() {
     let mut r = MockRunner::default();
     let flag = AtomicBool::new(false);
     let o = ExecOptions { retry_failed: true, ..opts(dir.path()) };
-    let s = runner::execute(&c, &laptop(), &mock_solvers(&c), &mut r, &o, &flag).unwrap();
+    let s = schedule::execute(&c, &laptop(), &mock_solvers(&c), &mut r, &o, &flag).unwrap();
     assert_eq!(s.counts.written, 2);
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
     assert!(rows.iter().any(|r| r.id.run_id.ends_with("-a1")));
@@ -379,36 +383,82 @@ fn pinning_none_passes_no_cpus() {
 /// readers would misread it). The spec's columns come from `mpm_spec::RunSpec` itself.
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::record::SCHEMA_VERSION, 7);
+    assert_eq!(mpm_bench::campaign::store::record::SCHEMA_VERSION, 8);
     let want = "schema_version,campaign_id,run_id,run_key,timestamp,git_commit,git_dirty,machine_id,node,job_id,\
-binary_sha256,seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,scenario.wall,\
-scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell,strategy,threads,\
-ranks,rank_layout,grid,physics.eos,physics.q.c1,physics.q.c2,physics.cfl,physics.energy_rise_limit,\
-budget.steps,budget.end_time_s,budget.warmup,split_wait,paired.blocks,inject_slowdown,model,opt,pin,launcher,\
-rep,requested_cpus,\
-observed_cpus,rank_cpus,oversubscribed,particles,cells,nodes,mean_nodes,steps,sim_time_s,end_reason,\
-dt_first_s,wall_s,grid_stage_s,particle_stage_s,substages.reorder,substages.grid_fit,substages.binning,\
-substages.scatter,substages.assembly,substages.grid_update,substages.gather,substages.remap_scatter,\
-substages.remap_assembly,substages.stress_update,steady_steps,steady_wall_s,steady_grid_stage_s,\
-steady_particle_stage_s,steady_substages.reorder,steady_substages.grid_fit,steady_substages.binning,steady_substages.scatter,\
-steady_substages.assembly,steady_substages.grid_update,steady_substages.gather,\
-steady_substages.remap_scatter,steady_substages.remap_assembly,steady_substages.stress_update,\
-simd_level,roofline.reorder.gb_per_s,roofline.reorder.gflop_per_s,roofline.grid_fit.gb_per_s,roofline.grid_fit.gflop_per_s,roofline.binning.gb_per_s,\
-roofline.binning.gflop_per_s,roofline.scatter.gb_per_s,roofline.scatter.gflop_per_s,\
-roofline.assembly.gb_per_s,roofline.assembly.gflop_per_s,roofline.grid_update.gb_per_s,\
-roofline.grid_update.gflop_per_s,roofline.gather.gb_per_s,roofline.gather.gflop_per_s,\
-roofline.remap_scatter.gb_per_s,roofline.remap_scatter.gflop_per_s,roofline.remap_assembly.gb_per_s,\
-roofline.remap_assembly.gflop_per_s,roofline.stress_update.gb_per_s,\
-roofline.stress_update.gflop_per_s,steady_s_per_step,ns_per_particle_step,particle_steps_per_s,\
-worker_busy_s,load_imbalance,dd_work_imbalance,peak_rss_bytes,peak_rss_sum_bytes,rank_particles,\
-rank_busy_imbalance,migrated_particles,comm_s_per_step,comm_frac,wait_s_per_step,wait_frac,\
-comm_bytes_per_step,comm_messages_per_step,kinetic_energy_initial_j,kinetic_energy_j,\
-internal_energy_j,initial_length_m,final_length_m,face_diameter_m,cloud_front_m,cloud_width_m,\
-failed_particles,checkpoints_written,checkpoint_write_s,restarts,restart_setup_s,paired_blocks,paired_block_steps,paired_t1_s,paired_tt_s,paired_efficiency,\
-paired_t1_grid_stage_s,paired_t1_particle_stage_s,cpu_share,cpu_share_min,involuntary_switches,\
-work_bytes.reorder,work_bytes.grid_fit,work_bytes.binning,work_bytes.scatter,work_bytes.assembly,work_bytes.grid_update,\
-work_bytes.gather,work_bytes.remap_scatter,work_bytes.remap_assembly,work_bytes.stress_update,\
-work_serial_bytes,work_bound,work_balance,work_overhead,injected_s,host_load1_before,host_load1_after,host_others_running_before,\
+binary_sha256,seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,\
+scenario.wall,scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell,\
+strategy,threads,ranks,rank_layout,grid,physics.eos,physics.q.c1,physics.q.c2,physics.cfl,\
+physics.energy_rise_limit,budget.steps,budget.end_time_s,budget.warmup,split_wait,paired.blocks,\
+inject_slowdown,model,opt,pin,launcher,rep,requested_cpus,observed_cpus,rank_cpus,oversubscribed,\
+particles,cells,nodes,mean_nodes,final_nodes,final_stored_nodes,final_occupancy.cells,\
+final_occupancy.occupied_cells,final_occupancy.occupied_blocks,final_occupancy.block_cells,dx_m,\
+steps,warmup_steps,steady_steps,dt_first,dt_next,sim_time,end_reason,wall_s,output_s,grid_stage_s,\
+particle_stage_s,substages.reorder,substages.grid_fit,substages.binning,substages.scatter,\
+substages.assembly,substages.grid_update,substages.gather,substages.remap_scatter,\
+substages.remap_assembly,substages.stress_update,steady_wall_s,steady_grid_stage_s,\
+steady_particle_stage_s,steady_substages.reorder,steady_substages.grid_fit,steady_substages.binning,\
+steady_substages.scatter,steady_substages.assembly,steady_substages.grid_update,\
+steady_substages.gather,steady_substages.remap_scatter,steady_substages.remap_assembly,\
+steady_substages.stress_update,simd_level,roofline.reorder.bytes_per_particle_step,\
+roofline.reorder.flops_per_particle_step,roofline.reorder.ns_per_particle_step,\
+roofline.reorder.gb_per_s,roofline.reorder.gflop_per_s,roofline.grid_fit.bytes_per_particle_step,\
+roofline.grid_fit.flops_per_particle_step,roofline.grid_fit.ns_per_particle_step,\
+roofline.grid_fit.gb_per_s,roofline.grid_fit.gflop_per_s,roofline.binning.bytes_per_particle_step,\
+roofline.binning.flops_per_particle_step,roofline.binning.ns_per_particle_step,\
+roofline.binning.gb_per_s,roofline.binning.gflop_per_s,roofline.scatter.bytes_per_particle_step,\
+roofline.scatter.flops_per_particle_step,roofline.scatter.ns_per_particle_step,\
+roofline.scatter.gb_per_s,roofline.scatter.gflop_per_s,roofline.assembly.bytes_per_particle_step,\
+roofline.assembly.flops_per_particle_step,roofline.assembly.ns_per_particle_step,\
+roofline.assembly.gb_per_s,roofline.assembly.gflop_per_s,\
+roofline.grid_update.bytes_per_particle_step,roofline.grid_update.flops_per_particle_step,\
+roofline.grid_update.ns_per_particle_step,roofline.grid_update.gb_per_s,\
+roofline.grid_update.gflop_per_s,roofline.gather.bytes_per_particle_step,\
+roofline.gather.flops_per_particle_step,roofline.gather.ns_per_particle_step,\
+roofline.gather.gb_per_s,roofline.gather.gflop_per_s,roofline.remap_scatter.bytes_per_particle_step,\
+roofline.remap_scatter.flops_per_particle_step,roofline.remap_scatter.ns_per_particle_step,\
+roofline.remap_scatter.gb_per_s,roofline.remap_scatter.gflop_per_s,\
+roofline.remap_assembly.bytes_per_particle_step,roofline.remap_assembly.flops_per_particle_step,\
+roofline.remap_assembly.ns_per_particle_step,roofline.remap_assembly.gb_per_s,\
+roofline.remap_assembly.gflop_per_s,roofline.stress_update.bytes_per_particle_step,\
+roofline.stress_update.flops_per_particle_step,roofline.stress_update.ns_per_particle_step,\
+roofline.stress_update.gb_per_s,roofline.stress_update.gflop_per_s,steady_s_per_step,\
+ns_per_particle_step,particle_steps_per_s,worker_busy_s,load_imbalance,dd_layout,\
+dd_patch_particles.min,dd_patch_particles.mean,dd_patch_particles.max,\
+dd_patch_particles.imbalance_mean,dd_patch_particles.imbalance_max,peak_rss_bytes,\
+peak_rss_sum_bytes,model_memory_bytes,kinetic_energy_initial,internal_energy_initial,kinetic_energy,\
+internal_energy,momentum_initial,momentum,failed_particles,energy.initial_kinetic_j,\
+energy.initial_internal_j,energy.initial_total_j,energy.final_kinetic_j,energy.final_internal_j,\
+energy.final_total_j,energy.body_force_work_j,energy.max_rise,energy.max_rise_step,energy.max_fall,\
+energy.max_fall_step,energy.negative_internal_final,energy.negative_internal_max,\
+energy.negative_internal_steps,energy.first_negative_internal_step,energy.failed_energy_floors,\
+energy.failed_energy_floor_j,rank_particles,rank_busy_imbalance,migrated_particles,comm_s_per_step,\
+comm_frac,wait_s_per_step,wait_frac,comm_bytes_per_step,comm_messages_per_step,work.bytes.reorder,\
+work.bytes.grid_fit,work.bytes.binning,work.bytes.scatter,work.bytes.assembly,\
+work.bytes.grid_update,work.bytes.gather,work.bytes.remap_scatter,work.bytes.remap_assembly,\
+work.bytes.stress_update,work.worker_bytes,work.serial_bytes,work.balance,work.overhead,\
+work.efficiency_bound,noise.wall_s,noise.workers.cpu_s,noise.workers.cpu_share,\
+noise.workers.involuntary_switches,noise.workers.voluntary_switches,noise.workers.steal_frac,\
+noise.min_cpu_share,noise.threshold,noise.low_cpu_share,paired.reference_threads,\
+measured.paired.blocks,paired.block_steps,paired.reference_cpus,paired.t1_s_per_step,\
+paired.tt_s_per_step,paired.reference_first,paired.block_efficiency,paired.efficiency,\
+paired.reference_steady_substages.reorder,paired.reference_steady_substages.grid_fit,\
+paired.reference_steady_substages.binning,paired.reference_steady_substages.scatter,\
+paired.reference_steady_substages.assembly,paired.reference_steady_substages.grid_update,\
+paired.reference_steady_substages.gather,paired.reference_steady_substages.remap_scatter,\
+paired.reference_steady_substages.remap_assembly,paired.reference_steady_substages.stress_update,\
+paired.reference_noise.wall_s,paired.reference_noise.workers.cpu_s,\
+paired.reference_noise.workers.cpu_share,paired.reference_noise.workers.involuntary_switches,\
+paired.reference_noise.workers.voluntary_switches,paired.reference_noise.workers.steal_frac,\
+paired.reference_noise.min_cpu_share,paired.reference_noise.threshold,\
+paired.reference_noise.low_cpu_share,paired.max_position_difference,paired.reference_grid_stage_s,\
+paired.reference_particle_stage_s,checkpoint.written,checkpoint.write_s,checkpoint.last_bytes,\
+checkpoint.restarts,checkpoint.restart_steps,checkpoint.restart_setup_s,injected_s,scenario,\
+initial_length_m,final_length_m,initial_face_diameter_m,face_diameter_m,cloud_front_m,\
+cloud_front_robust_m,cloud_width_m,cloud_width_robust_m,hole_diameter_m,front_velocity_m_s,\
+debris_mass_kg,spacing_m,leading_debris_velocity_m_s,slab_length_m,shock_speed_m_s,\
+shock_pressure_pa,shock_mean_pressure_pa,particle_velocity_m_s,rh_shock_speed_m_s,rh_pressure_pa,\
+rh_particle_velocity_m_s,shock_speed_rel_error,shock_pressure_rel_error,particle_velocity_rel_error,\
+shock_front_samples,host_load1_before,host_load1_after,host_others_running_before,\
 host_others_running_after,host_cpus_busy_before,host_cpus_busy_after,host_steal_frac,\
 calib_spin_ratio,calib_copy_ratio,host_noisy,host_noise,status,reason,exit_code,process_wall_s,\
 mem_estimate_bytes,lost_compute_s";
@@ -420,12 +470,12 @@ fn resume_refuses_a_csv_with_missing_columns() {
     let dir = tempfile::tempdir().unwrap();
     let c = campaign("smoke", &Overrides::default());
     let m = laptop();
-    let d = runner::campaign_dir(dir.path(), &m, &c);
+    let d = schedule::state::campaign_dir(dir.path(), &m, &c);
     std::fs::create_dir_all(&d).unwrap();
     std::fs::write(d.join("runs.csv"), "schema_version,campaign_id,model\n1,smoke,1\n").unwrap();
     let flag = AtomicBool::new(false);
     let e =
-        runner::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &opts(dir.path()), &flag).unwrap_err();
+        schedule::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &opts(dir.path()), &flag).unwrap_err();
     let msg = format!("{e:#}");
     assert!(msg.contains("missing column") && msg.contains("observed_cpus"), "{msg}");
     // The old file is untouched.
@@ -435,7 +485,7 @@ fn resume_refuses_a_csv_with_missing_columns() {
     let header: Vec<String> = Row::header().into_iter().filter(|h| h != "host_noise").collect();
     std::fs::write(d.join("runs.csv"), header.join(",") + "\n").unwrap();
     let mut r = MockRunner::default();
-    let s = runner::execute(&c, &m, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
+    let s = schedule::execute(&c, &m, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
     assert_eq!((s.dir, r.calls.len()), (d.with_file_name("smoke-2"), 8));
 }
 
@@ -591,32 +641,38 @@ fn end_to_end_smoke_campaign_with_the_real_solver() {
     eprintln!("smoke campaign (with builds): {:.1} s", t0.elapsed().as_secs_f64());
     let m = Machine::detect().unwrap();
     let c = campaign("smoke", &Overrides::default());
-    let d = runner::campaign_dir(dir.path(), &m, &c);
+    let d = schedule::state::campaign_dir(dir.path(), &m, &c);
     let rows = read_rows(&d.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), c.expand().len());
     for r in &rows {
         assert_eq!(r.outcome.status, Status::Ok, "{}: {}", r.id.run_id, r.outcome.reason);
-        assert_eq!(r.measured.particles, Some(56_056));
-        assert_eq!(r.measured.steps, r.run.spec.budget.steps, "{}", r.id.run_id);
-        assert_eq!(r.measured.end_reason, Some(EndReason::StepLimit));
+        assert_eq!(r.measured.as_ref().map(|f| f.size.particles as u64), Some(56_056));
+        assert_eq!(r.measured.as_ref().map(|f| f.progress.steps), r.run.spec.budget.steps, "{}", r.id.run_id);
+        assert_eq!(r.measured.as_ref().map(|f| f.progress.end_reason), Some(EndReason::StepLimit));
         for (name, v) in [
-            ("wall_s", r.measured.wall_s),
+            ("wall_s", r.measured.as_ref().map(|f| f.timing.wall_s)),
             ("process_wall_s", r.outcome.process_wall_s),
-            ("grid_stage_s", r.measured.grid_stage_s),
-            ("particle_stage_s", r.measured.particle_stage_s),
-            ("substages.scatter", r.measured.substages.get(Substage::Scatter)),
-            ("substages.stress_update", r.measured.substages.get(Substage::StressUpdate)),
-            ("steady_grid_stage_s", r.measured.steady_grid_stage_s),
-            ("steady_particle_stage_s", r.measured.steady_particle_stage_s),
-            ("steady_s_per_step", r.measured.steady_s_per_step),
-            ("ns_per_particle_step", r.measured.ns_per_particle_step),
-            ("kinetic_energy_j", r.measured.kinetic_energy_j),
-            ("final_length_m", r.measured.final_length_m),
-            ("face_diameter_m", r.measured.face_diameter_m),
+            ("grid_stage_s", r.measured.as_ref().map(|f| f.timing.grid_stage_s)),
+            ("particle_stage_s", r.measured.as_ref().map(|f| f.timing.particle_stage_s)),
+            (
+                "substages.scatter",
+                r.measured.as_ref().map(|f| f.timing.substages.clone()).unwrap_or_default().get(Substage::Scatter),
+            ),
+            (
+                "substages.stress_update",
+                r.measured.as_ref().map(|f| f.timing.substages.clone()).unwrap_or_default().get(Substage::StressUpdate),
+            ),
+            ("steady_grid_stage_s", r.measured.as_ref().and_then(|f| f.timing.steady_grid_stage_s)),
+            ("steady_particle_stage_s", r.measured.as_ref().and_then(|f| f.timing.steady_particle_stage_s)),
+            ("steady_s_per_step", r.measured.as_ref().and_then(|f| f.timing.steady_s_per_step)),
+            ("ns_per_particle_step", r.measured.as_ref().and_then(|f| f.timing.ns_per_particle_step)),
+            ("kinetic_energy_j", r.measured.as_ref().map(|f| f.physics.kinetic_energy)),
+            ("final_length_m", r.measured.as_ref().and_then(|f| f.scenario.taylor()?.final_length_m)),
+            ("face_diameter_m", r.measured.as_ref().and_then(|f| f.scenario.taylor()?.face_diameter_m)),
         ] {
             assert!(v.is_some_and(|x| x.is_finite() && x >= 0.0), "{}: {name} = {v:?}", r.id.run_id);
         }
-        assert!(r.measured.peak_rss_bytes.is_some_and(|b| b > 1 << 20));
+        assert!(r.measured.as_ref().and_then(|f| f.memory.peak_rss_bytes).is_some_and(|b| b > 1 << 20));
         assert!(!r.placement.requested_cpus.is_empty() && r.placement.requested_cpus == r.placement.observed_cpus);
         assert_eq!(r.id.binary_sha256.len(), 16);
         assert_ne!(r.id.git_commit, "");
@@ -626,7 +682,7 @@ fn end_to_end_smoke_campaign_with_the_real_solver() {
     for f in ["manifest.json", "topology.xml"] {
         assert!(d.join(f).is_file(), "{f}");
     }
-    let man = mpm_bench::campaign::manifest::read(&d.join("manifest.json")).unwrap();
+    let man = mpm_bench::campaign::store::manifest::read(&d.join("manifest.json")).unwrap();
     assert_eq!(man.software.binaries.len(), 2);
     // Resume: nothing added.
     let second = bench().args(["run", "--preset", "smoke", "--out", out, "--quiet", "--no-build"]).output().unwrap();
@@ -655,7 +711,7 @@ fn interrupted_and_timed_out_runs_continue_from_their_checkpoints() {
     let (p, src) = preset::load_preset(preset.to_str().unwrap(), None).unwrap();
     let c = Campaign::resolve(p, src, &Overrides::default()).unwrap();
     assert_eq!(c.checkpoint_every, Some(mpm_spec::spec::CheckpointEvery::Steps(10)));
-    let d = runner::campaign_dir(&out, &Machine::detect().unwrap(), &c);
+    let d = schedule::state::campaign_dir(&out, &Machine::detect().unwrap(), &c);
     let checkpoints = d.join("checkpoints");
     let has_checkpoint = || {
         std::fs::read_dir(&checkpoints).is_ok_and(|rd| {
@@ -699,11 +755,24 @@ fn interrupted_and_timed_out_runs_continue_from_their_checkpoints() {
     let (ok, failed): (Vec<&Row>, Vec<&Row>) = rows.iter().partition(|r| r.outcome.status == Status::Ok);
     assert_eq!(ok.len(), 1);
     let ok = ok[0];
-    assert_eq!(ok.measured.steps, Some(400));
-    assert_eq!(ok.measured.restarts, Some(1 + failed.len() as u32), "every attempt after the first continued");
-    assert!(ok.measured.checkpoints_written.is_some_and(|n| n >= 39), "{:?}", ok.measured.checkpoints_written);
+    assert_eq!(ok.measured.as_ref().map(|f| f.progress.steps), Some(400));
+    assert_eq!(
+        ok.measured.as_ref().and_then(|f| f.checkpoint.as_ref().map(|c| c.restarts)),
+        Some(1 + failed.len() as u32),
+        "every attempt after the first continued"
+    );
     assert!(
-        ok.measured.checkpoint_write_s.is_some_and(|s| s > 0.0) && ok.measured.restart_setup_s.is_some_and(|s| s > 0.0)
+        ok.measured.as_ref().and_then(|f| f.checkpoint.as_ref().map(|c| c.written)).is_some_and(|n| n >= 39),
+        "{:?}",
+        ok.measured.as_ref().and_then(|f| f.checkpoint.as_ref().map(|c| c.written))
+    );
+    assert!(
+        ok.measured.as_ref().and_then(|f| f.checkpoint.as_ref().map(|c| c.write_s)).is_some_and(|s| s > 0.0)
+            && ok
+                .measured
+                .as_ref()
+                .and_then(|f| f.checkpoint.as_ref().map(|c| c.restart_setup_s))
+                .is_some_and(|s| s > 0.0)
     );
     let lost = ok.outcome.lost_compute_s.unwrap();
     for f in &failed {
@@ -713,7 +782,7 @@ fn interrupted_and_timed_out_runs_continue_from_their_checkpoints() {
     assert!(lost > 0.0 && lost < 3.5 * (1 + failed.len()) as f64, "lost {lost} s over {} attempts", 1 + failed.len());
     assert!(std::fs::read_dir(&checkpoints).unwrap().next().is_none(), "a finished run's checkpoints are removed");
     // 3. The physics of the run made in one go, bit for bit.
-    let man = mpm_bench::campaign::manifest::read(&d.join("manifest.json")).unwrap();
+    let man = mpm_bench::campaign::store::manifest::read(&d.join("manifest.json")).unwrap();
     let mpm = &man.software.binaries[0].path;
     let json = dir.path().join("whole.json");
     let whole = Command::new(mpm)
@@ -723,10 +792,22 @@ fn interrupted_and_timed_out_runs_continue_from_their_checkpoints() {
         .unwrap();
     assert!(whole.status.success());
     let s: mpm_spec::Summary = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert_eq!(ok.measured.kinetic_energy_j.map(f64::to_bits), Some(s.kinetic_energy.to_bits()));
-    assert_eq!(ok.measured.internal_energy_j.map(f64::to_bits), Some(s.internal_energy.to_bits()));
-    assert_eq!(ok.measured.final_length_m.map(f64::to_bits), s.final_length_m.map(f64::to_bits));
-    assert_eq!(ok.measured.mean_nodes.map(f64::to_bits), Some(s.mean_nodes.to_bits()));
+    assert_eq!(
+        ok.measured.as_ref().map(|f| f.physics.kinetic_energy).map(f64::to_bits),
+        Some(s.figures.physics.kinetic_energy.to_bits())
+    );
+    assert_eq!(
+        ok.measured.as_ref().map(|f| f.physics.internal_energy).map(f64::to_bits),
+        Some(s.figures.physics.internal_energy.to_bits())
+    );
+    assert_eq!(
+        ok.measured.as_ref().and_then(|f| f.scenario.taylor()?.final_length_m).map(f64::to_bits),
+        s.figures.scenario.taylor().and_then(|t| t.final_length_m).map(f64::to_bits)
+    );
+    assert_eq!(
+        ok.measured.as_ref().map(|f| f.size.mean_nodes).map(f64::to_bits),
+        Some(s.figures.size.mean_nodes.to_bits())
+    );
 }
 
 /// Ctrl-C (SIGINT) in the middle of a campaign leaves a valid CSV with every finished run,
@@ -739,7 +820,7 @@ fn sigint_leaves_a_valid_csv_and_the_campaign_resumes() {
     let child =
         bench().args(args).env("MPM_BENCH_MOCK_DELAY_MS", "400").stderr(std::process::Stdio::null()).spawn().unwrap();
     let c = campaign("smoke", &Overrides::default());
-    let d = runner::campaign_dir(dir.path(), &Machine::detect().unwrap(), &c);
+    let d = schedule::state::campaign_dir(dir.path(), &Machine::detect().unwrap(), &c);
     // Interrupt once the first row is written (the start calibration takes about a second).
     for _ in 0..600 {
         if std::fs::read_to_string(d.join("runs.csv")).is_ok_and(|t| t.lines().count() >= 2) {
@@ -753,7 +834,7 @@ fn sigint_leaves_a_valid_csv_and_the_campaign_resumes() {
     assert_eq!(status.code(), Some(130), "an interrupted campaign exits 130");
     let rows = read_rows(&d.join("runs.csv")).unwrap();
     assert!(!rows.is_empty() && rows.len() < 8, "{} rows", rows.len());
-    let man = mpm_bench::campaign::manifest::read(&d.join("manifest.json")).unwrap();
+    let man = mpm_bench::campaign::store::manifest::read(&d.join("manifest.json")).unwrap();
     assert!(man.sessions[0].counts.interrupted);
     let again = bench().args(args).output().unwrap();
     assert!(again.status.success());
@@ -945,17 +1026,27 @@ fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses()
             assert_eq!(row.run.launcher.as_deref(), Some("mpirun --bind-to none -n 2"));
             assert_eq!(row.placement.requested_cpus, [0, 1]);
             assert_eq!(row.placement.rank_cpus.len(), 2);
-            assert!(row.measured.comm_bytes_per_step.is_some_and(|b| b > 0.0));
-            assert!(row.measured.comm_frac.is_some_and(|f| f > 0.0 && f < 1.0));
+            assert!(row.measured.as_ref().and_then(|f| f.communication.comm_bytes_per_step).is_some_and(|b| b > 0.0));
+            assert!(row.measured.as_ref().and_then(|f| f.communication.comm_frac).is_some_and(|f| f > 0.0 && f < 1.0));
             assert!(
-                row.measured.wait_frac.is_some_and(|f| f > 0.0 && f < 1.0) && row.measured.wait_s_per_step.is_some()
+                row.measured.as_ref().and_then(|f| f.communication.wait_frac).is_some_and(|f| f > 0.0 && f < 1.0)
+                    && row.measured.as_ref().and_then(|f| f.communication.wait_s_per_step).is_some()
             );
             assert!(!row.comm_includes_wait());
-            assert!(row.measured.peak_rss_sum_bytes.unwrap() > row.measured.peak_rss_bytes.unwrap());
+            assert!(
+                row.measured.as_ref().and_then(|f| f.memory.peak_rss_sum_bytes).unwrap()
+                    > row.measured.as_ref().and_then(|f| f.memory.peak_rss_bytes).unwrap()
+            );
         } else {
-            assert_eq!((row.run.launcher.as_deref(), row.measured.comm_bytes_per_step), (None, Some(0.0)));
             assert_eq!(
-                (row.measured.wait_s_per_step, row.measured.wait_frac),
+                (row.run.launcher.as_deref(), row.measured.as_ref().and_then(|f| f.communication.comm_bytes_per_step)),
+                (None, Some(0.0))
+            );
+            assert_eq!(
+                (
+                    row.measured.as_ref().and_then(|f| f.communication.wait_s_per_step),
+                    row.measured.as_ref().and_then(|f| f.communication.wait_frac)
+                ),
                 (None, None),
                 "nothing to wait for at one rank"
             );
@@ -991,7 +1082,7 @@ fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses()
     let cur = dir.path().join("current");
     copy_campaign(&s.dir, &cur);
     std::fs::remove_file(cur.join("runs.csv")).unwrap();
-    let mut log = mpm_bench::campaign::record::CsvLog::open(&cur.join("runs.csv")).unwrap();
+    let mut log = mpm_bench::campaign::store::csv::CsvLog::open(&cur.join("runs.csv")).unwrap();
     for r in rows.iter().filter(|r| r.ranks() == 1) {
         log.append(r).unwrap();
     }
@@ -1020,9 +1111,9 @@ fn hybrid_launcher_failures_are_recorded() {
     };
     let c = campaign("hybrid", &ov);
     let flag = AtomicBool::new(false);
-    let mut r = mpm_bench::campaign::process::ProcessRunner::new(Arc::new(AtomicBool::new(false)));
+    let mut r = mpm_bench::campaign::exec::process::ProcessRunner::new(Arc::new(AtomicBool::new(false)));
     let solvers = vec![Solver { opt: OptLevel::O3, path: "mpm".into(), sha256: "0123456789abcdef".into() }];
-    let s = runner::execute(&c, &laptop(), &solvers, &mut r, &opts(dir.path()), &flag).unwrap();
+    let s = schedule::execute(&c, &laptop(), &solvers, &mut r, &opts(dir.path()), &flag).unwrap();
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), 1);
     assert_eq!(rows[0].outcome.status, Status::Failed);
@@ -1076,41 +1167,60 @@ fn end_to_end_hybrid_campaign_with_mpirun() {
     let pus = Machine::detect().unwrap().usable_pus().len();
     for r in &rows {
         assert_eq!(r.outcome.status, Status::Ok, "{}: {}", r.id.run_id, r.outcome.reason);
-        assert_eq!(r.measured.particles, Some(56_056));
-        assert_eq!(r.measured.steps, Some(6));
+        assert_eq!(r.measured.as_ref().map(|f| f.size.particles as u64), Some(56_056));
+        assert_eq!(r.measured.as_ref().map(|f| f.progress.steps), Some(6));
         assert_eq!(r.threads(), r.ranks() * r.threads_per_rank());
         assert_eq!(r.placement.oversubscribed, r.threads() > pus, "{}", r.id.run_id);
-        assert!(r.measured.final_length_m.is_some_and(|l| l > 0.0 && l.is_finite()));
+        assert!(r
+            .measured
+            .as_ref()
+            .and_then(|f| f.scenario.taylor()?.final_length_m)
+            .is_some_and(|l| l > 0.0 && l.is_finite()));
         if r.ranks() == 2 {
             assert!(
-                r.measured.comm_bytes_per_step.is_some_and(|b| b > 0.0),
+                r.measured.as_ref().and_then(|f| f.communication.comm_bytes_per_step).is_some_and(|b| b > 0.0),
                 "{}: {:?}",
                 r.id.run_id,
-                r.measured.comm_bytes_per_step
+                r.measured.as_ref().and_then(|f| f.communication.comm_bytes_per_step)
             );
-            assert!(r.measured.comm_messages_per_step.is_some_and(|m| m > 0.0));
-            let (comm, wait) = (r.measured.comm_frac.unwrap(), r.measured.wait_frac.unwrap_or(f64::NAN));
+            assert!(r.measured.as_ref().and_then(|f| f.communication.comm_messages_per_step).is_some_and(|m| m > 0.0));
+            let (comm, wait) = (
+                r.measured.as_ref().and_then(|f| f.communication.comm_frac).unwrap(),
+                r.measured.as_ref().and_then(|f| f.communication.wait_frac).unwrap_or(f64::NAN),
+            );
             assert!(
                 comm > 0.0 && comm < 1.0 && (0.0..1.0).contains(&wait),
                 "{}: comm {comm}, wait {wait}",
                 r.id.run_id
             );
-            assert!(r.measured.wait_s_per_step.is_some_and(|w| w >= 0.0));
-            let per_rank = &r.measured.rank_particles;
+            assert!(r.measured.as_ref().and_then(|f| f.communication.wait_s_per_step).is_some_and(|w| w >= 0.0));
+            let per_rank = &r.measured.as_ref().map(|f| f.communication.rank_particles.clone()).unwrap_or_default();
             assert_eq!(per_rank.len(), 2);
             assert_eq!(per_rank.iter().sum::<u64>(), 56_056);
             assert_eq!(r.placement.rank_cpus.len(), 2);
-            assert!(r.measured.peak_rss_sum_bytes > r.measured.peak_rss_bytes);
+            assert!(
+                r.measured.as_ref().and_then(|f| f.memory.peak_rss_sum_bytes)
+                    > r.measured.as_ref().and_then(|f| f.memory.peak_rss_bytes)
+            );
             let launcher = r.run.launcher.as_deref().unwrap_or_default();
             assert!(launcher.starts_with("mpirun") && launcher.ends_with("-n 2"), "{launcher}");
         } else {
-            assert_eq!((r.measured.wait_s_per_step, r.measured.wait_frac), (None, None), "{}", r.id.run_id);
+            assert_eq!(
+                (
+                    r.measured.as_ref().and_then(|f| f.communication.wait_s_per_step),
+                    r.measured.as_ref().and_then(|f| f.communication.wait_frac)
+                ),
+                (None, None),
+                "{}",
+                r.id.run_id
+            );
         }
     }
     // The same physics either way: the final bar length agrees to 1e-9 across the layouts.
-    let lengths: Vec<f64> = rows.iter().filter_map(|r| r.measured.final_length_m).collect();
+    let lengths: Vec<f64> =
+        rows.iter().filter_map(|r| r.measured.as_ref().and_then(|f| f.scenario.taylor()?.final_length_m)).collect();
     assert!(lengths.iter().all(|l| (l - lengths[0]).abs() <= 1e-9 * lengths[0]), "{lengths:?}");
-    let man = mpm_bench::campaign::manifest::read(&Path::new(folder).join("manifest.json")).unwrap();
+    let man = mpm_bench::campaign::store::manifest::read(&Path::new(folder).join("manifest.json")).unwrap();
     let version = man.software.mpi_launcher.unwrap_or_default();
     assert!(version.contains("mpirun") || version.contains("MPI"), "launcher version in the manifest: {version}");
     let figs = dir.path().join("figs");
@@ -1243,7 +1353,7 @@ fn a_garbage_line_is_set_aside_and_its_run_redone() {
 /// than the one the campaign hashed, saying so, after recording where it ran; it writes no row.
 #[test]
 fn a_job_refuses_another_solver_binary_than_the_campaigns() {
-    use mpm_bench::campaign::job::{self, JobFile};
+    use mpm_bench::campaign::schedule::job::{self, JobFile};
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("camp").join("json");
     std::fs::create_dir_all(&json).unwrap();
@@ -1282,9 +1392,10 @@ fn a_job_refuses_another_solver_binary_than_the_campaigns() {
 /// change and the gate's wall time are measured, and calibration.json has its keys.
 #[test]
 fn calibrate_counts_false_alarms_and_detections_on_the_mock() {
-    use mpm_bench::analysis::calibrate::{calibrate, CalibrateArgs};
+    use mpm_bench::analysis::calibrate::judge;
+    use mpm_bench::campaign::measure::calibrate::{run_campaigns, CalibrateOptions};
     let dir = tempfile::tempdir().unwrap();
-    let args = CalibrateArgs {
+    let args = CalibrateOptions {
         preset: "ci".into(),
         clean: 3,
         injected: 2,
@@ -1300,7 +1411,9 @@ fn calibrate_counts_false_alarms_and_detections_on_the_mock() {
     };
     let c = campaign("ci", &Overrides::default());
     let flag = AtomicBool::new(false);
-    let cal = calibrate(&args, &laptop(), &mock_solvers(&c), &mut MockRunner::default(), None, &flag).unwrap();
+    let campaigns =
+        run_campaigns(&args, &laptop(), &mock_solvers(&c), &mut MockRunner::default(), None, &flag).unwrap();
+    let cal = judge(&args, &laptop(), campaigns).unwrap();
     assert_eq!((cal.aa_comparisons, cal.injected_comparisons), (3, 6));
     assert_eq!((cal.false_alarms, cal.detected), (0, 6), "{:#?}", cal.comparisons);
     assert_eq!(cal.campaigns.iter().filter(|c| c.kind == "injected").count(), 2);
@@ -1356,10 +1469,40 @@ fn paired_cells_are_recorded_block_by_block_and_analysed_over_processes() {
     assert_eq!(rows.len(), 6);
     for row in &rows {
         assert!(row.is_paired(), "{}", row.run.describe());
-        assert_eq!((row.measured.paired_blocks, row.measured.paired_block_steps), (Some(8), Some(10)));
-        assert_eq!(row.measured.paired_t1_s.len(), 8);
-        assert!(row.measured.work_bound.is_some() && !row.measured.work_bytes.is_empty());
-        assert_eq!(row.measured.cpu_share.len(), 2);
+        assert_eq!(
+            (
+                row.measured.as_ref().and_then(|f| f.paired.as_ref().map(|p| p.blocks)),
+                row.measured.as_ref().and_then(|f| f.paired.as_ref().map(|p| p.block_steps))
+            ),
+            (Some(8), Some(10))
+        );
+        assert_eq!(
+            row.measured
+                .as_ref()
+                .map(|f| f.paired.as_ref().map(|p| p.t1_s_per_step.clone()).unwrap_or_default())
+                .unwrap_or_default()
+                .len(),
+            8
+        );
+        assert!(
+            row.measured.as_ref().and_then(|f| f.work.as_ref().map(|w| w.efficiency_bound)).is_some()
+                && !row
+                    .measured
+                    .as_ref()
+                    .map(|f| f.work.as_ref().map(|w| w.bytes.clone()).unwrap_or_default())
+                    .unwrap_or_default()
+                    .is_empty()
+        );
+        assert_eq!(
+            row.measured
+                .as_ref()
+                .map(|f| -> Vec<_> {
+                    f.noise.as_ref().map(|n| n.workers.iter().map(|w| w.cpu_share).collect()).unwrap_or_default()
+                })
+                .unwrap_or_default()
+                .len(),
+            2
+        );
     }
     let an = load_campaign(&s.dir, &RowFilter::analysis(false)).unwrap().analyse(None);
     let p = an.point(1, Strategy::ArrayExpansion, "o3", 2, Stage::Total).unwrap();
@@ -1387,10 +1530,10 @@ fn paired_cells_are_recorded_block_by_block_and_analysed_over_processes() {
 /// injection.
 #[test]
 fn injected_slowdown_is_marked_refused_and_caught_by_regress() {
-    use mpm_bench::analysis::claims::{self, ClaimsArgs};
-    use mpm_bench::analysis::regress::{self, RegressArgs};
-    use mpm_bench::report::comparison::{self, ReportArgs};
-    use mpm_bench::report::figures::{self, FiguresArgs};
+    use mpm_bench::analysis::claims::{self, ClaimsOptions};
+    use mpm_bench::analysis::regress::{self, RegressOptions};
+    use mpm_bench::report::comparison::{self, ReportOptions};
+    use mpm_bench::report::figures::{self, FiguresOptions};
     let dir = tempfile::tempdir().unwrap();
     let base = Overrides { models: Some(vec![1]), reps: Some(4), ..Overrides::default() };
     let clean = run_mock(&campaign("ci", &base), &laptop(), dir.path(), &mut MockRunner::default());
@@ -1399,12 +1542,14 @@ fn injected_slowdown_is_marked_refused_and_caught_by_regress() {
     assert!(c.id.contains("inject0.2"), "{}", c.id);
     let s = run_mock(&c, &laptop(), dir.path(), &mut MockRunner::default());
     let rows = read_rows(&s.dir.join("runs.csv")).unwrap();
-    assert!(rows.iter().all(|r| r.injected() == Some(0.2) && r.measured.injected_s.is_some_and(|t| t > 0.0)));
+    assert!(rows
+        .iter()
+        .all(|r| r.injected() == Some(0.2) && r.measured.as_ref().and_then(|f| f.injected_s).is_some_and(|t| t > 0.0)));
     let header = std::fs::read_to_string(s.dir.join("runs.csv")).unwrap();
     assert!(header.lines().next().unwrap().split(',').any(|c| c == "inject_slowdown"));
 
     let out = dir.path().join("figs");
-    let fig = |include_injected| FiguresArgs {
+    let fig = |include_injected| FiguresOptions {
         results: s.dir.clone(),
         out: out.clone(),
         pin: None,
@@ -1414,10 +1559,15 @@ fn injected_slowdown_is_marked_refused_and_caught_by_regress() {
     let err = format!("{:#}", figures::run(fig(false)).unwrap_err());
     assert!(err.contains("injected slowdown") && err.contains("--include-injected"), "{err}");
     figures::run(fig(true)).unwrap();
-    let claims_args =
-        ClaimsArgs { results: s.dir.clone(), markdown: None, pin: None, include_noisy: false, include_injected: false };
+    let claims_args = ClaimsOptions {
+        results: s.dir.clone(),
+        markdown: None,
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    };
     assert!(format!("{:#}", claims::run(claims_args).unwrap_err()).contains("--include-injected"));
-    let rep = ReportArgs {
+    let rep = ReportOptions {
         dirs: vec![s.dir.clone()],
         out: dir.path().join("rep"),
         pin: None,
@@ -1427,7 +1577,7 @@ fn injected_slowdown_is_marked_refused_and_caught_by_regress() {
     assert!(format!("{:#}", comparison::build(&rep).err().unwrap()).contains("--include-injected"));
 
     let args =
-        RegressArgs { metrics: vec!["efficiency".into(), "work".into()], ..RegressArgs::new(&clean.dir, &s.dir) };
+        RegressOptions { metrics: vec!["efficiency".into(), "work".into()], ..RegressOptions::new(&clean.dir, &s.dir) };
     let r = regress::evaluate(&args).unwrap();
     assert_eq!(r.verdict, "fail", "{}", r.reason);
     assert_eq!(r.regressions.len(), 3, "both cells' paired efficiency and their mean: {:#?}", r.checks);
@@ -1457,7 +1607,7 @@ fn a_worker_short_of_cpu_time_flags_the_row() {
         assert_eq!(row.host.host_noisy, dd, "{}", row.run.describe());
         if dd {
             assert!(row.host.host_noise.contains("50 % of the wall time as CPU time"), "{}", row.host.host_noise);
-            assert_eq!(row.measured.cpu_share_min, Some(0.5));
+            assert_eq!(row.measured.as_ref().and_then(|f| f.cpu_share_min()), Some(0.5));
         }
     }
     assert_eq!(s.counts.noisy, rows.iter().filter(|r| r.host.host_noisy).count());
@@ -1470,7 +1620,7 @@ fn a_worker_short_of_cpu_time_flags_the_row() {
 /// standard error) and `--markdown` appends the summary to a file.
 #[test]
 fn regress_gates_the_work_counters_exactly() {
-    use mpm_bench::campaign::record::CsvLog;
+    use mpm_bench::campaign::store::csv::CsvLog;
     let dir = tempfile::tempdir().unwrap();
     let ov = Overrides { models: Some(vec![1]), reps: Some(3), ..Overrides::default() };
     let base = run_mock(&campaign("ci", &ov), &laptop(), &dir.path().join("a"), &mut MockRunner::default());
@@ -1479,7 +1629,8 @@ fn regress_gates_the_work_counters_exactly() {
         let path = cur.dir.join("runs.csv");
         let mut rows = read_rows(&path).unwrap();
         for r in rows.iter_mut().filter(|r| r.strategy() == Strategy::DomainDecomposition) {
-            let v = r.measured.work_bytes.get_mut(&Substage::Assembly).unwrap();
+            let work = r.measured.as_mut().and_then(|f| f.work.as_mut()).unwrap();
+            let v = work.bytes.get_mut(&Substage::Assembly).unwrap();
             v[1] = v[1].checked_add_signed(delta).unwrap();
         }
         std::fs::remove_file(&path).unwrap();

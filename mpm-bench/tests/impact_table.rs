@@ -4,7 +4,7 @@ use mpm_bench::report::impact_table::{fill_template, load_runs, table, PLACEHOLD
 use mpm_core::grid::Occupancy;
 use mpm_core::scenario::impact::HistorySample;
 use mpm_spec::identity::Provenance;
-use mpm_spec::summary::{EnergyReport, Summary};
+use mpm_spec::summary::{EnergyReport, ImpactFigures, ScenarioFigures, Summary};
 use std::path::Path;
 
 fn sample(time: f64) -> HistorySample {
@@ -23,14 +23,40 @@ fn sample(time: f64) -> HistorySample {
 
 /// A finished impact run's summary with every figure of the table set.
 fn mock(dx: f64, spacing: f64) -> Summary {
-    Summary {
-        scenario: mpm_spec::ScenarioKind::Impact,
-        particles: 847_888,
-        steps: 273,
-        sim_time: 30.6e-6,
-        dx_m: dx,
+    let mut s = Summary {
+        provenance: Some(Provenance {
+            git_commit: "0123456789abcdef".into(),
+            git_dirty: Some(false),
+            ..Provenance::default()
+        }),
+        ..Summary::default()
+    };
+    let f = &mut s.figures;
+    f.size.particles = 847_888;
+    f.size.dx_m = dx;
+    f.size.final_nodes = 1_054_017;
+    f.size.final_occupancy =
+        Some(Occupancy { cells: 1_022_048, occupied_cells: 37_088, occupied_blocks: 982, block_cells: 8 });
+    f.progress.steps = 273;
+    f.progress.sim_time = 30.6e-6;
+    f.timing.wall_s = 29.14;
+    f.physics.failed_particles = 53_700;
+    f.memory.peak_rss_bytes = Some(238 << 20);
+    f.physics.energy = Some(EnergyReport {
+        initial_total_j: 434_250.0,
+        final_kinetic_j: 300_000.0,
+        final_internal_j: 134_250.0,
+        max_rise: 1.5e-14,
+        max_fall: 2.0e-3,
+        negative_internal_steps: 9,
+        negative_internal_max: 41,
+        negative_internal_final: 0,
+        failed_energy_floors: 12,
+        failed_energy_floor_j: 0.734,
+        ..EnergyReport::default()
+    });
+    f.scenario = ScenarioFigures::Impact(ImpactFigures {
         spacing_m: Some(spacing),
-        wall_s: 29.14,
         cloud_front_m: Some(0.14449),
         cloud_front_robust_m: Some(0.14302),
         cloud_width_m: Some(0.0869),
@@ -39,35 +65,17 @@ fn mock(dx: f64, spacing: f64) -> Summary {
         front_velocity_m_s: Some(6123.4),
         leading_debris_velocity_m_s: Some(6632.0),
         cloud_history: Some(vec![sample(0.0), sample(30.6e-6)]),
-        energy: Some(EnergyReport {
-            initial_total_j: 434_250.0,
-            final_kinetic_j: 300_000.0,
-            final_internal_j: 134_250.0,
-            max_rise: 1.5e-14,
-            max_fall: 2.0e-3,
-            negative_internal_steps: 9,
-            negative_internal_max: 41,
-            negative_internal_final: 0,
-            failed_energy_floors: 12,
-            failed_energy_floor_j: 0.734,
-            ..EnergyReport::default()
-        }),
-        failed_particles: 53_700,
-        peak_rss_bytes: Some(238 << 20),
-        final_nodes: 1_054_017,
-        final_occupancy: Some(Occupancy {
-            cells: 1_022_048,
-            occupied_cells: 37_088,
-            occupied_blocks: 982,
-            block_cells: 8,
-        }),
-        provenance: Some(Provenance {
-            git_commit: "0123456789abcdef".into(),
-            git_dirty: Some(false),
-            ..Provenance::default()
-        }),
-        ..Summary::default()
+        ..ImpactFigures::default()
+    });
+    s
+}
+
+/// `s` with its cloud's figures changed by `f`.
+fn with_cloud(mut s: Summary, f: impl FnOnce(&mut ImpactFigures)) -> Summary {
+    if let ScenarioFigures::Impact(c) = &mut s.figures.scenario {
+        f(c);
     }
+    s
 }
 
 fn write(dir: &Path, name: &str, s: &Summary) {
@@ -78,7 +86,9 @@ fn write(dir: &Path, name: &str, s: &Summary) {
 #[test]
 fn table_has_one_row_per_run_in_model_and_cell_order() {
     let dir = tempfile::tempdir().unwrap();
-    write(dir.path(), "large", &Summary { particles: 13_542_030, wall_s: 1500.0, ..mock(1.0e-3, 0.21e-3) });
+    let mut large = mock(1.0e-3, 0.21e-3);
+    (large.figures.size.particles, large.figures.timing.wall_s) = (13_542_030, 1500.0);
+    write(dir.path(), "large", &large);
     write(dir.path(), "small-1.06", &mock(1.06e-3, 0.53e-3));
     write(dir.path(), "small-2.12", &mock(2.12e-3, 0.53e-3));
     // A folder without a summary (a run in progress) is not a row.
@@ -104,8 +114,11 @@ fn table_has_one_row_per_run_in_model_and_cell_order() {
 fn missing_figures_are_dashes_and_old_summaries_have_no_fitted_front_velocity() {
     let dir = tempfile::tempdir().unwrap();
     // A summary written before the history: its front_velocity_m_s was the leading debris's.
-    let old =
-        Summary { cloud_history: None, energy: None, leading_debris_velocity_m_s: None, ..mock(2.12e-3, 0.53e-3) };
+    let mut old = with_cloud(mock(2.12e-3, 0.53e-3), |c| {
+        c.cloud_history = None;
+        c.leading_debris_velocity_m_s = None;
+    });
+    old.figures.physics.energy = None;
     let mut json: serde_json::Value = serde_json::to_value(&old).unwrap();
     for key in ["bulk_viscosity", "energy_rise_limit", "energy", "provenance"] {
         json.as_object_mut().unwrap().remove(key);
@@ -129,7 +142,7 @@ fn template_gets_the_table_and_bad_input_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let e = load_runs(dir.path()).unwrap_err().to_string();
     assert!(e.contains("scripts/impact-runs.sh"), "{e}");
-    write(dir.path(), "taylor", &Summary { scenario: mpm_spec::ScenarioKind::Taylor, ..Summary::default() });
+    write(dir.path(), "taylor", &Summary::default());
     let e = load_runs(dir.path()).unwrap_err().to_string();
     assert!(e.contains("not an impact"), "{e}");
 }

@@ -6,7 +6,7 @@ mod common;
 use common::*;
 use mpm_bench::analysis::results::load_campaign;
 use mpm_bench::analysis::select::RowFilter;
-use mpm_bench::report::comparison::{self as report, ReportArgs};
+use mpm_bench::report::comparison::{self as report, ReportOptions};
 use scraper::{Html, Selector};
 use std::path::{Path, PathBuf};
 
@@ -33,7 +33,7 @@ fn write_report(root: &Path) -> (PathBuf, report::Report) {
     let (a, b) = two_campaigns(root);
     let out = root.join("rep");
     let args =
-        ReportArgs { dirs: vec![a, b], out: out.clone(), pin: None, include_noisy: false, include_injected: false };
+        ReportOptions { dirs: vec![a, b], out: out.clone(), pin: None, include_noisy: false, include_injected: false };
     report::run(args.clone()).unwrap();
     (out, report::build(&args).unwrap())
 }
@@ -96,7 +96,7 @@ fn the_page_parses_and_has_its_sections_tables_and_inline_figures() {
 fn one_campaign_is_described_without_a_comparison() {
     let tmp = tempfile::tempdir().unwrap();
     let a = write_campaign(&tmp.path().join("a"), &Craft::default());
-    let r = report::build(&ReportArgs {
+    let r = report::build(&ReportOptions {
         dirs: vec![a],
         out: tmp.path().join("r"),
         pin: None,
@@ -143,17 +143,17 @@ fn report_and_claims_agree_on_a_campaign_with_noisy_rows() {
     // Every parallel DD repetition again, five times slower, on a busy host: with them DD no
     // longer scales better than AE (C1).
     let csv = dir.join("runs.csv");
-    let extra: Vec<_> = mpm_bench::campaign::record::read_rows(&csv)
+    let extra: Vec<_> = mpm_bench::campaign::store::csv::read_rows(&csv)
         .unwrap()
         .into_iter()
         .filter(|r| {
-            r.threads() > 1 && r.strategy() == DD && r.outcome.status == mpm_bench::campaign::record::Status::Ok
+            r.threads() > 1 && r.strategy() == DD && r.outcome.status == mpm_bench::campaign::store::record::Status::Ok
         })
         .flat_map(|r| {
             (10..16).map(move |rep| {
                 let mut b = r.clone();
                 b.run.rep = rep;
-                let m = &mut b.measured;
+                let m = &mut b.measured_mut().timing;
                 for t in [&mut m.steady_s_per_step, &mut m.steady_grid_stage_s, &mut m.steady_particle_stage_s] {
                     *t = t.map(|t| 5.0 * t);
                 }
@@ -163,7 +163,7 @@ fn report_and_claims_agree_on_a_campaign_with_noisy_rows() {
             })
         })
         .collect();
-    let mut log = mpm_bench::campaign::record::CsvLog::open(&csv).unwrap();
+    let mut log = mpm_bench::campaign::store::csv::CsvLog::open(&csv).unwrap();
     for r in &extra {
         log.append(r).unwrap();
     }
@@ -209,7 +209,7 @@ fn report_and_claims_agree_on_a_campaign_with_noisy_rows() {
 fn the_headline_says_when_the_software_differs() {
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = two_campaigns(tmp.path());
-    let args = ReportArgs {
+    let args = ReportOptions {
         dirs: vec![a.clone(), b.clone()],
         out: tmp.path().join("r"),
         pin: None,
@@ -220,9 +220,9 @@ fn the_headline_says_when_the_software_differs() {
     assert!(same.page.title.starts_with("Hardware comparison"), "{}", same.page.title);
     assert!(same.comparisons[0].software_differs.is_none());
     let csv = b.join("runs.csv");
-    let rows = mpm_bench::campaign::record::read_rows(&csv).unwrap();
+    let rows = mpm_bench::campaign::store::csv::read_rows(&csv).unwrap();
     std::fs::remove_file(&csv).unwrap();
-    let mut log = mpm_bench::campaign::record::CsvLog::open(&csv).unwrap();
+    let mut log = mpm_bench::campaign::store::csv::CsvLog::open(&csv).unwrap();
     for mut r in rows {
         (r.id.git_commit, r.id.git_dirty) = ("0123456789abcdef".into(), true);
         log.append(&r).unwrap();

@@ -24,7 +24,10 @@ fn mock() -> Summary {
     r.insert(Substage::StressUpdate, stage(60.0, 100.0, 300.0));
     r.insert(Substage::Gather, stage(0.0, 0.0, 0.0));
     r.insert(Substage::Binning, stage(0.003, 36.0, 6.0));
-    Summary { threads: 2, particles: 56_056, roofline: Some(r), ..Summary::default() }
+    let mut s = Summary { threads: 2, ..Summary::default() };
+    s.figures.size.particles = 56_056;
+    s.figures.timing.roofline = Some(r);
+    s
 }
 
 /// Each timed sub-stage's row, the step as the sum of them (400 flops and 300 bytes in 100 ns:

@@ -10,8 +10,10 @@
 //! twice, and a job someone else cancelled becomes a failed row with Slurm's state; Ctrl-C
 //! cancels the jobs of the invocation that got it, and no other.
 
-use mpm_bench::campaign::record::{read_rows, Row, Status};
-use mpm_bench::campaign::slurm::{JobRecord, JobsFile};
+use mpm_bench::campaign::store::record::{Row, Status};
+
+use mpm_bench::campaign::schedule::slurm::{JobRecord, JobsFile};
+use mpm_bench::campaign::store::csv::read_rows;
 use mpm_bench::machine::fingerprint;
 use mpm_bench::machine::topology::Machine;
 use std::collections::{BTreeMap, BTreeSet};
@@ -214,7 +216,7 @@ fn smoke_through_slurm_is_the_local_smoke(slurm: &LocalSlurm, out: &Path) {
         assert_eq!(r.outcome.status, Status::Ok, "{}: {}", r.id.run_id, r.outcome.reason);
         assert!(!r.placement.observed_cpus.is_empty() && r.placement.observed_cpus == r.placement.requested_cpus);
         assert_eq!((r.id.machine_id.as_str(), r.id.node.as_str()), (fp.as_str(), node.as_str()));
-        assert!(r.measured.steady_s_per_step.is_some_and(|t| t > 0.0));
+        assert!(r.measured.as_ref().and_then(|f| f.timing.steady_s_per_step).is_some_and(|t| t > 0.0));
     }
     let ids: BTreeSet<u64> = rows.iter().filter_map(|r| r.id.job_id.parse().ok()).collect();
     assert_eq!(ids.len(), rows.len(), "one job per run");
@@ -226,7 +228,7 @@ fn smoke_through_slurm_is_the_local_smoke(slurm: &LocalSlurm, out: &Path) {
         let out_then = times[..i].iter().filter(|(_, end)| end > submit).count();
         assert!(out_then < 2, "job {i} submitted while {out_then} others were out: {times:?}");
     }
-    let man = mpm_bench::campaign::manifest::read(&dir.join("manifest.json")).unwrap();
+    let man = mpm_bench::campaign::store::manifest::read(&dir.join("manifest.json")).unwrap();
     let n = &man.nodes[&fp];
     assert_eq!((n.node.as_str(), n.machine.fingerprint.as_str()), (node.as_str(), fp.as_str()));
     assert!(dir.join(&n.topology).is_file());

@@ -1,21 +1,27 @@
-//! Building the JSON summary of one `mpm run` ([`build`]): the run's configuration and
+//! Building the JSON summary of one `mpm run`: [`build`] takes the run's configuration and
 //! counts from the [`Simulation`], its timing from the program's clock and the solver's stage
-//! timers, placement from the pinned pool, the scenario's figures, and the process's peak
-//! memory (`VmHWM`, read by [`peak_rss_bytes`]). The type itself, [`Summary`], and the
-//! meaning of each figure are in [`mpm_spec::summary`], shared with the harness.
+//! timers, placement from the pinned pool, and the scenario's figures; [`finish`] adds what
+//! is known only at the end (the ranks' reports and the exchange figures they give, the
+//! workers' noise, a paired run's blocks, the process's peak memory `VmHWM`, read by
+//! [`peak_rss_bytes`]). The type itself, [`Summary`], and the meaning of each figure are in
+//! [`mpm_spec::summary`], shared with the harness: each figure is computed here, once, in
+//! the function of its group.
 
 use mpm_core::grid::Occupancy;
 use mpm_core::scenario::impact::{CloudFigures, History};
 use mpm_core::scenario::plate::{PlateGeometry, PlateResult};
-use mpm_core::scenario::taylor::TaylorFigures;
-use mpm_core::{Simulation, StageTimes};
+use mpm_core::scenario::taylor;
+use mpm_core::{Simulation, StageTimes, Substage};
 use mpm_host::identity::provenance_of_this_process;
 use mpm_host::pinning::PinnedPool;
 use mpm_spec::summary::{
-    load_imbalance, CheckpointReport, EndReason, EnergyReport, EosKind, HistoryPoint, PatchCounts, StageRoofline,
-    StageSeconds, Summary, WallContact, WorkReport, LENGTH_CONVENTION, PLATE_CONFIGURATION,
+    figures, load_imbalance, Balance, CheckpointReport, EndReason, EnergyReport, EosKind, Figures, HistoryPoint,
+    ImpactFigures, Memory, NoiseReport, PairedReport, PatchCounts, Physics, Pinning, PlateFigures, Progress,
+    RankReport, ScenarioFigures, Size, StageRoofline, StageSeconds, Summary, TaylorFigures, WallContact, WorkReport,
+    LENGTH_CONVENTION, PLATE_CONFIGURATION,
 };
-use mpm_spec::{OptLevel, RunSpec};
+use mpm_spec::{OptLevel, RunSpec, ScenarioKind};
+use std::collections::BTreeMap;
 
 /// Cargo's `opt-level` of this build (`3`, `0`, ...).
 pub const CARGO_OPT_LEVEL: &str = env!("MPM_OPT_LEVEL");
@@ -147,7 +153,7 @@ pub struct RunContext<'a> {
     /// Failed particles at the end, over every rank.
     pub failed_particles: usize,
     /// Taylor bar: figures at `t = 0` and at the end.
-    pub taylor: Option<(TaylorFigures, TaylorFigures)>,
+    pub taylor: Option<(taylor::TaylorFigures, taylor::TaylorFigures)>,
     /// Impact: the debris cloud's figures at the end.
     pub cloud: Option<CloudFigures>,
     /// Impact: the cloud's history.
@@ -163,29 +169,46 @@ pub struct RunContext<'a> {
     pub checkpoint: Option<CheckpointReport>,
 }
 /// Build the summary of a finished run from its simulation and what the program
-/// measured (`ctx`). `peak_rss_bytes` is left for the caller to read last.
+/// measured (`ctx`). The ranks' reports, the workers' noise, a paired run's blocks and the
+/// peak memory are added last, by [`finish`].
 pub fn build(sim: &Simulation, ctx: RunContext<'_>) -> Summary {
     let mut s = configuration(sim, &ctx);
-    fill_timing(&mut s, sim, ctx.timing);
-    fill_placement(&mut s, &ctx);
-    fill_physics(&mut s, sim, &ctx);
-    fill_energy_and_shock(&mut s, sim, &ctx);
+    s.figures = Figures {
+        size: size(sim, &ctx),
+        progress: progress(sim, &ctx),
+        timing: timing(sim, ctx.timing),
+        balance: balance(sim, ctx.timing),
+        memory: Memory { model_memory_bytes: sim.memory_bytes(), ..Memory::default() },
+        physics: physics(sim, &ctx),
+        work: WorkReport::of(&sim.work()),
+        checkpoint: ctx.checkpoint.clone(),
+        injected_s: sim.injected_seconds(),
+        scenario: scenario_figures(sim, &ctx),
+        ..Figures::default()
+    };
     s.model_name = ctx.model_name;
-    s.history = ctx.history;
     s.command_line = ctx.command_line;
-    s.checkpoint = ctx.checkpoint;
     s.provenance = Some(provenance_of_this_process());
     s
 }
 
-/// The run as configured and its counts: scenario, model, strategy, build, material,
-/// grid, steps and time reached, memory.
+/// Complete `s` with what the program knows only at the very end ([`Summary::finish`]):
+/// every rank's report (`None` at one rank), the workers' CPU time, a paired run's blocks,
+/// and this process's peak memory, read now, after everything else.
+pub fn finish(
+    s: &mut Summary,
+    ranks: Option<Vec<RankReport>>,
+    noise: Option<NoiseReport>,
+    paired: Option<PairedReport>,
+) {
+    s.finish(ranks, noise, paired, peak_rss_bytes());
+}
+
+/// The run as configured: spec, model, strategy, build, material, placement and settings.
 fn configuration(sim: &Simulation, ctx: &RunContext<'_>) -> Summary {
     let cfg = sim.config();
     Summary {
-        ranks: None,
         spec: Some(ctx.spec.clone()),
-        scenario: ctx.spec.scenario.kind(),
         model: ctx.spec.scenario.model(),
         strategy: cfg.strategy,
         threads: ctx.pool.pool.current_num_threads(),
@@ -200,6 +223,30 @@ fn configuration(sim: &Simulation, ctx: &RunContext<'_>) -> Summary {
         cfl: cfg.cfl,
         wall: WallContact::of(&ctx.spec.scenario),
         velocity_m_s: ctx.spec.scenario.velocity(),
+        end_time: ctx.spec.budget.end_time_s,
+        step_limit: ctx.spec.budget.steps,
+        pinning: Pinning {
+            requested_cpus: ctx.pool.requested.clone(),
+            observed_cpus: ctx.pool.observed_cpus(),
+            worker_affinity: ctx.pool.affinities(),
+            pinned: ctx.pool.pinned(),
+            pinning_verified: ctx.pool.verified(),
+            oversubscribed: ctx.oversubscribed,
+            available_cores: ctx.available_cores,
+        },
+        bulk_viscosity: Some(cfg.bulk_viscosity),
+        energy_rise_limit: cfg.energy_rise_limit.is_finite().then_some(cfg.energy_rise_limit),
+        length_convention: ctx.taylor.map(|_| LENGTH_CONVENTION.to_string()),
+        plate_configuration: ctx.plate.as_ref().map(|_| PLATE_CONFIGURATION.to_string()),
+        started_unix_s: ctx.started_unix_s,
+        inject_slowdown: ctx.spec.inject_slowdown,
+        ..Summary::default()
+    }
+}
+
+/// The problem's size.
+fn size(sim: &Simulation, ctx: &RunContext<'_>) -> Size {
+    Size {
         particles: sim.total_particles(),
         cells: ctx.cells,
         nodes: ctx.nodes,
@@ -210,149 +257,165 @@ fn configuration(sim: &Simulation, ctx: &RunContext<'_>) -> Summary {
         final_occupancy: (sim.particles().len() == sim.total_particles())
             .then(|| Occupancy::of(sim.global_geom(), &sim.particles().x)),
         dx_m: sim.geom().dx,
+    }
+}
+
+/// Steps, time steps and time reached.
+fn progress(sim: &Simulation, ctx: &RunContext<'_>) -> Progress {
+    let warmup = ctx.timing.warmup_steps.min(sim.steps());
+    Progress {
         steps: sim.steps(),
+        warmup_steps: warmup,
+        steady_steps: sim.steps() - warmup,
         dt_first: sim.dt_first(),
         dt_next: sim.dt_next(),
         sim_time: sim.time(),
-        end_time: ctx.spec.budget.end_time_s,
-        step_limit: ctx.spec.budget.steps,
         end_reason: ctx.end_reason,
-        model_memory_bytes: sim.memory_bytes(),
-        spacing_m: ctx.cloud.map(|_| sim.spacing()[0]),
-        dd_layout: sim.domain_decomposition().map(|dd| dd.layout()),
-        dd_patch_particles: sim.domain_decomposition().map(|dd| PatchCounts::from(dd.load())),
-        started_unix_s: ctx.started_unix_s,
-        work: WorkReport::of(&sim.work()),
-        inject_slowdown: ctx.spec.inject_slowdown,
-        injected_s: sim.injected_seconds(),
-        ..Summary::default()
     }
 }
 
 /// Wall time, stage times and the steady state after the warm-up (see the module docs).
-fn fill_timing(s: &mut Summary, sim: &Simulation, t: &Timing) {
+fn timing(sim: &Simulation, t: &Timing) -> figures::Timing {
     let particles = sim.total_particles();
-    let warmup = t.warmup_steps.min(s.steps);
-    let steady_steps = s.steps - warmup;
+    let steady_steps = sim.steps() - t.warmup_steps.min(sim.steps());
     let steady_times = sim.times().since(&t.warmup_times);
     let steady_wall = (t.wall_s - t.warmup_wall_s).max(0.0);
-    let busy: Option<Vec<f64>> = sim.worker_busy().map(|now| match &t.warmup_busy {
-        Some(w) => now.iter().zip(w).map(|(a, b)| (a - b).max(0.0)).collect(),
-        None => now,
-    });
     let pstep = particles as f64 * steady_steps as f64;
     let (ns, rate) = if steady_steps > 0 && steady_wall > 0.0 {
         (Some(steady_wall * 1e9 / pstep), Some(pstep / steady_wall))
     } else {
         (None, None)
     };
-    s.warmup_steps = warmup;
-    s.steady_steps = steady_steps;
-    s.wall_s = t.wall_s;
-    s.output_s = t.output_s;
-    s.grid_stage_s = sim.times().grid_stage();
-    s.particle_stage_s = sim.times().particle_stage();
-    s.substages = StageSeconds::from_times(sim.times());
-    s.steady_wall_s = steady_wall;
-    s.steady_grid_stage_s = steady_times.grid_stage();
-    s.steady_particle_stage_s = steady_times.particle_stage();
-    s.steady_substages = StageSeconds::from_times(&steady_times);
-    s.simd_level = Some(sim.simd_level());
-    s.roofline = (steady_steps > 0).then(|| {
-        let nodes = sim.mean_nodes();
-        let work = sim.work();
-        let ran = |st| !work.stage_total(st).is_zero();
-        mpm_core::roofline::achieved(&steady_times, particles as u64, nodes, steady_steps, ran)
-            .iter()
-            .zip(mpm_core::Substage::ALL)
-            .map(|(a, st)| {
-                let r = StageRoofline {
-                    bytes_per_particle_step: a.bytes_per_particle_step,
-                    flops_per_particle_step: a.flops_per_particle_step,
-                    ns_per_particle_step: a.ns_per_particle_step,
-                    gb_per_s: a.gb_per_s,
-                    gflop_per_s: a.gflop_per_s,
-                };
-                (st, r)
-            })
-            .collect()
+    figures::Timing {
+        wall_s: t.wall_s,
+        output_s: t.output_s,
+        grid_stage_s: sim.times().grid_stage(),
+        particle_stage_s: sim.times().particle_stage(),
+        substages: StageSeconds::from_times(sim.times()),
+        steady_wall_s: steady_wall,
+        steady_grid_stage_s: Some(steady_times.grid_stage()),
+        steady_particle_stage_s: Some(steady_times.particle_stage()),
+        steady_substages: StageSeconds::from_times(&steady_times),
+        simd_level: Some(sim.simd_level()),
+        roofline: (steady_steps > 0).then(|| roofline(sim, &steady_times, steady_steps)),
+        steady_s_per_step: (steady_steps > 0).then(|| steady_wall / steady_steps as f64),
+        ns_per_particle_step: ns,
+        particle_steps_per_s: rate,
+    }
+}
+
+/// Per sub-stage, the bytes and flops per particle-step of the steady state and the rates
+/// they ran at.
+fn roofline(sim: &Simulation, steady: &StageTimes, steady_steps: u64) -> BTreeMap<Substage, StageRoofline> {
+    let work = sim.work();
+    let ran = |st| !work.stage_total(st).is_zero();
+    mpm_core::roofline::achieved(steady, sim.total_particles() as u64, sim.mean_nodes(), steady_steps, ran)
+        .iter()
+        .zip(Substage::ALL)
+        .map(|(a, st)| {
+            let r = StageRoofline {
+                bytes_per_particle_step: a.bytes_per_particle_step,
+                flops_per_particle_step: a.flops_per_particle_step,
+                ns_per_particle_step: a.ns_per_particle_step,
+                gb_per_s: a.gb_per_s,
+                gflop_per_s: a.gflop_per_s,
+            };
+            (st, r)
+        })
+        .collect()
+}
+
+/// The workers' busy times over the steady state and DD's patches.
+fn balance(sim: &Simulation, t: &Timing) -> Balance {
+    let busy: Option<Vec<f64>> = sim.worker_busy().map(|now| match &t.warmup_busy {
+        Some(w) => now.iter().zip(w).map(|(a, b)| (a - b).max(0.0)).collect(),
+        None => now,
     });
-    s.steady_s_per_step = (steady_steps > 0).then(|| steady_wall / steady_steps as f64);
-    s.ns_per_particle_step = ns;
-    s.particle_steps_per_s = rate;
-    s.load_imbalance = busy.as_deref().and_then(load_imbalance);
-    s.worker_busy_s = busy;
+    Balance {
+        load_imbalance: busy.as_deref().and_then(load_imbalance),
+        worker_busy_s: busy,
+        dd_layout: sim.domain_decomposition().map(|dd| dd.layout()),
+        dd_patch_particles: sim.domain_decomposition().map(|dd| PatchCounts::from(dd.load())),
+    }
 }
 
-/// Where the workers were asked to run and where they ran.
-fn fill_placement(s: &mut Summary, ctx: &RunContext<'_>) {
-    s.requested_cpus = ctx.pool.requested.clone();
-    s.observed_cpus = ctx.pool.observed_cpus();
-    s.worker_affinity = ctx.pool.affinities();
-    s.pinned = ctx.pool.pinned();
-    s.pinning_verified = ctx.pool.verified();
-    s.oversubscribed = ctx.oversubscribed;
-    s.available_cores = ctx.available_cores;
-}
-
-/// Energies, momentum, failures and the scenario's own figures.
-fn fill_physics(s: &mut Summary, sim: &Simulation, ctx: &RunContext<'_>) {
+/// Energies, momentum, failures and the energy bookkeeping.
+fn physics(sim: &Simulation, ctx: &RunContext<'_>) -> Physics {
     let (init, last) = (sim.initial(), sim.diagnostics());
-    s.kinetic_energy_initial = init.kinetic;
-    s.internal_energy_initial = init.internal;
-    s.kinetic_energy = last.kinetic;
-    s.internal_energy = last.internal;
-    s.momentum_initial = init.momentum;
-    s.momentum = last.momentum;
-    s.failed_particles = ctx.failed_particles;
-    if let Some((f0, f)) = ctx.taylor {
-        s.initial_length_m = Some(f0.length);
-        s.final_length_m = Some(f.length);
-        s.initial_face_diameter_m = Some(f0.face_diameter);
-        s.face_diameter_m = Some(f.face_diameter);
-        s.length_convention = Some(LENGTH_CONVENTION.to_string());
-    }
-    if let Some(c) = &ctx.cloud {
-        s.cloud_front_m = Some(c.cloud_front);
-        s.cloud_front_robust_m = Some(c.cloud_front_robust);
-        s.cloud_width_m = Some(c.cloud_width);
-        s.cloud_width_robust_m = Some(c.cloud_width_robust);
-        s.hole_diameter_m = Some(c.hole_diameter);
-        s.leading_debris_velocity_m_s = Some(c.leading_debris_velocity);
-        s.debris_mass_kg = Some(c.debris_mass);
+    Physics {
+        kinetic_energy_initial: init.kinetic,
+        internal_energy_initial: init.internal,
+        kinetic_energy: last.kinetic,
+        internal_energy: last.internal,
+        momentum_initial: init.momentum,
+        momentum: last.momentum,
+        failed_particles: ctx.failed_particles,
+        energy: Some(EnergyReport::of(sim)),
+        history: ctx.history.clone(),
     }
 }
 
-/// The shock-capturing settings, the energy bookkeeping, the impact's history and the
-/// plate's shock against Rankine-Hugoniot.
-fn fill_energy_and_shock(s: &mut Summary, sim: &Simulation, ctx: &RunContext<'_>) {
-    let cfg = sim.config();
-    s.bulk_viscosity = Some(cfg.bulk_viscosity);
-    s.energy_rise_limit = cfg.energy_rise_limit.is_finite().then_some(cfg.energy_rise_limit);
-    s.energy = Some(EnergyReport::of(sim));
+/// The scenario's own figures: the bar's lengths, the impact's cloud, the plate's shock
+/// against Rankine-Hugoniot.
+fn scenario_figures(sim: &Simulation, ctx: &RunContext<'_>) -> ScenarioFigures {
+    match ctx.spec.scenario.kind() {
+        ScenarioKind::Taylor => ScenarioFigures::Taylor(match ctx.taylor {
+            Some((f0, f)) => TaylorFigures {
+                initial_length_m: Some(f0.length),
+                final_length_m: Some(f.length),
+                initial_face_diameter_m: Some(f0.face_diameter),
+                face_diameter_m: Some(f.face_diameter),
+            },
+            None => TaylorFigures::default(),
+        }),
+        ScenarioKind::Impact => ScenarioFigures::Impact(impact_figures(sim, ctx)),
+        ScenarioKind::Plate => ScenarioFigures::Plate(plate_figures(ctx)),
+    }
+}
+
+/// The impact's debris cloud at the end and its history.
+fn impact_figures(sim: &Simulation, ctx: &RunContext<'_>) -> ImpactFigures {
+    let mut i = ImpactFigures::default();
+    if let Some(c) = &ctx.cloud {
+        i.cloud_front_m = Some(c.cloud_front);
+        i.cloud_front_robust_m = Some(c.cloud_front_robust);
+        i.cloud_width_m = Some(c.cloud_width);
+        i.cloud_width_robust_m = Some(c.cloud_width_robust);
+        i.hole_diameter_m = Some(c.hole_diameter);
+        i.leading_debris_velocity_m_s = Some(c.leading_debris_velocity);
+        i.debris_mass_kg = Some(c.debris_mass);
+        i.spacing_m = Some(sim.spacing()[0]);
+    }
     if let Some(h) = &ctx.cloud_history {
-        s.front_velocity_m_s = h.front_velocity();
-        s.cloud_history = Some(h.samples.clone());
+        i.front_velocity_m_s = h.front_velocity();
+        i.cloud_history = Some(h.samples.clone());
     }
-    if let Some((g, result)) = &ctx.plate {
-        let t = g.theory();
-        s.plate_configuration = Some(PLATE_CONFIGURATION.to_string());
-        s.slab_length_m = Some(g.length);
-        s.rh_shock_speed_m_s = Some(t.shock_speed);
-        s.rh_pressure_pa = Some(t.pressure);
-        s.rh_particle_velocity_m_s = Some(t.particle_velocity);
-        if let Some(r) = result {
-            let rel = |a: f64, b: f64| a / b - 1.0;
-            s.shock_speed_m_s = Some(r.shock_speed);
-            s.shock_pressure_pa = Some(r.shocked.normal_stress);
-            s.shock_mean_pressure_pa = Some(r.shocked.pressure);
-            s.particle_velocity_m_s = Some(r.shocked.particle_velocity);
-            s.shock_speed_rel_error = Some(rel(r.shock_speed, t.shock_speed));
-            s.shock_pressure_rel_error = Some(rel(r.shocked.normal_stress, t.pressure));
-            s.particle_velocity_rel_error = Some(rel(r.shocked.particle_velocity, t.particle_velocity));
-            s.shock_front_samples = Some(r.samples);
-        }
+    i
+}
+
+/// The plate's shock against its Rankine-Hugoniot values.
+fn plate_figures(ctx: &RunContext<'_>) -> PlateFigures {
+    let Some((g, result)) = &ctx.plate else { return PlateFigures::default() };
+    let t = g.theory();
+    let mut p = PlateFigures {
+        slab_length_m: Some(g.length),
+        rh_shock_speed_m_s: Some(t.shock_speed),
+        rh_pressure_pa: Some(t.pressure),
+        rh_particle_velocity_m_s: Some(t.particle_velocity),
+        ..PlateFigures::default()
+    };
+    if let Some(r) = result {
+        let rel = |a: f64, b: f64| a / b - 1.0;
+        p.shock_speed_m_s = Some(r.shock_speed);
+        p.shock_pressure_pa = Some(r.shocked.normal_stress);
+        p.shock_mean_pressure_pa = Some(r.shocked.pressure);
+        p.particle_velocity_m_s = Some(r.shocked.particle_velocity);
+        p.shock_speed_rel_error = Some(rel(r.shock_speed, t.shock_speed));
+        p.shock_pressure_rel_error = Some(rel(r.shocked.normal_stress, t.pressure));
+        p.particle_velocity_rel_error = Some(rel(r.shocked.particle_velocity, t.particle_velocity));
+        p.shock_front_samples = Some(r.samples);
     }
+    p
 }
 
 #[cfg(test)]

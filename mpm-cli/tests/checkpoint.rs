@@ -33,7 +33,7 @@ fn path(p: &Path) -> &str {
 
 /// Keys of a summary measured by a clock or of the process (its memory, its command line,
 /// the checkpoints it wrote), not of the run's state.
-const PROCESS_KEYS: [&str; 21] = [
+const PROCESS_KEYS: [&str; 27] = [
     "wall_s",
     "noise",
     "output_s",
@@ -51,6 +51,12 @@ const PROCESS_KEYS: [&str; 21] = [
     "worker_busy_s",
     "load_imbalance",
     "peak_rss_bytes",
+    "peak_rss_sum_bytes",
+    "rank_busy_imbalance",
+    "comm_s_per_step",
+    "comm_frac",
+    "wait_s_per_step",
+    "wait_frac",
     "model_memory_bytes",
     "started_unix_s",
     "command_line",

@@ -251,6 +251,11 @@ const REQUIRED_KEYS: &[&str] = &[
     "worker_busy_s",
     "load_imbalance",
     "peak_rss_bytes",
+    "peak_rss_sum_bytes",
+    "comm_s_per_step",
+    "comm_frac",
+    "comm_bytes_per_step",
+    "comm_messages_per_step",
     "model_memory_bytes",
     "requested_cpus",
     "observed_cpus",
@@ -390,7 +395,7 @@ fn summary_reads_back_as_the_typed_summary() {
     let (v, _) = run_json(&["--model", "1", "--steps", "3", "--strategy", "dd", "--threads", "2", "--quiet"]);
     let s: Summary = serde_json::from_value(v.clone()).unwrap();
     assert_eq!(s.strategy, Strategy::DomainDecomposition);
-    assert_eq!(s.end_reason.name(), v["end_reason"]);
+    assert_eq!(s.figures.progress.end_reason.name(), v["end_reason"]);
     assert_eq!(serde_json::to_value(&s).unwrap(), v);
 }
 
@@ -596,7 +601,7 @@ fn colour_and_atomic_run_without_an_assembly() {
         assert_eq!(v["strategy"], strategy);
         let s: Summary = serde_json::from_value(v.clone()).unwrap();
         assert_eq!(s.strategy.name(), strategy);
-        let work = s.work.as_ref().expect("work counters");
+        let work = s.figures.work.as_ref().expect("work counters");
         let stages = &work.workers[1];
         assert!(!stages.contains_key(&mpm_core::Substage::Assembly), "{strategy}: {stages:?}");
         assert!(stages.values().all(|w| w.part_bytes == 0), "{strategy}: {stages:?}");

@@ -95,7 +95,7 @@ fn check_equivalence(scenario: &[&str]) {
     let serial: Vec<&str> = scenario.iter().copied().chain(["--strategy", "serial"]).collect();
     let (reference_bytes, reference_summary) = run(dir.path(), "serial", 0, &serial);
     let reference = read_state(dir.path().join("serial.bin").as_path());
-    assert_eq!(reference.len(), reference_summary.particles);
+    assert_eq!(reference.len(), reference_summary.figures.size.particles);
     assert!(!reference_bytes.is_empty());
     for (ranks, layout) in [(1, "1x1x1"), (2, "1x1x2"), (3, "1x1x3"), (4, "2x1x2")] {
         for threads in [1, 2] {
@@ -115,14 +115,14 @@ fn check_equivalence(scenario: &[&str]) {
             let state = read_state(&dir.path().join(format!("{name}.bin")));
             let d = relative_differences(&reference, &state);
             assert!(d.iter().all(|&x| x <= 1e-9), "{name} ({strategy}): relative differences {d:?} exceed 1e-9");
-            assert_eq!(summary.particles, reference_summary.particles);
+            assert_eq!(summary.figures.size.particles, reference_summary.figures.size.particles);
             if ranks > 1 {
                 let reports = summary.ranks.as_ref().expect("rank 0's summary lists the ranks");
                 assert_eq!(reports.len(), ranks);
                 let migrated: u64 = reports.iter().map(|r| r.migrated).sum();
                 assert!(migrated > 0, "{name}: no particle moved between ranks in {STEPS} steps");
                 let held: usize = reports.iter().map(|r| r.particles).sum();
-                assert_eq!(held, reference_summary.particles);
+                assert_eq!(held, reference_summary.figures.size.particles);
                 for r in reports {
                     assert_eq!(r.cpus.len(), threads, "{name}: rank {} CPUs {:?}", r.rank, r.cpus);
                     assert!(r.exchange.halo_bytes > 0 && r.exchange.seconds > 0.0, "{name}: rank {}", r.rank);
@@ -205,21 +205,21 @@ fn close(a: f64, b: f64, tol: f64) -> bool {
 /// The scenario figures of a summary by name (Taylor bar or impact; `NaN` when absent).
 fn figures(s: &Summary) -> Vec<(&'static str, f64)> {
     let v = |x: Option<f64>| x.unwrap_or(f64::NAN);
-    match s.scenario.name() {
+    match s.scenario().name() {
         "taylor" => vec![
-            ("initial_length_m", v(s.initial_length_m)),
-            ("initial_face_diameter_m", v(s.initial_face_diameter_m)),
-            ("final_length_m", v(s.final_length_m)),
-            ("face_diameter_m", v(s.face_diameter_m)),
+            ("initial_length_m", v(s.figures.scenario.taylor().and_then(|t| t.initial_length_m))),
+            ("initial_face_diameter_m", v(s.figures.scenario.taylor().and_then(|t| t.initial_face_diameter_m))),
+            ("final_length_m", v(s.figures.scenario.taylor().and_then(|t| t.final_length_m))),
+            ("face_diameter_m", v(s.figures.scenario.taylor().and_then(|t| t.face_diameter_m))),
         ],
         _ => vec![
-            ("cloud_front_m", v(s.cloud_front_m)),
-            ("cloud_front_robust_m", v(s.cloud_front_robust_m)),
-            ("cloud_width_m", v(s.cloud_width_m)),
-            ("cloud_width_robust_m", v(s.cloud_width_robust_m)),
-            ("hole_diameter_m", v(s.hole_diameter_m)),
-            ("leading_debris_velocity_m_s", v(s.leading_debris_velocity_m_s)),
-            ("debris_mass_kg", v(s.debris_mass_kg)),
+            ("cloud_front_m", v(s.figures.scenario.impact().and_then(|t| t.cloud_front_m))),
+            ("cloud_front_robust_m", v(s.figures.scenario.impact().and_then(|t| t.cloud_front_robust_m))),
+            ("cloud_width_m", v(s.figures.scenario.impact().and_then(|t| t.cloud_width_m))),
+            ("cloud_width_robust_m", v(s.figures.scenario.impact().and_then(|t| t.cloud_width_robust_m))),
+            ("hole_diameter_m", v(s.figures.scenario.impact().and_then(|t| t.hole_diameter_m))),
+            ("leading_debris_velocity_m_s", v(s.figures.scenario.impact().and_then(|t| t.leading_debris_velocity_m_s))),
+            ("debris_mass_kg", v(s.figures.scenario.impact().and_then(|t| t.debris_mass_kg))),
         ],
     }
 }
@@ -295,8 +295,9 @@ fn check_figures(scenario: &[&str], setup: &dyn Fn() -> (Setup, Option<impact::I
         for ((key, a), (_, b)) in got.iter().zip(&figures(&one)) {
             assert!(close(*a, *b, 1e-12), "{name}: {key} {a}, one process {b}");
         }
-        assert_eq!(summary.failed_particles, one.failed_particles, "{name}");
-        let (Some(h), Some(h1)) = (&summary.cloud_history, &one.cloud_history) else {
+        assert_eq!(summary.figures.physics.failed_particles, one.figures.physics.failed_particles, "{name}");
+        let history = |s: &Summary| s.figures.scenario.impact().and_then(|c| c.cloud_history.clone());
+        let (Some(h), Some(h1)) = (history(&summary), history(&one)) else {
             assert!(geometry.is_none(), "{name}: an impact without its cloud history");
             continue;
         };
@@ -349,10 +350,23 @@ fn plate_shock_is_tracked_over_ranks_like_one_process() {
         .expect("cannot start mpirun: install openmpi-bin (scripts/bootstrap.sh)");
     assert!(two.success());
     let (one, two) = (summary("one"), summary("two"));
-    assert!(one.shock_front_samples.is_some_and(|n| n > 100), "{:?}", one.shock_front_samples);
-    assert_eq!(two.shock_front_samples, one.shock_front_samples);
-    let (a, b) = (two.shock_speed_m_s.unwrap(), one.shock_speed_m_s.unwrap());
+    assert!(
+        one.figures.scenario.plate().and_then(|t| t.shock_front_samples).is_some_and(|n| n > 100),
+        "{:?}",
+        one.figures.scenario.plate().and_then(|t| t.shock_front_samples)
+    );
+    assert_eq!(
+        two.figures.scenario.plate().and_then(|t| t.shock_front_samples),
+        one.figures.scenario.plate().and_then(|t| t.shock_front_samples)
+    );
+    let (a, b) = (
+        two.figures.scenario.plate().and_then(|t| t.shock_speed_m_s).unwrap(),
+        one.figures.scenario.plate().and_then(|t| t.shock_speed_m_s).unwrap(),
+    );
     assert!(close(a, b, 1e-9), "shock speed {a} over ranks, {b} in one process");
-    let (a, b) = (two.shock_pressure_pa.unwrap(), one.shock_pressure_pa.unwrap());
+    let (a, b) = (
+        two.figures.scenario.plate().and_then(|t| t.shock_pressure_pa).unwrap(),
+        one.figures.scenario.plate().and_then(|t| t.shock_pressure_pa).unwrap(),
+    );
     assert!(close(a, b, 1e-9), "shock pressure {a} over ranks, {b} in one process");
 }

@@ -140,7 +140,7 @@ pub const COSTS: [StageCost; 10] = [
         particle_flops: 0.0,
         node_flops: 1.0 + 18.0,
     },
-    // gather: fused into the re-map scatter's pass since issue 26 (its time is there too).
+    // gather: fused into the re-map scatter's pass (its time is there too).
     StageCost {
         substage: Substage::Gather,
         particle_bytes: 0.0,

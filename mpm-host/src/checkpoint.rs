@@ -66,6 +66,7 @@
 //! print(header["step"], header["time_s"], p["x"].shape, p["stress"][:, 2].min())
 //! ```
 
+use crate::durable::{sync_file, sync_folder};
 use crate::lock::{FolderLock, LockError};
 use mpm_core::Particles;
 use serde::{Deserialize, Serialize};
@@ -392,7 +393,7 @@ pub fn write_file(
         let digest = w.hash.clone().finalize();
         w.inner.write_all(&digest)?;
         let file = w.inner.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()?;
+        sync_file(&file)?;
         Ok(w.written + HASH_BYTES)
     })()
     .map_err(|source| CheckpointError::Write { path: path.to_path_buf(), source })?;
@@ -589,11 +590,6 @@ fn remove(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
     move |source| CheckpointError::Remove { path: path.to_path_buf(), source }
 }
 
-/// `fsync` a folder, so that the names in it are on disk.
-fn sync_dir(dir: &Path) -> std::io::Result<()> {
-    File::open(dir)?.sync_all()
-}
-
 impl Folder {
     /// The checkpoints in `dir`.
     pub fn new(dir: &Path) -> Self {
@@ -668,14 +664,14 @@ impl Folder {
         let partial = self.partial(step);
         let path = self.dir.join(step_name(step));
         (|| -> std::io::Result<()> {
-            sync_dir(&partial)?;
+            sync_folder(&partial)?;
             if path.exists() {
                 // Only a run continued from an older checkpoint writes a step again, and then
                 // this one is the same state: replace it.
                 std::fs::remove_dir_all(&path)?;
             }
             std::fs::rename(&partial, &path)?;
-            sync_dir(&self.dir)
+            sync_folder(&self.dir)
         })()
         .map_err(|source| CheckpointError::Complete { path: path.clone(), source })?;
         let entries = self.list()?;

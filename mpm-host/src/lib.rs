@@ -5,15 +5,22 @@
 //!
 //! * [`identity`]: the host's identity (CPU, caches, SMT, machine id) and the build's
 //!   provenance (commit, dirty flag, rustc, binary SHA-256);
-//! * [`memory`]: the memory available to a new process (`MemAvailable`, cgroup v2);
+//! * [`memory`]: the memory a run may use here: the least of its cgroups' headroom, its
+//!   Slurm job's allocation and the host's `MemAvailable`, with the one that binds;
+//! * [`cgroup`]: this process's cgroup (v1 or v2) and the limits it and its ancestors set
+//!   (memory, CPU quota), read through [`hostfile`] from `/` or a fixture tree;
 //! * [`pinning`]: the rayon pool of a run with worker `j` pinned to CPU `j`, the workers'
 //!   placement read back, and the one CPU-list parser;
 //! * [`usage`]: what each worker thread got of the wall time (its CPU time, context
 //!   switches, its CPU's steal), the noise a run can see;
 //! * [`paired`]: solvers advancing in alternating timed blocks on their pinned pools (the
 //!   paired design), in `mpm run` and in the harness's own process;
-//! * [`atomic`]: atomic file writes;
-//! * [`lock`]: one writer per folder (`flock`): a campaign's, a run's checkpoints;
+//! * [`atomic`]: atomic file writes, synced with their folder;
+//! * [`durable`]: `fsync` of files and folders whose failure is an error, and lines
+//!   appended durably;
+//! * [`lock`]: one writer per folder (`flock`, or a lock file where the file system has no
+//!   `flock`): a campaign's, a run's checkpoints;
+//! * [`fault`]: failures of `fsync` and `flock` injected by tests;
 //! * [`checkpoint`]: checkpoint files (a TOML header, the particle arrays, a SHA-256) and
 //!   the folder that keeps a run's last two, which `mpm` writes and both programs read;
 //! * [`clock`]: the wall clock as both programs stamp files and rows with it;
@@ -26,9 +33,13 @@
 //! (`thiserror`), with messages that say what to do, for the programs to report.
 
 pub mod atomic;
+pub mod cgroup;
 pub mod checkpoint;
 pub mod clock;
+pub mod durable;
+pub mod fault;
 pub mod fonts;
+pub mod hostfile;
 pub mod human;
 pub mod identity;
 pub mod lock;

@@ -1,4 +1,6 @@
-//! `mpm-bench calibrate`: the regression gate measures itself on the host that runs it.
+//! `mpm-bench calibrate`'s verdicts: the regression gate measures itself on the host that
+//! runs it. The campaigns are run by [`crate::campaign::measure::calibrate`]; this module
+//! compares them ([`judge`]) and reports ([`table`], [`Calibration`]).
 //!
 //! A gate that fails on noise is switched off; one that passes a 20 % loss is useless; and
 //! neither figure can be known without measuring it where the gate runs. `calibrate` runs
@@ -37,79 +39,18 @@
 //! pooled check finds with half a cell's standard error at four cells).
 
 use super::paired::{student_t_quantile, two_stage};
-use super::regress::{self, Metrics, RegressArgs, RegressReport};
+use super::regress::{self, Metrics, RegressOptions, RegressReport};
 use super::results::{load_campaign, Campaign as Loaded};
 use super::select::RowFilter;
 use super::stats::{CellKey, Stage, StatsOptions};
-use crate::campaign::matrix::{Campaign, Overrides};
-use crate::campaign::preset;
-use crate::campaign::process::Runner;
-use crate::campaign::runner::{self, ExecOptions};
-use crate::campaign::solver::Solver;
-use crate::campaign::watch::WatchSettings;
+use crate::campaign::measure::calibrate::{CalibrateOptions, CalibrationCampaign};
 use crate::machine::fingerprint;
 use crate::machine::topology::Machine;
 use crate::util::now_rfc3339;
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
-
-/// Measure the gate's false-alarm rate and detection power on this host.
-#[derive(clap::Args, Debug, Clone)]
-pub struct CalibrateArgs {
-    /// The preset of every gate run: a name (ci, quick, ...) or a TOML file.
-    #[arg(long, default_value = "ci")]
-    pub preset: String,
-    /// Clean campaigns (the same binary, nothing injected); every pair is an A/A comparison.
-    #[arg(long, default_value_t = 7)]
-    pub clean: usize,
-    /// Campaigns with the injected slowdown; each is compared with every clean one.
-    #[arg(long, default_value_t = 3)]
-    pub injected: usize,
-    /// The injected efficiency loss, a fraction (0.1: the T-thread efficiency drops by 10 %).
-    #[arg(long, default_value_t = 0.1)]
-    pub inject_slowdown: f64,
-    /// Stop starting campaigns when the next would likely end after this much time (e.g.
-    /// 90m); the comparisons are made with the campaigns done.
-    #[arg(long, value_name = "DURATION")]
-    pub budget: Option<String>,
-    /// The gate's tolerance, as `regress --tolerance`.
-    #[arg(long, default_value_t = 0.05)]
-    pub tolerance: f64,
-    /// The gate's metrics, as `regress --metrics` (the CI recipe gates efficiency and work).
-    #[arg(long, value_delimiter = ',', default_value = "efficiency,work")]
-    pub metrics: Vec<String>,
-    /// Root of the results tree: the campaigns go to
-    /// <out>/<fingerprint>/calibrate-<preset>-{clean,inject<F>}-<i>/.
-    #[arg(long, default_value = "results/local")]
-    pub out: PathBuf,
-    /// Where to write calibration.json (default: <out>/<fingerprint>/calibrate-<preset>/calibration.json).
-    #[arg(long, value_name = "FILE")]
-    pub json: Option<PathBuf>,
-    /// Do not build the solver; use the existing target/o3/mpm (and target/o0/mpm).
-    #[arg(long)]
-    pub no_build: bool,
-    /// No progress lines.
-    #[arg(long, short = 'q')]
-    pub quiet: bool,
-    /// Use a fake solver (testing the harness itself).
-    #[arg(long, hide = true)]
-    pub mock: bool,
-}
-
-/// One campaign of the calibration.
-#[derive(Clone, Debug, Serialize)]
-pub struct CalibrationCampaign {
-    /// `clean` or `injected`.
-    pub kind: &'static str,
-    /// Its folder.
-    pub dir: PathBuf,
-    /// Its wall time (s).
-    pub wall_s: f64,
-}
+use std::time::Instant;
 
 /// One `regress` of the calibration.
 #[derive(Clone, Debug, Serialize)]
@@ -223,28 +164,8 @@ pub const METHOD: &str = "A/A: every pair of clean campaigns, the earlier as the
     min_detectable_change_pooled (a loss in every cell, found by the gate's mean over the cells) come from the spread \
     of the clean campaigns' cell means, not from the pairs.";
 
-/// The order of `clean` clean and `injected` injected campaigns: the injected ones spread
-/// evenly among the clean ones (`false`: clean, `true`: injected).
-pub fn schedule(clean: usize, injected: usize) -> Vec<bool> {
-    let n = clean + injected;
-    let mut out = vec![false; n];
-    for j in 0..injected {
-        // The middle of the j-th of `injected` equal stretches.
-        out[((2 * j + 1) * n) / (2 * injected)] = true;
-    }
-    out
-}
-
-/// Parse a duration such as `90m`.
-fn parse_budget(s: &str) -> Result<Duration> {
-    let d = humantime::parse_duration(s.trim()).map_err(|e| anyhow::anyhow!("bad --budget '{s}': {e} (e.g. 90m)"))?;
-    if d.is_zero() {
-        bail!("--budget {s} leaves no time for a campaign: give e.g. 90m");
-    }
-    Ok(d)
-}
-
-fn check_args(a: &CalibrateArgs) -> Result<()> {
+/// Whether the calibration's settings make sense, in words that say what to give instead.
+pub fn check_args(a: &CalibrateOptions) -> Result<()> {
     if a.clean < 2 {
         bail!("--clean {} gives no A/A comparison: use at least 2 (7 give 21 comparisons)", a.clean);
     }
@@ -261,97 +182,24 @@ fn check_args(a: &CalibrateArgs) -> Result<()> {
     Ok(())
 }
 
-/// The campaign of the `i`-th calibration run: the preset, with the injected slowdown when
-/// `injected`, its own id and seed.
-fn campaign_of(a: &CalibrateArgs, injected: bool, i: usize) -> Result<Campaign> {
-    let ws = crate::campaign::solver::workspace_root();
-    let (p, src) = preset::load_preset(&a.preset, ws.as_deref())?;
-    let name = p.name.clone();
-    let seed = p.seed;
-    let ov = Overrides { inject_slowdown: injected.then_some(a.inject_slowdown), ..Overrides::default() };
-    let mut c = Campaign::resolve(p, src, &ov)?;
-    c.id = if injected {
-        format!("calibrate-{name}-inject{}-{i}", a.inject_slowdown)
-    } else {
-        format!("calibrate-{name}-clean-{i}")
-    };
-    c.seed = seed.wrapping_add(i as u64 + if injected { 1000 } else { 0 });
-    Ok(c)
-}
-
 /// The gate's comparison of two loaded campaigns, with the calibration's settings; the
 /// seconds it took (reading both campaigns, as a CI job's `regress` would, plus the
 /// comparison: `load_s` is the reading's share, measured once per campaign).
-fn gate(a: &CalibrateArgs, baseline: &Loaded, current: &Loaded, load_s: f64) -> Result<(RegressReport, f64)> {
+fn gate(a: &CalibrateOptions, baseline: &Loaded, current: &Loaded, load_s: f64) -> Result<(RegressReport, f64)> {
     let t0 = Instant::now();
-    let args = RegressArgs {
+    let args = RegressOptions {
         tolerance: a.tolerance,
         metrics: a.metrics.clone(),
-        ..RegressArgs::new(&baseline.dir, &current.dir)
+        ..RegressOptions::new(&baseline.dir, &current.dir)
     };
     let r = regress::compare_campaigns(&args, baseline, current)?;
     Ok((r, load_s + t0.elapsed().as_secs_f64()))
 }
 
-/// Run the calibration's campaigns on `machine` with `solvers` through `runner`, then its
-/// comparisons; returns the result (nothing printed but progress lines unless quiet).
-pub fn calibrate(
-    a: &CalibrateArgs,
-    machine: &Machine,
-    solvers: &[Solver],
-    runner: &mut dyn Runner,
-    watch: Option<WatchSettings>,
-    interrupted: &AtomicBool,
-) -> Result<Calibration> {
-    check_args(a)?;
-    let budget = a.budget.as_deref().map(parse_budget).transpose()?;
-    let start = Instant::now();
-    let mut campaigns: Vec<CalibrationCampaign> = Vec::new();
-    let order = schedule(a.clean, a.injected);
-    let (mut nc, mut ni) = (0, 0);
-    for (k, &injected) in order.iter().enumerate() {
-        if interrupted.load(Ordering::SeqCst) {
-            bail!("interrupted after {k} campaign(s); run the same command again to resume");
-        }
-        let longest = campaigns.iter().map(|c| c.wall_s).fold(0.0, f64::max);
-        if let Some(b) = budget {
-            if k > 0 && start.elapsed().as_secs_f64() + longest > b.as_secs_f64() {
-                eprintln!(
-                    "note: --budget {}: stopping after {k} of {} campaigns (the next would end after it)",
-                    humantime::format_duration(b),
-                    order.len()
-                );
-                break;
-            }
-        }
-        let i = if injected { ni } else { nc };
-        let c = campaign_of(a, injected, i)?;
-        if !a.quiet {
-            eprintln!("calibrate: campaign {} of {}: {}", k + 1, order.len(), c.id);
-        }
-        let opts = ExecOptions {
-            out_root: a.out.clone(),
-            quiet: true,
-            watch,
-            command: std::env::args().collect::<Vec<_>>().join(" "),
-            ..ExecOptions::default()
-        };
-        let s = runner::execute(&c, machine, solvers, runner, &opts, interrupted)
-            .with_context(|| format!("calibration campaign {}", c.id))?;
-        if s.counts.interrupted {
-            bail!("interrupted in campaign {}; run the same command again to resume", c.id);
-        }
-        campaigns.push(CalibrationCampaign {
-            kind: if injected { "injected" } else { "clean" },
-            dir: s.dir.clone(),
-            wall_s: s.wall.as_secs_f64(),
-        });
-        if injected {
-            ni += 1;
-        } else {
-            nc += 1;
-        }
-    }
+/// The gate's comparisons of the calibration's `campaigns` (run on `machine` by
+/// [`crate::campaign::measure::calibrate::run_campaigns`]): every A/A pair, every clean
+/// campaign against every injected one, the clean campaigns' noise, and the summary.
+pub fn judge(a: &CalibrateOptions, machine: &Machine, campaigns: Vec<CalibrationCampaign>) -> Result<Calibration> {
     let clean: Vec<usize> = (0..campaigns.len()).filter(|&i| campaigns[i].kind == "clean").collect();
     let inj: Vec<usize> = (0..campaigns.len()).filter(|&i| campaigns[i].kind == "injected").collect();
     if clean.len() < 2 {
@@ -426,7 +274,7 @@ fn pooled_sd(groups: &[Vec<f64>]) -> Option<f64> {
     (df > 0).then(|| (ss / df as f64).sqrt())
 }
 
-fn cell_noise(a: &CalibrateArgs, campaigns: &[CalibrationCampaign], clean: &[usize]) -> Result<Noise> {
+fn cell_noise(a: &CalibrateOptions, campaigns: &[CalibrationCampaign], clean: &[usize]) -> Result<Noise> {
     let filter = RowFilter::analysis(false);
     let analyses = clean
         .iter()
@@ -503,7 +351,7 @@ fn cell_noise(a: &CalibrateArgs, campaigns: &[CalibrationCampaign], clean: &[usi
 
 /// The figures of calibration.json from the campaigns, comparisons and noise.
 fn summarise(
-    a: &CalibrateArgs,
+    a: &CalibrateOptions,
     machine: &Machine,
     campaigns: Vec<CalibrationCampaign>,
     comparisons: Vec<CalibrationComparison>,
@@ -559,7 +407,7 @@ fn summarise(
 /// explain). The injected loss hits every cell, so the repetitions are those with which the
 /// gate's pooled check (the mean over the cells, variance `sum_k 2 var_k / K^2`) detects it;
 /// with one cell, that cell's check.
-fn recommend(a: &CalibrateArgs, noise: &Noise) -> (Option<u64>, Option<u64>) {
+fn recommend(a: &CalibrateOptions, noise: &Noise) -> (Option<u64>, Option<u64>) {
     let target = -(1.0 - a.inject_slowdown).ln();
     let tol_log = -(1.0 - a.tolerance).ln();
     let alpha = (1.0 - StatsOptions::default().confidence) / 2.0;
@@ -655,56 +503,4 @@ pub fn table(c: &Calibration) -> String {
     }
     let _ = writeln!(s, "  how: {}", c.method);
     s
-}
-
-/// `mpm-bench calibrate`: build (unless --no-build or --mock), run, print, write the JSON.
-pub fn run(a: CalibrateArgs) -> Result<()> {
-    check_args(&a)?;
-    let machine = Machine::detect()?;
-    let interrupted = runner::install_interrupt_handler();
-    let c = if a.mock {
-        let mut r = crate::campaign::process::MockRunner::default();
-        let solvers = mock_solvers();
-        calibrate(&a, &machine, &solvers, &mut r, None, &interrupted)?
-    } else {
-        let opts = campaign_of(&a, false, 0)?.opts;
-        let solvers = crate::campaign::solver::prepare_solvers(&opts, !a.no_build, a.quiet)?;
-        let mut r = crate::campaign::process::ProcessRunner::new(interrupted.clone());
-        calibrate(&a, &machine, &solvers, &mut r, Some(WatchSettings::default()), &interrupted)?
-    };
-    print!("{}", table(&c));
-    let path = a.json.clone().unwrap_or_else(|| {
-        let name =
-            std::path::Path::new(&a.preset).file_stem().map_or("preset".into(), |s| s.to_string_lossy().into_owned());
-        a.out.join(fingerprint::fingerprint(&machine)).join(format!("calibrate-{name}")).join("calibration.json")
-    });
-    if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
-    }
-    mpm_host::atomic::write_atomic(&path, serde_json::to_string_pretty(&c)?.as_bytes())
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    println!("wrote {}", path.display());
-    Ok(())
-}
-
-/// The mock runner's stand-in solvers.
-fn mock_solvers() -> Vec<Solver> {
-    [crate::campaign::preset::OptLevel::O3, crate::campaign::preset::OptLevel::O0]
-        .into_iter()
-        .map(|opt| Solver { opt, path: "mock".into(), sha256: "mock".into() })
-        .collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn injected_campaigns_spread_among_the_clean() {
-        let s = schedule(7, 3);
-        assert_eq!(s.iter().filter(|&&x| x).count(), 3);
-        assert_eq!(s, [false, true, false, false, false, true, false, false, true, false]);
-        assert_eq!(schedule(2, 0), [false, false]);
-        assert_eq!(schedule(1, 1), [false, true]);
-    }
 }

@@ -1,6 +1,6 @@
-//! `mpm-bench claims`: the paper's claims C1-C6 (spec paper.md section 5), and C7 on the
-//! balanced DD cuts of issue 15, tested on a campaign, each with a verdict, the reason and
-//! the numbers behind it.
+//! `mpm-bench claims`: the paper's claims C1-C6 (spec paper.md section 5), and C7 (this
+//! study's own claim) on the balanced DD cuts, tested on a campaign, each with a verdict, the
+//! reason and the numbers behind it.
 //!
 //! Rules shared by every claim:
 //!
@@ -25,7 +25,7 @@
 use super::results::{load_campaigns, Campaign};
 use super::select::RowFilter;
 use super::stats::{compare, parallel_strategies, tag, Analysis, CellKey, Compare, Estimate, Stage, StatsOptions};
-use crate::campaign::record::Status;
+use crate::campaign::store::record::Status;
 use crate::machine::placement::PinPolicy;
 use crate::machine::topology::Machine;
 use anyhow::{Context, Result};
@@ -43,24 +43,19 @@ use std::path::PathBuf;
 /// repetition). "holds" needs a majority of the comparisons beyond the noise and none
 /// against; with fewer than 3 repetitions per cell a verdict is marked "(indicative)". C5
 /// (the socket effect) needs the same thread counts run with --bind close and --bind spread.
-#[derive(clap::Args, Debug, Clone)]
-pub struct ClaimsArgs {
+#[derive(Debug, Clone)]
+pub struct ClaimsOptions {
     /// A campaign folder (holding runs.csv) or a folder containing campaigns (e.g.
     /// results/ or results/FINGERPRINT/): then the newest campaign is used.
-    #[arg(long)]
     pub results: PathBuf,
     /// Also write the table and the evidence as Markdown to this file.
-    #[arg(long)]
     pub markdown: Option<PathBuf>,
     /// Pinning policy to analyse when the campaign has several (default: close, else the first).
-    #[arg(long)]
     pub pin: Option<String>,
     /// Keep rows measured on a busy host (host_noisy), left out by default.
-    #[arg(long)]
     pub include_noisy: bool,
     /// Also analyse rows that ran with an injected slowdown (`--inject-slowdown`, a test knob
     /// of the regression gate): never results, refused by default.
-    #[arg(long)]
     pub include_injected: bool,
 }
 
@@ -140,7 +135,10 @@ pub const CLAIMS: [(&str, &str); 7] = [
     ("C4", "Without compiler optimisation, parallel efficiency is higher than with O3."),
     ("C5", "Past 4 threads (the second socket) efficiency drops: cross-socket traffic."),
     ("C6", "AE could not run Model4 at 4-8 threads: not enough memory on the 8 GB machine."),
-    ("C7", "Balanced cuts reduce the work imbalance and the time per step of DD (issue 15)."),
+    (
+        "C7",
+        "Balanced cuts reduce the work imbalance and the time per step of DD (this study's claim, not the paper's).",
+    ),
 ];
 
 /// Array expansion, the subject of claims C3 and C6.
@@ -397,8 +395,13 @@ fn sockets_used(m: &Machine, pin: &str, n: usize) -> Option<usize> {
 /// For each thread count, a policy that keeps its workers on one socket and one that uses
 /// two or more (`close` and `spread` preferred), among the rows' policies.
 fn socket_pairs(c: &Campaign, m: &Machine) -> Vec<(usize, String, String)> {
-    let mut labels: Vec<String> =
-        c.rows.iter().map(crate::campaign::record::Row::pin_label).collect::<BTreeSet<_>>().into_iter().collect();
+    let mut labels: Vec<String> = c
+        .rows
+        .iter()
+        .map(crate::campaign::store::record::Row::pin_label)
+        .collect::<BTreeSet<_>>()
+        .into_iter()
+        .collect();
     labels.sort_by_key(|l| (l != "close", l != "spread"));
     let threads: BTreeSet<usize> = c.rows.iter().map(|r| r.threads()).filter(|&n| n > 1).collect();
     threads
@@ -613,7 +616,7 @@ pub fn few_repetitions(an: &Analysis) -> Option<String> {
 
 /// `mpm-bench claims`: the claims of each machine's runs (a campaign of several machines,
 /// under a scheduler, gets a verdict per machine; with `--markdown`, one section each).
-pub fn run(args: ClaimsArgs) -> Result<()> {
+pub fn run(args: ClaimsOptions) -> Result<()> {
     let parts =
         load_campaigns(&args.results, &RowFilter::analysis(args.include_noisy).with_injected(args.include_injected))?;
     let mut text = String::new();
@@ -660,13 +663,13 @@ pub fn run(args: ClaimsArgs) -> Result<()> {
     Ok(())
 }
 
-/// C7 (issue 15, not the paper's): balanced cuts (`dd-balanced`) against uniform cuts (`dd`).
+/// C7 (this study's claim, not the paper's): balanced cuts (`dd-balanced`) against uniform cuts (`dd`).
 /// Kept apart from C1-C6: it reads the recorded work imbalance straight from the rows.
 mod c7 {
     use super::{result, ClaimResult, Tally, Verdict, DD};
     use crate::analysis::results::Campaign;
     use crate::analysis::stats::{tag, Analysis, Stage};
-    use crate::campaign::record::Status;
+    use crate::campaign::store::record::Status;
     use crate::util::median;
     use mpm_core::Strategy;
 
@@ -684,7 +687,7 @@ mod c7 {
             .filter(|r| {
                 r.outcome.status == Status::Ok && r.model() == model && r.strategy() == s && r.threads() == threads
             })
-            .filter_map(|r| r.measured.dd_work_imbalance)
+            .filter_map(|r| r.measured.as_ref()?.balance.dd_patch_particles.map(|p| p.imbalance_mean))
             .collect();
         (!v.is_empty()).then(|| median(&v))
     }

@@ -19,7 +19,7 @@
 //! several ranks (they are split off when a campaign is read).
 
 use super::stats::{bootstrap, choose_pin, Estimate, StatsOptions};
-use crate::campaign::record::{Row, Status};
+use crate::campaign::store::record::{Row, Status};
 use crate::util::median;
 use mpm_core::Strategy;
 use serde::Serialize;
@@ -126,6 +126,26 @@ struct Samples {
     noisy: bool,
 }
 
+impl Samples {
+    /// Add row `r`: its placement always, its times and exchange when it is `ok` and timed.
+    fn add(&mut self, r: &Row) {
+        self.oversubscribed |= r.placement.oversubscribed;
+        let Some(f) = r.measured.as_ref().filter(|_| r.outcome.status == Status::Ok) else { return };
+        let Some(t) = f.timing.steady_s_per_step else { return };
+        self.time.push(t);
+        self.noisy |= r.host.host_noisy;
+        let c = &f.communication;
+        if r.comm_includes_wait() {
+            self.comm_with_wait.extend(c.comm_frac);
+        } else {
+            self.comm_frac.extend(c.comm_frac);
+        }
+        self.wait_frac.extend(c.wait_frac);
+        self.bytes.extend(c.comm_bytes_per_step);
+        self.memory.extend(f.memory.peak_rss_sum_bytes.or(f.memory.peak_rss_bytes).map(|b| b as f64));
+    }
+}
+
 impl HybridAnalysis {
     /// Analyse `hybrid` (rows over several ranks) with `one` (one-process rows) as the
     /// `ranks = 1` configurations and the base. Empty when `hybrid` is.
@@ -153,19 +173,7 @@ impl HybridAnalysis {
                 ranks: r.ranks().max(1),
                 threads: r.threads_per_rank(),
             };
-            let s = samples.entry(key).or_default();
-            s.oversubscribed |= r.placement.oversubscribed;
-            let Some(t) = r.measured.steady_s_per_step.filter(|_| r.outcome.status == Status::Ok) else { continue };
-            s.time.push(t);
-            s.noisy |= r.host.host_noisy;
-            if r.comm_includes_wait() {
-                s.comm_with_wait.extend(r.measured.comm_frac);
-            } else {
-                s.comm_frac.extend(r.measured.comm_frac);
-            }
-            s.wait_frac.extend(r.measured.wait_frac);
-            s.bytes.extend(r.measured.comm_bytes_per_step);
-            s.memory.extend(r.measured.peak_rss_sum_bytes.or(r.measured.peak_rss_bytes).map(|b| b as f64));
+            samples.entry(key).or_default().add(r);
         }
         let mut missing = BTreeSet::new();
         for (key, s) in &samples {

@@ -6,19 +6,22 @@
 //! * [`hybrid`]: MPI ranks x threads: speedup and efficiency against total cores;
 //! * [`ratio`]: campaign B over campaign A on their matching cells, headline per model;
 //! * [`claims`]: the paper's claims C1-C6 tested; [`regress`]: the CI gate;
-//! * [`calibrate`]: the gate's own false-alarm rate and detection power, measured by running
-//!   its campaign (clean and with an injected slowdown) on this host;
+//! * [`calibrate`]: the gate's own false-alarm rate and detection power, from the campaigns
+//!   `crate::campaign::measure::calibrate` ran on this host (clean and with an injected
+//!   slowdown);
+//! * [`estimate`]: a point estimate with its interval;
 //! * [`paired`]: statistics of the paired design (intervals over processes, the comparison
-//!   of two campaigns, `mpm-bench paired`'s report);
-//! * [`imbalance`]: DD work imbalance of uniform and balanced cuts predicted over a run.
+//!   of two campaigns); [`paired_report`]: `mpm-bench paired`'s report.
 //!
-//! It reads what the campaign and machine layers record and draws nothing.
+//! It reads what the campaign and machine layers record (and what the campaign layer's
+//! measurements return) and draws nothing; it runs no solver.
 
 pub mod calibrate;
 pub mod claims;
+pub mod estimate;
 pub mod hybrid;
-pub mod imbalance;
 pub mod paired;
+pub mod paired_report;
 pub mod ratio;
 pub mod regress;
 pub mod results;

@@ -55,7 +55,7 @@
 use super::results::{load_campaign, Campaign};
 use super::select::{configuration_differences, RowFilter};
 use super::stats::{bootstrap_test, holm, Analysis, Cell, CellKey, Design, Estimate, Stage, StatsOptions, Tails};
-use crate::campaign::record::Status;
+use crate::campaign::store::record::Status;
 use crate::util::median;
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
@@ -68,52 +68,40 @@ use std::path::{Path, PathBuf};
 /// invalid in the current campaign fails too (unless --allow-missing). Exit code 0 = pass,
 /// 1 = regression, 2 = error or incomparable (unreadable input, different machines without
 /// --force, no cell in common). Use in CI with a committed baseline campaign.
-#[derive(clap::Args, Debug, Clone)]
-pub struct RegressArgs {
+#[derive(Debug, Clone)]
+pub struct RegressOptions {
     /// Baseline results: a campaign folder (holding runs.csv) or a folder containing
     /// campaigns (then the newest is used).
-    #[arg(long)]
     pub baseline: PathBuf,
     /// Current results, same forms as --baseline.
-    #[arg(long)]
     pub current: PathBuf,
     /// Relative change tolerated before a check can fail (0.05 = 5 %).
-    #[arg(long, default_value_t = 0.05)]
     pub tolerance: f64,
     /// Compare even when the machine fingerprints differ (the verdict then compares
     /// different hardware: use with care).
-    #[arg(long)]
     pub force: bool,
     /// Write the machine-readable verdict here (JSON).
-    #[arg(long)]
     pub json: Option<PathBuf>,
     /// Stages to gate, comma-separated: total, grid, particle.
-    #[arg(long, value_delimiter = ',', default_value = "total")]
     pub stages: Vec<String>,
     /// Also gate oversubscribed cells (more threads than cores; noisy).
-    #[arg(long)]
     pub include_oversubscribed: bool,
     /// Pinning policy to compare when a campaign has several (default: close, else the first).
-    #[arg(long)]
     pub pin: Option<String>,
     /// Keep rows measured on a busy host (host_noisy), left out by default.
-    #[arg(long)]
     pub include_noisy: bool,
     /// Do not fail when a baseline cell is missing, failed or invalid in the current
     /// campaign (such cells are still listed).
-    #[arg(long)]
     pub allow_missing: bool,
     /// What to gate, comma-separated: efficiency (parallel efficiency), time (time per
     /// step), work (the work counters, exactly). Time per step follows the host's speed
     /// from one day to the next; a CI gate on a shared runner gates efficiency and work.
-    #[arg(long, value_delimiter = ',', default_value = "efficiency,time,work")]
     pub metrics: Vec<String>,
     /// Append a Markdown summary of the verdict to FILE (e.g. "$GITHUB_STEP_SUMMARY").
-    #[arg(long, value_name = "FILE")]
     pub markdown: Option<PathBuf>,
 }
 
-impl RegressArgs {
+impl RegressOptions {
     /// `regress --baseline BASELINE --current CURRENT` with every other option's default.
     pub fn new(baseline: &Path, current: &Path) -> Self {
         Self {
@@ -712,7 +700,7 @@ fn side(c: &Campaign) -> Side {
 }
 
 /// Build the verdict for two results folders (no printing). Unreadable input is an error.
-pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
+pub fn evaluate(args: &RegressOptions) -> Result<RegressReport> {
     settings(args)?;
     let (base, cur) = load(args)?;
     compare_campaigns(args, &base, &cur)
@@ -720,7 +708,7 @@ pub fn evaluate(args: &RegressArgs) -> Result<RegressReport> {
 
 /// The stages and metrics of `args`, checked with its tolerance (bad input is an error
 /// before any campaign is read).
-fn settings(args: &RegressArgs) -> Result<(Vec<Stage>, Metrics)> {
+fn settings(args: &RegressOptions) -> Result<(Vec<Stage>, Metrics)> {
     if !(args.tolerance >= 0.0 && args.tolerance < 1.0) {
         bail!("--tolerance {} is out of range: give a fraction such as 0.05 for 5 %", args.tolerance);
     }
@@ -730,7 +718,7 @@ fn settings(args: &RegressArgs) -> Result<(Vec<Stage>, Metrics)> {
 
 /// The two campaigns of `args`, with the rows `regress` keeps: injected rows are compared
 /// (that is how the gate is measured; the verdict says so).
-pub fn load(args: &RegressArgs) -> Result<(Campaign, Campaign)> {
+pub fn load(args: &RegressOptions) -> Result<(Campaign, Campaign)> {
     let filter = RowFilter::analysis(args.include_noisy).with_injected(true);
     let base = load_campaign(&args.baseline, &filter).context("reading --baseline")?;
     let cur = load_campaign(&args.current, &filter).context("reading --current")?;
@@ -740,7 +728,7 @@ pub fn load(args: &RegressArgs) -> Result<(Campaign, Campaign)> {
 /// The verdict on two loaded campaigns with the settings of `args` (its paths unused; no
 /// printing): what [`evaluate`] does after reading them, for callers that compare the same
 /// campaigns many times (`calibrate`).
-pub fn compare_campaigns(args: &RegressArgs, base: &Campaign, cur: &Campaign) -> Result<RegressReport> {
+pub fn compare_campaigns(args: &RegressOptions, base: &Campaign, cur: &Campaign) -> Result<RegressReport> {
     let (stages, metrics) = settings(args)?;
     let (bs, cs) = (side(base), side(cur));
     let mut report = RegressReport {
@@ -1038,7 +1026,7 @@ fn check_line(c: &Check) -> String {
 /// `mpm-bench regress`: prints the verdict, writes the JSON if asked, and returns the exit
 /// code (0 pass, 1 regression or missing cell, 2 incomparable). Unreadable input is an
 /// error (the CLI exits 2).
-pub fn run(args: RegressArgs) -> Result<i32> {
+pub fn run(args: RegressOptions) -> Result<i32> {
     settings(&args)?;
     let (base, cur) = load(&args)?;
     for c in [&base, &cur] {

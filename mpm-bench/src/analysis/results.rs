@@ -9,8 +9,9 @@
 
 use super::select::{select, Configurations, LeftOut, RowFilter, INJECTED_LEFT_OUT};
 use super::stats::{Analysis, StatsOptions};
-use crate::campaign::manifest::{self, Manifest};
-use crate::campaign::record::{read_rows, Row};
+use crate::campaign::store::csv::read_rows;
+use crate::campaign::store::manifest::{self, Manifest};
+use crate::campaign::store::record::Row;
 use crate::machine::bandwidth::{self, BandwidthReport};
 use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
@@ -189,6 +190,15 @@ pub fn load_campaign(dir: &Path, filter: &RowFilter) -> Result<Campaign> {
     Ok(parts.remove(0))
 }
 
+/// A file beside a campaign's `runs.csv` read by `read`: `None` when absent, or (with a
+/// warning) when it cannot be read.
+fn read_beside<T>(path: &Path, read: impl FnOnce(&Path) -> Result<T>) -> Option<T> {
+    if !path.is_file() {
+        return None;
+    }
+    read(path).map_err(|e| eprintln!("warning: ignoring {}: {e:#}", path.display())).ok()
+}
+
 /// Read the campaign `dir` names (see [`resolve_campaign`]): rows, manifest, bandwidth; one
 /// [`Campaign`] per machine fingerprint of its rows, in fingerprint order (one for a campaign
 /// run on one machine); in each, the rows an analysis uses by the one rule of
@@ -199,30 +209,8 @@ pub fn load_campaign(dir: &Path, filter: &RowFilter) -> Result<Campaign> {
 pub fn load_campaigns(dir: &Path, filter: &RowFilter) -> Result<Vec<Campaign>> {
     let dir = resolve_campaign(dir)?;
     let all = read_rows(&dir.join("runs.csv"))?;
-    let mpath = dir.join("manifest.json");
-    let manifest = if mpath.is_file() {
-        match manifest::read(&mpath) {
-            Ok(m) => Some(m),
-            Err(e) => {
-                eprintln!("warning: ignoring {}: {e:#}", mpath.display());
-                None
-            }
-        }
-    } else {
-        None
-    };
-    let bpath = dir.join("bandwidth.json");
-    let bandwidth = if bpath.is_file() {
-        match bandwidth::read(&bpath) {
-            Ok(b) => Some(b),
-            Err(e) => {
-                eprintln!("warning: ignoring {}: {e:#}", bpath.display());
-                None
-            }
-        }
-    } else {
-        None
-    };
+    let manifest = read_beside(&dir.join("manifest.json"), manifest::read);
+    let bandwidth = read_beside(&dir.join("bandwidth.json"), bandwidth::read);
     let mut by_machine: BTreeMap<String, Vec<Row>> = BTreeMap::new();
     let mut nameless = Vec::new();
     for r in all {
@@ -283,7 +271,7 @@ pub fn load_campaigns(dir: &Path, filter: &RowFilter) -> Result<Vec<Campaign>> {
 /// never a result.
 fn refuse_only_injected(dir: &Path, rows: &[Row], left_out: &[LeftOut]) -> Result<()> {
     let injected = left_out.iter().find(|l| l.reason == INJECTED_LEFT_OUT).map_or(0, |l| l.rows);
-    if injected > 0 && !rows.iter().any(|r| r.outcome.status == crate::campaign::record::Status::Ok) {
+    if injected > 0 && !rows.iter().any(|r| r.outcome.status == crate::campaign::store::record::Status::Ok) {
         bail!(
             "{}: its {injected} measured row(s) all ran with an injected slowdown (`--inject-slowdown`, a test knob \
              of the regression gate): their times are not results; pass --include-injected to look at them anyway",

@@ -21,7 +21,7 @@
 //!   with another step budget, say) are left out, with the keys that differ. Speedups never
 //!   divide times of different budgets.
 
-use crate::campaign::record::{Row, Status};
+use crate::campaign::store::record::{Row, Status};
 use serde::Serialize;
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -202,8 +202,8 @@ fn group(r: &Row) -> (String, u32, String) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::campaign::matrix::PlannedRun;
-    use crate::campaign::preset::OptLevel;
+    use crate::campaign::plan::matrix::PlannedRun;
+    use crate::campaign::plan::preset::OptLevel;
     use mpm_core::Strategy;
 
     fn row(threads: usize, steps: u64) -> Row {

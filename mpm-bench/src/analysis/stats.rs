@@ -50,7 +50,8 @@
 //! process only has its blocks' interval, which does not cover the spread between processes:
 //! [`Point::within_process_only`], and the claims call it indicative (one repetition).
 
-use crate::campaign::record::{Row, Status};
+pub use super::estimate::{compare, Compare, Estimate, SINGLE_REP_MARGIN};
+use crate::campaign::store::record::{Row, Status};
 use crate::util::{median, SplitMix64};
 use anyhow::{bail, Result};
 use mpm_core::Strategy;
@@ -98,18 +99,18 @@ impl PairedProcess {
         if !r.is_paired() {
             return None;
         }
-        let m = &r.measured;
+        let (p, timing) = (r.paired()?, &r.measured.as_ref()?.timing);
         let n = r.threads() as f64;
-        let ratios = m.paired_t1_s.iter().zip(&m.paired_tt_s).map(|(a, b)| a / (n * b)).collect();
+        let ratios = p.t1_s_per_step.iter().zip(&p.tt_s_per_step).map(|(a, b)| a / (n * b)).collect();
         let stage = |t1: Option<f64>, tt: Option<f64>| {
             t1.zip(tt).map(|(a, b)| a / (n * b)).filter(|e| e.is_finite() && *e > 0.0)
         };
         Some(Self {
             ratios,
-            t1: median(&m.paired_t1_s),
+            t1: median(&p.t1_s_per_step),
             stages: [
-                stage(m.paired_t1_grid_stage_s, m.steady_grid_stage_s),
-                stage(m.paired_t1_particle_stage_s, m.steady_particle_stage_s),
+                stage(p.reference_grid_stage_s, timing.steady_grid_stage_s),
+                stage(p.reference_particle_stage_s, timing.steady_particle_stage_s),
             ],
         })
     }
@@ -182,12 +183,12 @@ impl Stage {
     /// out), if the row measured it: rows written before CSV schema 6 have the whole run's
     /// stage times only, and give none for the two stages.
     pub fn time_per_step(self, row: &Row) -> Option<f64> {
-        let m = &row.measured;
-        let steady = m.steady_steps.filter(|&s| s > 0).map(|s| s as f64);
+        let f = row.measured.as_ref()?;
+        let steady = Some(f.progress.steady_steps).filter(|&s| s > 0).map(|s| s as f64);
         let t = match self {
-            Stage::Total => m.steady_s_per_step?,
-            Stage::Grid => m.steady_grid_stage_s? / steady?,
-            Stage::Particle => m.steady_particle_stage_s? / steady?,
+            Stage::Total => f.timing.steady_s_per_step?,
+            Stage::Grid => f.timing.steady_grid_stage_s? / steady?,
+            Stage::Particle => f.timing.steady_particle_stage_s? / steady?,
         };
         (t.is_finite() && t > 0.0).then_some(t)
     }
@@ -196,82 +197,6 @@ impl Stage {
 impl fmt::Display for Stage {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
-    }
-}
-
-/// A point estimate with its confidence interval.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Estimate {
-    /// Point estimate (a median, or a ratio of medians).
-    pub value: f64,
-    /// Lower end of the interval.
-    pub lo: f64,
-    /// Upper end of the interval.
-    pub hi: f64,
-    /// Smallest number of repetitions among the samples involved.
-    pub reps: usize,
-}
-
-impl Estimate {
-    /// An estimate without uncertainty (`lo = hi = value`).
-    pub fn point(value: f64, reps: usize) -> Self {
-        Self { value, lo: value, hi: value, reps }
-    }
-
-    /// True when every sample involved had a single repetition: the interval is the point
-    /// itself and says nothing about the noise.
-    pub fn degenerate(&self) -> bool {
-        self.reps < 2 || self.lo == self.hi
-    }
-
-    /// Multiply value and interval by a positive factor.
-    pub fn scale(&self, k: f64) -> Self {
-        Self { value: self.value * k, lo: self.lo * k, hi: self.hi * k, reps: self.reps }
-    }
-
-    /// `1.23 [1.20, 1.26]`, or `1.23 (1 rep)` when degenerate, with `digits` decimals.
-    pub fn show(&self, digits: usize) -> String {
-        if self.degenerate() {
-            format!("{:.*} (n={})", digits, self.value, self.reps)
-        } else {
-            format!("{:.*} [{:.*}, {:.*}]", digits, self.value, digits, self.lo, digits, self.hi)
-        }
-    }
-}
-
-/// How two estimates compare, allowing for their uncertainty.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Compare {
-    /// The first is larger beyond the noise.
-    Greater,
-    /// The first is smaller beyond the noise.
-    Less,
-    /// The difference is within the noise.
-    Within,
-}
-
-/// Relative difference under which two single-repetition estimates count as equal.
-pub const SINGLE_REP_MARGIN: f64 = 0.05;
-
-/// Compare `a` with `b`: by interval separation when at least one has a real interval,
-/// else (single repetitions) by a relative margin of [`SINGLE_REP_MARGIN`].
-pub fn compare(a: &Estimate, b: &Estimate) -> Compare {
-    if a.degenerate() && b.degenerate() {
-        let scale = a.value.abs().max(b.value.abs()).max(f64::MIN_POSITIVE);
-        let d = (a.value - b.value) / scale;
-        if d > SINGLE_REP_MARGIN {
-            Compare::Greater
-        } else if d < -SINGLE_REP_MARGIN {
-            Compare::Less
-        } else {
-            Compare::Within
-        }
-    } else if a.lo > b.hi {
-        Compare::Greater
-    } else if a.hi < b.lo {
-        Compare::Less
-    } else {
-        Compare::Within
     }
 }
 
@@ -512,7 +437,7 @@ impl Cell {
     fn add(&mut self, r: &Row) -> bool {
         self.oversubscribed |= r.placement.oversubscribed;
         self.mem_estimate = self.mem_estimate.max(r.outcome.mem_estimate_bytes);
-        self.particles = self.particles.or(r.measured.particles);
+        self.particles = self.particles.or(r.measured.as_ref().map(|f| f.size.particles as u64));
         if r.outcome.status != Status::Ok {
             self.not_ok.push((r.outcome.status, r.outcome.reason.clone()));
             return false;
@@ -524,20 +449,22 @@ impl Cell {
         self.times[0].push(total);
         self.noisy += usize::from(r.host.host_noisy);
         self.cores = self.cores.max(cores_of(r));
-        self.no_steady_stages += usize::from(r.measured.steady_grid_stage_s.is_none());
+        let f = r.measured.as_ref();
+        self.no_steady_stages += usize::from(f.and_then(|f| f.timing.steady_grid_stage_s).is_none());
         for (i, st) in [Stage::Grid, Stage::Particle].into_iter().enumerate() {
             if let Some(t) = st.time_per_step(r) {
                 self.times[i + 1].push(t);
             }
         }
-        if let Some(b) = r.measured.peak_rss_bytes {
+        if let Some(b) = f.and_then(|f| f.memory.peak_rss_bytes) {
             self.peak_rss.push(b as f64);
         }
         self.paired.extend(PairedProcess::of(r));
-        if !r.measured.work_bytes.is_empty() {
-            self.work.push(r.measured.work_bytes.clone());
+        let work = f.and_then(|f| f.work.as_ref());
+        if let Some(w) = work.filter(|w| !w.bytes.is_empty()) {
+            self.work.push(w.bytes.clone());
         }
-        self.work_bound.extend(r.measured.work_bound);
+        self.work_bound.extend(work.map(|w| w.efficiency_bound));
         if let Some(f) = r.injected() {
             self.injected = Some(self.injected.map_or(f, |g: f64| g.max(f)));
         }
@@ -685,7 +612,7 @@ impl Analysis {
             let key = CellKey::new(r.model(), r.strategy(), r.opt().as_str(), r.threads());
             let cell = self.cells.entry(key.clone()).or_default();
             if cell.add(r) {
-                if let Some(n) = r.measured.mean_nodes.or(r.measured.nodes.map(|n| n as f64)) {
+                if let Some(n) = r.measured.as_ref().map(|f| f.size.mean_nodes) {
                     nodes.entry(key).or_default().push(n);
                 }
             }

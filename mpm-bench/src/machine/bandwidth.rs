@@ -36,25 +36,20 @@ use std::time::Instant;
 /// best of `--reps` timed passes is the ceiling. Store the JSON with the campaign it
 /// belongs to (`--out results/<fingerprint>/<campaign>/bandwidth.json`) so `mpm-bench
 /// report` can say what fraction of the ceiling each MPM stage reaches.
-#[derive(clap::Args, Debug, Clone)]
-pub struct BandwidthArgs {
+#[derive(Debug, Clone)]
+pub struct BandwidthOptions {
     /// Thread counts to measure, comma-separated (more than the usable cores is allowed and
     /// flagged oversubscribed).
-    #[arg(long, value_delimiter = ',', default_value = "1,2,4,6,8")]
     pub threads: Vec<usize>,
     /// Pinning policy: close, spread, none, or an explicit CPU list such as 0,1 (repeat the
     /// flag to measure several policies).
-    #[arg(long = "pin", default_value = "close")]
     pub pin: Vec<String>,
     /// Size of EACH of the three arrays in MiB (0 = automatic: 4 x the total last-level
     /// cache, at least 64 MiB).
-    #[arg(long, default_value_t = 0)]
     pub size_mib: u64,
     /// Timed passes per configuration (the best one is the ceiling; STREAM uses 10).
-    #[arg(long, default_value_t = 10)]
     pub reps: usize,
     /// Write the result as JSON here (e.g. `results/FINGERPRINT/CAMPAIGN/bandwidth.json`).
-    #[arg(long)]
     pub out: Option<PathBuf>,
 }
 
@@ -220,7 +215,7 @@ fn measure(
 }
 
 /// Run the measurement on this machine (without printing or writing).
-pub fn measure_all(args: &BandwidthArgs) -> Result<BandwidthReport> {
+pub fn measure_all(args: &BandwidthOptions) -> Result<BandwidthReport> {
     if args.threads.is_empty() || args.threads.contains(&0) {
         bail!("--threads needs positive thread counts, e.g. --threads 1,2,4");
     }

@@ -13,17 +13,19 @@
 use super::doc::{Block, Doc, Section};
 use super::plot::svg_string;
 use super::report_figures;
-use crate::analysis::claims::{self, ClaimResult};
+use super::sets::{combos, strategy_opt_pairs, Set};
+use crate::analysis::claims;
 use crate::analysis::hybrid::HybridAnalysis;
 use crate::analysis::ratio::{self, Comparison};
-use crate::analysis::results::{load_campaigns, Campaign};
+use crate::analysis::results::load_campaigns;
 use crate::analysis::select::RowFilter;
-use crate::analysis::stats::{self, parallel_strategies, tag, Analysis, Compare, Estimate, Stage, StatsOptions};
-use crate::campaign::preset::OptLevel;
-use crate::campaign::record::Status;
+use crate::analysis::stats::{self, tag, Compare, Estimate, Stage, StatsOptions};
+use crate::campaign::plan::preset::OptLevel;
+use crate::campaign::store::record::{Row, Status};
 use crate::util::median;
 use anyhow::{bail, Context, Result};
-use mpm_core::Strategy;
+use mpm_core::{Strategy, Substage};
+use mpm_spec::summary::StageRoofline;
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -34,34 +36,20 @@ use std::path::PathBuf;
 /// network needed), OUT/report.md with its SVG figures, and OUT/report.json.
 ///
 /// Example: mpm-bench report --results results/aaa/quick --results results/bbb/quick --out cmp
-#[derive(clap::Args, Debug, Clone)]
-pub struct ReportArgs {
+#[derive(Debug, Clone)]
+pub struct ReportOptions {
     /// A results set; repeat for a comparison (the first is the baseline A).
-    #[arg(long = "results", required = true)]
     pub dirs: Vec<PathBuf>,
     /// The folder to write index.html, report.md, report.json and the SVG figures into.
-    #[arg(long)]
     pub out: PathBuf,
     /// Pinning policy to analyse when a campaign has several (default: close, else the first).
-    #[arg(long)]
     pub pin: Option<String>,
     /// Keep rows measured on a busy host (host_noisy); left out by default, as by figures,
     /// claims and regress, so the page's claims are `mpm-bench claims`'s.
-    #[arg(long)]
     pub include_noisy: bool,
     /// Also analyse rows that ran with an injected slowdown (`--inject-slowdown`, a test knob
     /// of the regression gate): never results, refused by default.
-    #[arg(long)]
     pub include_injected: bool,
-}
-
-/// One campaign with its analysis and claims.
-pub(super) struct Set {
-    pub(super) label: String,
-    pub(super) campaign: Campaign,
-    pub(super) analysis: Analysis,
-    hybrid: HybridAnalysis,
-    claims: Vec<ClaimResult>,
 }
 
 /// One comparison of the JSON: B against A.
@@ -127,7 +115,7 @@ fn section(id: &str, title: &str, blocks: Vec<Block>) -> Section {
 
 /// Read every results set, analyse it and evaluate the claims; label each by its machine
 /// fingerprint, plus the campaign id when a fingerprint repeats.
-fn load_sets(args: &ReportArgs) -> Result<Vec<Set>> {
+fn load_sets(args: &ReportOptions) -> Result<Vec<Set>> {
     if args.dirs.is_empty() {
         bail!("give at least one results folder: mpm-bench report --results DIR [--results DIR ...] --out OUT");
     }
@@ -153,7 +141,7 @@ fn load_sets(args: &ReportArgs) -> Result<Vec<Set>> {
 }
 
 /// The command and the sets (with their analysis notes).
-fn sources(args: &ReportArgs, sets: &[Set]) -> Section {
+fn sources(args: &ReportOptions, sets: &[Set]) -> Section {
     let cmd = format!(
         "Made with: mpm-bench report {} --out {}",
         args.dirs.iter().map(|d| format!("--results {}", d.display())).collect::<Vec<_>>().join(" "),
@@ -266,23 +254,6 @@ fn left_out_table(v: &Versus) -> Block {
         &["cell", "reason"],
         rows,
     )
-}
-
-/// (model, strategy, opt) of every measured cell of any set, O3 first.
-pub(super) fn combos(sets: &[Set], parallel_only: bool) -> Vec<(u32, Strategy, String)> {
-    let mut v: Vec<(u32, Strategy, String)> = sets
-        .iter()
-        .flat_map(|s| s.analysis.cells.keys().map(|k| (k.model, k.strategy, k.opt_level.clone())))
-        .filter(|(_, st, _)| !parallel_only || st.is_parallel())
-        .collect();
-    v.sort_by_key(|a| (a.2 == "o0", a.1.name(), a.0));
-    v.dedup();
-    v
-}
-
-/// (strategy, opt) of the scaling tables and figures: the parallel strategies at O3, then O0.
-pub(super) fn strategy_opt_pairs() -> Vec<(Strategy, &'static str)> {
-    ["o3", "o0"].into_iter().flat_map(|opt| parallel_strategies().map(move |s| (s, opt))).collect()
 }
 
 /// T1 and throughput at one thread and at the most threads each set ran without
@@ -434,7 +405,6 @@ fn hybrid_section(sets: &[Set]) -> Result<Option<Section>> {
 /// one-thread STREAM triad ceiling of the campaign's `bandwidth.json` and the achieved
 /// GFLOP/s against one core's peak (clock x flops per cycle of the kernels' SIMD level).
 fn roofline_section(sets: &[Set]) -> Section {
-    use mpm_core::Substage;
     let mut blocks = vec![Block::Para(
         "Per sub-stage of the steady state, one thread, O3: bytes and flops per particle-step counted from the \
          code (mpm_core::roofline; node terms weighted by the run's nodes per particle), the achieved rates \
@@ -453,57 +423,8 @@ fn roofline_section(sets: &[Set]) -> Section {
         let mhz = set.campaign.manifest.as_ref().and_then(|m| m.machine.cpu_mhz);
         let mut rows = Vec::new();
         for m in set.analysis.models() {
-            let pick = [Strategy::DomainDecomposition, Strategy::Serial, Strategy::ArrayExpansion]
-                .into_iter()
-                .find_map(|st| {
-                    let r: Vec<&crate::campaign::record::Row> = set
-                        .campaign
-                        .rows
-                        .iter()
-                        .filter(|r| {
-                            r.model() == m
-                                && r.strategy() == st
-                                && r.threads() == 1
-                                && r.opt() == OptLevel::O3
-                                && r.outcome.status == crate::campaign::record::Status::Ok
-                                && !r.measured.roofline.is_empty()
-                        })
-                        .collect();
-                    (!r.is_empty()).then_some((st, r))
-                });
-            let Some((st, rs)) = pick else { continue };
-            let per_particle = median(
-                &rs.iter()
-                    .filter_map(|r| Some(r.measured.mean_nodes? / r.measured.particles? as f64))
-                    .collect::<Vec<_>>(),
-            );
-            let peak =
-                rs.iter().find_map(|r| r.measured.simd_level).zip(mhz).map(|(l, f)| f * 1e-3 * l.flops_per_cycle());
-            for s in Substage::ALL {
-                let (bytes, flops) = mpm_core::roofline::cost(s).per_particle_step(per_particle);
-                let med = |f: &dyn Fn(&crate::campaign::record::Rates) -> Option<f64>| {
-                    let v: Vec<f64> = rs.iter().filter_map(|r| r.measured.roofline.get(&s).and_then(f)).collect();
-                    (!v.is_empty()).then(|| median(&v))
-                };
-                let (gb, gf) = (med(&|r| r.gb_per_s), med(&|r| r.gflop_per_s));
-                if gb.is_none() && gf.is_none() {
-                    continue;
-                }
-                let share = |x: Option<f64>, of: Option<f64>| match (x, of) {
-                    (Some(x), Some(c)) if c > 0.0 => format!("{:.0} %", 100.0 * x / c),
-                    _ => "-".into(),
-                };
-                rows.push(vec![
-                    format!("Model{m} {}", tag(st)),
-                    s.name().to_string(),
-                    format!("{bytes:.0}"),
-                    format!("{flops:.0}"),
-                    gb.map_or("-".into(), |g| format!("{g:.2}")),
-                    share(gb, stream),
-                    gf.map_or("-".into(), |g| format!("{g:.2}")),
-                    share(gf, peak),
-                ]);
-            }
+            let Some((st, rs)) = roofline_rows(set, m) else { continue };
+            rows.extend(roofline_table_rows(m, st, &rs, stream, mhz));
         }
         let caption = format!(
             "Roofline on {} (STREAM 1 thread: {}; core peak: {})",
@@ -536,6 +457,71 @@ fn roofline_section(sets: &[Set]) -> Section {
     section("roofline", "Roofline: how far each stage is from the machine's limits", blocks)
 }
 
+/// The ok one-thread O3 rows of Model `m` with roofline figures, of the first strategy that
+/// has some (DD, serial, AE).
+fn roofline_rows(set: &Set, m: u32) -> Option<(Strategy, Vec<&Row>)> {
+    [Strategy::DomainDecomposition, Strategy::Serial, Strategy::ArrayExpansion].into_iter().find_map(|st| {
+        let r: Vec<&Row> = set
+            .campaign
+            .rows
+            .iter()
+            .filter(|r| {
+                r.model() == m
+                    && r.strategy() == st
+                    && r.threads() == 1
+                    && r.opt() == OptLevel::O3
+                    && r.outcome.status == Status::Ok
+                    && r.measured.as_ref().and_then(|f| f.timing.roofline.as_ref()).is_some_and(|m| !m.is_empty())
+            })
+            .collect();
+        (!r.is_empty()).then_some((st, r))
+    })
+}
+
+/// The roofline table's rows of Model `m` run by `st` (`rs`): per sub-stage its counted
+/// bytes and flops, the median rates and their shares of the `stream` ceiling and of the
+/// core's peak at `mhz`.
+fn roofline_table_rows(m: u32, st: Strategy, rs: &[&Row], stream: Option<f64>, mhz: Option<f64>) -> Vec<Vec<String>> {
+    let per_particle = median(
+        &rs.iter()
+            .filter_map(|r| r.measured.as_ref().map(|f| f.size.mean_nodes / f.size.particles as f64))
+            .collect::<Vec<_>>(),
+    );
+    let peak = rs
+        .iter()
+        .find_map(|r| r.measured.as_ref()?.timing.simd_level)
+        .zip(mhz)
+        .map(|(l, f)| f * 1e-3 * l.flops_per_cycle());
+    let share = |x: Option<f64>, of: Option<f64>| match (x, of) {
+        (Some(x), Some(c)) if c > 0.0 => format!("{:.0} %", 100.0 * x / c),
+        _ => "-".into(),
+    };
+    let mut rows = Vec::new();
+    for s in Substage::ALL {
+        let (bytes, flops) = mpm_core::roofline::cost(s).per_particle_step(per_particle);
+        let med = |f: &dyn Fn(&StageRoofline) -> Option<f64>| {
+            let v: Vec<f64> =
+                rs.iter().filter_map(|r| r.measured.as_ref()?.timing.roofline.as_ref()?.get(&s).and_then(f)).collect();
+            (!v.is_empty()).then(|| median(&v))
+        };
+        let (gb, gf) = (med(&|r| r.gb_per_s), med(&|r| r.gflop_per_s));
+        if gb.is_none() && gf.is_none() {
+            continue;
+        }
+        rows.push(vec![
+            format!("Model{m} {}", tag(st)),
+            s.name().to_string(),
+            format!("{bytes:.0}"),
+            format!("{flops:.0}"),
+            gb.map_or("-".into(), |g| format!("{g:.2}")),
+            share(gb, stream),
+            gf.map_or("-".into(), |g| format!("{g:.2}")),
+            share(gf, peak),
+        ]);
+    }
+    rows
+}
+
 /// The verdicts side by side, then each set's reasons and evidence.
 fn claims_section(sets: &[Set]) -> Section {
     let mut head = vec!["claim".to_string()];
@@ -562,7 +548,7 @@ fn claims_section(sets: &[Set]) -> Section {
 }
 
 /// Build the report: the page and the comparisons.
-pub fn build(args: &ReportArgs) -> Result<Report> {
+pub fn build(args: &ReportOptions) -> Result<Report> {
     let sets = load_sets(args)?;
     let opts = StatsOptions::default();
     let comparisons: Vec<Versus> = sets[1..]
@@ -604,14 +590,8 @@ pub fn build(args: &ReportArgs) -> Result<Report> {
     Ok(Report { comparisons, page })
 }
 
-/// Count of ok and not-ok rows of a campaign.
-pub(super) fn row_counts(c: &Campaign) -> String {
-    let ok = c.all_rows().filter(|r| r.outcome.status == Status::Ok).count();
-    format!("{ok} / {}", c.rows.len() + c.hybrid.len() - ok)
-}
-
 /// `mpm-bench report`.
-pub fn run(args: ReportArgs) -> Result<()> {
+pub fn run(args: ReportOptions) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {} for --out: choose a writable folder", args.out.display()))?;
     let report = build(&args)?;

@@ -33,27 +33,22 @@ use std::path::{Path, PathBuf};
 /// and the command. Speedup is T1/Tn and efficiency speedup/n (paper Eqs. 19-20), from
 /// medians over repetitions with 95 % bootstrap interval bars; oversubscribed points are
 /// hollow; skipped configurations are absent.
-#[derive(clap::Args, Debug, Clone)]
-pub struct FiguresArgs {
+#[derive(Debug, Clone)]
+pub struct FiguresOptions {
     /// A campaign folder (holding runs.csv) or a folder containing campaigns (e.g. results/
     /// or results/FINGERPRINT/): then the newest campaign (by runs.csv modification
     /// time) is used and named.
-    #[arg(long)]
     pub results: PathBuf,
     /// Output folder (created if needed). A campaign with runs of several machines (a
     /// cluster's node types) gets one sub-folder per machine fingerprint.
-    #[arg(long, default_value = "paper-figures")]
     pub out: PathBuf,
     /// Pinning policy to plot when the campaign has several (default: close, else the first).
-    #[arg(long)]
     pub pin: Option<String>,
     /// Keep rows measured on a busy host (host_noisy), drawn grey; left out by default, as
     /// by claims, regress and report.
-    #[arg(long)]
     pub include_noisy: bool,
     /// Also analyse rows that ran with an injected slowdown (`--inject-slowdown`, a test knob
     /// of the regression gate): never results, refused by default.
-    #[arg(long)]
     pub include_injected: bool,
 }
 
@@ -595,7 +590,7 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
 }
 
 /// `mpm-bench figures`.
-pub fn run(args: FiguresArgs) -> Result<()> {
+pub fn run(args: FiguresOptions) -> Result<()> {
     let parts =
         load_campaigns(&args.results, &RowFilter::analysis(args.include_noisy).with_injected(args.include_injected))?;
     let mut command = format!("mpm-bench figures --results {} --out {}", args.results.display(), args.out.display());

@@ -203,21 +203,27 @@ pub fn table(h: &HybridAnalysis) -> (Vec<String>, Vec<Vec<String>>) {
 mod tests {
     use super::*;
     use crate::analysis::stats::StatsOptions;
-    use crate::campaign::preset::OptLevel;
-    use crate::campaign::record::{Row, Status};
+    use crate::campaign::plan::preset::OptLevel;
+    use crate::campaign::store::record::{Row, Status};
 
     /// Model 3, DD, one rank (the base) and two ranks whose exchange took `comm` of the
     /// wall time, with the waiting `wait` measured apart or not (a schema-4 row).
     fn analysis(comm: f64, wait: Option<f64>) -> HybridAnalysis {
         let row = |ranks: usize, comm: f64, wait: Option<f64>| {
-            let mut run =
-                crate::campaign::matrix::PlannedRun::taylor(3, Strategy::DomainDecomposition, OptLevel::O3, 1, 10);
+            let mut run = crate::campaign::plan::matrix::PlannedRun::taylor(
+                3,
+                Strategy::DomainDecomposition,
+                OptLevel::O3,
+                1,
+                10,
+            );
             run.spec.ranks = ranks;
             let mut r = Row::planned(run);
-            r.measured.steady_s_per_step = Some(0.2 / ranks as f64);
-            r.measured.comm_frac = Some(comm);
-            r.measured.wait_frac = wait;
-            r.measured.wait_s_per_step = wait.map(|w| 0.2 * w);
+            let f = r.measured_mut();
+            f.timing.steady_s_per_step = Some(0.2 / ranks as f64);
+            f.communication.comm_frac = Some(comm);
+            f.communication.wait_frac = wait;
+            f.communication.wait_s_per_step = wait.map(|w| 0.2 * w);
             r.outcome.status = Status::Ok;
             r
         };

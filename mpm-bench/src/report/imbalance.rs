@@ -2,7 +2,7 @@
 //! cuts against the thread count.
 
 use super::plot::{series_colour, write_png_svg, Line, Panel, PlotPoint};
-use crate::analysis::imbalance::{stem, ImbalanceReport, ImbalanceRow};
+use crate::campaign::measure::imbalance::{stem, ImbalanceReport, ImbalanceRow};
 use anyhow::Result;
 use std::path::{Path, PathBuf};
 

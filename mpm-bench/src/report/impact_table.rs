@@ -7,27 +7,23 @@
 //! written before the figure existed) shows as `-`.
 
 use anyhow::{bail, Context, Result};
-use clap::Args;
 use mpm_host::atomic::write_atomic;
 use mpm_host::human::group_digits;
 use mpm_spec::identity::Provenance;
-use mpm_spec::summary::{EnergyReport, Summary};
+use mpm_spec::summary::{EnergyReport, ImpactFigures, Summary};
 use std::path::{Path, PathBuf};
 
 /// The line of a template that the table replaces.
 pub const PLACEHOLDER: &str = "{{impact-table}}";
 
 /// `mpm-bench impact-table`.
-#[derive(Args, Debug)]
-pub struct ImpactTableArgs {
+#[derive(Debug, Clone)]
+pub struct ImpactTableOptions {
     /// Folder of the impact runs: one sub-folder per run holding `summary.json`.
-    #[arg(long, value_name = "DIR", default_value = "results/impact")]
     pub results: PathBuf,
     /// Markdown template whose line `{{impact-table}}` is replaced by the table (needs --out).
-    #[arg(long, value_name = "FILE", requires = "out")]
     pub template: Option<PathBuf>,
     /// Write the table (or the filled template) to FILE instead of stdout.
-    #[arg(long, value_name = "FILE")]
     pub out: Option<PathBuf>,
 }
 
@@ -54,8 +50,13 @@ pub fn load_runs(dir: &Path) -> Result<Vec<ImpactRun>> {
         let text = std::fs::read_to_string(&file).with_context(|| format!("cannot read {}", file.display()))?;
         let summary: Summary = serde_json::from_str(&text)
             .with_context(|| format!("{} is not an mpm summary (rerun that impact)", file.display()))?;
-        if summary.scenario != mpm_spec::ScenarioKind::Impact {
-            bail!("{} is a {} run, not an impact: remove it from {}", file.display(), summary.scenario, dir.display());
+        if summary.scenario() != mpm_spec::ScenarioKind::Impact {
+            bail!(
+                "{} is a {} run, not an impact: remove it from {}",
+                file.display(),
+                summary.scenario(),
+                dir.display()
+            );
         }
         let name = path.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
         runs.push(ImpactRun { name, summary });
@@ -63,7 +64,8 @@ pub fn load_runs(dir: &Path) -> Result<Vec<ImpactRun>> {
     if runs.is_empty() {
         bail!("no <run>/summary.json under {}: make the runs first (scripts/impact-runs.sh)", dir.display());
     }
-    let key = |r: &ImpactRun| (-r.summary.spacing_m.unwrap_or(0.0), -r.summary.dx_m);
+    let spacing = |r: &ImpactRun| r.summary.figures.scenario.impact().and_then(|c| c.spacing_m).unwrap_or(0.0);
+    let key = |r: &ImpactRun| (-spacing(r), -r.summary.figures.size.dx_m);
     runs.sort_by(|a, b| key(a).partial_cmp(&key(b)).unwrap_or(std::cmp::Ordering::Equal).then(a.name.cmp(&b.name)));
     Ok(runs)
 }
@@ -145,24 +147,26 @@ const HEAD: [&str; 22] = [
 /// One row of the table.
 fn row(r: &ImpactRun) -> Vec<String> {
     let s = &r.summary;
-    let e = s.energy.as_ref();
+    let e = s.figures.physics.energy.as_ref();
     let kj = |f: fn(&EnergyReport) -> f64| num(e.map(f), 1e-3, 1, " kJ");
     // Before the cloud history existed, front_velocity_m_s held the leading debris's speed:
     // only a summary with a history has the fitted front velocity.
-    let fitted = s.cloud_history.as_ref().and(s.front_velocity_m_s);
+    let none = ImpactFigures::default();
+    let c = s.figures.scenario.impact().unwrap_or(&none);
+    let fitted = c.cloud_history.as_ref().and(c.front_velocity_m_s);
     vec![
         r.name.clone(),
-        num(s.spacing_m, 1e3, 2, " mm"),
-        num(Some(s.dx_m), 1e3, 2, " mm"),
-        group_digits(s.particles as u64),
-        group_digits(s.steps),
-        num(Some(s.sim_time), 1e6, 1, " µs"),
-        wall(s.wall_s),
-        pair_mm(s.cloud_front_m, s.cloud_front_robust_m),
-        pair_mm(s.cloud_width_m, s.cloud_width_robust_m),
-        num(s.hole_diameter_m, 1e3, 1, " mm"),
+        num(c.spacing_m, 1e3, 2, " mm"),
+        num(Some(s.figures.size.dx_m), 1e3, 2, " mm"),
+        group_digits(s.figures.size.particles as u64),
+        group_digits(s.figures.progress.steps),
+        num(Some(s.figures.progress.sim_time), 1e6, 1, " µs"),
+        wall(s.figures.timing.wall_s),
+        pair_mm(c.cloud_front_m, c.cloud_front_robust_m),
+        pair_mm(c.cloud_width_m, c.cloud_width_robust_m),
+        num(c.hole_diameter_m, 1e3, 1, " mm"),
         num(fitted, 1.0, 0, " m/s"),
-        num(s.leading_debris_velocity_m_s, 1.0, 0, " m/s"),
+        num(c.leading_debris_velocity_m_s, 1.0, 0, " m/s"),
         kj(|e| e.initial_total_j),
         kj(|e| e.final_kinetic_j),
         kj(|e| e.final_internal_j),
@@ -174,16 +178,16 @@ fn row(r: &ImpactRun) -> Vec<String> {
             0 => "0".into(),
             n => format!("{n} ({:.2e} J)", e.failed_energy_floor_j),
         }),
-        group_digits(s.failed_particles as u64),
-        memory(s.peak_rss_bytes),
-        s.final_occupancy.map_or_else(
-            || group_digits(s.final_nodes as u64),
+        group_digits(s.figures.physics.failed_particles as u64),
+        memory(s.figures.memory.peak_rss_bytes),
+        s.figures.size.final_occupancy.map_or_else(
+            || group_digits(s.figures.size.final_nodes as u64),
             |o| {
                 let share = 100.0 * o.occupied_cells as f64 / o.cells.max(1) as f64;
                 let stored = s
                     .sparse_stored_nodes()
                     .map_or_else(String::new, |n| format!("; {} stored", group_digits(n as u64)));
-                format!("{} ({share:.1} %){stored}", group_digits(s.final_nodes as u64))
+                format!("{} ({share:.1} %){stored}", group_digits(s.figures.size.final_nodes as u64))
             },
         ),
         commit(s.provenance.as_ref()),
@@ -218,7 +222,7 @@ pub fn fill_template(template: &str, table: &str) -> Result<String> {
 }
 
 /// `mpm-bench impact-table`.
-pub fn run(args: ImpactTableArgs) -> Result<()> {
+pub fn run(args: ImpactTableOptions) -> Result<()> {
     let table = table(&load_runs(&args.results)?);
     let text = match &args.template {
         Some(t) => {

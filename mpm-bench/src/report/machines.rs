@@ -1,9 +1,9 @@
 //! The report's machines side by side: CPU identity, topology, caches, memory, OS and
 //! software of every campaign, from its `manifest.json` (and `bandwidth.json`).
 
-use super::comparison::{row_counts, Set};
 use super::doc::{Block, Section};
-use crate::campaign::manifest::Manifest;
+use super::sets::{row_counts, Set};
+use crate::campaign::store::manifest::Manifest;
 use crate::machine::topology::human_bytes;
 use mpm_host::identity::HostIdentity;
 

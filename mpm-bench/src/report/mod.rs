@@ -19,3 +19,4 @@ mod machines;
 pub mod plot;
 mod report_figures;
 pub mod roofline_table;
+mod sets;

@@ -177,37 +177,50 @@ pub fn draw_panel<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &Pan
         chart.draw_series(DashedLineSeries::new(pts, 8, 6, BLACK.mix(0.6).stroke_width(1))).map_err(pe)?;
     }
     for line in &panel.lines {
-        let colour = line.colour;
-        // Segments: solid between real points, dotted when either end is hollow.
-        for w in line.points.windows(2) {
-            let seg = vec![(w[0].x, w[0].y), (w[1].x, w[1].y)];
-            if w[0].hollow || w[1].hollow || line.dashed {
-                let (size, gap) = if line.dashed && !(w[0].hollow || w[1].hollow) { (8, 5) } else { (3, 4) };
-                chart.draw_series(DashedLineSeries::new(seg, size, gap, colour.stroke_width(2))).map_err(pe)?;
-            } else {
-                chart.draw_series(LineSeries::new(seg, colour.stroke_width(2))).map_err(pe)?;
-            }
-        }
-        for p in &line.points {
-            if p.hi > p.lo {
-                chart
-                    .draw_series(std::iter::once(ErrorBar::new_vertical(
-                        p.x,
-                        p.lo,
-                        p.y,
-                        p.hi,
-                        colour.stroke_width(1),
-                        8,
-                    )))
-                    .map_err(pe)?;
-            }
-            draw_marker(&mut chart, p, line)?;
+        draw_line(&mut chart, line)?;
+    }
+    draw_notes(area, &panel.notes)?;
+    Ok(())
+}
+
+/// One line of a panel: its segments (solid between real points, dotted when either end is
+/// hollow, dashed for a dashed line), error bars and markers.
+fn draw_line<DB: DrawingBackend>(
+    chart: &mut ChartContext<
+        '_,
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    line: &Line,
+) -> Result<()> {
+    let colour = line.colour;
+    // Segments: solid between real points, dotted when either end is hollow.
+    for w in line.points.windows(2) {
+        let seg = vec![(w[0].x, w[0].y), (w[1].x, w[1].y)];
+        if w[0].hollow || w[1].hollow || line.dashed {
+            let (size, gap) = if line.dashed && !(w[0].hollow || w[1].hollow) { (8, 5) } else { (3, 4) };
+            chart.draw_series(DashedLineSeries::new(seg, size, gap, colour.stroke_width(2))).map_err(pe)?;
+        } else {
+            chart.draw_series(LineSeries::new(seg, colour.stroke_width(2))).map_err(pe)?;
         }
     }
-    if !panel.notes.is_empty() {
+    for p in &line.points {
+        if p.hi > p.lo {
+            chart
+                .draw_series(std::iter::once(ErrorBar::new_vertical(p.x, p.lo, p.y, p.hi, colour.stroke_width(1), 8)))
+                .map_err(pe)?;
+        }
+        draw_marker(chart, p, line)?;
+    }
+    Ok(())
+}
+
+/// The panel's notes, right-aligned at its bottom.
+fn draw_notes<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, notes: &[String]) -> Result<()> {
+    if !notes.is_empty() {
         let (w, h) = area.dim_in_pixel();
-        let k = panel.notes.len() as i32;
-        for (i, n) in panel.notes.iter().enumerate() {
+        let k = notes.len() as i32;
+        for (i, n) in notes.iter().enumerate() {
             area.draw(&Text::new(
                 n.clone(),
                 (w as i32 - 24, h as i32 - 64 - 20 * (k - 1 - i as i32)),

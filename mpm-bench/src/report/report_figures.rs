@@ -2,9 +2,9 @@
 //! and efficiency, throughput and ns per particle-step, per strategy and optimisation level,
 //! drawn as SVG text for the page.
 
-use super::comparison::{combos, strategy_opt_pairs, Set};
 use super::doc::Block;
 use super::plot::{series_colour, svg_string, Line, Panel, PlotPoint};
+use super::sets::{combos, strategy_opt_pairs, Set};
 use crate::analysis::stats::{Point, Stage};
 use anyhow::Result;
 use mpm_core::Strategy;

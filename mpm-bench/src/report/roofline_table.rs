@@ -8,7 +8,6 @@
 //! is for single runs (the README's Models 1-3 and the impact).
 
 use anyhow::{bail, Context, Result};
-use clap::Args;
 use mpm_host::atomic::write_atomic;
 use mpm_spec::summary::Summary;
 use std::path::PathBuf;
@@ -16,18 +15,15 @@ use std::path::PathBuf;
 use crate::machine::bandwidth;
 
 /// `mpm-bench roofline-table`.
-#[derive(Args, Debug)]
-pub struct RooflineTableArgs {
+#[derive(Debug, Clone)]
+pub struct RooflineTableOptions {
     /// A run's summary (`mpm run ... --json FILE`), as `LABEL=FILE` or `FILE` (labelled by its
     /// file name); repeat for more runs, in the order of the table.
-    #[arg(long = "summary", value_name = "[LABEL=]FILE", required = true)]
     pub summaries: Vec<String>,
     /// `mpm-bench bandwidth --out` of the same machine: each run's GB/s is also given as a
     /// share of the best STREAM triad at its worker count.
-    #[arg(long, value_name = "FILE")]
     pub bandwidth: Option<PathBuf>,
     /// Write the table to FILE instead of stdout.
-    #[arg(long, value_name = "FILE")]
     pub out: Option<PathBuf>,
 }
 
@@ -60,7 +56,7 @@ fn load(arg: &str) -> Result<(String, Summary)> {
     let summary: Summary = serde_json::from_str(&text).with_context(|| {
         format!("{} is not an mpm summary (write one with mpm run ... --json FILE)", file.display())
     })?;
-    if summary.roofline.is_none() {
+    if summary.figures.timing.roofline.is_none() {
         bail!(
             "{} has no roofline (no steady steps, or written before the roofline existed): rerun it with more steps \
              than its warm-up",
@@ -76,7 +72,7 @@ pub fn table(runs: &[(String, Summary)], stream: &dyn Fn(usize) -> Option<f64>) 
     for (label, s) in runs {
         let workers = s.threads.max(1);
         let ceiling = stream(workers);
-        let Some(roofline) = &s.roofline else { continue };
+        let Some(roofline) = &s.figures.timing.roofline else { continue };
         let mut total = (0.0, 0.0, 0.0);
         for (stage, r) in roofline {
             // A sub-stage without measurable time did not run in this configuration (the
@@ -111,7 +107,7 @@ pub fn table(runs: &[(String, Summary)], stream: &dyn Fn(usize) -> Option<f64>) 
         out.push_str(&format!(
             "| {label} | **step** ({} x{workers}, {} particles) | {ns:.1} | {bytes:.0} | {flops:.0} | {gb:.2} | {share} | {:.2} |\n",
             s.strategy,
-            mpm_host::human::group_digits(s.particles as u64),
+            mpm_host::human::group_digits(s.figures.size.particles as u64),
             flops / ns,
         ));
     }
@@ -119,7 +115,7 @@ pub fn table(runs: &[(String, Summary)], stream: &dyn Fn(usize) -> Option<f64>) 
 }
 
 /// `mpm-bench roofline-table`.
-pub fn run(a: &RooflineTableArgs) -> Result<()> {
+pub fn run(a: &RooflineTableOptions) -> Result<()> {
     let runs = a.summaries.iter().map(|s| load(s)).collect::<Result<Vec<_>>>()?;
     let bw = a.bandwidth.as_deref().map(bandwidth::read).transpose()?;
     let stream = |threads: usize| Some(bw.as_ref()?.ceiling(threads, "close")?.best_gb_s);

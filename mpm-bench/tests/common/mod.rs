@@ -2,9 +2,10 @@
 //! speedups, efficiencies and memory, written to a folder as the harness would.
 #![allow(dead_code)]
 
-use mpm_bench::campaign::manifest::{self, GitInfo, Manifest, SoftwareInfo, MANIFEST_VERSION};
-use mpm_bench::campaign::matrix::PlannedRun;
-use mpm_bench::campaign::record::{CsvLog, Row, Status, SCHEMA_VERSION};
+use mpm_bench::campaign::plan::matrix::PlannedRun;
+use mpm_bench::campaign::store::csv::CsvLog;
+use mpm_bench::campaign::store::manifest::{self, GitInfo, Manifest, SoftwareInfo, MANIFEST_VERSION};
+use mpm_bench::campaign::store::record::{Row, Status, SCHEMA_VERSION};
 use mpm_bench::machine::fingerprint;
 use mpm_bench::machine::topology::Machine;
 use mpm_core::Strategy;
@@ -130,25 +131,29 @@ pub fn write_campaign(dir: &Path, c: &Craft) -> PathBuf {
                             row.outcome.status = Status::Skipped;
                             row.outcome.reason = "memory guard: estimated 9.5 GiB exceeds the limit".into();
                         } else {
-                            let t = &mut row.measured;
-                            t.particles = Some(10_000 * m as u64);
-                            t.nodes = Some(5_000 * m as u64);
-                            t.mean_nodes = Some(5_000.0 * m as f64);
-                            t.steps = Some(steps);
-                            t.steady_steps = Some(steps);
-                            t.wall_s = Some((g + p) * steps as f64);
-                            t.grid_stage_s = Some(g * steps as f64);
-                            t.particle_stage_s = Some(p * steps as f64);
+                            let f = row.measured_mut();
+                            f.size.particles = 10_000 * m as usize;
+                            f.size.nodes = 5_000 * m as usize;
+                            f.size.mean_nodes = 5_000.0 * m as f64;
+                            f.progress.steps = steps;
+                            f.progress.steady_steps = steps;
+                            let t = &mut f.timing;
+                            t.wall_s = (g + p) * steps as f64;
+                            t.grid_stage_s = g * steps as f64;
+                            t.particle_stage_s = p * steps as f64;
                             t.steady_wall_s = t.wall_s;
-                            t.steady_grid_stage_s = t.grid_stage_s;
-                            t.steady_particle_stage_s = t.particle_stage_s;
+                            t.steady_grid_stage_s = Some(t.grid_stage_s);
+                            t.steady_particle_stage_s = Some(t.particle_stage_s);
                             t.steady_s_per_step = Some(g + p);
-                            t.peak_rss_bytes = Some(mem as u64);
-                            t.dd_work_imbalance = match strategy {
+                            f.memory.peak_rss_bytes = Some(mem as u64);
+                            let imbalance = match strategy {
                                 DD => Some(1.0 + 0.05 * (n - 1) as f64),
                                 DDB => Some(1.0 + 0.002 * (n - 1) as f64),
                                 _ => None,
                             };
+                            f.balance.dd_patch_particles = imbalance.map(|imbalance_mean| {
+                                mpm_spec::summary::PatchCounts { imbalance_mean, ..Default::default() }
+                            });
                         }
                         log.append(&row).unwrap();
                     }

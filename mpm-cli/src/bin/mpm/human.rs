@@ -29,23 +29,26 @@ pub fn print_human(s: &Summary, json: Option<&Path>, snaps: Option<&SnapshotWrit
 
 /// The model and the solver as run: counts, grid, strategy, threads, pinning, build.
 fn configuration(s: &Summary) -> Vec<String> {
-    let what =
-        if s.scenario == ScenarioKind::Taylor { format!("Taylor bar Model {}", s.model) } else { s.model_name.clone() };
+    let what = if s.scenario() == ScenarioKind::Taylor {
+        format!("Taylor bar Model {}", s.model)
+    } else {
+        s.model_name.clone()
+    };
     let model = format!(
         "{what} at {} m/s: {} particles, {} cells, {} nodes ({} grid, dx = {:.4} mm)",
         s.velocity_m_s,
-        group_digits(s.particles as u64),
-        group_digits(s.cells as u64),
-        group_digits(s.nodes as u64),
+        group_digits(s.figures.size.particles as u64),
+        group_digits(s.figures.size.cells as u64),
+        group_digits(s.figures.size.nodes as u64),
         s.grid_mode.name(),
-        s.dx_m * 1e3
+        s.figures.size.dx_m * 1e3
     );
-    let cpus = if s.pinned {
+    let cpus = if s.pinning.pinned {
         format!(
             ", pinned to CPUs {} (observed {}{})",
-            pinning::format_cpu_list(&s.requested_cpus),
-            s.observed_cpus.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(","),
-            if s.pinning_verified == Some(true) { ", verified" } else { ", NOT as requested" }
+            pinning::format_cpu_list(&s.pinning.requested_cpus),
+            s.pinning.observed_cpus.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(","),
+            if s.pinning.pinning_verified == Some(true) { ", verified" } else { ", NOT as requested" }
         )
     } else {
         String::new()
@@ -55,7 +58,7 @@ fn configuration(s: &Summary) -> Vec<String> {
         s.strategy,
         s.threads,
         cpus,
-        if s.oversubscribed { " (oversubscribed)" } else { "" },
+        if s.pinning.oversubscribed { " (oversubscribed)" } else { "" },
         s.opt_level,
         s.eos.name(),
         s.cfl,
@@ -69,34 +72,34 @@ fn configuration(s: &Summary) -> Vec<String> {
 
 /// Steps, wall time by stage, the steady state and the workers' balance.
 fn timing(s: &Summary) -> Vec<String> {
-    let reason = match s.end_reason {
+    let reason = match s.figures.progress.end_reason {
         EndReason::EndTime => "end time reached",
         EndReason::StepLimit => "step limit reached",
     };
     let mut lines = vec![format!(
         "steps: {} to t = {:.3} µs ({reason}), dt first {:.3e} s",
-        group_digits(s.steps),
-        s.sim_time * 1e6,
-        s.dt_first
+        group_digits(s.figures.progress.steps),
+        s.figures.progress.sim_time * 1e6,
+        s.figures.progress.dt_first
     )];
-    let total = s.grid_stage_s + s.particle_stage_s;
+    let total = s.figures.timing.grid_stage_s + s.figures.timing.particle_stage_s;
     let pct = |x: f64| if total > 0.0 { 100.0 * x / total } else { 0.0 };
     lines.push(format!(
         "wall time: {:.3} s; grid-node stage {:.3} s ({:.0} %), particle stage {:.3} s ({:.0} %)",
-        s.wall_s,
-        s.grid_stage_s,
-        pct(s.grid_stage_s),
-        s.particle_stage_s,
-        pct(s.particle_stage_s)
+        s.figures.timing.wall_s,
+        s.figures.timing.grid_stage_s,
+        pct(s.figures.timing.grid_stage_s),
+        s.figures.timing.particle_stage_s,
+        pct(s.figures.timing.particle_stage_s)
     ));
-    lines.push(match (s.ns_per_particle_step, s.particle_steps_per_s) {
+    lines.push(match (s.figures.timing.ns_per_particle_step, s.figures.timing.particle_steps_per_s) {
         (Some(ns), Some(rate)) => format!(
             "steady state ({} steps after {} warm-up): {:.1} ns per particle-step, {:.3e} particle-steps/s, {:.3} ms per step",
-            s.steady_steps,
-            s.warmup_steps,
+            s.figures.progress.steady_steps,
+            s.figures.progress.warmup_steps,
             ns,
             rate,
-            s.steady_s_per_step.unwrap_or(0.0) * 1e3
+            s.figures.timing.steady_s_per_step.unwrap_or(0.0) * 1e3
         ),
         _ => "steady state: no steps after the warm-up".to_string(),
     });
@@ -109,17 +112,17 @@ fn timing(s: &Summary) -> Vec<String> {
 /// The workers' busy time and the DD patches' work, when measured.
 fn balance(s: &Summary) -> Vec<String> {
     let mut lines = Vec::new();
-    if let (Some(busy), Some(imb)) = (&s.worker_busy_s, s.load_imbalance) {
+    if let (Some(busy), Some(imb)) = (&s.figures.balance.worker_busy_s, s.figures.balance.load_imbalance) {
         let list = busy.iter().map(|b| format!("{b:.3}")).collect::<Vec<_>>().join(" / ");
-        let uneven_patches = s.dd_patch_particles.is_some_and(|p| p.imbalance_mean > 1.1);
-        let note = if imb > 1.1 && !s.oversubscribed && !uneven_patches {
+        let uneven_patches = s.figures.balance.dd_patch_particles.is_some_and(|p| p.imbalance_mean > 1.1);
+        let note = if imb > 1.1 && !s.pinning.oversubscribed && !uneven_patches {
             " (unequal: a worker's CPU was slowed from outside this run; repeat it)"
         } else {
             ""
         };
         lines.push(format!("workers: busy {list} s in their shares, load imbalance {imb:.3}{note}"));
     }
-    if let Some(p) = s.dd_patch_particles {
+    if let Some(p) = s.figures.balance.dd_patch_particles {
         lines.push(format!(
             "DD patches: {} / {:.0} / {} particles (min / mean / max), work imbalance {:.3} mean, {:.3} worst step",
             p.min, p.mean, p.max, p.imbalance_mean, p.imbalance_max
@@ -130,7 +133,7 @@ fn balance(s: &Summary) -> Vec<String> {
 
 /// The checkpoints written and the restarts, when there were any.
 fn checkpoints(s: &Summary) -> Option<String> {
-    s.checkpoint.as_ref().map(|c| {
+    s.figures.checkpoint.as_ref().map(|c| {
         let restarts = match c.restarts {
             0 => String::new(),
             n => format!(
@@ -152,7 +155,7 @@ fn checkpoints(s: &Summary) -> Option<String> {
 /// measurement, workers kept off their CPUs, the injected slowdown.
 fn efficiency_notes(s: &Summary) -> Vec<String> {
     let mut lines = Vec::new();
-    if let Some(w) = s.work.as_ref().filter(|w| w.worker_bytes.len() > 1) {
+    if let Some(w) = s.figures.work.as_ref().filter(|w| w.worker_bytes.len() > 1) {
         lines.push(format!(
             "work counters: efficiency bound {:.3} from the traffic alone (balance {:.3}, the strategy's overhead {:.1} %)",
             w.efficiency_bound,
@@ -160,7 +163,7 @@ fn efficiency_notes(s: &Summary) -> Vec<String> {
             100.0 * w.overhead
         ));
     }
-    if let Some(p) = &s.paired {
+    if let Some(p) = &s.figures.paired {
         let lo = p.block_efficiency.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = p.block_efficiency.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         lines.push(format!(
@@ -169,9 +172,10 @@ fn efficiency_notes(s: &Summary) -> Vec<String> {
             p.efficiency, p.blocks, p.block_steps
         ));
     }
-    for (who, n) in
-        [("", s.noise.as_ref()), ("paired reference: ", s.paired.as_ref().and_then(|p| p.reference_noise.as_ref()))]
-    {
+    for (who, n) in [
+        ("", s.figures.noise.as_ref()),
+        ("paired reference: ", s.figures.paired.as_ref().and_then(|p| p.reference_noise.as_ref())),
+    ] {
         if let Some(why) = n.and_then(|n| n.why()) {
             lines.push(format!("warning: {who}{why}: something else took its CPU; the timing is not this code's"));
         }
@@ -180,7 +184,7 @@ fn efficiency_notes(s: &Summary) -> Vec<String> {
         lines.push(format!(
             "TEST KNOB: an injected slowdown of {:.0} % ({:.3} s of extra work): these times are not a result",
             100.0 * f,
-            s.injected_s.unwrap_or(0.0)
+            s.figures.injected_s.unwrap_or(0.0)
         ));
     }
     lines
@@ -217,7 +221,8 @@ fn ranks(s: &Summary) -> Vec<String> {
 /// The scenario's figures, energies and memory.
 fn physics(s: &Summary) -> Vec<String> {
     let mut lines = Vec::new();
-    if let (Some(l0), Some(l), Some(d)) = (s.initial_length_m, s.final_length_m, s.face_diameter_m) {
+    let bar = s.figures.scenario.taylor().cloned().unwrap_or_default();
+    if let (Some(l0), Some(l), Some(d)) = (bar.initial_length_m, bar.final_length_m, bar.face_diameter_m) {
         lines.push(format!(
             "bar: length {:.3} mm (initial {:.3} mm), impact-face diameter {:.3} mm",
             l * 1e3,
@@ -225,24 +230,28 @@ fn physics(s: &Summary) -> Vec<String> {
             d * 1e3
         ));
     }
-    if let (Some(front), Some(width)) = (s.cloud_front_m, s.cloud_width_m) {
+    let cloud = s.figures.scenario.impact().cloned().unwrap_or_default();
+    if let (Some(front), Some(width)) = (cloud.cloud_front_m, cloud.cloud_width_m) {
         lines.push(format!(
             "debris cloud: leading edge {:.2} mm behind the plate (robust {:.2} mm), width {:.2} mm (robust {:.2} mm), hole {:.2} mm, front velocity {:.0} m/s (fitted), leading debris {:.0} m/s",
             front * 1e3,
-            s.cloud_front_robust_m.unwrap_or(f64::NAN) * 1e3,
+            cloud.cloud_front_robust_m.unwrap_or(f64::NAN) * 1e3,
             width * 1e3,
-            s.cloud_width_robust_m.unwrap_or(f64::NAN) * 1e3,
-            s.hole_diameter_m.unwrap_or(f64::NAN) * 1e3,
-            s.front_velocity_m_s.unwrap_or(f64::NAN),
-            s.leading_debris_velocity_m_s.unwrap_or(f64::NAN)
+            cloud.cloud_width_robust_m.unwrap_or(f64::NAN) * 1e3,
+            cloud.hole_diameter_m.unwrap_or(f64::NAN) * 1e3,
+            cloud.front_velocity_m_s.unwrap_or(f64::NAN),
+            cloud.leading_debris_velocity_m_s.unwrap_or(f64::NAN)
         ));
     }
     lines.extend(shock(s));
     lines.push(format!(
         "energy: kinetic {:.4} J (initial {:.4} J), internal {:.4} J; failed particles {}",
-        s.kinetic_energy, s.kinetic_energy_initial, s.internal_energy, s.failed_particles
+        s.figures.physics.kinetic_energy,
+        s.figures.physics.kinetic_energy_initial,
+        s.figures.physics.internal_energy,
+        s.figures.physics.failed_particles
     ));
-    if let Some(e) = &s.energy {
+    if let Some(e) = &s.figures.physics.energy {
         lines.push(format!(
             "energy balance: total {:.4} J -> {:.4} J, largest rise {:.2e} (step {}), largest fall {:.2e} (step {}); negative internal energy after {} step(s) (at most {} particles); failed particles' negative energy set to zero {} time(s), adding {:.4} J",
             e.initial_total_j,
@@ -259,16 +268,16 @@ fn physics(s: &Summary) -> Vec<String> {
     }
     lines.push(format!(
         "memory: peak RSS {}, model {:.1} MiB",
-        s.peak_rss_bytes.map_or("unknown".into(), |b| format!("{:.1} MiB", b as f64 / 1048576.0)),
-        s.model_memory_bytes as f64 / 1048576.0
+        s.figures.memory.peak_rss_bytes.map_or("unknown".into(), |b| format!("{:.1} MiB", b as f64 / 1048576.0)),
+        s.figures.memory.model_memory_bytes as f64 / 1048576.0
     ));
-    if let Some(o) = s.final_occupancy {
+    if let Some(o) = s.figures.size.final_occupancy {
         let stored = s.sparse_stored_nodes().map_or_else(String::new, |n| {
             format!(" in its box, {} stored ({} grid)", group_digits(n as u64), s.grid_mode.name())
         });
         lines.push(format!(
             "final grid: {} nodes{stored}; particles in {} of its {} cells ({:.1} %) and in {} blocks of {}^3 cells",
-            group_digits(s.final_nodes as u64),
+            group_digits(s.figures.size.final_nodes as u64),
             group_digits(o.occupied_cells),
             group_digits(o.cells),
             100.0 * o.occupied_cells as f64 / o.cells.max(1) as f64,
@@ -281,11 +290,14 @@ fn physics(s: &Summary) -> Vec<String> {
 
 /// The plate's shock, measured against Rankine-Hugoniot.
 fn shock(s: &Summary) -> Vec<String> {
-    let (Some(us_rh), Some(p_rh), Some(up_rh)) = (s.rh_shock_speed_m_s, s.rh_pressure_pa, s.rh_particle_velocity_m_s)
+    let Some(plate) = s.figures.scenario.plate() else { return Vec::new() };
+    let (Some(us_rh), Some(p_rh), Some(up_rh)) =
+        (plate.rh_shock_speed_m_s, plate.rh_pressure_pa, plate.rh_particle_velocity_m_s)
     else {
         return Vec::new();
     };
-    let (Some(us), Some(p), Some(up)) = (s.shock_speed_m_s, s.shock_pressure_pa, s.particle_velocity_m_s) else {
+    let (Some(us), Some(p), Some(up)) = (plate.shock_speed_m_s, plate.shock_pressure_pa, plate.particle_velocity_m_s)
+    else {
         return vec![format!(
             "shock: not measured (the front was not tracked long enough; run to the default end time); Rankine-Hugoniot: U_s {us_rh:.1} m/s, p {:.3} GPa, u_p {up_rh:.1} m/s",
             p_rh * 1e-9

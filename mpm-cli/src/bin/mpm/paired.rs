@@ -96,6 +96,7 @@ pub fn run(
         reference_steady_substages: StageSeconds::from_times(&one.sim.times().since(&one.times_at_start)),
         reference_noise: one.usage.report(MIN_CPU_SHARE),
         max_position_difference,
+        ..PairedReport::default()
     };
     let timing = Timing {
         wall_s: many.warmup_wall_s + many.blocks_wall_s(),

@@ -365,10 +365,7 @@ fn summarize(
         _ => ranks.gather_reports(rank_report(&sim, &pool, ranks, rank_oversubscribed))?,
     };
     let Some(mut summary) = summary else { return Ok(()) };
-    summary.ranks = reports;
-    summary.noise = stepped.noise;
-    summary.paired = stepped.paired;
-    summary.peak_rss_bytes = peak_rss_bytes();
+    summary::finish(&mut summary, reports, stepped.noise, stepped.paired);
     outputs.commit_json(&summary)?;
     if !spec.outputs.quiet {
         print_human(&summary, spec.outputs.json.as_deref(), outputs.snapshots());

@@ -1,0 +1,193 @@
+//! One run as a batch job: the file the harness writes for it ([`JobFile`],
+//! `json/<run id>.job.json`) and what `mpm-bench job FILE` does with it on the node the
+//! scheduler chose ([`run`]).
+//!
+//! The job runs the run exactly as a local campaign runs it, with the same code
+//! ([`RunContext::run_one`]) and this node as the machine: the pinning policy places the
+//! workers on this node's topology, the memory guard weighs this node's memory, the host
+//! watch probes this node (a job is a session of one run: its calibration ratios are 1), the
+//! solver runs as `mpm run --spec FILE` and its summary is checked against the request (a
+//! worker seen on another CPU than placed makes the row invalid). The job writes
+//!
+//! * `json/<run id>.node.json` when it starts ([`Started`]: the node and its fingerprint),
+//!   so that even a job the scheduler kills later names the machine it ran on;
+//! * `nodes/<fingerprint>.json` and `nodes/<fingerprint>.topology.xml` the first time a node
+//!   of that machine runs a job (the manifest's `nodes`, see [`NodeInfo`]);
+//! * `json/<run id>.row.json`, the finished row, which the harness appends to `runs.csv`.
+//!
+//! Before running, the job checks that the solver binary on this node is the one the
+//! campaign hashed (the binaries must be the same on every node); if not, it fails with
+//! exit code 2 and says so in the job's output.
+
+use crate::campaign::exec::process::ProcessRunner;
+use crate::campaign::exec::run::RunContext;
+use crate::campaign::exec::solver::{sha256_file, Solver};
+use crate::campaign::exec::watch::{HostWatch, WatchSettings};
+use crate::campaign::plan::matrix::{Campaign, PlannedRun};
+use crate::campaign::schedule::install_interrupt_handler;
+use crate::campaign::store::manifest::{GitInfo, NodeInfo};
+use crate::campaign::store::record::Row;
+use crate::machine::fingerprint;
+use crate::machine::topology::Machine;
+use anyhow::{bail, Context, Result};
+use mpm_host::atomic::write_atomic;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// Everything a job needs to run one run of a campaign on a node.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobFile {
+    /// The campaign (its id, seed, launcher and memory limit).
+    pub campaign: Campaign,
+    /// The campaign's per-run time limit (not part of the campaign's serialised form).
+    pub timeout: Option<Duration>,
+    /// The git state of the session that submitted the job.
+    pub git: GitInfo,
+    /// The solver binary (its path on every node, and its hash).
+    pub solver: Solver,
+    /// The run.
+    pub run: PlannedRun,
+    /// Its position in the session's seeded order.
+    pub order_index: usize,
+    /// Its run id (the name of its files).
+    pub run_id: String,
+    /// Watch the node around the run (`None`: the `host_*` columns stay empty).
+    pub watch: Option<WatchSettings>,
+}
+
+/// What a job writes when it starts: where it runs.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Started {
+    /// The node (Slurm node name, else host name).
+    pub node: String,
+    /// Its machine fingerprint.
+    pub fingerprint: String,
+}
+
+/// `json/<run id>.job.json`.
+pub fn job_path(json_dir: &Path, run_id: &str) -> PathBuf {
+    json_dir.join(format!("{run_id}.job.json"))
+}
+
+/// `json/<run id>.row.json`: the finished row.
+pub fn row_path(json_dir: &Path, run_id: &str) -> PathBuf {
+    json_dir.join(format!("{run_id}.row.json"))
+}
+
+/// `json/<run id>.node.json`: where the job started.
+pub fn started_path(json_dir: &Path, run_id: &str) -> PathBuf {
+    json_dir.join(format!("{run_id}.node.json"))
+}
+
+/// Write `value` as pretty JSON to `path`, atomically.
+pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+    write_atomic(path, serde_json::to_string_pretty(value)?.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Read the JSON file `path` as a `T`.
+pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{} is not what mpm-bench wrote", path.display()))
+}
+
+/// The finished row a job wrote, if it has.
+pub fn read_row(json_dir: &Path, run_id: &str) -> Result<Option<Row>> {
+    let p = row_path(json_dir, run_id);
+    if !p.is_file() {
+        return Ok(None);
+    }
+    read_json(&p).map(Some)
+}
+
+/// Where the job of `run_id` started, if it has.
+pub fn read_started(json_dir: &Path, run_id: &str) -> Option<Started> {
+    read_json(&started_path(json_dir, run_id)).ok()
+}
+
+/// The machine of fingerprint `fp` as a node wrote it under the campaign folder `dir`.
+pub fn read_node(dir: &Path, fp: &str) -> Result<Option<NodeInfo>> {
+    let p = dir.join("nodes").join(format!("{fp}.json"));
+    if !p.is_file() {
+        return Ok(None);
+    }
+    read_json(&p).map(Some)
+}
+
+/// Record this node's machine under the campaign folder `dir` (`nodes/<fp>.json` and its
+/// topology), unless a node of the same machine did already.
+fn record_node(dir: &Path, machine: &Machine, node: &str) -> Result<String> {
+    let info = fingerprint::machine_info(machine);
+    let fp = info.fingerprint.clone();
+    let nodes = dir.join("nodes");
+    let json = nodes.join(format!("{fp}.json"));
+    if !json.is_file() {
+        std::fs::create_dir_all(&nodes).with_context(|| format!("cannot create {}", nodes.display()))?;
+        let topology = match crate::machine::topology::export_xml() {
+            Ok(xml) => {
+                let name = format!("{fp}.topology.xml");
+                write_atomic(&nodes.join(&name), xml.as_bytes())?;
+                format!("nodes/{name}")
+            }
+            Err(e) => {
+                eprintln!("warning: no topology of node {node}: {e:#}");
+                String::new()
+            }
+        };
+        write_json(&json, &NodeInfo { node: node.to_string(), machine: info, topology })?;
+    }
+    Ok(fp)
+}
+
+/// `mpm-bench job FILE`: run the job's run on this node and write its row; the exit code is
+/// 0 when a row was written, 130 when the job was stopped (cancelled, out of time) before
+/// the run ended.
+pub fn run(file: &Path) -> Result<i32> {
+    let job: JobFile = read_json(file)?;
+    let json_dir = file.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let dir = json_dir.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let machine = Machine::detect()?;
+    let node = crate::util::node_name();
+    let fp = record_node(&dir, &machine, &node)?;
+    write_json(&started_path(&json_dir, &job.run_id), &Started { node: node.clone(), fingerprint: fp })?;
+    let here = sha256_file(&job.solver.path)?;
+    if here != job.solver.sha256 {
+        bail!(
+            "the {} solver binary {} on node {node} is not the one the campaign was submitted with (sha256 {}, \
+             submitted {}): every node must see the same binaries (a shared filesystem)",
+            job.solver.opt,
+            job.solver.path.display(),
+            &here[..16],
+            &job.solver.sha256[..job.solver.sha256.len().min(16)]
+        );
+    }
+    let interrupted = install_interrupt_handler();
+    let mut campaign = job.campaign;
+    campaign.timeout = job.timeout;
+    let ctx = RunContext {
+        campaign: &campaign,
+        machine: &machine,
+        git: job.git,
+        json_dir: json_dir.clone(),
+        // The campaign folder is shared with the submitting host: a job's checkpoints are
+        // where a later job of the same run (after a time limit or a cancel) continues.
+        checkpoint_root: dir.join("checkpoints"),
+        interrupted: &interrupted,
+    };
+    // A job is a session of one run: a short start probe, then the probes around the run.
+    let mut watch =
+        job.watch.map(|w| HostWatch::start(WatchSettings { start_window: w.window, ..w }, machine.usable_pus().len()));
+    let mut runner = ProcessRunner::new(interrupted.clone());
+    match ctx.run_one(&mut runner, watch.as_mut(), &job.solver, &job.run, job.order_index, job.run_id.clone())? {
+        Some(row) => {
+            write_json(&row_path(&json_dir, &job.run_id), &row)?;
+            eprintln!("{}: {} on {node}", job.run.describe(), row.outcome.status.as_str());
+            Ok(0)
+        }
+        None => {
+            eprintln!("{}: stopped before it ended; no row", job.run.describe());
+            Ok(130)
+        }
+    }
+}

@@ -1,0 +1,792 @@
+//! Runs as Slurm batch jobs (`mpm-bench run --scheduler slurm`): one job per run, submitted
+//! with `sbatch`, watched with `squeue`, collected as they end ([`run_jobs`]).
+//!
+//! * A job is `mpm-bench job json/<run id>.job.json` ([`super::job`]) on a node of its own
+//!   (`--exclusive --nodes=1 --ntasks=1`): it runs the run there as a local campaign would
+//!   (the pinning policy placed on that node's topology, the observed CPUs verified) and
+//!   writes the finished row to `json/<run id>.row.json`, which this side appends to
+//!   `runs.csv` as soon as it appears: rows arrive in the order jobs end, each at once.
+//! * The campaign folder is `<out>/slurm-<cluster>/<campaign>`: a cluster's runs may land on
+//!   several node types, and each row names its node and that node's fingerprint.
+//! * Job ids are kept in `slurm-jobs.json` in the campaign folder ([`JobsFile`]) from the
+//!   moment `sbatch` answers until the row is appended. Running the same command again
+//!   collects the jobs an earlier invocation submitted (whatever their state: pending,
+//!   running or ended meanwhile) instead of submitting their runs again. `--detach` submits
+//!   and exits, leaving the jobs to a later invocation.
+//! * A job that ends without a row (failed, out of time, cancelled by someone, its node
+//!   lost, or purged from Slurm's memory) is a failed row whose reason holds Slurm's state,
+//!   reason and exit code (`scontrol show job`, else `sacct`) and the end of the job's output
+//!   (`json/<run id>.slurm.out`).
+//! * Ctrl-C (or SIGTERM / SIGHUP) cancels the jobs this invocation submitted, and only
+//!   those (`scancel`): jobs of earlier invocations, and everybody else's, keep running.
+//!
+//! Slurm is driven through its commands (`sbatch`, `squeue`, `scontrol`, `scancel`,
+//! `sacct`), found on `PATH` and configured as the user's shell would (`SLURM_CONF`).
+
+use super::job::{self, JobFile};
+pub use super::kind::{SlurmOptions, JOBS_FILE};
+use super::scheduler::Scheduler;
+use super::state::{next_run_id, solver_for, Books, CampaignState, Plan};
+use crate::campaign::exec::run::{planned_row, RunContext};
+use crate::campaign::exec::solver::Solver;
+use crate::campaign::exec::watch::WatchSettings;
+use crate::campaign::plan::matrix::{PlannedRun, RunKey};
+use crate::campaign::plan::memory::estimate_run_memory;
+use crate::campaign::plan::preset::OptLevel;
+use crate::campaign::store::record::{Row, Status};
+use crate::util::now_rfc3339;
+use anyhow::{anyhow, bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::atomic::Ordering;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+/// How often `squeue` is asked (the row files are looked for more often).
+const POLL: Duration = Duration::from_secs(2);
+
+/// How long a job Slurm calls `COMPLETED` may take to show its row (a shared filesystem's
+/// attribute cache) before it counts as having ended without one.
+const ROW_GRACE: Duration = Duration::from_secs(30);
+
+/// The cluster's name, from `scontrol show config`: also the check that Slurm answers.
+pub fn cluster_name() -> Result<String> {
+    let text = slurm_command("scontrol", &["show", "config"])?;
+    parse_cluster_name(&text).ok_or_else(|| anyhow!("`scontrol show config` names no ClusterName"))
+}
+
+/// `ClusterName = x` of `scontrol show config`.
+pub fn parse_cluster_name(text: &str) -> Option<String> {
+    text.lines().find_map(|l| {
+        let (k, v) = l.split_once('=')?;
+        (k.trim() == "ClusterName").then(|| v.trim().to_string()).filter(|v| !v.is_empty())
+    })
+}
+
+/// Run a Slurm command; its standard output, or an error that says what to do.
+fn slurm_command(program: &str, args: &[&str]) -> Result<String> {
+    let out = Command::new(program).args(args).output().with_context(|| {
+        format!(
+            "cannot run `{program}`: Slurm's commands must be on PATH here (run from a login node of the cluster, \
+             or start a one-node Slurm with scripts/slurm-local.sh start)"
+        )
+    })?;
+    if !out.status.success() {
+        bail!(
+            "`{program} {}` failed: {} (is slurmctld reachable from here? scripts/slurm-local.sh start starts one on \
+             this machine)",
+            args.join(" "),
+            String::from_utf8_lossy(&out.stderr).trim()
+        );
+    }
+    Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+// ------------------------------------------------------------------------------------------
+// The jobs file
+// ------------------------------------------------------------------------------------------
+
+/// A submitted job whose row is not in `runs.csv` yet.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct JobRecord {
+    /// Slurm's job id.
+    pub job_id: String,
+    /// The run's resume key.
+    pub run_key: String,
+    /// The run's id (its files are `json/<run id>.*`).
+    pub run_id: String,
+    /// Its position in the seeded order of the session that submitted it.
+    pub order_index: usize,
+    /// When it was submitted (RFC 3339 UTC).
+    pub submitted: String,
+    /// Who submitted it: `mpm-bench pid N on HOST`.
+    pub by: String,
+}
+
+/// `slurm-jobs.json`: the jobs submitted and not yet collected.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct JobsFile {
+    /// In submission order.
+    pub jobs: Vec<JobRecord>,
+}
+
+impl JobsFile {
+    /// The file of campaign folder `dir` (empty when there is none).
+    pub fn load(dir: &Path) -> Result<Self> {
+        let p = dir.join(JOBS_FILE);
+        if !p.is_file() {
+            return Ok(Self::default());
+        }
+        job::read_json(&p)
+    }
+
+    /// Write it (atomically); an empty list removes the file.
+    pub fn save(&self, dir: &Path) -> Result<()> {
+        let p = dir.join(JOBS_FILE);
+        if self.jobs.is_empty() {
+            return match std::fs::remove_file(&p) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    Err(e).with_context(|| format!("cannot remove {}", p.display()))
+                }
+                _ => Ok(()),
+            };
+        }
+        job::write_json(&p, self)
+    }
+
+    /// Drop the records of `ids` (and save).
+    fn forget(&mut self, dir: &Path, ids: &[String]) -> Result<()> {
+        self.jobs.retain(|j| !ids.contains(&j.job_id));
+        self.save(dir)
+    }
+}
+
+/// The jobs this process submitted and has not collected, with their campaign folder: what a
+/// second Ctrl-C cancels on its way out ([`cancel_submitted`]).
+static SUBMITTED: Mutex<Option<(PathBuf, Vec<String>)>> = Mutex::new(None);
+
+fn submitted() -> std::sync::MutexGuard<'static, Option<(PathBuf, Vec<String>)>> {
+    SUBMITTED.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Cancel the jobs this process submitted and has not collected, and forget them: the
+/// harness is about to exit at once (a second Ctrl-C).
+pub fn cancel_submitted() {
+    let Some((dir, ids)) = submitted().take() else { return };
+    if ids.is_empty() {
+        return;
+    }
+    if let Err(e) = scancel(&ids) {
+        eprintln!("warning: {e:#}");
+    }
+    if let Ok(mut f) = JobsFile::load(&dir) {
+        let _ = f.forget(&dir, &ids);
+    }
+}
+
+// ------------------------------------------------------------------------------------------
+// Slurm's answers
+// ------------------------------------------------------------------------------------------
+
+/// Where a job is in its life.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// Waiting in the queue (or held, or requeued).
+    Pending,
+    /// Allocated: starting, running, completing.
+    Running,
+    /// Ended, one way or another.
+    Ended,
+}
+
+/// The phase of a Slurm job state (`squeue %T`).
+pub fn phase(state: &str) -> Phase {
+    match state {
+        "PENDING" | "REQUEUED" | "REQUEUE_FED" | "REQUEUE_HOLD" | "RESV_DEL_HOLD" | "SUSPENDED" => Phase::Pending,
+        "COMPLETED" | "FAILED" | "CANCELLED" | "TIMEOUT" | "NODE_FAIL" | "OUT_OF_MEMORY" | "PREEMPTED"
+        | "BOOT_FAIL" | "DEADLINE" | "REVOKED" | "SPECIAL_EXIT" => Phase::Ended,
+        _ => Phase::Running,
+    }
+}
+
+/// One job as `squeue` lists it.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct QueueEntry {
+    /// `PENDING`, `RUNNING`, `COMPLETED`, `TIMEOUT`, ...
+    pub state: String,
+    /// Its node (empty while pending).
+    pub node: String,
+    /// Slurm's reason (`Priority`, `Resources`, `TimeLimit`, `None`, ...).
+    pub reason: String,
+}
+
+/// The lines `id|state|nodes|reason` of `squeue -h -o %i|%T|%N|%r`, by job id.
+pub fn parse_squeue(text: &str) -> BTreeMap<String, QueueEntry> {
+    text.lines()
+        .filter_map(|l| {
+            let mut f = l.trim().splitn(4, '|');
+            let id = f.next()?.trim();
+            let state = f.next()?.trim();
+            (!id.is_empty() && !state.is_empty()).then(|| {
+                let node = f.next().unwrap_or("").trim().to_string();
+                let reason = f.next().unwrap_or("").trim().to_string();
+                (id.to_string(), QueueEntry { state: state.to_string(), node, reason })
+            })
+        })
+        .collect()
+}
+
+/// The jobs `ids` Slurm still knows (`squeue --states=all`); a job it has forgotten is
+/// absent. An error when `squeue` did not answer.
+fn squeue(ids: &[String]) -> Result<BTreeMap<String, QueueEntry>> {
+    if ids.is_empty() {
+        return Ok(BTreeMap::new());
+    }
+    let out = Command::new("squeue")
+        .args(["-h", "--states=all", "-o", "%i|%T|%N|%r", "-j", &ids.join(",")])
+        .output()
+        .context("cannot run squeue")?;
+    let err = String::from_utf8_lossy(&out.stderr);
+    if !out.status.success() {
+        // Every id unknown (purged after MinJobAge): squeue says so and fails.
+        if err.contains("Invalid job id") {
+            return Ok(BTreeMap::new());
+        }
+        bail!("squeue failed: {}", err.trim());
+    }
+    Ok(parse_squeue(&String::from_utf8_lossy(&out.stdout)))
+}
+
+/// How a job ended, as `scontrol show job` or `sacct` tell it.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct JobEnd {
+    /// `COMPLETED`, `FAILED`, `TIMEOUT`, `CANCELLED`, `NODE_FAIL`, ...
+    pub state: String,
+    /// Slurm's `exit:signal` (`0:15` for a job killed by SIGTERM).
+    pub exit_code: String,
+    /// Slurm's reason (`TimeLimit`, `NonZeroExitCode`, ...), empty when none.
+    pub reason: String,
+    /// The node it ran on, empty when it never ran.
+    pub node: String,
+}
+
+impl JobEnd {
+    /// The process's exit code (`None` when it was killed by a signal or is not known).
+    pub fn exit_status(&self) -> Option<i32> {
+        let (code, signal) = self.exit_code.split_once(':')?;
+        (signal.trim() == "0").then(|| code.trim().parse().ok()).flatten()
+    }
+}
+
+/// One job of `scontrol show job -o ID` (a line of `Key=Value` words).
+pub fn parse_scontrol_job(text: &str) -> Option<JobEnd> {
+    let line = text.lines().find(|l| l.contains("JobState="))?;
+    let get = |key: &str| {
+        line.split_whitespace().find_map(|w| w.strip_prefix(key)?.strip_prefix('=')).unwrap_or("").to_string()
+    };
+    let none = |v: String| if v == "(null)" || v == "None" { String::new() } else { v };
+    Some(JobEnd {
+        state: get("JobState"),
+        exit_code: get("ExitCode"),
+        reason: none(get("Reason")),
+        node: none(get("NodeList")),
+    })
+}
+
+/// The job's line of `sacct -n -P -X -o State,ExitCode,NodeList` (`CANCELLED by 0` reads
+/// as `CANCELLED`).
+pub fn parse_sacct(text: &str) -> Option<JobEnd> {
+    let line = text.lines().find(|l| !l.trim().is_empty())?;
+    let f: Vec<&str> = line.trim().split('|').collect();
+    let state = f.first()?.split_whitespace().next()?.to_string();
+    let node = f.get(2).map_or("", |n| n.trim()).to_string();
+    Some(JobEnd {
+        state,
+        exit_code: f.get(1).map_or("", |c| c.trim()).to_string(),
+        reason: String::new(),
+        node: if node == "None assigned" { String::new() } else { node },
+    })
+}
+
+/// How job `id` ended: `scontrol` while slurmctld remembers it, else `sacct` when the
+/// cluster keeps accounting.
+fn job_end(id: &str) -> Option<JobEnd> {
+    let run = |program: &str, args: &[&str]| {
+        Command::new(program)
+            .args(args)
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).into_owned())
+    };
+    run("scontrol", &["show", "job", "-o", id]).and_then(|t| parse_scontrol_job(&t)).or_else(|| {
+        run("sacct", &["-n", "-P", "-X", "-j", id, "-o", "State,ExitCode,NodeList"]).and_then(|t| parse_sacct(&t))
+    })
+}
+
+/// `scancel` of `ids`.
+fn scancel(ids: &[String]) -> Result<()> {
+    let out = Command::new("scancel").args(ids).output().context("cannot run scancel")?;
+    if !out.status.success() {
+        bail!("scancel {} failed: {}", ids.join(" "), String::from_utf8_lossy(&out.stderr).trim());
+    }
+    Ok(())
+}
+
+/// The job id of `sbatch --parsable`'s answer (`123`, or `123;cluster`).
+pub fn parse_sbatch(text: &str) -> Option<String> {
+    let id = text.lines().find(|l| !l.trim().is_empty())?.trim().split(';').next()?.trim();
+    (!id.is_empty() && id.chars().all(|c| c.is_ascii_digit())).then(|| id.to_string())
+}
+
+/// `text` as one shell word.
+fn shell_quote(text: &str) -> String {
+    format!("'{}'", text.replace('\'', r"'\''"))
+}
+
+// ------------------------------------------------------------------------------------------
+// Submitting and collecting
+// ------------------------------------------------------------------------------------------
+
+/// The Slurm scheduler: one batch job per run, at most `--max-jobs` in the queue at once
+/// ([`run_jobs`]).
+pub struct Slurm<'o> {
+    /// The options of `--scheduler slurm`.
+    pub options: &'o SlurmOptions,
+    /// The host watch each job keeps around its run.
+    pub watch: Option<WatchSettings>,
+}
+
+impl Scheduler for Slurm<'_> {
+    fn run_all(&mut self, s: &mut CampaignState<'_>) -> Result<()> {
+        let sub = Submission { options: self.options, watch: self.watch, solvers: &s.solvers };
+        run_jobs(&s.ctx, &sub, s.plan, &mut s.attempts, &mut s.books)
+    }
+}
+
+/// What every job of one invocation is submitted with.
+struct Submission<'a> {
+    /// The options of `--scheduler slurm`.
+    options: &'a SlurmOptions,
+    /// The host watch each job keeps around its run.
+    watch: Option<WatchSettings>,
+    /// The solver binary of each optimisation level.
+    solvers: &'a HashMap<OptLevel, &'a Solver>,
+}
+
+/// A job in the queue, by this invocation or an earlier one.
+struct InFlight<'p> {
+    record: JobRecord,
+    run: &'p PlannedRun,
+    /// Submitted by this invocation: Ctrl-C cancels it.
+    own: bool,
+    /// When `squeue` first said it had ended.
+    ended: Option<Instant>,
+}
+
+/// Write `run`'s job file and script and submit it.
+fn submit(
+    ctx: &RunContext,
+    sub: &Submission,
+    exe: &Path,
+    (order_index, run): (usize, &PlannedRun),
+    run_id: String,
+) -> Result<JobRecord> {
+    let solver = solver_for(sub.solvers, run)?;
+    let dir = &ctx.json_dir;
+    let job = JobFile {
+        campaign: ctx.campaign.clone(),
+        timeout: ctx.campaign.timeout,
+        git: ctx.git.clone(),
+        solver: solver.clone(),
+        run: run.clone(),
+        order_index,
+        run_id: run_id.clone(),
+        watch: sub.watch,
+    };
+    let job_file = job::job_path(dir, &run_id);
+    job::write_json(&job_file, &job)?;
+    let mut args = sub.options.sbatch_args(ctx.campaign.timeout);
+    args.push(format!("--job-name=mpm-{}", run.label()));
+    args.push(format!("--output={}", dir.join(format!("{run_id}.slurm.out")).display()));
+    args.push(format!("--chdir={}", dir.display()));
+    let script = dir.join(format!("{run_id}.slurm.sh"));
+    let text = format!(
+        "#!/bin/sh\n# {} of campaign {}, submitted by mpm-bench as\n#   sbatch {} {}\nexec {} job {}\n",
+        run.describe(),
+        ctx.campaign.id,
+        args.join(" "),
+        script.display(),
+        shell_quote(&exe.display().to_string()),
+        shell_quote(&job_file.display().to_string())
+    );
+    mpm_host::atomic::write_atomic(&script, text.as_bytes())?;
+    let out = Command::new("sbatch")
+        .args(&args)
+        .arg(&script)
+        .output()
+        .context("cannot run sbatch (Slurm's commands must be on PATH here)")?;
+    let answer = String::from_utf8_lossy(&out.stdout);
+    let job_id = parse_sbatch(&answer).filter(|_| out.status.success()).ok_or_else(|| {
+        anyhow!(
+            "sbatch refused the job of {}: {}{}",
+            run.describe(),
+            String::from_utf8_lossy(&out.stderr).trim(),
+            answer.trim()
+        )
+    })?;
+    Ok(JobRecord {
+        job_id,
+        run_key: run.key().0,
+        run_id,
+        order_index,
+        submitted: now_rfc3339(),
+        by: format!("mpm-bench pid {} on {}", std::process::id(), crate::util::hostname()),
+    })
+}
+
+/// The failed row of a job that ended without writing one: Slurm's state, reason and exit
+/// code (`end`, else `queue`), the node, and the end of the job's output.
+fn failed_row(
+    ctx: &RunContext,
+    sub: &Submission,
+    f: &InFlight,
+    queue: Option<&QueueEntry>,
+    end: Option<JobEnd>,
+) -> Result<Row> {
+    let solver = solver_for(sub.solvers, f.run)?;
+    let mut row = planned_row(ctx.campaign, &ctx.git, solver, f.run);
+    let id = &f.record.job_id;
+    row.id.run_id = f.record.run_id.clone();
+    row.id.order_index = f.record.order_index;
+    row.id.job_id = id.clone();
+    row.id.timestamp = now_rfc3339();
+    row.outcome.mem_estimate_bytes = estimate_run_memory(&f.run.spec);
+    row.outcome.status = Status::Failed;
+    let (state, reason, node) = match (&end, queue) {
+        (Some(e), _) => (e.state.clone(), e.reason.clone(), e.node.clone()),
+        (None, Some(q)) => (q.state.clone(), q.reason.clone(), q.node.clone()),
+        (None, None) => (String::new(), String::new(), String::new()),
+    };
+    match job::read_started(&ctx.json_dir, &f.record.run_id) {
+        Some(s) => {
+            row.id.node = s.node;
+            row.id.machine_id = s.fingerprint;
+        }
+        None => row.id.node = node,
+    }
+    row.outcome.exit_code = end.as_ref().and_then(JobEnd::exit_status);
+    let mut why = if state.is_empty() {
+        format!("Slurm no longer knows job {id} (purged from slurmctld's memory, no accounting) and it left no row")
+    } else {
+        let code = end.as_ref().map(|e| e.exit_code.clone()).filter(|c| !c.is_empty());
+        let details: Vec<String> =
+            [(!reason.is_empty()).then(|| format!("reason {reason}")), code.map(|c| format!("exit code {c}"))]
+                .into_iter()
+                .flatten()
+                .collect();
+        let details = if details.is_empty() { String::new() } else { format!(" ({})", details.join(", ")) };
+        format!("Slurm job {id} {state}{details}")
+    };
+    if !row.id.node.is_empty() {
+        why.push_str(&format!(" on node {}", row.id.node));
+    }
+    let out_path = ctx.json_dir.join(format!("{}.slurm.out", f.record.run_id));
+    match std::fs::read_to_string(&out_path) {
+        Ok(output) => {
+            let tail = crate::campaign::exec::process::tail(&output, 3);
+            if !tail.is_empty() {
+                why.push_str(": ");
+                why.push_str(&tail);
+            }
+        }
+        // The job ran but its output is not here: the nodes do not share this folder.
+        Err(_) if !row.id.node.is_empty() => why.push_str(&format!(
+            "; its output {} is not here: is the results folder on a filesystem every node shares?",
+            out_path.display()
+        )),
+        Err(_) => {}
+    }
+    row.outcome.reason = why;
+    Ok(row)
+}
+
+/// The row of `f` if its job has ended: the one it wrote, or a failed one when it ended
+/// without (`queue`: what `squeue` said, when it answered; `None` inside means Slurm no
+/// longer knows the job).
+fn ended_row(
+    ctx: &RunContext,
+    sub: &Submission,
+    f: &mut InFlight,
+    queue: Option<Option<&QueueEntry>>,
+) -> Result<Option<Row>> {
+    match job::read_row(&ctx.json_dir, &f.record.run_id) {
+        Ok(Some(mut row)) => {
+            row.id.job_id = f.record.job_id.clone();
+            return Ok(Some(row));
+        }
+        Ok(None) => {}
+        Err(e) => {
+            let mut row = failed_row(ctx, sub, f, None, None)?;
+            row.outcome.reason = format!("Slurm job {}: {e:#}", f.record.job_id);
+            return Ok(Some(row));
+        }
+    }
+    let Some(q) = queue else { return Ok(None) };
+    if let Some(q) = q {
+        if phase(&q.state) != Phase::Ended {
+            return Ok(None);
+        }
+        // A job that completed writes its row before it ends: give a shared filesystem time to
+        // show it.
+        let first = *f.ended.get_or_insert_with(Instant::now);
+        if q.state == "COMPLETED" && first.elapsed() < ROW_GRACE {
+            return Ok(None);
+        }
+    }
+    let end = job_end(&f.record.job_id);
+    // Not in squeue's answer, yet Slurm has it waiting or running: not ended.
+    if q.is_none() && end.as_ref().is_some_and(|e| phase(&e.state) != Phase::Ended) {
+        return Ok(None);
+    }
+    failed_row(ctx, sub, f, q, end).map(Some)
+}
+
+/// Submit the runs of `plan` still to do as Slurm jobs (those an earlier invocation submitted
+/// are collected, not submitted again), at most `--max-jobs` in the queue at once, and append
+/// each finished job's row through `books` as it ends. Returns when every job has been
+/// collected, on Ctrl-C (after cancelling this invocation's jobs), or with `--detach` once
+/// everything that may be submitted is.
+fn run_jobs(
+    ctx: &RunContext,
+    sub: &Submission,
+    plan: &Plan,
+    attempts: &mut HashMap<RunKey, usize>,
+    books: &mut Books,
+) -> Result<()> {
+    let dir = &plan.dir;
+    let exe = std::env::current_exe().context("cannot find this program, which every job runs")?;
+    let mut file = JobsFile::load(dir)?;
+    // A job whose row is in runs.csv already was collected (the harness stopped before it
+    // forgot the job).
+    let recorded: HashSet<&str> = plan.existing.iter().map(|r| r.id.run_id.as_str()).collect();
+    let before = file.jobs.len();
+    file.jobs.retain(|j| !recorded.contains(j.run_id.as_str()));
+    if file.jobs.len() != before {
+        file.save(dir)?;
+    }
+    let mut flight: Vec<InFlight> = Vec::new();
+    let mut queue: VecDeque<(usize, &PlannedRun)> = VecDeque::new();
+    for (order_index, run) in &plan.todo {
+        let key = run.key().0;
+        match file.jobs.iter().find(|j| j.run_key == key) {
+            Some(j) => flight.push(InFlight { record: j.clone(), run, own: false, ended: None }),
+            None => queue.push_back((*order_index, run)),
+        }
+    }
+    if !flight.is_empty() {
+        let ids: Vec<&str> = flight.iter().map(|f| f.record.job_id.as_str()).collect();
+        books.progress.say(&format!(
+            "{} run(s) were submitted by an earlier invocation (jobs {}): collecting them, not submitting them again",
+            flight.len(),
+            ids.join(" ")
+        ));
+    }
+    *submitted() = Some((dir.clone(), Vec::new()));
+    let result = drive(ctx, sub, &exe, &mut file, &mut flight, &mut queue, attempts, books, dir);
+    *submitted() = None;
+    result
+}
+
+/// The loop of [`run_jobs`]: submit while there is room, ask Slurm how the jobs are, append
+/// the rows of those that ended, until none is left (or Ctrl-C, or `--detach`).
+#[allow(clippy::too_many_arguments)]
+fn drive<'p>(
+    ctx: &RunContext,
+    sub: &Submission,
+    exe: &Path,
+    file: &mut JobsFile,
+    flight: &mut Vec<InFlight<'p>>,
+    queue: &mut VecDeque<(usize, &'p PlannedRun)>,
+    attempts: &mut HashMap<RunKey, usize>,
+    books: &mut Books,
+    dir: &Path,
+) -> Result<()> {
+    let max = sub.options.max_jobs.unwrap_or(usize::MAX);
+    let mut done = 0;
+    let mut last = String::from("waiting for the first job to end");
+    let mut poll = Poll::default();
+    loop {
+        if ctx.interrupted.load(Ordering::SeqCst) {
+            return cancel_own(flight, file, books, dir);
+        }
+        let mut submitted_now = false;
+        while flight.len() < max {
+            let Some((order_index, run)) = queue.pop_front() else { break };
+            let run_id = next_run_id(attempts, run);
+            let record = submit(ctx, sub, exe, (order_index, run), run_id).with_context(|| {
+                format!(
+                    "{} job(s) already submitted are kept in {}: run the same command again to collect them",
+                    file.jobs.len(),
+                    dir.join(JOBS_FILE).display()
+                )
+            })?;
+            file.jobs.push(record.clone());
+            file.save(dir)?;
+            if let Some((_, ids)) = submitted().as_mut() {
+                ids.push(record.job_id.clone());
+            }
+            flight.push(InFlight { record, run, own: true, ended: None });
+            submitted_now = true;
+        }
+        poll.ask(flight, submitted_now, books);
+        collect_ended(ctx, sub, flight, &poll, file, books, dir, (&mut done, &mut last))?;
+        let phases: Vec<Phase> = flight.iter().map(|f| poll.phase(&f.record.job_id)).collect();
+        let running = phases.iter().filter(|p| **p != Phase::Pending).count();
+        books.progress.queue(phases.len() - running + queue.len(), running, done, &last);
+        if flight.is_empty() && queue.is_empty() {
+            return Ok(());
+        }
+        if sub.options.detach && (queue.is_empty() || flight.len() >= max) {
+            books.counts.queued = flight.len();
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(250));
+    }
+}
+
+/// Ctrl-C: cancel this invocation's jobs (and forget them), keep the others for a later
+/// invocation.
+fn cancel_own(flight: &[InFlight], file: &mut JobsFile, books: &mut Books, dir: &Path) -> Result<()> {
+    let own: Vec<String> = flight.iter().filter(|f| f.own).map(|f| f.record.job_id.clone()).collect();
+    if !own.is_empty() {
+        books.progress.say(&format!("interrupt: cancelling this invocation's jobs {}", own.join(" ")));
+        scancel(&own)?;
+        file.forget(dir, &own)?;
+    }
+    books.counts.interrupted = true;
+    books.counts.queued = flight.len() - own.len();
+    Ok(())
+}
+
+/// What `squeue` last said about the jobs in flight (`None` after an error), and when.
+#[derive(Default)]
+struct Poll {
+    states: Option<BTreeMap<String, QueueEntry>>,
+    at: Option<Instant>,
+    error: Option<String>,
+}
+
+impl Poll {
+    /// Ask again when a job was submitted since the last answer (it is not in it) or the
+    /// answer is older than [`POLL`]; an error is said once and asked again.
+    fn ask(&mut self, flight: &[InFlight], submitted_now: bool, books: &Books) {
+        if !submitted_now && self.at.is_some_and(|t| t.elapsed() < POLL) {
+            return;
+        }
+        let ids: Vec<String> = flight.iter().map(|f| f.record.job_id.clone()).collect();
+        match squeue(&ids) {
+            Ok(s) => {
+                self.states = Some(s);
+                self.error = None;
+            }
+            Err(e) => {
+                if self.error.is_none() {
+                    books.progress.say(&format!("warning: {e:#}; asking again"));
+                }
+                self.error = Some(format!("{e:#}"));
+                self.states = None;
+            }
+        }
+        self.at = Some(Instant::now());
+    }
+
+    /// What the last answer said about job `id`: `None` without an answer, `Some(None)` when
+    /// the answer did not name it.
+    fn entry(&self, id: &str) -> Option<Option<&QueueEntry>> {
+        self.states.as_ref().map(|s| s.get(id))
+    }
+
+    /// The phase of job `id` by the last answer (pending when unknown).
+    fn phase(&self, id: &str) -> Phase {
+        self.entry(id).flatten().map_or(Phase::Pending, |q| phase(&q.state))
+    }
+}
+
+/// Append the rows of the jobs in `flight` that ended (and forget them), counting them in
+/// `progress.0` and naming the last in `progress.1`.
+#[allow(clippy::too_many_arguments)]
+fn collect_ended(
+    ctx: &RunContext,
+    sub: &Submission,
+    flight: &mut Vec<InFlight>,
+    poll: &Poll,
+    file: &mut JobsFile,
+    books: &mut Books,
+    dir: &Path,
+    progress: (&mut usize, &mut String),
+) -> Result<()> {
+    let (done, last) = progress;
+    let mut i = 0;
+    while i < flight.len() {
+        let answer = poll.entry(&flight[i].record.job_id);
+        match ended_row(ctx, sub, &mut flight[i], answer)? {
+            Some(row) => {
+                let f = flight.remove(i);
+                books.record(*done, f.run, &row)?;
+                *done += 1;
+                *last = format!("{}: {}", f.run.describe(), row.outcome.status.as_str());
+                file.forget(dir, std::slice::from_ref(&f.record.job_id))?;
+                if let Some((_, ids)) = submitted().as_mut() {
+                    ids.retain(|id| *id != f.record.job_id);
+                }
+            }
+            None => i += 1,
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Slurm 22.05's answers, as this project's one-node Slurm gave them.
+    #[test]
+    fn slurm_answers_parse() {
+        let q = parse_squeue("4|CANCELLED||Priority\n1|COMPLETED|vm|None\n3|PENDING||Resources\n2|RUNNING|vm|None\n");
+        assert_eq!(q.len(), 4);
+        assert_eq!(q["2"], QueueEntry { state: "RUNNING".into(), node: "vm".into(), reason: "None".into() });
+        assert_eq!(q["3"].node, "");
+        let phases: Vec<Phase> = ["1", "2", "3", "4"].iter().map(|id| phase(&q[*id].state)).collect();
+        assert_eq!(phases, [Phase::Ended, Phase::Running, Phase::Pending, Phase::Ended]);
+        assert_eq!(phase("COMPLETING"), Phase::Running);
+        let line = "JobId=2 JobName=wrap UserId=root(0) JobState=TIMEOUT Reason=TimeLimit Dependency=(null) \
+                    Requeue=1 Restarts=0 BatchFlag=1 Reboot=0 ExitCode=0:15 RunTime=00:01:21 TimeLimit=00:01:00 \
+                    ReqNodeList=(null) ExcNodeList=(null) NodeList=vm BatchHost=vm NumNodes=1";
+        let end = parse_scontrol_job(line).unwrap();
+        assert_eq!(
+            end,
+            JobEnd { state: "TIMEOUT".into(), exit_code: "0:15".into(), reason: "TimeLimit".into(), node: "vm".into() }
+        );
+        assert_eq!(end.exit_status(), None, "killed by a signal");
+        let failed =
+            parse_scontrol_job("JobId=3 JobState=FAILED Reason=NonZeroExitCode ExitCode=3:0 NodeList=vm").unwrap();
+        assert_eq!(failed.exit_status(), Some(3));
+        let pending =
+            parse_scontrol_job("JobId=4 JobState=CANCELLED Reason=None ExitCode=0:0 NodeList=(null)").unwrap();
+        assert_eq!((pending.reason.as_str(), pending.node.as_str()), ("", ""));
+        assert_eq!(parse_scontrol_job("slurm_load_jobs error: Invalid job id specified"), None);
+        let s = parse_sacct("CANCELLED by 0|0:0|None assigned\n").unwrap();
+        assert_eq!((s.state.as_str(), s.exit_status(), s.node.as_str()), ("CANCELLED", Some(0), ""));
+        assert_eq!(parse_sbatch("17\n"), Some("17".into()));
+        assert_eq!(parse_sbatch("17;mpmlocal\n"), Some("17".into()));
+        assert_eq!(parse_sbatch("sbatch: error: Batch job submission failed"), None);
+        assert_eq!(
+            parse_cluster_name("Configuration data as of x\nClusterName             = mpmlocal\n"),
+            Some("mpmlocal".into())
+        );
+    }
+
+    /// Every job gets a node of its own; the time limit is the given one, else the per-run
+    /// timeout plus two minutes, in whole minutes.
+    #[test]
+    fn sbatch_options() {
+        let mut o = SlurmOptions { cluster: "c".into(), ..SlurmOptions::default() };
+        let base = ["--parsable", "--nodes=1", "--ntasks=1", "--exclusive"];
+        assert_eq!(o.sbatch_args(None), base);
+        assert_eq!(o.sbatch_args(Some(Duration::from_secs(300)))[4], "--time=7");
+        assert_eq!(o.sbatch_args(Some(Duration::from_secs(301)))[4], "--time=8");
+        o.partition = Some("big".into());
+        o.account = Some("proj".into());
+        o.time_limit = Some("1:00:00".into());
+        assert_eq!(
+            o.sbatch_args(Some(Duration::from_secs(300)))[4..],
+            ["--partition=big", "--account=proj", "--time=1:00:00"]
+        );
+        assert_eq!(o.folder(), "slurm-c");
+        assert_eq!(shell_quote("/a b/it's"), r"'/a b/it'\''s'");
+    }
+}
