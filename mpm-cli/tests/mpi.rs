@@ -1,8 +1,8 @@
 //! Runs split over MPI ranks (`mpirun -n R mpm run ...`) against one process: Model 1 and a
 //! coarse impact over R = 1..4 ranks x T = 1, 2 threads (and every strategy inside the
-//! ranks: serial, AE and DD over 1-4 ranks, colour and atomic over 2) end, after 50 steps, at the state of
-//! the serial solver to 1e-9 (relative to the largest value of each quantity), with
-//! particles moving between ranks on the way; an identical rerun is bitwise equal; rank 0's
+//! ranks: serial, AE and DD over 1-4 ranks, colour and atomic over 2) end, after 50 steps,
+//! at the state of the serial solver to 1e-9 (relative to the largest value of each
+//! quantity), with particles moving between ranks on the way; an identical rerun is bitwise equal; rank 0's
 //! summary lists every rank; `--split-wait` changes no bit and reports each rank's waiting;
 //! particles leaving the fixed grid stop a run over ranks as they stop one process.
 //!

@@ -45,13 +45,14 @@
 //! (the binning, DD's or colour's: half of them per pass, as the table has its two passes
 //! together), a scattered node record by the sub-stage's node bytes (zeroed, read and
 //! written), an updated one by the node pass's, an assembled one by its record's size, plus
-//! the part and atomic bytes. `W_w` is worker `w`'s sum; `W_1` what the serial solver moves for the same steps
-//! (every particle once per particle pass, every stored node once per node pass: from the
-//! same counts). Then
+//! the part and atomic bytes. `W_w` is worker `w`'s sum; `W_1` what the serial solver moves
+//! for the same steps (every particle once per particle pass, every stored node once per
+//! node pass: from the same counts). Then
 //!
 //! ```text
 //! efficiency <= W_1 / (T max_w W_w) = (1 - overhead) x balance,
-//!     overhead = 1 - W_1 / sum_w W_w   (what the strategy adds: copies, sub-grid faces, assembly, binning, atomics)
+//!     overhead = 1 - W_1 / sum_w W_w   (what the strategy adds: copies, sub-grid faces,
+//!                                        assembly, binning, atomics)
 //!     balance  = mean_w W_w / max_w W_w
 //! ```
 //!

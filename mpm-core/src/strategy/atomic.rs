@@ -229,7 +229,9 @@ mod tests {
     /// Every addition lands: with every worker adding to the same 8 records at once (all
     /// particles in one cell), whole-number terms make every order's sum exact, so a single
     /// addition lost to a race (a read and a write that another worker's write fell between)
-    /// shows as a sum short of the count.
+    /// shows as a sum short of the count. Rounds are repeated, and more workers than cores
+    /// run, so that on a busy host too workers are preempted between a read and its write
+    /// (a plain load and store in place of the compare-exchange fails this).
     #[test]
     fn no_addition_is_lost_under_contention() {
         let geom = GridGeom::fixed(&GridSpec { dx: 1.0, anchor: [0.0; 3], cells: [2, 2, 2] });
@@ -237,15 +239,17 @@ mod tests {
         let n = 200_000;
         let kernel = |p: usize| Contribution::<4> { cell: [1, 0, 1], c: [[1.0, (p % 7) as f64, 2.0, 0.0]; 8] };
         let sevens: f64 = (0..n).map(|p| (p % 7) as f64).sum();
-        for threads in [2, 4, 8] {
-            let mut global = vec![[0.0; 4]; geom.num_nodes()];
-            in_region(threads, |exec| scatter(exec, &index, n, &mut global, &kernel));
-            for &i in &index.cell_nodes([1, 0, 1]) {
-                assert_eq!(
-                    global[i],
-                    [n as f64, sevens, 2.0 * n as f64, 0.0],
-                    "{threads} threads: node {i} lost additions"
-                );
+        for threads in [2, 4, 8, 16] {
+            for round in 0..8 {
+                let mut global = vec![[0.0; 4]; geom.num_nodes()];
+                in_region(threads, |exec| scatter(exec, &index, n, &mut global, &kernel));
+                for &i in &index.cell_nodes([1, 0, 1]) {
+                    assert_eq!(
+                        global[i],
+                        [n as f64, sevens, 2.0 * n as f64, 0.0],
+                        "{threads} threads, round {round}: node {i} lost additions"
+                    );
+                }
             }
         }
     }

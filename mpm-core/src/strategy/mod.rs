@@ -268,8 +268,9 @@ pub trait ScatterStrategy {
 
 /// What a strategy carries from one step to the next beyond the grid and the particles
 /// (part of a saved [`crate::solver::SimState`]): serial, AE, colour and atomic carry
-/// nothing (colour re-bins its blocks every step); DD carries the load recorded so far and, with balanced cuts, the layout the chooser holds (its
-/// hysteresis decides the next step's layout).
+/// nothing (colour re-bins its blocks every step); DD carries the load recorded so far and,
+/// with balanced cuts, the layout the chooser holds (its hysteresis decides the next step's
+/// layout).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct EngineState {
     /// DD with balanced cuts: the layout in use (`None` before the first step, and for the
