@@ -6,7 +6,7 @@ use super::local::Local;
 use super::scheduler::Scheduler;
 use super::slurm::Slurm;
 use super::state::{Books, CampaignProgress, CampaignState, ExecOptions, ExecSummary, ManifestLog, Plan};
-use crate::campaign::exec::estimate::estimate_duration;
+use crate::campaign::exec::estimate::{estimate_duration, nominal_estimate};
 use crate::campaign::exec::process::Runner;
 use crate::campaign::exec::run::RunContext;
 use crate::campaign::exec::solver::Solver;
@@ -40,6 +40,7 @@ pub fn execute(
     };
     if opts.dry_run {
         plan.print(campaign, machine)?;
+        println!("{}", nominal_estimate(&plan.todo, machine.usable_pus().len()));
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
     }
     let here = opts.scheduler.runs_here();
