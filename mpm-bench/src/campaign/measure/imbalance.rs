@@ -349,6 +349,7 @@ mod tests {
         for row in &r.rows {
             assert!(row.balanced_max <= row.uniform_max + 1e-12, "{row:?}");
             assert!(row.balanced_mean >= 1.0 && row.uniform_mean >= row.balanced_mean - 1e-12, "{row:?}");
+            assert!(row.colour_mean >= 1.0 && row.colour_max >= row.colour_mean, "{row:?}");
         }
         let t = table(&r);
         assert!(t.contains("2x2x2") && t.contains("balanced mean"), "{t}");
@@ -357,7 +358,7 @@ mod tests {
         let csv = dir.join("x.csv");
         write_csv(&r, &csv).unwrap();
         let text = std::fs::read_to_string(&csv).unwrap();
-        assert!(text.starts_with("step,time_s,threads,layout,balanced_layout,uniform,balanced\n"), "{text}");
+        assert!(text.starts_with("step,time_s,threads,layout,balanced_layout,uniform,balanced,colour\n"), "{text}");
         assert_eq!(text.lines().count(), 1 + 12);
         std::fs::remove_dir_all(&dir).unwrap();
     }
