@@ -104,9 +104,11 @@ enum Cmd {
             mpm-bench run --preset paper --scheduler slurm --max-jobs 20 --detach   # submit and log out; rerun to collect"
     )]
     Run(Box<cli::run::RunArgs>),
-    /// Regenerate the paper's Figures 7-14 (and a memory figure) from a campaign.
+    /// Regenerate the paper's Figures 7-14 (and a memory figure; with block colouring or atomic
+    /// adds in the campaign, every strategy side by side) from a campaign.
     Figures(cli::analysis::FiguresArgs),
-    /// Check the paper's claims C1-C6 and C7 (balanced cuts) on a campaign: holds / does not hold / cannot tell.
+    /// Check the paper's claims C1-C6 and C7 (balanced cuts) on a campaign: holds / does not hold / cannot tell;
+    /// then block colouring and atomic adds against DD and AE.
     Claims(cli::analysis::ClaimsArgs),
     /// Compare a campaign with a baseline: exit 0 pass, 1 regression or missing cell, 2 error or incomparable.
     Regress(cli::analysis::RegressArgs),
@@ -172,6 +174,8 @@ enum Cmd {
             predicts a clearly smaller imbalance, e.g. 4x2x1 for a thin plate), with the \
             solver's own code. The \
             imbalance of a step is the most particles in a patch over the mean per patch. \
+            Block colouring's is predicted beside them: its 8 phases' fullest worker shares over \
+            their mean shares, on the blocks the solver cuts for the thread count. \
             Nothing is timed, so the result means the same on a 2-core machine as on the \
             paper's 8 cores. Prints the table (mean and worst step per thread count) and \
             writes imbalance-<scenario>-m<model>.csv (every step) and .png/.svg under --out.",

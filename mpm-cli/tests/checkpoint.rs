@@ -235,6 +235,15 @@ fn a_dd_run_on_two_threads_killed_at_a_random_step_resumes_bit_for_bit() {
     killed_and_resumed_is_bitwise(&[], &args, 5);
 }
 
+/// Block colouring on three threads: its block lists are rebuilt every step, so nothing of
+/// the strategy needs saving.
+#[test]
+fn a_colour_run_on_three_threads_killed_at_a_random_step_resumes_bit_for_bit() {
+    let mut args = SERIAL.to_vec();
+    args.extend(["--strategy", "colour", "--threads", "3"]);
+    killed_and_resumed_is_bitwise(&[], &args, 5);
+}
+
 /// The coarse impact on the sparse grid with balanced cuts: the cloud history, the layout
 /// chooser and the sparse blocks cross the restart.
 #[test]

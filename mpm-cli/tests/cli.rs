@@ -592,6 +592,26 @@ fn dd_balanced_runs_and_reports_its_patch_counts() {
     assert_eq!(s.strategy, Strategy::DdBalanced);
 }
 
+/// The two strategies used since the paper run, scatter straight into the global arrays (no
+/// assembly, no part bytes) and report their work: colour's binning, atomic's atomic bytes.
+#[test]
+fn colour_and_atomic_run_without_an_assembly() {
+    for strategy in ["colour", "atomic"] {
+        let (v, _) = run_json(&["--model", "1", "--steps", "5", "--strategy", strategy, "--threads", "2", "--quiet"]);
+        assert_eq!(v["strategy"], strategy);
+        let s: Summary = serde_json::from_value(v.clone()).unwrap();
+        assert_eq!(s.strategy.name(), strategy);
+        let work = s.figures.work.as_ref().expect("work counters");
+        let stages = &work.workers[1];
+        assert!(!stages.contains_key(&mpm_core::Substage::Assembly), "{strategy}: {stages:?}");
+        assert!(stages.values().all(|w| w.part_bytes == 0), "{strategy}: {stages:?}");
+        let binned = stages.contains_key(&mpm_core::Substage::Binning);
+        let atomics = stages.values().any(|w| w.atomic_bytes > 0);
+        assert_eq!((binned, atomics), (strategy == "colour", strategy == "atomic"), "{strategy}: {stages:?}");
+        assert!(v.get("dd_layout").is_none(), "{strategy}");
+    }
+}
+
 #[test]
 fn ae_on_two_workers_runs() {
     let (v, _) = run_json(&["--model", "1", "--steps", "20", "--strategy", "ae", "--threads", "2", "--quiet"]);
@@ -648,7 +668,7 @@ fn bad_input_is_a_clear_error() {
     rejects(&["--model", "5", "--steps", "0"], "1..=4");
     rejects(&["--steps", "0"], "--model");
     rejects(&["--model", "1", "--threads", "0"], "at least 1");
-    rejects(&["--model", "1", "--threads", "2"], "use --strategy ae, dd or dd-balanced");
+    rejects(&["--model", "1", "--threads", "2"], "use --strategy ae, dd, dd-balanced, colour or atomic");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0,99"], "CPU 99 does not exist");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0"], "one CPU per worker");
     rejects(&["--model", "1", "--strategy", "dd", "--threads", "2", "--cpus", "0,x"], "not a CPU number");

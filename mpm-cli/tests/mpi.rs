@@ -1,7 +1,8 @@
 //! Runs split over MPI ranks (`mpirun -n R mpm run ...`) against one process: Model 1 and a
-//! coarse impact over R = 1..4 ranks x T = 1, 2 threads end, after 50 steps, at the state of
-//! the serial solver to 1e-9 (relative to the largest value of each quantity), with
-//! particles moving between ranks on the way; an identical rerun is bitwise equal; rank 0's
+//! coarse impact over R = 1..4 ranks x T = 1, 2 threads (and every strategy inside the
+//! ranks: serial, AE and DD over 1-4 ranks, colour and atomic over 2) end, after 50 steps,
+//! at the state of the serial solver to 1e-9 (relative to the largest value of each
+//! quantity), with particles moving between ranks on the way; an identical rerun is bitwise equal; rank 0's
 //! summary lists every rank; `--split-wait` changes no bit and reports each rank's waiting;
 //! particles leaving the fixed grid stop a run over ranks as they stop one process.
 //!
@@ -131,6 +132,18 @@ fn check_equivalence(scenario: &[&str]) {
                 assert!(summary.ranks.is_none());
             }
         }
+    }
+    // The strategies used since the paper inside each of 2 ranks of 2 threads.
+    for strategy in ["colour", "atomic"] {
+        let name = format!("r2t2-{strategy}");
+        let args: Vec<&str> = scenario
+            .iter()
+            .copied()
+            .chain(["--strategy", strategy, "--threads", "2", "--rank-layout", "1x1x2"])
+            .collect();
+        run(dir.path(), &name, 2, &args);
+        let d = relative_differences(&reference, &read_state(&dir.path().join(format!("{name}.bin"))));
+        assert!(d.iter().all(|&x| x <= 1e-9), "{name}: relative differences {d:?} exceed 1e-9");
     }
     // An identical rerun is bitwise equal.
     let args: Vec<&str> =

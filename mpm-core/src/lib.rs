@@ -11,9 +11,9 @@
 //!   failure: [`material`];
 //! * the kernels of each phase of the step (P2G, the node passes, the gather fused with the
 //!   re-map, the particle update), shared by every strategy: [`transfer`];
-//! * the three ways to do the nodal scatter, serial, array expansion and domain
-//!   decomposition (uniform or balanced cuts), which is all that differs between them:
-//!   [`strategy`];
+//! * the ways to do the nodal scatter, serial and the paper's array expansion and domain
+//!   decomposition (uniform or balanced cuts), and two used since, block colouring and
+//!   atomic adds, which is all that differs between them: [`strategy`];
 //! * the parallel region a step runs in, its phases and the per-worker parts of shared
 //!   arrays, with a safe API: [`parallel`];
 //! * what a step needs from other processes when a run is split over ranks (halo sums,

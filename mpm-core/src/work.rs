@@ -19,7 +19,16 @@
 //! * `part_bytes`: bytes of private grids (AE copies) or sub-grids (DD) the worker wrote
 //!   (DD zeroing its sub-grid, in the scatters; AE clearing the records it summed that were
 //!   not zero, in the assemblies) or read (summing them into the global arrays, in the
-//!   assemblies).
+//!   assemblies);
+//! * `atomic_bytes`: bytes the worker's atomic additions read and wrote in the global arrays
+//!   (the atomic strategy: each particle's 8 node records, each value read and written by a
+//!   compare-exchange, counted at the record's width; values that are zero are not sent, and
+//!   at AVX-512 the P2G kernel sends a cell's run of particles at once, so fewer additions
+//!   run than this counts).
+//!
+//! The colour strategy scatters straight into the global arrays, so it counts what serial
+//! counts there (its workers' shares of the zeroing, the particles of their blocks) and its
+//! binning passes, and nothing for copies or an assembly.
 //!
 //! The counts are made once per share of a phase from the sizes of the worker's part (a
 //! chunk's length, a patch's particle count, a sub-grid's node count), never per particle,
@@ -33,20 +42,23 @@
 //!
 //! Each count is weighted by the compulsory memory traffic it stands for, the bytes of the
 //! roofline model ([`crate::roofline::COSTS`]): a particle by its sub-stage's particle bytes
-//! (DD's binning: half of them per pass, as the table has its two passes together), a
-//! scattered node record by the sub-stage's node bytes (zeroed, read and written), an
-//! updated one by the node pass's, an assembled one by its record's size, plus the part
-//! bytes. `W_w` is worker `w`'s sum; `W_1` what the serial solver moves for the same steps
-//! (every particle once per particle pass, every stored node once per node pass: from the
-//! same counts). Then
+//! (the binning, DD's or colour's: half of them per pass, as the table has its two passes
+//! together), a scattered node record by the sub-stage's node bytes (zeroed, read and
+//! written), an updated one by the node pass's, an assembled one by its record's size, plus
+//! the part and atomic bytes. `W_w` is worker `w`'s sum; `W_1` what the serial solver moves
+//! for the same steps (every particle once per particle pass, every stored node once per
+//! node pass: from the same counts). Then
 //!
 //! ```text
 //! efficiency <= W_1 / (T max_w W_w) = (1 - overhead) x balance,
-//!     overhead = 1 - W_1 / sum_w W_w   (what the strategy adds: copies, sub-grid faces, assembly, binning)
+//!     overhead = 1 - W_1 / sum_w W_w   (what the strategy adds: copies, sub-grid faces,
+//!                                        assembly, binning, atomics)
 //!     balance  = mean_w W_w / max_w W_w
 //! ```
 //!
-//! a bound in the sense of a model (no barrier, no serial part, equal bandwidth per worker):
+//! a bound in the sense of a model (no barrier, no serial part, equal bandwidth per worker;
+//! the colour strategy's 8 phases a scatter are counted together, so an uneven split within
+//! a phase that evens out over the phases does not show):
 //! the efficiency a perfect host would give the traffic, which the measured one can only
 //! approach. The serial strategy's own counts give exactly `W_1` (tested).
 
@@ -70,6 +82,14 @@ pub struct Work {
     pub nodes_updated: u64,
     /// Bytes of private grids or sub-grids written (scatter) or read (assembly).
     pub part_bytes: u64,
+    /// Bytes of global records read and written by atomic additions.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub atomic_bytes: u64,
+}
+
+/// Whether `v` is 0 (a count left out of the JSON).
+fn is_zero(v: &u64) -> bool {
+    *v == 0
 }
 
 /// The counter lanes of a [`Work`].
@@ -78,8 +98,9 @@ const SCATTERED: usize = 1;
 const ASSEMBLED: usize = 2;
 const UPDATED: usize = 3;
 const PART_BYTES: usize = 4;
+const ATOMIC_BYTES: usize = 5;
 /// Lanes used of the [`LANES`] a worker has.
-const WORK_LANES: usize = 5;
+const WORK_LANES: usize = 6;
 const _: () = assert!(WORK_LANES <= LANES);
 
 impl Work {
@@ -90,6 +111,7 @@ impl Work {
             nodes_assembled: l[ASSEMBLED],
             nodes_updated: l[UPDATED],
             part_bytes: l[PART_BYTES],
+            atomic_bytes: l[ATOMIC_BYTES],
         }
     }
 
@@ -101,6 +123,7 @@ impl Work {
         l[ASSEMBLED] = self.nodes_assembled;
         l[UPDATED] = self.nodes_updated;
         l[PART_BYTES] = self.part_bytes;
+        l[ATOMIC_BYTES] = self.atomic_bytes;
         l
     }
 
@@ -117,6 +140,7 @@ impl Work {
             nodes_assembled: self.nodes_assembled + o.nodes_assembled,
             nodes_updated: self.nodes_updated + o.nodes_updated,
             part_bytes: self.part_bytes + o.part_bytes,
+            atomic_bytes: self.atomic_bytes + o.atomic_bytes,
         }
     }
 }
@@ -162,6 +186,13 @@ impl<'a> Tally<'a> {
     pub fn assembled(&self, w: usize, records: usize, part_records: usize, record_bytes: usize) {
         self.0.add(w, ASSEMBLED, n(records));
         self.0.add(w, PART_BYTES, n(part_records * record_bytes));
+    }
+
+    /// Worker `w` added to `records` global node records of `record_bytes` bytes by atomic
+    /// additions (each record's values read and written once).
+    #[inline]
+    pub fn atomic(&self, w: usize, records: usize, record_bytes: usize) {
+        self.0.add(w, ATOMIC_BYTES, n(2 * records * record_bytes));
     }
 
     /// Worker `w` went over `records` node records in a node pass.
@@ -304,6 +335,7 @@ impl Work {
             + (self.nodes_scattered + self.nodes_updated) * node_bytes(s)
             + self.nodes_assembled * assembled_record_bytes(s)
             + self.part_bytes
+            + self.atomic_bytes
     }
 }
 

@@ -70,6 +70,9 @@ fn steady_state_steps_do_not_allocate() {
         (Strategy::DomainDecomposition, 4),
         (Strategy::DdBalanced, 2),
         (Strategy::DdBalanced, 8),
+        (Strategy::Colour, 2),
+        (Strategy::Colour, 8),
+        (Strategy::Atomic, 2),
     ] {
         assert_eq!(allocations_per_step(1, strategy, threads, GridMode::Sparse), 1.0, "{strategy} x{threads}, sparse");
         let small = allocations_per_step(1, strategy, threads, GridMode::Fixed);

@@ -1,6 +1,12 @@
 //! Every parallel strategy (all of [`Strategy::ALL`] but serial) against the serial oracle at
-//! every thread count, and bitwise reproducibility for a fixed strategy and thread count.
-//! Runs with more threads than this machine has cores too (oversubscription must work).
+//! every thread count, and bitwise reproducibility for a fixed strategy and thread count
+//! (every strategy but atomic adds, [`Strategy::is_deterministic`]). Runs with more threads
+//! than this machine has cores too (oversubscription must work).
+//!
+//! The tolerance against the serial oracle, a relative 1e-9 after tens of steps, is not a
+//! bound derived from the summation order (differences of one step's sums, bounded node by
+//! node in the strategies' unit tests, grow through the dynamics); it says the parallel runs
+//! compute the serial run's physics, far below any physical difference.
 
 mod common;
 
@@ -48,19 +54,35 @@ fn check_all(setup: &Setup, grid_mode: GridMode, steps: usize) {
 }
 
 #[test]
-fn ae_and_dd_match_serial_on_taylor_model1_after_50_steps() {
+fn parallel_strategies_match_serial_on_taylor_model1_after_50_steps() {
     let setup = TaylorBar::default().setup().unwrap();
     check_all(&setup, GridMode::Fixed, 50);
 }
 
 #[test]
-fn ae_and_dd_match_serial_on_taylor_model1_with_the_adaptive_grid() {
+fn parallel_strategies_match_serial_on_taylor_model1_with_the_adaptive_grid() {
     let setup = TaylorBar::default().setup().unwrap();
     check_all(&setup, GridMode::Adaptive, 20);
 }
 
+/// The two strategies used since the paper on Model 2 (244,341 particles), at 1-8 threads:
+/// the colour strategy's blocks of 4 (2 threads) and 2 cells (8 threads), the atomic adds'
+/// contention over a larger grid.
 #[test]
-fn ae_and_dd_match_serial_on_a_free_flight_impact_after_50_steps() {
+fn colour_and_atomic_match_serial_on_taylor_model2() {
+    let setup = TaylorBar { model: 2, ..TaylorBar::default() }.setup().unwrap();
+    let steps = 10;
+    let oracle = run(&setup, Strategy::Serial, 1, GridMode::Fixed, steps);
+    for strategy in [Strategy::Colour, Strategy::Atomic] {
+        for threads in [1, 2, 4, 8] {
+            let sim = run(&setup, strategy, threads, GridMode::Fixed, steps);
+            assert_close(oracle.particles(), sim.particles(), &format!("{} {strategy} x{threads}", setup.model));
+        }
+    }
+}
+
+#[test]
+fn parallel_strategies_match_serial_on_a_free_flight_impact_after_50_steps() {
     let setup = mini_impact();
     let oracle = run(&setup, Strategy::Serial, 1, GridMode::Adaptive, 50);
     assert!(oracle.particles().failed_count() > 0, "the impact should fail some particles");
@@ -76,6 +98,9 @@ fn same_strategy_and_thread_count_reproduce_bitwise() {
         (Strategy::DomainDecomposition, 8),
         (Strategy::DdBalanced, 2),
         (Strategy::DdBalanced, 8),
+        (Strategy::Colour, 1),
+        (Strategy::Colour, 3),
+        (Strategy::Colour, 8),
     ] {
         let a = run(&setup, strategy, threads, GridMode::Adaptive, 30);
         let b = run(&setup, strategy, threads, GridMode::Adaptive, 30);
@@ -149,7 +174,8 @@ fn the_thread_count_is_the_pools() {
 }
 
 /// The sparse grid stores only the blocks of nodes the particles touch, and gives bitwise the
-/// adaptive grid's results for every strategy and thread count: on the mini impact with a
+/// adaptive grid's results for every strategy and thread count (atomic adds: to round-off,
+/// as two of their runs on one grid): on the mini impact with a
 /// fragment flying off far ahead and sideways (so that most of the box is empty), and on
 /// the Taylor bar, whose wall lies on the grid's lowest node layer.
 #[test]
@@ -169,8 +195,12 @@ fn sparse_grid_is_bitwise_the_adaptive_grid() {
             let dense = run(setup, strategy, threads, GridMode::Adaptive, steps);
             let sparse = run(setup, strategy, threads, GridMode::Sparse, steps);
             let what = format!("{} {strategy} x{threads}", setup.model);
-            assert!(dense.particles() == sparse.particles(), "{what}: the sparse grid changed the particles");
-            assert_eq!(dense.diagnostics(), sparse.diagnostics(), "{what}");
+            if strategy.is_deterministic() {
+                assert!(dense.particles() == sparse.particles(), "{what}: the sparse grid changed the particles");
+                assert_eq!(dense.diagnostics(), sparse.diagnostics(), "{what}");
+            } else {
+                assert_close(dense.particles(), sparse.particles(), &what);
+            }
             assert_eq!(dense.geom(), sparse.geom(), "{what}");
             if setup.model == "mini-impact" {
                 assert!(
@@ -200,7 +230,8 @@ fn bits(p: &Particles) -> Vec<u64> {
 /// has (AVX2 in blocks of 4, AVX-512 in blocks of 8) give bitwise the same results: the same
 /// operations in the same order on every lane, no fused multiply-add (see `mpm_core::simd`).
 /// On the Taylor bar (plastic flow at the wall) and the mini impact (failure, the heat-free
-/// rule, strong compression), serial and DD. A CPU with neither wide level fails the test:
+/// rule, strong compression), serial, DD and colour (the kernels writing through its shared
+/// view of the global arrays). A CPU with neither wide level fails the test:
 /// there would be nothing to compare.
 #[test]
 fn dispatch_levels_agree_bitwise() {
@@ -211,7 +242,7 @@ fn dispatch_levels_agree_bitwise() {
     assert!(!wide_levels.is_empty(), "this CPU has no SIMD level beyond the baseline: nothing to compare");
     let cases = [(TaylorBar::default().setup().unwrap(), GridMode::Fixed, 40), (mini_impact(), GridMode::Adaptive, 40)];
     for (setup, grid_mode, steps) in &cases {
-        for (strategy, threads) in [(Strategy::Serial, 1), (Strategy::DomainDecomposition, 2)] {
+        for (strategy, threads) in [(Strategy::Serial, 1), (Strategy::DomainDecomposition, 2), (Strategy::Colour, 2)] {
             let at = |simd| {
                 let config = SimConfig { strategy, grid_mode: *grid_mode, simd: Some(simd), ..Default::default() };
                 let mut sim = Simulation::new(setup.clone(), config, pool(threads)).unwrap();

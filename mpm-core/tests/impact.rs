@@ -126,7 +126,7 @@ fn failed_particles_keep_no_negative_internal_energy_and_the_balance_books_what_
 }
 
 #[test]
-fn coarse_impact_ae_and_dd_match_serial() {
+fn coarse_impact_parallel_strategies_match_serial() {
     let (setup, _) = coarse();
     let run = |strategy, threads| {
         let mut sim = Simulation::new(setup.clone(), config(strategy), pool(threads)).unwrap();
@@ -143,6 +143,10 @@ fn coarse_impact_ae_and_dd_match_serial() {
         (Strategy::ArrayExpansion, 3),
         (Strategy::DomainDecomposition, 2),
         (Strategy::DomainDecomposition, 6),
+        (Strategy::Colour, 2),
+        (Strategy::Colour, 5),
+        (Strategy::Atomic, 2),
+        (Strategy::Atomic, 4),
     ] {
         let sim = run(strategy, threads);
         let dx = oracle

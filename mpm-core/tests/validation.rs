@@ -117,7 +117,9 @@ fn momentum_is_conserved_to_round_off_in_free_flight() {
         ps.v[i] = [3.0 - 800.0 * x[1], 1.0 + 800.0 * x[0], -2.0 + 50.0 * (x[0] * 300.0).sin()];
         ps.stress[i] = [1e7 * (x[1] * 500.0).cos(), -2e6, 3e6, 1e6, 0.0, 5e5 * x[0] * 1e3];
     }
-    for strategy in [Strategy::Serial, Strategy::DomainDecomposition, Strategy::ArrayExpansion] {
+    for strategy in
+        [Strategy::Serial, Strategy::DomainDecomposition, Strategy::ArrayExpansion, Strategy::Colour, Strategy::Atomic]
+    {
         let threads = if strategy == Strategy::Serial { 1 } else { 2 };
         let config = SimConfig { strategy, grid_mode: GridMode::Adaptive, ..Default::default() };
         let mut sim = Simulation::new(setup.clone(), config, pool(threads)).unwrap();

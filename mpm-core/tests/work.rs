@@ -26,7 +26,14 @@ fn run(strategy: Strategy, threads: usize, inject: f64) -> Simulation {
 }
 
 fn w(particles: u64, scattered: u64, assembled: u64, updated: u64, part_bytes: u64) -> Work {
-    Work { particles, nodes_scattered: scattered, nodes_assembled: assembled, nodes_updated: updated, part_bytes }
+    Work {
+        particles,
+        nodes_scattered: scattered,
+        nodes_assembled: assembled,
+        nodes_updated: updated,
+        part_bytes,
+        atomic_bytes: 0,
+    }
 }
 
 /// Array expansion on 2 workers: each scatters its half of the particles into a whole copy
@@ -81,6 +88,57 @@ fn domain_decomposition_counts_by_hand() {
     // below 1 although both workers are loaded alike.
     let b = c.bound().unwrap();
     assert!(b.overhead > 0.0 && b.efficiency_bound < 1.0 && b.balance > 0.97, "{b:?}");
+}
+
+/// Block colouring on 2 workers: the grid of 4 x 4 x 12 cells has 192 blocks of one cell
+/// (the rule: fewer than 8 x 64 x 2 blocks of 4 or 2), so each colour holds the cells of one
+/// parity, 2 x 2 x 6 = 24 slots, the first 16 of them (z < 8) holding 8 particles each; the
+/// quantile cut of each phase falls after slot 8 (64 particles each), so each worker
+/// scatters 8 x 64 = 512 particles a scatter; the binning goes over each worker's
+/// 512-particle chunk twice; the zeroing splits the 325 global records 162 / 163. Nothing
+/// else: no copies, no assembly. The traffic bound is the serial traffic's less the binning.
+#[test]
+fn colour_counts_by_hand() {
+    let c = run(Strategy::Colour, 2, 0.0).work();
+    let s = STEPS;
+    for (worker, zeroed, upd) in [(0, 162, 160), (1, 163, 165)] {
+        let want = [
+            (Substage::Binning, w(2 * 512 * s, 0, 0, 0, 0)),
+            (Substage::Scatter, w(512 * s, zeroed * s, 0, 0, 0)),
+            (Substage::GridUpdate, w(0, 0, 0, upd * s, 0)),
+            (Substage::RemapScatter, w(512 * s, zeroed * s, 0, 0, 0)),
+            (Substage::RemapAssembly, w(0, 0, 0, upd * s, 0)),
+            (Substage::StressUpdate, w(512 * s, 0, 0, 0, 0)),
+        ];
+        assert_eq!(c.workers[worker], want.into_iter().collect(), "worker {worker}");
+    }
+    let b = c.bound().unwrap();
+    let binning = 2 * PARTICLES * s * mpm_core::work::particle_bytes(Substage::Binning);
+    assert_eq!(b.worker_bytes.iter().sum::<u64>(), b.serial_bytes + binning, "{b:?}");
+    assert!(b.balance > 0.99 && b.efficiency_bound > 0.95, "{b:?}");
+}
+
+/// Atomic adds on 2 workers: each scatters its 512-particle chunk straight into the global
+/// arrays, every particle's 8 records read and written by the atomic additions (64-byte
+/// P2G and 32-byte re-map records); the zeroing splits the 325 global records 162 / 163;
+/// no binning, no copies, no assembly.
+#[test]
+fn atomic_counts_by_hand() {
+    let c = run(Strategy::Atomic, 2, 0.0).work();
+    let s = STEPS;
+    let atomic = |work: Work, record: u64| Work { atomic_bytes: 512 * s * 8 * 2 * record, ..work };
+    for (worker, zeroed, upd) in [(0, 162, 160), (1, 163, 165)] {
+        let want = [
+            (Substage::Scatter, atomic(w(512 * s, zeroed * s, 0, 0, 0), 64)),
+            (Substage::GridUpdate, w(0, 0, 0, upd * s, 0)),
+            (Substage::RemapScatter, atomic(w(512 * s, zeroed * s, 0, 0, 0), 32)),
+            (Substage::RemapAssembly, w(0, 0, 0, upd * s, 0)),
+            (Substage::StressUpdate, w(512 * s, 0, 0, 0, 0)),
+        ];
+        assert_eq!(c.workers[worker], want.into_iter().collect(), "worker {worker}");
+    }
+    let b = c.bound().unwrap();
+    assert_eq!(b.worker_bytes.iter().sum::<u64>(), b.serial_bytes + PARTICLES * s * 8 * 2 * (64 + 32), "{b:?}");
 }
 
 /// The serial strategy's counts are exactly the serial traffic `W_1` (bound 1); array

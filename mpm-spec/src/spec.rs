@@ -554,8 +554,10 @@ impl RunSpec {
                 "paired",
                 "--paired-blocks",
                 format!(
-                    "the paired design compares a parallel strategy's 1-thread and T-thread solvers: use ae, dd or dd-balanced with 2 or more threads (got {} with {})",
-                    self.strategy, self.threads
+                    "the paired design compares a parallel strategy's 1-thread and T-thread solvers: use {} with 2 or more threads (got {} with {})",
+                    Strategy::parallel_names(),
+                    self.strategy,
+                    self.threads
                 ),
             );
         }

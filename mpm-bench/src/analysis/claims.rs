@@ -1,6 +1,7 @@
 //! `mpm-bench claims`: the paper's claims C1-C6 (spec paper.md section 5), and C7 (this
 //! study's own claim) on the balanced DD cuts, tested on a campaign, each with a verdict, the
-//! reason and the numbers behind it.
+//! reason and the numbers behind it; then a section beyond the paper, the strategies used
+//! since (block colouring, atomic adds) against DD and AE ([`super::strategies`]).
 //!
 //! Rules shared by every claim:
 //!
@@ -27,6 +28,7 @@
 use super::results::{load_campaigns, Campaign};
 use super::select::RowFilter;
 use super::stats::{compare, parallel_strategies, tag, Analysis, CellKey, Compare, Estimate, Stage, StatsOptions};
+use super::strategies;
 use crate::campaign::store::record::Status;
 use crate::machine::placement::{PinPolicy, Places};
 use crate::machine::topology::Machine;
@@ -654,13 +656,16 @@ pub fn run(args: ClaimsOptions) -> Result<()> {
             eprintln!("warning: {w}");
         }
         print!("{}", table(&res));
+        print!("{}", strategies::text(&an));
         if parts.len() > 1 {
             println!();
             let _ = writeln!(text, "## Machine `{}`\n", c.fingerprint());
             text.push_str(&markdown(&res, "###"));
+            text.push_str(&strategies::markdown(&an, "###"));
             text.push('\n');
         } else {
             text.push_str(&markdown(&res, "##"));
+            text.push_str(&strategies::markdown(&an, "##"));
         }
     }
     if let Some(md) = &args.markdown {

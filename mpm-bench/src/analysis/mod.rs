@@ -6,6 +6,8 @@
 //! * [`hybrid`]: MPI ranks x threads: speedup and efficiency against total cores;
 //! * [`ratio`]: campaign B over campaign A on their matching cells, headline per model;
 //! * [`claims`]: the paper's claims C1-C6 tested; [`regress`]: the CI gate;
+//! * [`strategies`]: the strategies used since the paper against DD and AE, and the
+//!   measured choice of strategy per model;
 //! * [`calibrate`]: the gate's own false-alarm rate and detection power, from the campaigns
 //!   `crate::campaign::measure::calibrate` ran on this host (clean and with an injected
 //!   slowdown);
@@ -27,4 +29,5 @@ pub mod regress;
 pub mod results;
 pub mod select;
 pub mod stats;
+pub mod strategies;
 pub mod traffic;

@@ -7,16 +7,20 @@
 //! `p2g` = `[m, p, f]` 7 doubles = 56 B, `kin` = `[v, a]` 48 B, `remap` 24 B. Particle
 //! fields: `x`, `v` 24 B each, `mass`, `rho`, `eps_p`, `e_int`, `sound` 8 B, `stress` 48 B,
 //! `failed` 1 B. *copies* of the scatter arrays: `T` for AE (one column of all `N` nodes per
-//! thread), about 1 for DD (the sub-grids together; shared faces neglected) and serial.
+//! thread), about 1 for DD (the sub-grids together; shared faces neglected), 1 for serial,
+//! colour and atomic (the global arrays themselves). Atomic adds move the serial bytes (a
+//! record's compare-exchange additions hit it in cache while a cell's particles go through);
+//! what they add is the additions' latency, not traffic.
 //!
 //! | pass | per particle | per node |
 //! |---|---|---|
 //! | DD binning (count + write `Pindex`) | x 24 + patch 4 + 4 + Pindex 4 = 36 | - |
 //! | balanced cuts: histogram passes, binning from the stored cells | x 24 + cell 12, + 12 per y or z pass; count cell 12 + patch 4; write 4 + Pindex 4 = 60 (+12 per y/z pass) | - |
+//! | colour binning (count, then write the block lists) | x 24 + x 24 + id 4 = 52 | - |
 //! | P2G scatter (Eqs. 1-5) | x 24, v 24, mass 8, rho 8, stress 48 = 112 (+4 Pindex, DD) | zero 56 + read-modify-write 112 = 168 per copy |
 //! | assembly (Eq. 16 / sub-grids) | - | AE 56 (T+1); DD read 56 + write 56 = 112 (each node stored by its first patch, added by the others: shared faces neglected); serial 0 |
 //! | grid update (Eq. 6) | - | read p2g 56 + write kin 48 = 104 |
-//! | **grid-node stage** | 112 (+40 DD, +64..88 balanced DD) | 168 copies + assembly + 104 |
+//! | **grid-node stage** | 112 (+40 DD, +64..88 balanced DD, +52 colour) | 168 copies + assembly + 104 |
 //! | gather (Eqs. 8, 10) | x 24 + v r/w 48 = 72 | kin 48 |
 //! | re-map scatter (Eq. 11) | x 24, v 24, mass 8 = 56 (+4 DD) | zero 24 + r/w 48 = 72 per copy |
 //! | re-map assembly | - | AE 24 (T+1); DD 48; serial 0 |
@@ -61,7 +65,8 @@ impl StageBytes {
             Strategy::ArrayExpansion => (t, 56.0 * (t + 1.0), 24.0 * (t + 1.0), 0.0, 0.0),
             Strategy::DomainDecomposition => (1.0, 112.0, 48.0, 1.0, 40.0),
             Strategy::DdBalanced => (1.0, 112.0, 48.0, 1.0, 64.0 + 12.0 * cut_axes as f64),
-            Strategy::Serial => (1.0, 0.0, 0.0, 0.0, 0.0),
+            Strategy::Colour => (1.0, 0.0, 0.0, 0.0, 52.0),
+            Strategy::Serial | Strategy::Atomic => (1.0, 0.0, 0.0, 0.0, 0.0),
         };
         let grid_min = particles * (112.0 + binning) + nodes * (168.0 * copies + asm7 + 104.0);
         let particle_min = particles * (370.0 + 4.0 * dd_p) + nodes * (48.0 + 72.0 * copies + asm3 + 104.0 + 72.0);
@@ -97,5 +102,8 @@ mod tests {
         let dd = StageBytes::estimate(Strategy::DomainDecomposition, 4, 0.0, 1.0);
         assert!(dd.grid_min < ae.grid_min);
         assert_eq!(dd.of(Stage::Total).0, dd.grid_min + dd.particle_min);
+        let serial = StageBytes::estimate(Strategy::Serial, 1, 1.0, 1.0);
+        assert_eq!(StageBytes::estimate(Strategy::Atomic, 4, 1.0, 1.0), serial);
+        assert_eq!(StageBytes::estimate(Strategy::Colour, 4, 1.0, 1.0).grid_min, serial.grid_min + 52.0);
     }
 }

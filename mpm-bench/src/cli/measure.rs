@@ -49,9 +49,9 @@ pub struct PairedArgs {
     /// Taylor bar model, 1-4 (Model 4 needs several GiB per configuration).
     #[arg(long, default_value_t = 2)]
     pub model: u8,
-    /// Strategies to measure, comma-separated: ae, dd, dd-balanced. Each after the first is
-    /// also compared with the first at `--threads` threads, block by block (e.g.
-    /// `dd,dd-balanced`: the cost or gain of balanced cuts).
+    /// Strategies to measure, comma-separated: ae, dd, dd-balanced, colour, atomic. Each
+    /// after the first is also compared with the first at `--threads` threads, block by
+    /// block (e.g. `dd,dd-balanced`: the cost or gain of balanced cuts).
     #[arg(long, value_delimiter = ',', default_value = "ae,dd")]
     pub strategies: Vec<String>,
     /// Workers of the parallel configurations (the reference configurations use 1).

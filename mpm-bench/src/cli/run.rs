@@ -21,8 +21,8 @@ use std::time::Duration;
 
 #[derive(Args, Debug)]
 pub struct RunArgs {
-    /// Preset: smoke, quick, paper, impact, balanced (configs/<name>.toml), or a path to a
-    /// TOML file.
+    /// Preset: smoke, quick, paper, impact, balanced, strategies (configs/<name>.toml), or a
+    /// path to a TOML file.
     #[arg(long, short = 'p', value_name = "NAME|FILE")]
     preset: String,
     /// Models to run, comma list of 1-4 (replaces the preset's).
@@ -45,8 +45,8 @@ pub struct RunArgs {
     #[arg(long, value_name = "TEMPLATE")]
     launcher: Option<String>,
     /// Strategies, comma list of serial, ae (array expansion), dd (domain decomposition),
-    /// dd-balanced (DD with cuts at the particle-count quantiles); or `all`: every parallel
-    /// strategy of this solver build.
+    /// dd-balanced (DD with cuts at the particle-count quantiles), colour (block colouring),
+    /// atomic (atomic adds); or `all`: every parallel strategy of this solver build.
     #[arg(long, value_name = "LIST")]
     strategies: Option<String>,
     /// Optimisation levels, comma list of o3, o0.

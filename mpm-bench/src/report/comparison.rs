@@ -586,6 +586,7 @@ pub fn build(args: &ReportOptions) -> Result<Report> {
     page.sections.push(roofline_section(&sets));
     page.sections.extend(hybrid_section(&sets)?);
     page.sections.push(claims_section(&sets));
+    page.sections.push(super::strategies::section(&sets));
     page.sections.push(super::machines::machines_section(&sets));
     Ok(Report { comparisons, page })
 }

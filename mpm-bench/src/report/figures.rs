@@ -12,7 +12,9 @@
 //! program ([`super::plot`]).
 //!
 //! Files: `fig07.{png,svg}` .. `fig14.{png,svg}`, `fig_memory.{png,svg}` and a `README.md`
-//! saying which campaign and command made them. These use the one-process rows only; a
+//! saying which campaign and command made them; a campaign that ran block colouring or
+//! atomic adds also gets `fig_strategies.{png,svg}`, every strategy side by side
+//! ([`super::strategies`]). These use the one-process rows only; a
 //! campaign with runs over several MPI ranks also gets `fig_hybrid.{png,svg}` (speedup
 //! against total cores, [`super::hybrid`]).
 
@@ -122,7 +124,7 @@ fn marker_of(model: u32) -> usize {
     (model as usize + 3) % 4
 }
 
-fn plot_point(p: &Point, metric: Metric) -> Option<PlotPoint> {
+pub(super) fn plot_point(p: &Point, metric: Metric) -> Option<PlotPoint> {
     let e = match metric {
         Metric::Speedup => p.speedup?,
         Metric::Efficiency => p.efficiency?,
@@ -358,7 +360,7 @@ const GIB: f64 = (1u64 << 30) as f64;
 
 /// Peak memory (GiB) of model `m`, `strat`, `opt` by thread count, and the thread counts
 /// whose runs were skipped or failed.
-fn memory_points(an: &Analysis, m: u32, strat: Strategy, opt: &str) -> (Vec<PlotPoint>, Vec<String>) {
+pub(super) fn memory_points(an: &Analysis, m: u32, strat: Strategy, opt: &str) -> (Vec<PlotPoint>, Vec<String>) {
     let o = StatsOptions::default();
     let mut pts = Vec::new();
     let mut skipped = Vec::new();
@@ -424,17 +426,8 @@ fn memory_panel(an: &Analysis, m: u32, x_max: f64) -> Panel {
             (p.y, p.lo, p.hi) = (p.y * k, p.lo * k, p.hi * k);
         }
     }
-    Panel {
-        title: format!("Model{m}"),
-        y_desc: format!("Peak resident memory ({unit})"),
-        x_desc: "Number of threads".into(),
-        x_max,
-        y_max: (top * k * 1.6).max(0.05),
-        ideal: None,
-        ideal_flat: false,
-        lines,
-        notes,
-    }
+    let y_desc = format!("Peak resident memory ({unit})");
+    Panel::of_threads(format!("Model{m}"), y_desc, x_max, (top * k * 1.6).max(0.05), lines, notes)
 }
 
 /// Panels of the memory figure: one per model.
@@ -477,6 +470,9 @@ pub fn write_all(c: &Campaign, an: &Analysis, out: &Path, command: &str) -> Resu
         (rows, cols),
         &mem_notes,
     )?);
+    if super::strategies::wanted(an) {
+        files.extend(super::strategies::write(out, an, &notes)?);
+    }
     let hybrid = HybridAnalysis::from_rows(&c.rows, &c.hybrid, Some(&an.pin_policy), &StatsOptions::default());
     if !hybrid.points.is_empty() {
         let (panels, grid) = super::hybrid::panels(&hybrid);
@@ -550,6 +546,9 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
         s,
         "| points.csv | every point of these figures: figure, panel, model, strategy, opt level, threads, metric, value, interval, repetitions, flags |"
     );
+    if super::strategies::wanted(an) {
+        let _ = writeln!(s, "| {}.png / .svg | {} |", super::strategies::STEM, super::strategies::TITLE);
+    }
     if !hybrid.points.is_empty() {
         let _ = writeln!(
             s,

@@ -1,5 +1,5 @@
 //! The figure of `mpm-bench imbalance`: predicted work imbalance of uniform and balanced DD
-//! cuts against the thread count.
+//! cuts, and of block colouring, against the thread count.
 
 use super::plot::{series_colour, write_png_svg, Line, Panel, PlotPoint};
 use crate::campaign::measure::imbalance::{stem, ImbalanceReport, ImbalanceRow};
@@ -8,11 +8,11 @@ use std::path::{Path, PathBuf};
 
 /// One line: the mean over the steps, the bar from the best to the worst step.
 fn line(r: &ImbalanceReport, label: &str, i: usize, pick: fn(&ImbalanceRow) -> (f64, f64)) -> Line {
-    let best = |t: usize, uniform: bool| {
+    let best = |t: usize| {
         r.samples
             .iter()
             .filter(|s| s.threads == t)
-            .map(|s| if uniform { s.uniform } else { s.balanced })
+            .map(|s| [s.uniform, s.balanced, s.colour][i])
             .fold(f64::INFINITY, f64::min)
     };
     let points = r
@@ -23,7 +23,7 @@ fn line(r: &ImbalanceReport, label: &str, i: usize, pick: fn(&ImbalanceRow) -> (
             PlotPoint {
                 x: row.threads as f64,
                 y: mean,
-                lo: best(row.threads, i == 0).min(mean),
+                lo: best(row.threads).min(mean),
                 hi: max,
                 hollow: false,
                 grey: false,
@@ -39,8 +39,9 @@ pub fn write_figure(r: &ImbalanceReport, dir: &Path) -> Result<Vec<PathBuf>> {
     let lines = vec![
         line(r, "uniform cuts (dd)", 0, |w| (w.uniform_mean, w.uniform_max)),
         line(r, "balanced cuts (dd-balanced)", 1, |w| (w.balanced_mean, w.balanced_max)),
+        line(r, "block colouring (colour)", 2, |w| (w.colour_mean, w.colour_max)),
     ];
-    let y_top = r.rows.iter().map(|w| w.uniform_max.max(w.balanced_max)).fold(1.0, f64::max);
+    let y_top = r.rows.iter().map(|w| w.uniform_max.max(w.balanced_max).max(w.colour_max)).fold(1.0, f64::max);
     let x_max = r.rows.iter().map(|w| w.threads).max().unwrap_or(1) as f64;
     let panel = Panel {
         title: format!("{} {}", r.scenario, r.model_name),
@@ -64,5 +65,13 @@ pub fn write_figure(r: &ImbalanceReport, dir: &Path) -> Result<Vec<PathBuf>> {
         ),
         "Made by mpm-bench imbalance; no timing, so it holds on any machine.".to_string(),
     ];
-    write_png_svg(dir, &stem(r), (1000, 720), "DD work imbalance: uniform vs balanced cuts", &[panel], (1, 1), &notes)
+    write_png_svg(
+        dir,
+        &stem(r),
+        (1000, 720),
+        "Work imbalance: DD uniform vs balanced cuts, block colouring",
+        &[panel],
+        (1, 1),
+        &notes,
+    )
 }

@@ -7,7 +7,8 @@
 //!   Markdown and JSON), built on [`doc`], the page model and its renderings;
 //! * [`impact_table`]: the table of the committed impact runs;
 //! * [`roofline_table`]: the roofline table of single runs, from their summaries;
-//! * [`imbalance`]: the figure of predicted DD work imbalance, uniform vs balanced cuts.
+//! * [`imbalance`]: the figure of predicted DD work imbalance, uniform vs balanced cuts;
+//! * [`strategies`]: every strategy side by side (a figure) and the measured choice per model.
 
 pub mod comparison;
 pub mod doc;
@@ -20,3 +21,4 @@ pub mod plot;
 mod report_figures;
 pub mod roofline_table;
 mod sets;
+pub mod strategies;

@@ -92,6 +92,22 @@ pub struct Panel {
     pub notes: Vec<String>,
 }
 
+impl Panel {
+    /// A panel titled `title` with the number of threads on x (up to `x_max`) and `y_desc`
+    /// on y (up to `y_max`), without an ideal line.
+    pub fn of_threads(
+        title: String,
+        y_desc: String,
+        x_max: f64,
+        y_max: f64,
+        lines: Vec<Line>,
+        notes: Vec<String>,
+    ) -> Self {
+        let x_desc = "Number of threads".to_string();
+        Self { title, y_desc, x_desc, x_max, y_max, ideal: None, ideal_flat: false, lines, notes }
+    }
+}
+
 fn draw_marker<DB: DrawingBackend>(
     chart: &mut ChartContext<
         '_,

@@ -14,7 +14,10 @@
 //!   scattered node records per worker (Model 2 at 1 and 4 threads: exactly 108 and 432 B
 //!   per node), so it grows with every thread; domain decomposition adds binning (8 B per
 //!   particle) and sub-grid records (108-113 B per node at 1-4 threads) that barely depend on
-//!   the thread count ([`Strategy::memory_model`]).
+//!   the thread count ([`Strategy::memory_model`]). Block colouring and atomic adds scatter
+//!   into the global arrays and hold nothing beyond them but, for colouring, its block lists:
+//!   one 4-byte index a particle, and a 4-byte count per block and worker (blocks of at
+//!   least 2^3 cells on grids of the models' sizes: at most half a byte a node a worker).
 
 use super::{impact, taylor};
 use crate::strategy::{MemoryModel, Strategy};
@@ -30,6 +33,8 @@ pub const AE_BYTES_PER_NODE_PER_THREAD: u64 = 108;
 pub const DD_BYTES_PER_PARTICLE: u64 = 8;
 /// DD sub-grid overhead per node (the patches' records, shared faces held twice).
 pub const DD_BYTES_PER_NODE: u64 = 112;
+/// Block colouring's lists per particle (its index in its block's list).
+pub const COLOUR_BYTES_PER_PARTICLE: u64 = 4;
 /// Process baseline (binary, runtime, allocator), plus [`BYTES_PER_THREAD`] per worker.
 pub const BASE_BYTES: u64 = 16 << 20;
 /// Per-worker slack (stack pages touched, DD halo growth with the patch count).
@@ -78,6 +83,10 @@ impl ModelSize {
         let base = BASE_BYTES + t * BYTES_PER_THREAD;
         let model = self.particles * BYTES_PER_PARTICLE + self.nodes * BYTES_PER_NODE;
         let scatter = match strategy.memory_model() {
+            // The block lists and a count per block (of at least 8 cells) and worker.
+            MemoryModel::None if strategy == Strategy::Colour => {
+                self.particles * COLOUR_BYTES_PER_PARTICLE + t * self.nodes / 2
+            }
             MemoryModel::None => 0,
             MemoryModel::PerThreadCopies => t * AE_BYTES_PER_NODE_PER_THREAD * self.nodes,
             MemoryModel::SharedFaces => self.particles * DD_BYTES_PER_PARTICLE + self.nodes * DD_BYTES_PER_NODE,
@@ -119,6 +128,12 @@ mod tests {
         assert_eq!(ae8 - ae1, 7 * (108 * 8_302_185 + BYTES_PER_THREAD));
         assert_eq!(dd8 - dd1, 7 * BYTES_PER_THREAD);
         assert!(m4.memory_bytes(Strategy::Serial, 1) < dd1);
+        // Atomic adds hold what serial holds; colouring its lists besides, under 2 %.
+        let serial = m4.memory_bytes(Strategy::Serial, 1);
+        assert_eq!(m4.memory_bytes(Strategy::Atomic, 8) - serial, 7 * BYTES_PER_THREAD);
+        let colour = m4.memory_bytes(Strategy::Colour, 2) - m4.memory_bytes(Strategy::Serial, 2);
+        assert_eq!(colour, 4 * 12_416_320 + 8_302_185);
+        assert!((colour as f64) < 0.02 * serial as f64);
         assert_eq!(ModelSize::default().memory_bytes(Strategy::Serial, 2), BASE_BYTES + 2 * BYTES_PER_THREAD);
     }
 }

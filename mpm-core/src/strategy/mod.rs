@@ -1,18 +1,22 @@
-//! How the nodal scatter is made race-free (paper Section 4). This is the only thing that
-//! differs between the three solvers; every kernel (what a particle adds to its 8 nodes)
-//! is shared.
+//! How the nodal scatter is made race-free (paper Section 4, and two ways used since). This
+//! is the only thing that differs between the solvers; every kernel (what a particle adds to
+//! its 8 nodes, [`Kernel`]) is shared.
 //!
-//! | strategy | scatter of a particle goes to | assembly into the global arrays | extra memory |
-//! |---|---|---|---|
-//! | [`Strategy::Serial`] | the global arrays | none | none |
-//! | [`Strategy::ArrayExpansion`] | copy `j` of every nodal array (thread `j`'s particle chunk) | `A = sum_j A_j`, parallel over nodes (Eq. 16) | `(T - 1) x` the nodal arrays |
-//! | [`Strategy::DomainDecomposition`] | sub-grid of the particle's patch (thread `j` = patch `j`) | patch by patch, parallel over the patch's local nodes | shared faces only |
-//! | [`Strategy::DdBalanced`] | as DD, patches cut at particle-count quantiles ([`cuts`]) | as DD | as DD |
+//! | strategy | a particle's scatter goes to | assembly into the global arrays | extra memory | determinism |
+//! |---|---|---|---|---|
+//! | [`Strategy::Serial`] | the global arrays | none | none | bitwise, run after run |
+//! | [`Strategy::ArrayExpansion`] | copy `j` of every scattered nodal array (thread `j`'s particle chunk) | `A = sum_j A_j`, parallel over nodes (Eq. 16) | `T` copies of the scattered records (108 B a node a thread) | bitwise for a thread count |
+//! | [`Strategy::DomainDecomposition`] | sub-grid of the particle's patch (thread `j` = patch `j`) | patch by patch, parallel over the patch's local nodes | binning (8 B a particle), the sub-grids (shared faces twice) | bitwise for a thread count |
+//! | [`Strategy::DdBalanced`] | as DD, patches cut at particle-count quantiles ([`cuts`]) | as DD | as DD, and each particle's cell (12 B) | bitwise for a thread count |
+//! | [`Strategy::Colour`] | the global arrays, in the phase of its block's colour, from the worker holding the block ([`colour`]) | none | the block lists (4 B a particle, a count per block and thread) | bitwise for a thread count |
+//! | [`Strategy::Atomic`] | the global arrays, by atomic additions, from the worker holding its chunk ([`atomic`]) | none | none | to round-off only: each node's sum in the order the additions land |
 //!
-//! Both parallel strategies split the particle stage by loop splitting (thread `j` owns
-//! particle chunk `j`) and reduce energies per thread in a fixed order. Every parallel phase
+//! Every parallel strategy splits the particle stage by loop splitting (thread `j` owns
+//! particle chunk `j`) and reduces energies per thread in a fixed order. Every parallel phase
 //! gives worker `j` share `j` ([`crate::parallel`]): results depend on the thread count,
-//! never on timing, and a given strategy and thread count reproduces bitwise.
+//! never on timing, and a given strategy and thread count reproduces bitwise; the one
+//! exception is the atomic strategy's scatter, whose sums take the order in which the
+//! workers' additions reach each node ([`Strategy::is_deterministic`]).
 //!
 //! A strategy is a type implementing [`ScatterStrategy`] in its own file, plus one arm in
 //! each exhaustive match over [`Strategy`] (below) and over the solver's `Engine` (its
@@ -20,30 +24,37 @@
 //! strategy.
 
 pub mod array_expansion;
+pub mod atomic;
+pub mod colour;
 pub mod cuts;
 pub mod domain_decomposition;
+mod kernel;
 pub mod patch;
 pub mod serial;
 
 use crate::blocks::BlockMap;
 use crate::grid::{GridGeom, Records};
 use crate::math::Vec3;
-use crate::node_index::{CellNodes, NodeIndex};
+use crate::node_index::NodeIndex;
 use crate::parallel::Exec;
 use serde::{Deserialize, Serialize};
 
 pub use array_expansion::ArrayExpansion;
+pub use atomic::Atomic;
+pub use colour::BlockPlan;
 pub use cuts::{imbalance, layouts, quantile_cuts, Cuts, LayoutChooser, PatchLoad, LAYOUT_SLACK};
 pub use domain_decomposition::{patch_layout, Binning, DomainDecomposition};
+pub use kernel::{Contribution, Cursors, Kernel, Target};
 pub use patch::Patch;
 pub use serial::Serial;
 
 /// Which scatter strategy the solver uses: the one type for the solver, the `mpm` program,
 /// the JSON summary, the campaign matrix, the CSV rows and the analysis.
 ///
-/// Its serialised form is the short name (`serial`, `ae`, `dd`, `dd-balanced`); parsing also accepts the
-/// long names (`array-expansion`, `domain-decomposition`). Adding a strategy means one arm
-/// here and its own file under `strategy/`.
+/// Its serialised form is the short name (`serial`, `ae`, `dd`, `dd-balanced`, `colour`,
+/// `atomic`); parsing also accepts the long names (`array-expansion`,
+/// `domain-decomposition`). Adding a strategy means one arm here and its own file under
+/// `strategy/`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, Default)]
 pub enum Strategy {
     /// One thread, scatter straight into the global arrays (the oracle).
@@ -60,12 +71,21 @@ pub enum Strategy {
     /// particle-count quantiles every step ([`cuts`]).
     #[serde(rename = "dd-balanced")]
     DdBalanced,
+    /// Block colouring: blocks of cells in 8 colours, the blocks of one colour scattered at
+    /// once straight into the global arrays ([`colour`]).
+    #[serde(rename = "colour")]
+    Colour,
+    /// Atomic additions: every worker scatters its particle chunk straight into the global
+    /// arrays with atomic adds ([`atomic`]).
+    #[serde(rename = "atomic")]
+    Atomic,
 }
 
 /// How a strategy's memory grows with the thread count `T` (paper claim C2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub enum MemoryModel {
-    /// No memory beyond the global nodal arrays.
+    /// No memory beyond the global nodal arrays (the colour strategy's block lists aside,
+    /// one index a particle): the serial solver's at every thread count.
     None,
     /// A copy of the scattered nodal arrays per thread: grows linearly with `T`.
     PerThreadCopies,
@@ -74,17 +94,27 @@ pub enum MemoryModel {
 }
 
 impl Strategy {
-    /// Every strategy, in a fixed order (serial first).
-    pub const ALL: [Strategy; 4] =
-        [Strategy::Serial, Strategy::ArrayExpansion, Strategy::DomainDecomposition, Strategy::DdBalanced];
+    /// Every strategy, in a fixed order (serial first, then the paper's two, then the two
+    /// used since).
+    pub const ALL: [Strategy; 6] = [
+        Strategy::Serial,
+        Strategy::ArrayExpansion,
+        Strategy::DomainDecomposition,
+        Strategy::DdBalanced,
+        Strategy::Colour,
+        Strategy::Atomic,
+    ];
 
-    /// Short name: `serial`, `ae`, `dd`, `dd-balanced` (CLI value, JSON and CSV field).
+    /// Short name: `serial`, `ae`, `dd`, `dd-balanced`, `colour`, `atomic` (CLI value, JSON
+    /// and CSV field).
     pub fn name(self) -> &'static str {
         match self {
             Strategy::Serial => "serial",
             Strategy::ArrayExpansion => "ae",
             Strategy::DomainDecomposition => "dd",
             Strategy::DdBalanced => "dd-balanced",
+            Strategy::Colour => "colour",
+            Strategy::Atomic => "atomic",
         }
     }
 
@@ -95,6 +125,8 @@ impl Strategy {
             Strategy::ArrayExpansion => "array expansion",
             Strategy::DomainDecomposition => "domain decomposition",
             Strategy::DdBalanced => "domain decomposition, balanced cuts",
+            Strategy::Colour => "block colouring",
+            Strategy::Atomic => "atomic adds",
         }
     }
 
@@ -102,16 +134,43 @@ impl Strategy {
     pub fn is_parallel(self) -> bool {
         match self {
             Strategy::Serial => false,
-            Strategy::ArrayExpansion | Strategy::DomainDecomposition | Strategy::DdBalanced => true,
+            Strategy::ArrayExpansion
+            | Strategy::DomainDecomposition
+            | Strategy::DdBalanced
+            | Strategy::Colour
+            | Strategy::Atomic => true,
+        }
+    }
+
+    /// Whether a run reproduces bit for bit for a given thread count (every strategy but
+    /// atomic adds, whose sums take the order in which the additions land).
+    pub fn is_deterministic(self) -> bool {
+        match self {
+            Strategy::Atomic => false,
+            Strategy::Serial
+            | Strategy::ArrayExpansion
+            | Strategy::DomainDecomposition
+            | Strategy::DdBalanced
+            | Strategy::Colour => true,
         }
     }
 
     /// How its memory grows with the thread count.
     pub fn memory_model(self) -> MemoryModel {
         match self {
-            Strategy::Serial => MemoryModel::None,
+            Strategy::Serial | Strategy::Colour | Strategy::Atomic => MemoryModel::None,
             Strategy::ArrayExpansion => MemoryModel::PerThreadCopies,
             Strategy::DomainDecomposition | Strategy::DdBalanced => MemoryModel::SharedFaces,
+        }
+    }
+
+    /// The short names of the parallel strategies, as a sentence lists them (`ae, dd, ... or
+    /// atomic`).
+    pub fn parallel_names() -> String {
+        let names: Vec<&str> = Strategy::ALL.iter().filter(|s| s.is_parallel()).map(|s| s.name()).collect();
+        match names.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+            _ => names.join(""),
         }
     }
 
@@ -121,7 +180,8 @@ impl Strategy {
         match (self.is_parallel(), threads) {
             (_, 0) => Err("the thread count must be at least 1".into()),
             (false, t) if t > 1 => Err(format!(
-                "the serial strategy runs on exactly 1 thread, not {t}: use --strategy ae, dd or dd-balanced for more threads"
+                "the serial strategy runs on exactly 1 thread, not {t}: use --strategy {} for more threads",
+                Strategy::parallel_names()
             )),
             _ => Ok(()),
         }
@@ -138,102 +198,12 @@ impl std::str::FromStr for Strategy {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s {
-            "serial" => Ok(Strategy::Serial),
             "ae" | "array-expansion" => Ok(Strategy::ArrayExpansion),
             "dd" | "domain-decomposition" => Ok(Strategy::DomainDecomposition),
-            "dd-balanced" => Ok(Strategy::DdBalanced),
-            _ => {
+            _ => Strategy::ALL.into_iter().find(|x| x.name() == s).ok_or_else(|| {
                 let names: Vec<&str> = Strategy::ALL.iter().map(|s| s.name()).collect();
-                Err(format!("unknown strategy '{s}': use one of {}", names.join(", ")))
-            }
-        }
-    }
-}
-
-/// What one particle adds to the 8 nodes of its cell (node order of [`crate::shape`]).
-#[derive(Clone, Copy, Debug)]
-pub struct Contribution<const K: usize> {
-    /// The cell, in the global grid's numbering.
-    pub cell: [usize; 3],
-    /// Per node, `K` values.
-    pub c: [[f64; K]; 8],
-}
-
-/// The node numberings a scatter loop walks: the scatter target's (the global arrays, an AE
-/// copy of them, or a DD sub-grid) and, where it differs, the global grid's, which a kernel
-/// reads nodal values from (the fused gather and re-map reads the nodal accelerations).
-/// Each remembers the last cell's nodes ([`CellNodes`]).
-#[derive(Clone, Copy, Debug)]
-pub struct Cursors<'a> {
-    target: CellNodes<'a>,
-    global: Option<CellNodes<'a>>,
-}
-
-impl<'a> Cursors<'a> {
-    /// A loop whose target is numbered like the global grid (`index`): serial and AE.
-    pub fn global(index: NodeIndex<'a>) -> Self {
-        Self { target: CellNodes::new(index), global: None }
-    }
-
-    /// A loop whose target is numbered by `target` (a DD sub-grid) inside the grid `global`.
-    pub fn split(target: NodeIndex<'a>, global: NodeIndex<'a>) -> Self {
-        Self { target: CellNodes::new(target), global: Some(CellNodes::new(global)) }
-    }
-
-    /// The target's indices of the 8 nodes of `cell`.
-    #[inline(always)]
-    pub fn target(&mut self, cell: [usize; 3]) -> [usize; 8] {
-        self.target.get(cell)
-    }
-
-    /// The target's and the global grid's indices of the 8 nodes of `cell`.
-    #[inline(always)]
-    pub fn both(&mut self, cell: [usize; 3]) -> ([usize; 8], [usize; 8]) {
-        let t = self.target.get(cell);
-        match &mut self.global {
-            Some(g) => (t, g.get(cell)),
-            None => (t, t),
-        }
-    }
-}
-
-/// The per-particle kernel of a scatter: what particle `p` adds to the 8 nodes of its cell.
-///
-/// The solver's kernels ([`crate::transfer::P2g`], and the fused gather and re-map) add
-/// their values straight into the target's node records, `#[inline(always)]`, so that a
-/// particle's 8 x `K` values stay in registers (returned as a [`Contribution`], the 448
-/// bytes of a P2G particle went through the stack). Closures returning a [`Contribution`]
-/// are kernels too, for tests and benchmarks.
-pub trait Kernel<const K: usize>: Sync {
-    /// Add particle `p`'s values into `data`, whose nodes `nodes.target` numbers.
-    fn scatter(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut [[f64; K]]);
-
-    /// [`Kernel::scatter`] for every particle of `ids`, in order: a strategy's loop over its
-    /// particles. A kernel may run the loop at a wider SIMD level ([`crate::transfer::P2g`]).
-    #[inline(always)]
-    fn scatter_all(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; K]]) {
-        for p in ids {
-            self.scatter(p, nodes, data);
-        }
-    }
-}
-
-impl<const K: usize, F: Fn(usize) -> Contribution<K> + Sync> Kernel<K> for F {
-    #[inline(always)]
-    fn scatter(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut [[f64; K]]) {
-        add(nodes, data, &self(p));
-    }
-}
-
-/// Add a particle's contribution at the nodes `nodes` gives its cell (every node of the
-/// cell must be stored there).
-#[inline(always)]
-pub(crate) fn add<const K: usize>(nodes: &mut Cursors<'_>, data: &mut [[f64; K]], con: &Contribution<K>) {
-    let idx = nodes.target(con.cell);
-    for q in 0..8 {
-        let d = &mut data[idx[q]];
-        for k in 0..K {
-            d[k] += con.c[q][k];
+                format!("unknown strategy '{s}': use one of {}", names.join(", "))
+            }),
         }
     }
 }
@@ -251,12 +221,14 @@ pub(crate) fn add<const K: usize>(nodes: &mut Cursors<'_>, data: &mut [[f64; K]]
 pub trait ScatterStrategy {
     /// Get ready for `geom`, whose nodes are stored in `blocks` if it is sparse (re-cut
     /// whatever depends on the grid), and return the length of `parts` the scatter will need
-    /// (0 if it scatters straight into the global arrays).
-    fn reserve(&mut self, geom: &GridGeom, blocks: Option<&BlockMap>) -> usize;
+    /// (0, the default, if it scatters straight into the global arrays).
+    fn reserve(&mut self, _geom: &GridGeom, _blocks: Option<&BlockMap>) -> usize {
+        0
+    }
 
     /// Per-step work before the first scatter, given the particle positions `x` and, on a
-    /// sparse grid, the blocks stored this step.
-    fn prepare(&mut self, exec: &Exec<'_>, geom: &GridGeom, blocks: Option<&BlockMap>, x: &[Vec3]);
+    /// sparse grid, the blocks stored this step (none by default).
+    fn prepare(&mut self, _exec: &Exec<'_>, _geom: &GridGeom, _blocks: Option<&BlockMap>, _x: &[Vec3]) {}
 
     /// Call `kernel.scatter` once for every particle `p < n`, each from one worker, either
     /// into `global` (zeroed first; its nodes numbered by `index`) or into `parts` for
@@ -277,24 +249,28 @@ pub trait ScatterStrategy {
         F: Kernel<K>;
 
     /// Make `global` the sum of what [`ScatterStrategy::scatter`] put into `parts` (nothing
-    /// to do if it scattered into `global`).
+    /// to do, the default, if it scattered into `global`).
     fn assemble<const K: usize>(
         &self,
-        exec: &Exec<'_>,
-        geom: &GridGeom,
-        index: &NodeIndex<'_>,
-        global: &mut [[f64; K]],
-        parts: &mut [[f64; K]],
-    );
+        _exec: &Exec<'_>,
+        _geom: &GridGeom,
+        _index: &NodeIndex<'_>,
+        _global: &mut [[f64; K]],
+        _parts: &mut [[f64; K]],
+    ) {
+    }
 
-    /// Bytes held by the strategy's own tables (not `parts`).
-    fn bytes(&self) -> usize;
+    /// Bytes held by the strategy's own tables (not `parts`; none by default).
+    fn bytes(&self) -> usize {
+        0
+    }
 }
 
 /// What a strategy carries from one step to the next beyond the grid and the particles
-/// (part of a saved [`crate::solver::SimState`]): serial and AE carry nothing; DD carries
-/// the load recorded so far and, with balanced cuts, the layout the chooser holds (its
-/// hysteresis decides the next step's layout).
+/// (part of a saved [`crate::solver::SimState`]): serial, AE, colour and atomic carry
+/// nothing (colour re-bins its blocks every step); DD carries the load recorded so far and,
+/// with balanced cuts, the layout the chooser holds (its hysteresis decides the next step's
+/// layout).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct EngineState {
     /// DD with balanced cuts: the layout in use (`None` before the first step, and for the
@@ -312,6 +288,8 @@ pub(crate) enum Engine {
     Serial(Serial),
     Ae(ArrayExpansion),
     Dd(Box<DomainDecomposition>),
+    Colour(Box<colour::Colour>),
+    Atomic(Atomic),
 }
 
 /// Run `$body` with `$s` bound to the engine's strategy (one arm per strategy).
@@ -321,6 +299,8 @@ macro_rules! dispatch {
             Engine::Serial($s) => $body,
             Engine::Ae($s) => $body,
             Engine::Dd($s) => $body,
+            Engine::Colour($s) => $body,
+            Engine::Atomic($s) => $body,
         }
     };
 }
@@ -332,6 +312,8 @@ impl Engine {
             Strategy::ArrayExpansion => Engine::Ae(ArrayExpansion::new(threads)),
             Strategy::DomainDecomposition => Engine::Dd(Box::new(DomainDecomposition::new(threads))),
             Strategy::DdBalanced => Engine::Dd(Box::new(DomainDecomposition::balanced(threads))),
+            Strategy::Colour => Engine::Colour(Box::new(colour::Colour::new(threads))),
+            Strategy::Atomic => Engine::Atomic(Atomic),
         }
     }
 
@@ -388,7 +370,7 @@ impl Engine {
                 let (layout_in_use, load) = dd.carried();
                 EngineState { dd_layout_in_use: layout_in_use, dd_load: Some(load) }
             }
-            Engine::Serial(_) | Engine::Ae(_) => EngineState::default(),
+            Engine::Serial(_) | Engine::Ae(_) | Engine::Colour(_) | Engine::Atomic(_) => EngineState::default(),
         }
     }
 
@@ -403,7 +385,7 @@ impl Engine {
     pub fn domain_decomposition(&self) -> Option<&DomainDecomposition> {
         match self {
             Engine::Dd(dd) => Some(dd),
-            Engine::Serial(_) | Engine::Ae(_) => None,
+            Engine::Serial(_) | Engine::Ae(_) | Engine::Colour(_) | Engine::Atomic(_) => None,
         }
     }
 }
@@ -414,6 +396,29 @@ mod tests {
     use crate::grid::GridSpec;
     use crate::parallel::Team;
     use std::sync::atomic::{AtomicU32, Ordering};
+
+    /// Every strategy parses back from its short name; the long names of the paper's two
+    /// parse too; the refusal of the serial strategy's second thread names every parallel
+    /// strategy.
+    #[test]
+    fn names_parse_back() {
+        for s in Strategy::ALL {
+            assert_eq!(s.name().parse::<Strategy>(), Ok(s));
+            assert_eq!(s.to_string(), s.name());
+        }
+        assert_eq!("array-expansion".parse::<Strategy>(), Ok(Strategy::ArrayExpansion));
+        assert_eq!("domain-decomposition".parse::<Strategy>(), Ok(Strategy::DomainDecomposition));
+        assert!("color"
+            .parse::<Strategy>()
+            .unwrap_err()
+            .contains("use one of serial, ae, dd, dd-balanced, colour, atomic"));
+        let refused = Strategy::Serial.check_threads(2).unwrap_err();
+        assert!(
+            refused.ends_with("use --strategy ae, dd, dd-balanced, colour or atomic for more threads"),
+            "{refused}"
+        );
+        assert!(Strategy::ALL.iter().filter(|s| !s.is_deterministic()).eq(&[Strategy::Atomic]));
+    }
 
     /// What the fused gather and re-map relies on for its writes to particle velocities:
     /// every strategy's scatter calls the kernel exactly once per particle, for every thread

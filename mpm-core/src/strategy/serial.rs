@@ -2,9 +2,7 @@
 //! oracle every parallel strategy is tested against.
 
 use super::{Cursors, Kernel, ScatterStrategy};
-use crate::blocks::BlockMap;
 use crate::grid::{GridGeom, Records};
-use crate::math::Vec3;
 use crate::node_index::NodeIndex;
 use crate::parallel::Exec;
 use crate::work::Tally;
@@ -24,12 +22,6 @@ where
 }
 
 impl ScatterStrategy for Serial {
-    fn reserve(&mut self, _geom: &GridGeom, _blocks: Option<&BlockMap>) -> usize {
-        0
-    }
-
-    fn prepare(&mut self, _exec: &Exec<'_>, _geom: &GridGeom, _blocks: Option<&BlockMap>, _x: &[Vec3]) {}
-
     fn scatter<const K: usize, F>(
         &self,
         exec: &Exec<'_>,
@@ -46,19 +38,5 @@ impl ScatterStrategy for Serial {
         tally.particles(0, n);
         tally.scattered(0, global.len(), std::mem::size_of::<[f64; K]>(), false);
         scatter(index, n, global, kernel);
-    }
-
-    fn assemble<const K: usize>(
-        &self,
-        _exec: &Exec<'_>,
-        _geom: &GridGeom,
-        _index: &NodeIndex<'_>,
-        _global: &mut [[f64; K]],
-        _parts: &mut [[f64; K]],
-    ) {
-    }
-
-    fn bytes(&self) -> usize {
-        0
     }
 }

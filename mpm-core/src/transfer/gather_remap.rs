@@ -9,7 +9,7 @@ use crate::math::Vec3;
 use crate::node_index::NodeIndex;
 use crate::parallel::DisjointSlice;
 use crate::simd::{Real, SimdLevel, F4};
-use crate::strategy::{Cursors, Kernel};
+use crate::strategy::{Cursors, Kernel, Target};
 
 /// The gather (Eqs. 8, 10: `v_p += dt sum_i S_ip a_i`) and the MUSL re-map scatter (Eq. 11:
 /// `m_p v_p(k+1) S_ip` at the 8 nodes) of particle `p` in one pass: one shape evaluation, one
@@ -53,7 +53,12 @@ impl Blocked<REMAP_WIDTH> for GatherRemap<'_> {
     /// accelerations one broadcast per run of lanes in one cell, as the particle update
     /// takes them, 1.21).
     #[inline(always)]
-    fn blocks(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; REMAP_WIDTH]]) {
+    fn blocks<D: Target<REMAP_WIDTH> + ?Sized>(
+        &self,
+        ids: impl Iterator<Item = usize>,
+        nodes: &mut Cursors<'_>,
+        data: &mut D,
+    ) {
         for p in ids {
             self.scatter(p, nodes, data);
         }
@@ -62,12 +67,17 @@ impl Blocked<REMAP_WIDTH> for GatherRemap<'_> {
 
 impl Kernel<REMAP_WIDTH> for GatherRemap<'_> {
     #[inline(always)]
-    fn scatter_all(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; REMAP_WIDTH]]) {
+    fn scatter_all<D: Target<REMAP_WIDTH> + ?Sized>(
+        &self,
+        ids: impl Iterator<Item = usize>,
+        nodes: &mut Cursors<'_>,
+        data: &mut D,
+    ) {
         scatter_at(self, self.simd, ids, nodes, data);
     }
 
     #[inline(always)]
-    fn scatter(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut [[f64; REMAP_WIDTH]]) {
+    fn scatter<D: Target<REMAP_WIDTH> + ?Sized>(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut D) {
         let s = self.located.shape(p, self.inv_dx);
         let (target, grid) = nodes.both(s.cell);
         let mut acc = [0.0; 3];
@@ -77,11 +87,13 @@ impl Kernel<REMAP_WIDTH> for GatherRemap<'_> {
                 acc[k] += s.w[q] * a[3 + k];
             }
         }
-        // SAFETY: the kernel is crate-private and only the crate's three strategies call it,
+        // SAFETY: the kernel is crate-private and only the crate's strategies call it,
         // through `Engine::scatter`; each calls it exactly once per particle per scatter, on
-        // the one worker that owns the particle (serial: 0..n; AE: worker j's chunk
-        // `partition(n, T, j)`; DD: the ids in `Pindex(:, j)`, each particle in one column).
-        // So no other reference to `v[p]` exists during this call. Guarded by the test
+        // the one worker that owns the particle (serial: 0..n; AE and atomic: worker j's
+        // chunk `partition(n, T, j)`; DD: the ids in `Pindex(:, j)`, each particle in one
+        // column; colour: the ids in the block lists, each particle in one block's list, each
+        // block scattered by one worker in one phase). So no other reference to `v[p]`
+        // exists during this call. Guarded by the test
         // `every_strategy_scatters_every_particle_once` (and the equivalence tests).
         let vp = unsafe { self.v.get_mut(p) };
         for k in 0..3 {
@@ -90,7 +102,7 @@ impl Kernel<REMAP_WIDTH> for GatherRemap<'_> {
         let m = self.mass[p];
         let mv = F4([m * vp[0], m * vp[1], m * vp[2], 0.0]);
         for q in 0..8 {
-            let d = &mut data[target[q]];
+            let d = data.at(target[q]);
             *d = (F4(*d) + mv * F4::splat(s.w[q])).0;
         }
     }
@@ -143,10 +155,10 @@ mod tests {
                     let k = GatherRemap::new(&geom, &kin, &located, &pt.mass, &mut v, dt, simd);
                     let mut nodes = Cursors::global(index);
                     if all {
-                        k.scatter_all(ids.iter().copied(), &mut nodes, &mut data);
+                        k.scatter_all(ids.iter().copied(), &mut nodes, &mut data[..]);
                     } else {
                         for &p in ids {
-                            k.scatter(p, &mut nodes, &mut data);
+                            k.scatter(p, &mut nodes, &mut data[..]);
                         }
                     }
                     (v, data)

@@ -28,7 +28,7 @@ pub use p2g::P2g;
 pub use update::update;
 
 use crate::simd::SimdLevel;
-use crate::strategy::Cursors;
+use crate::strategy::{Cursors, Target};
 
 /// A scatter kernel's loop over a strategy's particles, which the kernel may run a block
 /// of particles at a time ([`P2g`]: the shape functions of [`LANES`](crate::simd::LANES)
@@ -36,7 +36,7 @@ use crate::strategy::Cursors;
 /// each particle's additions to its 8 nodes).
 trait Blocked<const K: usize> {
     /// Add the values of the particles `ids`, in order, into `data`.
-    fn blocks(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; K]]);
+    fn blocks<D: Target<K> + ?Sized>(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut D);
 }
 
 /// The next block of at most `N` particles of `ids` and how many there are (0: none left);
@@ -70,12 +70,12 @@ fn next_block<const N: usize>(ids: &mut impl Iterator<Item = usize>) -> ([usize;
 /// 0.83 and the gather/re-map 1.12 of the 4407a32 code's time against 0.76 and 1.02 at AVX2
 /// (medians of 8 alternated runs each).
 #[inline(always)]
-fn scatter_at<const K: usize, Kn: Blocked<K>>(
+fn scatter_at<const K: usize, Kn: Blocked<K>, D: Target<K> + ?Sized>(
     kernel: &Kn,
     simd: SimdLevel,
     ids: impl Iterator<Item = usize>,
     nodes: &mut Cursors<'_>,
-    data: &mut [[f64; K]],
+    data: &mut D,
 ) {
     #[cfg(target_arch = "x86_64")]
     if simd >= SimdLevel::Avx2 {
@@ -95,11 +95,11 @@ fn scatter_at<const K: usize, Kn: Blocked<K>>(
 /// The CPU must execute AVX2 (`SimdLevel::Avx2.is_available()`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn scatter_avx2<const K: usize, Kn: Blocked<K>>(
+unsafe fn scatter_avx2<const K: usize, Kn: Blocked<K>, D: Target<K> + ?Sized>(
     kernel: &Kn,
     ids: impl Iterator<Item = usize>,
     nodes: &mut Cursors<'_>,
-    data: &mut [[f64; K]],
+    data: &mut D,
 ) {
     kernel.blocks(ids, nodes, data);
 }

@@ -7,7 +7,7 @@ use crate::locate::Located;
 use crate::math::Vec3;
 use crate::particles::Particles;
 use crate::simd::{array, Block, Real, SimdLevel, F4, LANES};
-use crate::strategy::{Cursors, Kernel};
+use crate::strategy::{Cursors, Kernel, Target};
 
 /// The P2G kernel (Eqs. 1-5) as a scatter [`Kernel`]: particle `p` adds mass `m_p S_ip`,
 /// momentum `m_p v_p S_ip` and force `-V_p sigma_p . G_ip + m_p S_ip b` to its 8 nodes,
@@ -41,7 +41,12 @@ pub struct P2g<'a, const BODY: bool> {
 
 impl<const BODY: bool> Blocked<P2G_WIDTH> for P2g<'_, BODY> {
     #[inline(always)]
-    fn blocks(&self, mut ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; P2G_WIDTH]]) {
+    fn blocks<D: Target<P2G_WIDTH> + ?Sized>(
+        &self,
+        mut ids: impl Iterator<Item = usize>,
+        nodes: &mut Cursors<'_>,
+        data: &mut D,
+    ) {
         let pt = self.particles;
         let b = F4([self.body_force[0], self.body_force[1], self.body_force[2], 0.0]);
         loop {
@@ -69,7 +74,7 @@ impl<const BODY: bool> Blocked<P2G_WIDTH> for P2g<'_, BODY> {
                         + columns[1] * F4::splat(g[1].lane(l))
                         + columns[2] * F4::splat(g[2].lane(l));
                     let mw = F4::splat(mw[q][l]);
-                    let d = &mut data[idx[q]];
+                    let d = data.at(idx[q]);
                     let lo = F4([d[0], d[1], d[2], d[3]]) + mw * one_v;
                     let f = F4([d[4], d[5], d[6], d[7]]);
                     let hi = if BODY { f + (mw * b - vol * t) } else { f - vol * t };
@@ -82,12 +87,17 @@ impl<const BODY: bool> Blocked<P2G_WIDTH> for P2g<'_, BODY> {
 
 impl<const BODY: bool> Kernel<P2G_WIDTH> for P2g<'_, BODY> {
     #[inline(always)]
-    fn scatter(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut [[f64; P2G_WIDTH]]) {
+    fn scatter<D: Target<P2G_WIDTH> + ?Sized>(&self, p: usize, nodes: &mut Cursors<'_>, data: &mut D) {
         self.blocks(std::iter::once(p), nodes, data);
     }
 
     #[inline(always)]
-    fn scatter_all(&self, ids: impl Iterator<Item = usize>, nodes: &mut Cursors<'_>, data: &mut [[f64; P2G_WIDTH]]) {
+    fn scatter_all<D: Target<P2G_WIDTH> + ?Sized>(
+        &self,
+        ids: impl Iterator<Item = usize>,
+        nodes: &mut Cursors<'_>,
+        data: &mut D,
+    ) {
         #[cfg(target_arch = "x86_64")]
         if self.simd >= SimdLevel::Avx512 {
             assert!(SimdLevel::Avx512.is_available(), "AVX-512 asked for on a CPU without it");
@@ -131,10 +141,10 @@ mod tests {
             let mut data = vec![[0.0; P2G_WIDTH]; index.num_nodes()];
             let mut nodes = Cursors::global(*index);
             if blocked {
-                k.scatter_all(ids.iter().copied(), &mut nodes, &mut data);
+                k.scatter_all(ids.iter().copied(), &mut nodes, &mut data[..]);
             } else {
                 for &p in ids {
-                    k.scatter(p, &mut nodes, &mut data);
+                    k.scatter(p, &mut nodes, &mut data[..]);
                 }
             }
             data

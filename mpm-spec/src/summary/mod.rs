@@ -225,7 +225,8 @@ pub struct Summary {
     /// Model label (`Model1` ... `Model4`, `impact-h0.53mm-dx2.12mm`).
     #[serde(default)]
     pub model_name: String,
-    /// Scatter strategy, written by its short name: `serial`, `ae` or `dd`.
+    /// Scatter strategy, written by its short name: `serial`, `ae`, `dd`, `dd-balanced`,
+    /// `colour` or `atomic`.
     pub strategy: Strategy,
     /// Worker threads of the pool.
     pub threads: usize,

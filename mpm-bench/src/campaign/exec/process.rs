@@ -506,8 +506,8 @@ fn mock_normal(rng: &mut crate::util::SplitMix64) -> f64 {
 }
 
 /// The mock's workers' CPU time (all of the wall, or half for one worker when `low_cpu`),
-/// its work counters (the serial traffic of the model, AE's copies and DD's faces on top,
-/// split evenly; independent of the host and of an injected slowdown), and for a paired
+/// its work counters (the serial traffic of the model, AE's copies, DD's faces, colour's
+/// binning and atomic's additions on top, split evenly; independent of the host and of an injected slowdown), and for a paired
 /// spec its blocks: the one-thread time, and the `T`-thread time at an efficiency of 0.9
 /// times a process effect (`spread`, in logs) times block noise (1 %), slowed by an injected
 /// slowdown `F` to `1 / (1 - F)`.
@@ -530,6 +530,8 @@ fn mock_noise_work_paired(
         Strategy::Serial => 0,
         Strategy::ArrayExpansion => serial / 10 * t as u64,
         Strategy::DomainDecomposition | Strategy::DdBalanced => serial / 20,
+        Strategy::Colour => serial / 50,
+        Strategy::Atomic => serial / 2,
     };
     let per = (serial + extra) / t as u64;
     let bytes: std::collections::BTreeMap<Substage, Vec<u64>> =
@@ -592,8 +594,10 @@ fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -
     let steps = s.budget.steps.unwrap_or(100);
     let warmup = s.budget.warmup.unwrap_or(0).min(steps);
     let speed = match s.strategy {
+        Strategy::Colour => 0.95,
         Strategy::DomainDecomposition | Strategy::DdBalanced => 0.9,
         Strategy::Serial | Strategy::ArrayExpansion => 0.8,
+        Strategy::Atomic => 0.6,
     } * (s.total_workers().min(2) as f64);
     // An injected slowdown F slows every run of more than one worker to 1 / (1 - F).
     let inject = if s.total_workers() > 1 { s.inject_slowdown.unwrap_or(0.0) } else { 0.0 };

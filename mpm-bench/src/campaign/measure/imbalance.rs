@@ -8,13 +8,15 @@
 //! does ([`mpm_core::strategy::Cuts`], the code the solver runs). The work imbalance of a
 //! step is the most particles in a patch over the mean per patch: a DD step's scatter and
 //! binning take as long as the fullest patch, so it bounds the efficiency from above by
-//! `1 / imbalance` for those stages.
+//! `1 / imbalance` for those stages. Block colouring's imbalance is predicted beside them,
+//! from the same cells on the blocks the solver would cut for the thread count
+//! ([`mpm_core::strategy::colour::imbalance`]).
 
 use anyhow::{bail, Context, Result};
 use mpm_core::grid::GridGeom;
 use mpm_core::scenario::impact::Impact;
 use mpm_core::scenario::taylor::{self, TaylorBar};
-use mpm_core::strategy::{imbalance, patch_layout, Cuts, LayoutChooser};
+use mpm_core::strategy::{imbalance, patch_layout, BlockPlan, Cuts, LayoutChooser};
 use mpm_core::{GridMode, Setup, SimConfig, Simulation};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -55,6 +57,11 @@ pub struct ImbalanceRow {
     pub balanced_mean: f64,
     /// Balanced cuts: the worst step.
     pub balanced_max: f64,
+    /// Block colouring: mean over the steps of its phases' fullest shares over their mean
+    /// shares ([`mpm_core::strategy::colour::imbalance`]).
+    pub colour_mean: f64,
+    /// Block colouring: the worst step.
+    pub colour_max: f64,
 }
 
 /// One step and thread count (a CSV row).
@@ -74,6 +81,8 @@ pub struct StepImbalance {
     pub uniform: f64,
     /// Balanced cuts: the same.
     pub balanced: f64,
+    /// Block colouring: its phases' fullest shares over their mean shares.
+    pub colour: f64,
 }
 
 /// The whole prediction.
@@ -143,8 +152,9 @@ impl Evaluator {
     }
 
     /// Uniform cuts of the paper's layout and balanced cuts of the layout `dd-balanced`
-    /// chooses (thread count number `k`): the two layouts and imbalances.
-    fn evaluate(&mut self, geom: &GridGeom, k: usize, threads: usize) -> ([usize; 3], [usize; 3], f64, f64) {
+    /// chooses (thread count number `k`): the two layouts and imbalances; then block
+    /// colouring's imbalance.
+    fn evaluate(&mut self, geom: &GridGeom, k: usize, threads: usize) -> ([usize; 3], [usize; 3], f64, f64, f64) {
         let layout = patch_layout(threads, geom.cells);
         self.uniform.uniform(layout, geom.cells);
         self.counts.resize(threads, 0);
@@ -155,7 +165,10 @@ impl Evaluator {
         let balanced = Cuts::balanced(&self.cell_of, geom.cells, chosen);
         balanced.count(&self.cell_of, &mut self.counts);
         let b = imbalance(&self.counts).unwrap_or(1.0);
-        (layout, chosen, u, b)
+        let plan = BlockPlan::new(geom, threads);
+        let cells = self.cell_of.iter().map(|c| c.map(|i| i as usize));
+        let c = mpm_core::strategy::colour::imbalance(&plan, cells, threads);
+        (layout, chosen, u, b, c)
     }
 }
 
@@ -188,7 +201,7 @@ pub fn measure(a: &ImbalanceOptions) -> Result<ImbalanceReport> {
         };
         ev.load(&geom, x);
         for (k, &t) in a.threads.iter().enumerate() {
-            let (layout, chosen, uniform, balanced) = ev.evaluate(&geom, k, t);
+            let (layout, chosen, uniform, balanced, colour) = ev.evaluate(&geom, k, t);
             samples.push(StepImbalance {
                 step: step + 1,
                 time_s: sim.time(),
@@ -197,6 +210,7 @@ pub fn measure(a: &ImbalanceOptions) -> Result<ImbalanceReport> {
                 balanced_layout: layout_text(chosen),
                 uniform,
                 balanced,
+                colour,
             });
         }
         let dt_max = if a.steps.is_some() { f64::INFINITY } else { end_time - sim.time() };
@@ -246,6 +260,8 @@ fn row_of(threads: usize, samples: &[StepImbalance]) -> ImbalanceRow {
         uniform_max: max(|s| s.uniform),
         balanced_mean: mean(|s| s.balanced),
         balanced_max: max(|s| s.balanced),
+        colour_mean: mean(|s| s.colour),
+        colour_max: max(|s| s.colour),
     }
 }
 
@@ -256,23 +272,34 @@ pub fn table(r: &ImbalanceReport) -> String {
         r.scenario, r.model_name, r.particles, r.steps
     );
     s.push_str(&format!(
-        "{:>7}  {:<7}  {:>12} {:>11}  {:>13} {:>12}  {}\n",
-        "threads", "layout", "uniform mean", "uniform max", "balanced mean", "balanced max", "balanced layout"
+        "{:>7}  {:<7}  {:>12} {:>11}  {:>13} {:>12}  {:>11} {:>10}  {}\n",
+        "threads",
+        "layout",
+        "uniform mean",
+        "uniform max",
+        "balanced mean",
+        "balanced max",
+        "colour mean",
+        "colour max",
+        "balanced layout"
     ));
     for row in &r.rows {
         s.push_str(&format!(
-            "{:>7}  {:<7}  {:>12.3} {:>11.3}  {:>13.3} {:>12.3}  {}\n",
+            "{:>7}  {:<7}  {:>12.3} {:>11.3}  {:>13.3} {:>12.3}  {:>11.3} {:>10.3}  {}\n",
             row.threads,
             row.layout,
             row.uniform_mean,
             row.uniform_max,
             row.balanced_mean,
             row.balanced_max,
+            row.colour_mean,
+            row.colour_max,
             row.balanced_layout
         ));
     }
     s.push_str(
-        "layout: the paper's, used by uniform cuts; balanced layout: the one dd-balanced chose (steps per layout if it changed)\n",
+        "layout: the paper's, used by uniform cuts; balanced layout: the one dd-balanced chose (steps per layout if it \
+         changed); colour: the colour phases' fullest shares over their mean shares (blocks of the solver's rule)\n",
     );
     s
 }
@@ -322,6 +349,7 @@ mod tests {
         for row in &r.rows {
             assert!(row.balanced_max <= row.uniform_max + 1e-12, "{row:?}");
             assert!(row.balanced_mean >= 1.0 && row.uniform_mean >= row.balanced_mean - 1e-12, "{row:?}");
+            assert!(row.colour_mean >= 1.0 && row.colour_max >= row.colour_mean, "{row:?}");
         }
         let t = table(&r);
         assert!(t.contains("2x2x2") && t.contains("balanced mean"), "{t}");
@@ -330,7 +358,7 @@ mod tests {
         let csv = dir.join("x.csv");
         write_csv(&r, &csv).unwrap();
         let text = std::fs::read_to_string(&csv).unwrap();
-        assert!(text.starts_with("step,time_s,threads,layout,balanced_layout,uniform,balanced\n"), "{text}");
+        assert!(text.starts_with("step,time_s,threads,layout,balanced_layout,uniform,balanced,colour\n"), "{text}");
         assert_eq!(text.lines().count(), 1 + 12);
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -57,9 +57,9 @@ use std::sync::Arc;
 pub struct PairedOptions {
     /// Taylor bar model, 1-4 (Model 4 needs several GiB per configuration).
     pub model: u8,
-    /// Strategies to measure, comma-separated: ae, dd, dd-balanced. Each after the first is
-    /// also compared with the first at `--threads` threads, block by block (e.g.
-    /// `dd,dd-balanced`: the cost or gain of balanced cuts).
+    /// Strategies to measure, comma-separated: ae, dd, dd-balanced, colour, atomic. Each
+    /// after the first is also compared with the first at `--threads` threads, block by
+    /// block (e.g. `dd,dd-balanced`: the cost or gain of balanced cuts).
     pub strategies: Vec<String>,
     /// Workers of the parallel configurations (the reference configurations use 1).
     pub threads: usize,
@@ -83,7 +83,7 @@ pub struct PairedOptions {
 /// One strategy's blocks.
 #[derive(Clone, Debug, Serialize)]
 pub struct StrategyBlocks {
-    /// `ae`, `dd` or `dd-balanced`.
+    /// A parallel strategy (`ae`, `dd`, `dd-balanced`, `colour`, `atomic`).
     pub strategy: Strategy,
     /// Seconds per step of the 1-thread configuration, per block.
     pub t1_s_per_step: Vec<f64>,
@@ -146,17 +146,23 @@ fn parse_strategies(list: &[String]) -> Result<Vec<Strategy>> {
     let mut out = Vec::new();
     for s in list {
         let st: Strategy = s.trim().to_ascii_lowercase().parse().map_err(|_| {
-            anyhow::anyhow!("unknown strategy '{s}' in --strategies: use ae, dd, dd-balanced or a list (ae,dd)")
+            anyhow::anyhow!(
+                "unknown strategy '{s}' in --strategies: use {} or a list (ae,dd)",
+                Strategy::parallel_names()
+            )
         })?;
         if !st.is_parallel() {
-            bail!("--strategies takes ae, dd and dd-balanced; the serial solver is always measured as the reference");
+            bail!(
+                "--strategies takes {}; the serial solver is always measured as the reference",
+                Strategy::parallel_names()
+            );
         }
         if !out.contains(&st) {
             out.push(st);
         }
     }
     if out.is_empty() {
-        bail!("--strategies is empty: use ae, dd, dd-balanced or a list such as ae,dd");
+        bail!("--strategies is empty: use {} or a list such as ae,dd", Strategy::parallel_names());
     }
     Ok(out)
 }

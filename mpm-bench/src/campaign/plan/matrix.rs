@@ -636,6 +636,41 @@ mod tests {
         assert_eq!(c.budget_for(4, OptLevel::O0).end_time_s, Some(4e-5));
     }
 
+    /// The strategies preset: every strategy on Models 1-4 at O3, threads 1 and 2 (4 and 8
+    /// oversubscribed on 2 cores, left out on Model 4), serial on one thread only, the cells
+    /// of 2+ threads paired, 3 processes a cell, and at most 25 minutes on 2 cores at the
+    /// rate `--dry-run` assumes.
+    #[test]
+    fn strategies_preset_runs_every_strategy_within_25_minutes() {
+        let (p, _) = load_preset("strategies", None).unwrap();
+        let c = Campaign::resolve(p, "builtin".into(), &Overrides::default()).unwrap();
+        assert_eq!(c.strategies, Strategy::ALL.to_vec());
+        assert_eq!((c.models.clone(), c.opts.clone(), c.reps), (vec![1, 2, 3, 4], vec![OptLevel::O3], 3));
+        let runs = c.expand();
+        for m in 1..=4u32 {
+            for s in Strategy::ALL {
+                let threads: std::collections::BTreeSet<usize> =
+                    runs.iter().filter(|r| r.model == m && r.spec.strategy == s).map(|r| r.spec.threads).collect();
+                let want: Vec<usize> = match (s.is_parallel(), m) {
+                    (false, _) => vec![1],
+                    (true, 4) => vec![1, 2],
+                    (true, _) => vec![1, 2, 4, 8],
+                };
+                assert_eq!(threads.into_iter().collect::<Vec<_>>(), want, "Model{m} {s}");
+            }
+        }
+        assert!(runs.iter().all(|r| r.spec.paired.is_some() == (r.spec.threads > 1)));
+        let todo: Vec<(usize, PlannedRun)> = runs.into_iter().enumerate().collect();
+        let text = crate::campaign::exec::estimate::nominal_estimate(&todo, 2);
+        let minutes: u64 = text
+            .split_whitespace()
+            .skip_while(|w| *w != "about")
+            .nth(1)
+            .and_then(|w| w.strip_suffix('m')?.parse().ok())
+            .unwrap_or_else(|| panic!("no minutes in {text}"));
+        assert!(minutes < 25, "{text}");
+    }
+
     /// The paper preset pins as the paper did: OpenMP close over cores, so on two quad-core
     /// sockets the second socket is used only past 4 threads.
     #[test]

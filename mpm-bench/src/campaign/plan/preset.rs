@@ -67,7 +67,7 @@ use std::path::{Path, PathBuf};
 
 /// Presets shipped with the harness (embedded; `configs/<name>.toml` in the workspace wins
 /// when present, so edits there apply without rebuilding).
-pub const BUILTIN_PRESETS: [(&str, &str); 8] = [
+pub const BUILTIN_PRESETS: [(&str, &str); 9] = [
     ("smoke", include_str!("../../../../configs/smoke.toml")),
     ("ci", include_str!("../../../../configs/ci.toml")),
     ("quick", include_str!("../../../../configs/quick.toml")),
@@ -76,6 +76,7 @@ pub const BUILTIN_PRESETS: [(&str, &str); 8] = [
     ("balanced", include_str!("../../../../configs/balanced.toml")),
     ("hybrid", include_str!("../../../../configs/hybrid.toml")),
     ("manycore", include_str!("../../../../configs/manycore.toml")),
+    ("strategies", include_str!("../../../../configs/strategies.toml")),
 ];
 
 /// Optimisation level = Cargo profile of the solver binary (`o3`, `o0`).

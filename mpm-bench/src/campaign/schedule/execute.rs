@@ -6,7 +6,7 @@ use super::local::Local;
 use super::scheduler::Scheduler;
 use super::slurm::Slurm;
 use super::state::{Books, CampaignProgress, CampaignState, ExecOptions, ExecSummary, ManifestLog, Plan};
-use crate::campaign::exec::estimate::estimate_duration;
+use crate::campaign::exec::estimate::{estimate_duration, nominal_estimate};
 use crate::campaign::exec::process::Runner;
 use crate::campaign::exec::run::RunContext;
 use crate::campaign::exec::solver::Solver;
@@ -39,11 +39,13 @@ pub fn execute(
         ..Default::default()
     };
     if opts.dry_run {
-        if opts.estimate {
-            let cores = opts.assume_cores.unwrap_or_else(|| machine.usable_pus().len());
-            println!("{}", dry_run_estimate(runner, solvers, &plan.todo, cores)?);
-        }
         plan.print(campaign, machine, opts.assume_cores)?;
+        let cores = opts.assume_cores.unwrap_or_else(|| machine.usable_pus().len());
+        if opts.estimate {
+            println!("{}", dry_run_estimate(runner, solvers, &plan.todo, cores)?);
+        } else {
+            println!("{}", nominal_estimate(&plan.todo, cores));
+        }
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
     }
     let here = opts.scheduler.runs_here();

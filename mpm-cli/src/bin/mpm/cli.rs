@@ -386,14 +386,18 @@ pub struct RunOptions {
     pub energy_rise_limit: f64,
 
     /// How the nodal scatter is made race-free: serial (1 thread), ae (array expansion), dd
-    /// (domain decomposition, uniform patches) or dd-balanced (cut planes moved every step to
+    /// (domain decomposition, uniform patches), dd-balanced (cut planes moved every step to
     /// the particle-count quantiles, and the layout the paper's unless another factorisation
-    /// of the thread count predicts a clearly smaller imbalance, e.g. 2x4x1 for a thin plate).
+    /// of the thread count predicts a clearly smaller imbalance, e.g. 2x4x1 for a thin plate),
+    /// colour (blocks of cells in 8 colours, the blocks of one colour scattered at once
+    /// straight into the global arrays) or atomic (every thread's particles added straight
+    /// into the global arrays by atomic additions; reproduces to round-off only).
     #[arg(long, default_value_t = Strategy::Serial, value_parser = strategy_parser())]
     pub strategy: Strategy,
 
     /// Worker threads of the rayon pool (exactly this many). Default 1; more than 1 needs
-    /// --strategy ae, dd or dd-balanced. More threads than cores is allowed and flagged as oversubscribed.
+    /// --strategy ae, dd, dd-balanced, colour or atomic. More threads than cores is allowed and
+    /// flagged as oversubscribed.
     #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_threads)]
     pub threads: Option<usize>,
 
@@ -469,7 +473,8 @@ pub struct RunOptions {
     /// of --cpus), both take the warm-up steps and then N timed blocks of (steps - warmup) / N
     /// steps each, alternating. The summary's `paired` section holds both solvers' seconds
     /// per step per block and the block efficiencies t1 / (T tT). Needs --steps with a whole
-    /// number of steps per block, --warmup, ae/dd/dd-balanced and 2 or more threads.
+    /// number of steps per block, --warmup, a parallel strategy (ae, dd, dd-balanced, colour,
+    /// atomic) and 2 or more threads.
     #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_count)]
     pub paired_blocks: Option<u64>,
 

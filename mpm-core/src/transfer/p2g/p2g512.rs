@@ -27,7 +27,7 @@
 //! has AVX-512 (the kernel's `scatter` runs the blocked form one particle at a time), and
 //! `dispatch_levels_agree_bitwise` whole runs against the baseline.
 
-use super::{Cursors, P2g, P2G_WIDTH};
+use super::{Cursors, P2g, Target, P2G_WIDTH};
 use std::arch::x86_64::*;
 
 /// `kernel`'s additions for the particles `ids`, in order, into `data` (see the module).
@@ -35,11 +35,11 @@ use std::arch::x86_64::*;
 /// # Safety
 /// The CPU must execute AVX-512F (`SimdLevel::Avx512.is_available()`).
 #[target_feature(enable = "avx512f,avx2")]
-pub(super) unsafe fn scatter<const BODY: bool>(
+pub(super) unsafe fn scatter<const BODY: bool, D: Target<P2G_WIDTH> + ?Sized>(
     kernel: &P2g<'_, BODY>,
     ids: impl Iterator<Item = usize>,
     nodes: &mut Cursors<'_>,
-    data: &mut [[f64; P2G_WIDTH]],
+    data: &mut D,
 ) {
     let pt = kernel.particles;
     let inv_dx = kernel.geom.inv_dx;
@@ -120,11 +120,12 @@ pub(super) unsafe fn scatter<const BODY: bool>(
 /// The records of the nodes `idx` out of `data`, transposed.
 #[target_feature(enable = "avx512f")]
 #[inline]
-fn load(idx: &[usize; 8], data: &[[f64; P2G_WIDTH]]) -> [__m512d; 8] {
+fn load<D: Target<P2G_WIDTH> + ?Sized>(idx: &[usize; 8], data: &mut D) -> [__m512d; 8] {
     let mut records = [_mm512_setzero_pd(); 8];
     for (r, &i) in records.iter_mut().zip(idx) {
-        // SAFETY: the pointer is to `data[i]`, 8 `f64`; the unaligned load reads exactly those.
-        *r = unsafe { _mm512_loadu_pd(data[i].as_ptr()) };
+        // SAFETY: the pointer is to record `i` of `data`, 8 `f64`; the unaligned load reads
+        // exactly those.
+        *r = unsafe { _mm512_loadu_pd(data.at(i).as_ptr()) };
     }
     transpose(records)
 }
@@ -132,10 +133,11 @@ fn load(idx: &[usize; 8], data: &[[f64; P2G_WIDTH]]) -> [__m512d; 8] {
 /// [`load`]'s records, transposed back, into `data`.
 #[target_feature(enable = "avx512f")]
 #[inline]
-fn store(idx: &[usize; 8], sums: [__m512d; 8], data: &mut [[f64; P2G_WIDTH]]) {
+fn store<D: Target<P2G_WIDTH> + ?Sized>(idx: &[usize; 8], sums: [__m512d; 8], data: &mut D) {
     for (&i, &r) in idx.iter().zip(&transpose(sums)) {
-        // SAFETY: `data[i]`, 8 `f64` borrowed mutably here; the store writes exactly those.
-        unsafe { _mm512_storeu_pd(data[i].as_mut_ptr(), r) };
+        // SAFETY: record `i` of `data`, 8 `f64` borrowed mutably here; the store writes
+        // exactly those.
+        unsafe { _mm512_storeu_pd(data.at(i).as_mut_ptr(), r) };
     }
 }
 
