@@ -286,6 +286,7 @@ impl Row {
                     communication: filled()?,
                     work: filled()?,
                     noise: filled()?,
+                    cpu_quota: filled()?,
                     paired: filled()?,
                     checkpoint: filled()?,
                     injected_s: filled()?,

@@ -166,11 +166,11 @@ pub struct ResumeCmd {
 
     /// Continue on another number of worker threads (the same physics to round-off, not bit
     /// for bit).
-    #[arg(long, value_name = "N", value_parser = parse_threads, conflicts_with = "spec")]
+    #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_threads, conflicts_with = "spec")]
     pub threads: Option<usize>,
 
     /// Pin worker j to the j-th CPU of LIST (`--cpus` of `mpm run`); `none` unpins.
-    #[arg(long, value_name = "LIST", conflicts_with = "spec")]
+    #[arg(long, value_name = "LIST", allow_hyphen_values = true, conflicts_with = "spec")]
     pub cpus: Option<String>,
 
     /// Run even when the memory estimate exceeds the memory available.
@@ -399,7 +399,7 @@ pub struct RunOptions {
 
     /// Pin worker j to the j-th CPU of LIST (one CPU per thread), e.g. `0,1` or `0-3`.
     /// The workers' real affinity and CPU are read back and recorded. Default: not pinned.
-    #[arg(long, value_name = "LIST", value_parser = parse_cpus)]
+    #[arg(long, value_name = "LIST", allow_hyphen_values = true, value_parser = parse_cpus)]
     pub cpus: Option<CpuList>,
 
     /// Leading steps that are timed but left out of the steady-state figures
@@ -439,7 +439,7 @@ pub struct RunOptions {
     /// With several ranks: boxes per axis as `RXxRYxRZ` (e.g. `2x1x1`), their product the
     /// rank count. Default: the domain-decomposition layout for that count (2: 2x1x1,
     /// 4: 2x2x1, 8: 2x2x2), cut uniformly over the particles' initial bounding box.
-    #[arg(long, value_name = "RXxRYxRZ", value_parser = parse_layout)]
+    #[arg(long, value_name = "RXxRYxRZ", allow_hyphen_values = true, value_parser = parse_layout)]
     pub rank_layout: Option<[usize; 3]>,
 
     /// With several ranks: wait at a barrier in front of every exchange operation and report
@@ -461,7 +461,7 @@ pub struct RunOptions {
     /// disk needs for 137 bytes per particle; it is left out of every timing and reported
     /// in the summary's `checkpoint` section.
     #[arg(long, value_name = "N|DURATION", default_value = "10m", requires = "checkpoint_dir",
-          value_parser = CheckpointEvery::parse)]
+          allow_hyphen_values = true, value_parser = CheckpointEvery::parse)]
     pub checkpoint_every: CheckpointEvery,
 
     /// Measure the parallel efficiency in the paired design: beside the --threads solver, a
@@ -496,9 +496,9 @@ pub struct RunOptions {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct CpuList(pub Vec<usize>);
 
-/// `--cpus`: a CPU list such as `0,1` or `0-3` (an error says its causes on one line).
+/// `--cpus`: a CPU list such as `0,1` or `0-3`.
 fn parse_cpus(s: &str) -> Result<CpuList, String> {
-    mpm_host::pinning::parse_cpu_list(s).map(CpuList).map_err(|e| format!("{:#}", anyhow::Error::new(e)))
+    mpm_host::pinning::parse_cpu_list(s).map(CpuList).map_err(|e| e.to_string())
 }
 
 /// `2x1x1` as `[2, 1, 1]`.
@@ -591,7 +591,7 @@ pub fn parse_energy_rise_limit(s: &str) -> Result<f64, String> {
 }
 
 pub fn parse_threads(s: &str) -> Result<usize, String> {
-    match s.trim().parse::<i64>() {
+    match s.trim().parse::<i128>() {
         Ok(n) if n >= 1 => usize::try_from(n).map_err(|_| format!("{s} threads is too many")),
         Ok(_) => Err(format!("the thread count must be at least 1, got {s}")),
         Err(_) => Err(format!("'{s}' is not a thread count")),
