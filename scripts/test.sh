@@ -34,5 +34,7 @@ RUSTFLAGS="--cfg loom" CARGO_TARGET_DIR=target/loom cargo test --profile o3-test
 
 step "the docs' measured tables against results/ (scripts/docs-tables.sh --check)"
 scripts/docs-tables.sh --check
+step "ARCHITECTURE.md's code map against the source files (scripts/codemap-check.sh)"
+scripts/codemap-check.sh
 
 step "done in $(( $(date +%s) - start )) s"
