@@ -83,7 +83,10 @@ fn runs_that_cannot_make_progress_are_refused_at_once() {
         (&["run", "impact", "--spacing", "1e-9", "--steps", "1"], "would need billions of particles"),
         (&["run", "impact", "--cell", "1", "--steps", "1"], "give a cell of 1 to 8 spacings"),
         (&["run", "impact", "--spacing", "2e-3", "--cell", "10", "--steps", "2"], "give a cell of 1 to 8 spacings"),
-        (&["run", "impact", "--spacing", "2e-3", "--cell", "10e-3", "--steps", "2"], "thicker than the 0.00635 m plate"),
+        (
+            &["run", "impact", "--spacing", "2e-3", "--cell", "10e-3", "--steps", "2"],
+            "thicker than the 0.00635 m plate",
+        ),
         (&["run", "plate", "--cell", "1e-9", "--steps", "2"], "the run needs about"),
         (&["run", "plate", "--cell", "1e-10", "--steps", "2"], "more than the 4294967294 a run can hold"),
         (&["run", "plate", "--length", "1e-9", "--steps", "2"], "the shock measurements need at least 32 cells"),

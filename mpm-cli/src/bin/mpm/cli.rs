@@ -173,7 +173,8 @@ pub struct ResumeCmd {
     #[arg(long, value_name = "LIST", allow_hyphen_values = true, conflicts_with = "spec")]
     pub cpus: Option<String>,
 
-    /// Run even when the memory estimate exceeds the memory available.
+    /// Run even when the memory estimate exceeds the memory the run may use here (the
+    /// least of its cgroup's, its Slurm job's and the host's available memory).
     #[arg(long)]
     pub force: bool,
 }
@@ -211,8 +212,9 @@ pub struct Control {
     #[arg(long)]
     pub print_spec: bool,
 
-    /// Run even when the memory estimate exceeds the memory available (the run may then be
-    /// killed by the system, or swap).
+    /// Run even when the memory estimate exceeds the memory the run may use here (the least
+    /// of its cgroup's, its Slurm job's and the host's available memory: the run may then be
+    /// killed by the system, or swap), or when it would take more steps than a run that ends.
     #[arg(long)]
     pub force: bool,
 }
@@ -264,7 +266,7 @@ pub struct PlateArgs {
 
     /// Particles per cell along each axis.
     #[arg(long, value_name = "N", default_value_t = plate::DEFAULT_PARTICLES_PER_CELL as u8,
-          allow_hyphen_values = true, value_parser = clap::value_parser!(u8).range(1..=8))]
+          allow_hyphen_values = true, value_parser = |s: &str| parse_between(s, 1, 8))]
     pub particles_per_cell: u8,
 
     #[command(flatten)]
@@ -324,7 +326,7 @@ pub struct ImpactArgs {
 pub struct TaylorArgs {
     /// Model 1-4 of the paper's Table 2: 56,056 / 244,341 / 1,155,192 / 12,416,320
     /// particles on a fixed grid of 49,152 / 165,888 / 1,022,208 / 8,177,664 cells.
-    #[arg(long, value_name = "1-4", allow_hyphen_values = true, value_parser = clap::value_parser!(u8).range(1..=4))]
+    #[arg(long, value_name = "1-4", allow_hyphen_values = true, value_parser = |s: &str| parse_between(s, 1, 4))]
     pub model: u8,
 
     /// Impact speed towards the wall, m/s.
@@ -570,6 +572,15 @@ pub fn parse_count(s: &str) -> Result<u64, String> {
         Ok(n) if n < 0 => Err(format!("{s} is negative: give a whole number >= 0")),
         Ok(n) => u64::try_from(n).map_err(|_| format!("{s} is too large")),
         Err(_) => Err(format!("'{s}' is not a whole number")),
+    }
+}
+
+/// A whole number from `least` to `most` (`--model`, `--particles-per-cell`).
+pub fn parse_between(s: &str, least: u8, most: u8) -> Result<u8, String> {
+    match s.trim().parse::<i128>() {
+        Ok(n) if (i128::from(least)..=i128::from(most)).contains(&n) => Ok(n as u8),
+        Ok(n) => Err(format!("{n} is out of range: give a whole number from {least} to {most}")),
+        Err(_) => Err(format!("'{s}' is not a whole number: give one from {least} to {most}")),
     }
 }
 
