@@ -68,6 +68,29 @@ fn negative_numbers_are_values_with_their_flags_message() {
     }
 }
 
+/// Values that are not numbers of the flag's form: the flag named with the form it takes,
+/// never the parser's own words ("invalid digit found in string").
+#[test]
+fn malformed_numbers_name_the_flag_and_the_form() {
+    let cases: [(&[&str], &str); 6] = [
+        (
+            &["run", "taylor", "--model", "abc"],
+            "for '--model <1-4>': 'abc' is not a whole number: give one from 1 to 4",
+        ),
+        (&["run", "taylor", "--model", "9"], "9 is not in 1..=4: give a whole number from 1 to 4"),
+        (
+            &["run", "plate", "--particles-per-cell", "x", "--steps", "2"],
+            "'x' is not a whole number: give one from 1 to 8",
+        ),
+        (&["run", "taylor", "--model", "1", "--steps", "1.5"], "for '--steps <N>': '1.5' is not a whole number"),
+        (&["run", "taylor", "--model", "1", "--cfl", "abc"], "for '--cfl <X>': 'abc' is not a number"),
+        (&["run", "taylor", "--model", "1", "--strategy", "dd", "--threads", "x2"], "'x2' is not a thread count"),
+    ];
+    for (args, says) in cases {
+        refused(args, says);
+    }
+}
+
 /// Absurd values, and runs that could not make progress, refused at once by the checks,
 /// the size estimate or the step estimate: never a hang, an abort or a figure of NaN.
 #[test]

@@ -579,7 +579,7 @@ pub fn parse_count(s: &str) -> Result<u64, String> {
 pub fn parse_between(s: &str, least: u8, most: u8) -> Result<u8, String> {
     match s.trim().parse::<i128>() {
         Ok(n) if (i128::from(least)..=i128::from(most)).contains(&n) => Ok(n as u8),
-        Ok(n) => Err(format!("{n} is out of range: give a whole number from {least} to {most}")),
+        Ok(n) => Err(format!("{n} is not in {least}..={most}: give a whole number from {least} to {most}")),
         Err(_) => Err(format!("'{s}' is not a whole number: give one from {least} to {most}")),
     }
 }
