@@ -124,6 +124,19 @@ fn runs_that_cannot_make_progress_are_refused_at_once() {
     assert_eq!(text(&out.stderr).matches("caused by").count(), 0, "{}", text(&out.stderr));
 }
 
+/// A coarse impact whose figures cannot all be measured (a 2-step run: no front to fit)
+/// prints them as not available, never as NaN.
+#[test]
+fn a_figure_not_measured_is_printed_as_not_available() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = ["run", "impact", "--spacing", "2e-3", "--cell", "4e-3", "--steps", "2"];
+    let out = Command::new(MPM).args(args).current_dir(dir.path()).output().unwrap();
+    let said = text(&out.stdout);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(said.contains("debris cloud:") && said.contains("front velocity n/a m/s"), "{said}");
+    assert!(!said.contains("NaN"), "{said}");
+}
+
 /// No output over an input or another output: the spec file, the summary and the state
 /// dump, the checkpoint folder (of a new run, and of one continued); nothing is written.
 #[test]
