@@ -238,5 +238,7 @@ fn a_second_sigterm_ends_the_run_at_once() {
     let (code, err) = ended_within(child, Duration::from_secs(2));
     assert_eq!(code, Some(130), "{err}");
     assert!(err.contains("a second interrupt: mpm stops at once"), "{err}");
+    // At once: not at the end of the step, where the first would have stopped it.
+    assert!(!err.contains("interrupted at step"), "{err}");
     assert!(!dir.path().join("x.json").exists(), "an interrupted run writes no summary");
 }

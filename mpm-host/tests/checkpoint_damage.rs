@@ -73,7 +73,7 @@ fn header_len(bytes: &[u8]) -> usize {
 /// A file of `header` (TOML, padded to 8 bytes) and `data`, with its checksum made right.
 fn assemble(header: &str, data: &[u8]) -> Vec<u8> {
     let mut text = header.to_string();
-    while text.len() % 8 != 0 {
+    while !text.len().is_multiple_of(8) {
         text.push(' ');
     }
     let mut b = MAGIC.to_vec();
