@@ -146,6 +146,8 @@ pub struct RunContext<'a> {
     pub available_cores: usize,
     /// Whether the run has more workers than cores (or than distinct pinned CPUs).
     pub oversubscribed: bool,
+    /// The CPU quota of the process's cgroup, CPUs of time per period (`None`: none set).
+    pub cpu_quota: Option<f64>,
     /// Energy history samples.
     pub history: Vec<HistoryPoint>,
     /// Model label (`Model1`, `impact-h0.53mm-dx2.12mm`, ...).
@@ -183,6 +185,7 @@ pub fn build(sim: &Simulation, ctx: RunContext<'_>) -> Summary {
         work: WorkReport::of(&sim.work()),
         checkpoint: ctx.checkpoint.clone(),
         injected_s: sim.injected_seconds(),
+        cpu_quota: ctx.cpu_quota,
         scenario: scenario_figures(sim, &ctx),
         ..Figures::default()
     };

@@ -1,4 +1,5 @@
-//! Checkpoints through the real binary: a run killed with SIGKILL at a random step and
+//! Checkpoints through the real binary: a run killed with SIGKILL at a seeded step (the
+//! seed printed, fixed unless `MPM_KILL_SEED` says otherwise) and
 //! continued with `mpm resume` ends bit for bit as the run that was never interrupted (its
 //! final particle state byte for byte, its summary equal in everything but what a clock or
 //! the process measures), serially, with DD on 2 threads and over 2 MPI ranks; a truncated
@@ -120,11 +121,29 @@ fn checkpoint_steps(ck: &Path) -> Vec<u64> {
     steps
 }
 
-/// A seed from the clock, printed so that a failing kill can be replayed.
+/// What chooses the kill point: unset, a fixed seed; a number, that seed (to replay a
+/// failure); `random`, a seed drawn from the OS.
+const SEED_VAR: &str = "MPM_KILL_SEED";
+
+/// The kill point's seed, by [`SEED_VAR`] (fixed by default), printed so that a failing
+/// kill can be replayed.
 fn seed() -> u64 {
-    let s = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().subsec_nanos() as u64;
-    println!("seed {s}");
+    use std::hash::BuildHasher;
+    let s = match std::env::var(SEED_VAR).as_deref() {
+        Err(_) | Ok("") => 0x5eed_0041,
+        Ok("random") => std::hash::RandomState::new().hash_one(std::process::id()),
+        Ok(n) => n.parse().unwrap_or_else(|_| panic!("{SEED_VAR}={n}: give a number, or `random`")),
+    };
+    println!("kill seed {s} (replay: {SEED_VAR}={s}; {SEED_VAR}=random draws one)");
     s
+}
+
+/// The `i`-th number drawn from `seed` (SplitMix64: every bit of the seed moves them all).
+fn draw(seed: u64, i: u64) -> u64 {
+    let mut z = seed.wrapping_add(0x9e37_79b9_7f4a_7c15_u64.wrapping_mul(i + 1));
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
 }
 
 /// Wait until `ck` holds a checkpoint of step `target` or later, wait `extra` more (the kill
@@ -183,16 +202,16 @@ fn uninterrupted(dir: &Path, name: &str, launcher: &[&str], args: &[&str]) -> (P
     (state, json)
 }
 
-/// The run of `args` killed after a random checkpoint (every `every` steps, the kill
-/// between the checkpoint of a step in 1..=8 intervals and up to 40 ms later), then
-/// continued with `mpm resume`: its final state and summary must be those of the run
-/// never interrupted.
+/// The run of `args` killed after a checkpoint the seed chooses ([`seed`]: every `every`
+/// steps, the kill between the checkpoint of a step in 1..=8 intervals and up to 40 ms
+/// later), then continued with `mpm resume`: its final state and summary must be those of
+/// the run never interrupted.
 fn killed_and_resumed_is_bitwise(launcher: &[&str], args: &[&str], every: u64) {
     let dir = tempfile::tempdir().unwrap();
     let (want_state, want_json) = uninterrupted(dir.path(), "whole", launcher, args);
     let s = seed();
-    let target = every * (1 + s % 8);
-    let extra = Duration::from_millis(s / 8 % 40);
+    let target = every * (1 + draw(s, 0) % 8);
+    let extra = Duration::from_millis(draw(s, 1) % 40);
     let (state, json, ck) = (dir.path().join("cut.bin"), dir.path().join("cut.json"), dir.path().join("ck"));
     let mut all: Vec<&str> = launcher.to_vec();
     all.extend([MPM, "run"]);
@@ -224,12 +243,12 @@ fn killed_and_resumed_is_bitwise(launcher: &[&str], args: &[&str], every: u64) {
 const SERIAL: [&str; 5] = ["taylor", "--model", "1", "--steps", "160"];
 
 #[test]
-fn a_serial_run_killed_at_a_random_step_resumes_bit_for_bit() {
+fn a_serial_run_killed_at_a_seeded_step_resumes_bit_for_bit() {
     killed_and_resumed_is_bitwise(&[], &SERIAL, 5);
 }
 
 #[test]
-fn a_dd_run_on_two_threads_killed_at_a_random_step_resumes_bit_for_bit() {
+fn a_dd_run_on_two_threads_killed_at_a_seeded_step_resumes_bit_for_bit() {
     let mut args = SERIAL.to_vec();
     args.extend(["--strategy", "dd", "--threads", "2"]);
     killed_and_resumed_is_bitwise(&[], &args, 5);
@@ -247,7 +266,7 @@ fn a_colour_run_on_three_threads_killed_at_a_random_step_resumes_bit_for_bit() {
 /// The coarse impact on the sparse grid with balanced cuts: the cloud history, the layout
 /// chooser and the sparse blocks cross the restart.
 #[test]
-fn an_impact_killed_at_a_random_step_resumes_bit_for_bit() {
+fn an_impact_killed_at_a_seeded_step_resumes_bit_for_bit() {
     let args = [
         "impact",
         "--spacing",
@@ -272,7 +291,7 @@ const MPIRUN: [&str; 5] = ["mpirun", "--oversubscribe", "--allow-run-as-root", "
 /// part; and a checkpoint of two ranks is refused to one process.
 #[cfg(feature = "mpi")]
 #[test]
-fn a_run_over_two_ranks_killed_at_a_random_step_resumes_bit_for_bit() {
+fn a_run_over_two_ranks_killed_at_a_seeded_step_resumes_bit_for_bit() {
     let args = ["impact", "--spacing", "2.12e-3", "--cell", "4.24e-3", "--steps", "90", "--strategy", "dd"];
     killed_and_resumed_is_bitwise(&MPIRUN, &args, 4);
     let dir = tempfile::tempdir().unwrap();

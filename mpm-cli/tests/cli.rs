@@ -691,14 +691,17 @@ fn bad_input_is_a_clear_error() {
 }
 
 /// Before it allocates, mpm estimates the run's memory and refuses one beyond the memory
-/// available, saying both, and what to change; negative sizes get the range check.
+/// it may use, saying both (and which bound binds), and what to change; negative sizes get
+/// the range check.
 #[test]
 fn runs_that_cannot_fit_or_have_negative_sizes_are_refused_before_allocating() {
     let start = std::time::Instant::now();
-    let out = mpm(&["run", "impact", "--spacing", "0.05e-3", "--steps", "1", "--quiet"]);
+    let out = mpm(&["run", "impact", "--spacing", "0.05e-3", "--cell", "0.2e-3", "--steps", "1", "--quiet"]);
     let err = text(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains("the run needs about") && err.contains("is available") && err.contains("--force"), "{err}");
+    // The refusal names the bound that binds: the host's, a cgroup's or a Slurm job's.
+    let bound = ["the host has", "the cgroup ", "the Slurm job "].iter().any(|b| err.contains(b));
+    assert!(err.contains("the run needs about") && bound && err.contains("--force"), "{err}");
     assert!(!err.contains("memory allocation") && !err.contains("panicked"), "{err}");
     assert!(start.elapsed().as_secs_f64() < 5.0, "refused before building anything");
     let out = mpm(&["run", "impact", "--cell", "-1", "--steps", "1"]);

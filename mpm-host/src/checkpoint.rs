@@ -425,8 +425,11 @@ fn open_header(path: &Path) -> Result<Opened, Damage> {
         return Err(truncated(path, len, 16 + HASH_BYTES));
     }
     let h = u64::from_le_bytes(head[8..16].try_into().expect("8 bytes"));
-    if 16 + h + HASH_BYTES > len {
-        return Err(truncated(path, len, 16 + h + HASH_BYTES));
+    // Sums saturate: a corrupted length is a file shorter than it announces, never an
+    // overflow, and nothing is allocated for more than the file holds.
+    let with_header = h.saturating_add(16 + HASH_BYTES);
+    if with_header > len {
+        return Err(truncated(path, len, with_header));
     }
     let mut text = vec![0u8; usize::try_from(h).map_err(|_| truncated(path, len, u64::MAX))?];
     r.read_exact(&mut text).map_err(io)?;
@@ -439,7 +442,7 @@ fn open_header(path: &Path) -> Result<Opened, Damage> {
             header.format, header.format_version
         )));
     }
-    let expected = 16 + h + header.data_bytes + HASH_BYTES;
+    let expected = with_header.saturating_add(header.data_bytes);
     if len < expected {
         return Err(truncated(path, len, expected));
     }
@@ -520,10 +523,14 @@ pub fn read_file(path: &Path) -> Result<Loaded, Damage> {
         return Err(corrupt(format!("{} arrays listed, {} expected", header.arrays.len(), expected.len())));
     }
     for (a, (name, dtype, size)) in header.arrays.iter().zip(&expected) {
-        if a.name != *name || a.dtype != *dtype || a.offset != offset || a.nbytes != size * n as u64 {
+        let nbytes = size.checked_mul(header.particles);
+        let width = size / if *dtype == "|b1" { 1 } else { 8 };
+        let shape = if width == 1 { vec![header.particles] } else { vec![header.particles, width] };
+        if a.name != *name || a.dtype != *dtype || a.offset != offset || Some(a.nbytes) != nbytes || a.shape != shape {
             return Err(corrupt(format!("array {} is not where or what it should be", a.name)));
         }
-        offset += a.nbytes;
+        // The data section fits in the file (checked above), so its arrays' sum does too.
+        offset = offset.saturating_add(a.nbytes);
     }
     if offset != header.data_bytes {
         return Err(corrupt("its arrays do not fill its data section".into()));

@@ -13,7 +13,6 @@
 
 use rayon::{ThreadPool, ThreadPoolBuildError, ThreadPoolBuilder};
 use serde::{Deserialize, Serialize};
-use std::num::ParseIntError;
 use std::sync::{Arc, Mutex};
 
 /// Why a CPU list, a pinning or a pool was refused.
@@ -28,15 +27,16 @@ pub enum PinError {
         /// The list.
         list: String,
     },
-    /// An item that is not a number.
-    #[error("'{item}' in CPU list '{list}' is not a CPU number (use numbers like '0,1' or ranges like '0-3,6')")]
+    /// An item that is not a number (a negative one included: CPUs are numbered from 0).
+    #[error(
+        "'{item}' in CPU list '{list}' is not a CPU number: CPUs are numbered from 0 (use numbers like '0,1' or ranges \
+         like '0-3,6')"
+    )]
     NotANumber {
         /// The item.
         item: String,
         /// The list.
         list: String,
-        /// The parser's complaint.
-        source: ParseIntError,
     },
     /// A range whose end is below its start.
     #[error("range '{item}' in CPU list '{list}' runs backwards: write it as '{end}-{start}'")]
@@ -136,9 +136,12 @@ pub fn parse_cpu_list(s: &str) -> Result<Vec<usize>, PinError> {
         if item.is_empty() {
             return Err(PinError::EmptyItem { list: s.into() });
         }
-        let num = |t: &str| {
-            t.trim().parse::<usize>().map_err(|source| PinError::NotANumber { item: t.into(), list: s.into(), source })
-        };
+        let not_a_number = || PinError::NotANumber { item: item.into(), list: s.into() };
+        let num = |t: &str| t.trim().parse::<usize>().map_err(|_| not_a_number());
+        if item.starts_with('-') {
+            // `-1` is not a range with no start: a negative number.
+            return Err(not_a_number());
+        }
         match item.split_once('-') {
             Some((a, b)) => {
                 let (a, b) = (num(a)?, num(b)?);
@@ -381,7 +384,8 @@ mod tests {
             ("0,,1", "empty item"),
             ("0,", "empty item"),
             ("a", "not a CPU number"),
-            ("-1", "not a CPU number"),
+            ("-1", "'-1' in CPU list '-1' is not a CPU number: CPUs are numbered from 0"),
+            ("-1,0", "'-1' in CPU list '-1,0'"),
             ("1-", "not a CPU number"),
             ("3-1", "runs backwards"),
             ("0-3:2", "not a CPU number"),

@@ -10,6 +10,8 @@
 //!   the computation.
 //! * [`Summary`]: what came out, written by `mpm` as JSON and read back by the harness,
 //!   scripts and tests; it echoes the resolved spec.
+//! * [`memory`]: the memory a run will need, estimated from its spec (a paired run's two
+//!   solvers counted), what `mpm` checks against the memory it may use.
 //! * [`OptLevel`] and the host's [`identity`] types, shared by both programs.
 //!
 //! No MPI and no OS-specific code: the harness builds against this crate without an MPI
@@ -28,6 +30,7 @@
 
 pub mod build;
 pub mod identity;
+pub mod memory;
 pub mod scenario;
 pub mod spec;
 pub mod summary;
@@ -60,6 +63,6 @@ pub enum SpecError {
     #[error("{0}")]
     Io(String),
     /// The scenario cannot be built with these parameters.
-    #[error("{0}")]
+    #[error(transparent)]
     Scenario(#[from] mpm_core::SimError),
 }

@@ -2,6 +2,7 @@
 //! parameters, their defaults and checks, and how each is built into a solver set-up.
 
 use crate::SpecError;
+use mpm_core::material::Eos;
 use mpm_core::scenario::impact::{self, ImpactGeometry};
 use mpm_core::scenario::plate::{self, PlateGeometry, PlateImpact};
 use mpm_core::scenario::size::ModelSize;
@@ -13,6 +14,24 @@ use serde::{Deserialize, Serialize};
 /// The plate scenario's default CFL number: its shock speed is the measurement (a 3 km/s
 /// shock runs 3.15 % fast at CFL 0.5 and 2.66 % at 0.2).
 pub const PLATE_CFL: f64 = 0.2;
+
+/// The fastest impact a scenario takes (m/s): its materials' models (Mie-Grüneisen,
+/// Johnson-Cook, the spall failure) are fitted to shocks of a few km/s, the paper's
+/// hypervelocity impact is 6.58 km/s; 100 km/s is already far outside what they describe.
+pub const MAX_SPEED: f64 = 100e3;
+
+/// The most particles a model may have: the domain-decomposition strategies number a
+/// patch's particles with 32-bit indices (and the memory of so many is beyond any node
+/// this program runs on: 173 bytes each).
+pub const MAX_PARTICLES: u64 = u32::MAX as u64 - 1;
+
+/// The finest particle spacing of the impact (m), mpm-core's own limit: finer is billions
+/// of particles.
+pub const MIN_IMPACT_SPACING: f64 = 0.05e-3;
+
+/// Particles per cell along each axis of the impact, least and most (the plate's
+/// `--particles-per-cell` range; the paper compares 2, 3 and 4 at 0.53 mm).
+pub const IMPACT_PARTICLES_PER_CELL: (f64, f64) = (1.0, 8.0);
 
 /// Which problem a run solves.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -211,8 +230,17 @@ impl Scenario {
             Scenario::Taylor(_) => taylor::DEFAULT_END_TIME,
             Scenario::Impact(_) => impact::DEFAULT_END_TIME,
             Scenario::Plate(p) => {
+                // From the slab's length and the lead's Hugoniot, without building the slab
+                // (the checks first: a slab too large for memory is refused by its size).
                 self.check()?;
-                plate_of(p, MgForm::default()).setup().map_err(SpecError::Scenario)?.1.end_time()
+                let imp = plate_of(p, MgForm::default());
+                let Eos::MieGruneisen(eos) = imp.material().eos else {
+                    return Err(SpecError::Scenario(SimError::Config(
+                        "the plate's lead has no Mie-Grüneisen EOS".into(),
+                    )));
+                };
+                let length = (p.length_m / p.cell_m).round() * p.cell_m;
+                PlateGeometry { velocity: p.velocity_m_s, length, cell: p.cell_m, eos }.end_time()
             }
         })
     }
@@ -252,55 +280,23 @@ impl Scenario {
         }
     }
 
-    /// Every check of the parameters, naming the key and the flag.
+    /// Every check of the parameters, naming the key and the flag: ranges, a model a run
+    /// can be built from (its particles counted in closed form, never generated: a spacing
+    /// of a nanometre is refused at once) and whose figures mean something.
     pub fn check(&self) -> Result<(), SpecError> {
-        let positive = |key: &'static str, flag: &'static str, v: f64, what: &str| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(SpecError::Invalid { key, flag, why: format!("{what} must be a finite number > 0, got {v}") })
-            }
-        };
-        let speed = |key: &'static str, v: f64| {
-            if v.is_finite() && v >= 0.0 {
-                Ok(())
-            } else {
-                Err(SpecError::Invalid {
-                    key,
-                    flag: "--velocity",
-                    why: format!("the impact speed must be a finite number of m/s >= 0 (towards the wall), got {v}"),
-                })
-            }
-        };
         match self {
             Scenario::Taylor(t) => {
                 if !(1..=4).contains(&t.model) {
-                    return Err(SpecError::Invalid {
-                        key: "scenario.model",
-                        flag: "--model",
-                        why: format!("the Taylor bar has Models 1-4 (Table 2), got {}", t.model),
-                    });
+                    return Err(invalid(
+                        "scenario.model",
+                        "--model",
+                        format!("the Taylor bar has Models 1-4 (Table 2), got {}", t.model),
+                    ));
                 }
-                speed("scenario.velocity_m_s", t.velocity_m_s)
+                speed("scenario.velocity_m_s", t.velocity_m_s, false)
             }
-            Scenario::Impact(i) => {
-                positive("scenario.spacing_m", "--spacing", i.spacing_m, "the particle spacing (m)")?;
-                positive("scenario.cell_m", "--cell", i.cell_m, "the cell size (m)")?;
-                speed("scenario.velocity_m_s", i.velocity_m_s)
-            }
-            Scenario::Plate(p) => {
-                positive("scenario.velocity_m_s", "--velocity", p.velocity_m_s, "the plate's impact speed (m/s)")?;
-                positive("scenario.length_m", "--length", p.length_m, "the slab length (m)")?;
-                positive("scenario.cell_m", "--cell", p.cell_m, "the cell size (m)")?;
-                if !(1..=8).contains(&p.particles_per_cell) {
-                    return Err(SpecError::Invalid {
-                        key: "scenario.particles_per_cell",
-                        flag: "--particles-per-cell",
-                        why: format!("give 1 to 8 particles per cell and axis, got {}", p.particles_per_cell),
-                    });
-                }
-                Ok(())
-            }
+            Scenario::Impact(i) => check_impact(i),
+            Scenario::Plate(p) => check_plate(p),
         }
     }
 
@@ -331,6 +327,138 @@ impl Scenario {
             }
         }
     }
+}
+
+/// The error of a value out of range.
+fn invalid(key: &'static str, flag: &'static str, why: String) -> SpecError {
+    SpecError::Invalid { key, flag, why }
+}
+
+/// A finite length or speed > 0.
+fn positive(key: &'static str, flag: &'static str, v: f64, what: &str) -> Result<(), SpecError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(invalid(key, flag, format!("{what} must be a finite number > 0, got {v}")))
+    }
+}
+
+/// An impact speed: finite, at most [`MAX_SPEED`], and > 0 where `strictly` (else >= 0).
+fn speed(key: &'static str, v: f64, strictly: bool) -> Result<(), SpecError> {
+    let low = if strictly { v > 0.0 } else { v >= 0.0 };
+    if !(v.is_finite() && low) {
+        let bound = if strictly { "> 0" } else { ">= 0" };
+        return Err(invalid(
+            key,
+            "--velocity",
+            format!("the impact speed must be a finite number of m/s {bound} (towards the wall), got {v}"),
+        ));
+    }
+    if v > MAX_SPEED {
+        return Err(invalid(
+            key,
+            "--velocity",
+            format!(
+                "{v} m/s is beyond what the materials' models describe (fitted to shocks of a few km/s; the paper's \
+                 impact is 6580 m/s): give at most {MAX_SPEED} m/s"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The impact's parameters: a spacing mpm-core builds, 1-8 particles per cell along each
+/// axis, a plate at least one cell thick (else its hole and the cloud are not resolved and
+/// the hole reads as none).
+fn check_impact(i: &ImpactSpec) -> Result<(), SpecError> {
+    positive("scenario.spacing_m", "--spacing", i.spacing_m, "the particle spacing (m)")?;
+    positive("scenario.cell_m", "--cell", i.cell_m, "the cell size (m)")?;
+    speed("scenario.velocity_m_s", i.velocity_m_s, false)?;
+    if i.spacing_m < MIN_IMPACT_SPACING {
+        return Err(invalid(
+            "scenario.spacing_m",
+            "--spacing",
+            format!(
+                "a particle spacing of {} m would need billions of particles: give {MIN_IMPACT_SPACING} m or more \
+                 (0.53e-3 is the paper's small model, 0.21e-3 its large one)",
+                i.spacing_m
+            ),
+        ));
+    }
+    let (least, most) = IMPACT_PARTICLES_PER_CELL;
+    let per_cell = i.cell_m / i.spacing_m;
+    if !(least..=most).contains(&per_cell) {
+        return Err(invalid(
+            "scenario.cell_m",
+            "--cell",
+            format!(
+                "a cell of {} m holds {per_cell:.3} particles of spacing {} m along each axis: give a cell of {least} to \
+                 {most} spacings ({:e} to {:e} m; the paper uses 4, --cell {:e})",
+                i.cell_m,
+                i.spacing_m,
+                least * i.spacing_m,
+                most * i.spacing_m,
+                4.0 * i.spacing_m
+            ),
+        ));
+    }
+    if i.cell_m > impact::PLATE_THICKNESS {
+        return Err(invalid(
+            "scenario.cell_m",
+            "--cell",
+            format!(
+                "a cell of {} m is thicker than the {} m plate: the hole and the debris cloud would not be resolved; \
+                 give at most {} m (the paper's cells are 1.06e-3 to 2.12e-3 m)",
+                i.cell_m,
+                impact::PLATE_THICKNESS,
+                impact::PLATE_THICKNESS
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The plate's parameters: a slab of at least the cells its measurements need, and not
+/// more particles than a run can hold ([`MAX_PARTICLES`]).
+fn check_plate(p: &PlateSpec) -> Result<(), SpecError> {
+    speed("scenario.velocity_m_s", p.velocity_m_s, true)?;
+    positive("scenario.length_m", "--length", p.length_m, "the slab length (m)")?;
+    positive("scenario.cell_m", "--cell", p.cell_m, "the cell size (m)")?;
+    if !(1..=8).contains(&p.particles_per_cell) {
+        return Err(invalid(
+            "scenario.particles_per_cell",
+            "--particles-per-cell",
+            format!("give 1 to 8 particles per cell and axis, got {}", p.particles_per_cell),
+        ));
+    }
+    let cells = (p.length_m / p.cell_m).round();
+    let least = 8.0 * plate::MARGIN_CELLS;
+    if cells < least {
+        return Err(invalid(
+            "scenario.length_m",
+            "--length / --cell",
+            format!(
+                "a {} m slab is only {cells} cells of {} m long; the shock measurements need at least {least} cells: \
+                 give a longer slab or smaller cells (e.g. --cell {:e})",
+                p.length_m,
+                p.cell_m,
+                p.length_m / least
+            ),
+        ));
+    }
+    let particles = f64::from(p.particles_per_cell).powi(3) * (plate::COLUMN_CELLS as f64).powi(2) * cells;
+    if particles > MAX_PARTICLES as f64 {
+        return Err(invalid(
+            "scenario.cell_m",
+            "--length / --cell",
+            format!(
+                "a {} m slab of {} m cells would have {particles:.3e} particles, more than the {MAX_PARTICLES} a run \
+                 can hold: give larger cells, a shorter slab or fewer --particles-per-cell",
+                p.length_m, p.cell_m
+            ),
+        ));
+    }
+    Ok(())
 }
 
 fn plate_of(p: &PlateSpec, eos: MgForm) -> PlateImpact {

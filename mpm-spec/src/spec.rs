@@ -21,6 +21,12 @@ use std::time::Duration;
 /// Layout version of [`RunSpec`]; a spec file of another version is refused by name.
 pub const SPEC_VERSION: u32 = 1;
 
+/// The largest injected slowdown ([`RunSpec::inject_slowdown`]): every step takes
+/// `1 / (1 - F)` times its own time, ten times at 0.9; beyond, a run slows without bound
+/// (a million times at 0.999999) while the regression gate it calibrates looks for losses
+/// of a few percent.
+pub const MAX_INJECT_SLOWDOWN: f64 = 0.9;
+
 /// One run of `mpm`: what to simulate, how to split the work, how long, and what to write.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -61,7 +67,7 @@ pub struct RunSpec {
     pub paired: Option<Paired>,
     /// A test knob, absent (off) by default: every worker but the first does extra work in
     /// the grid-node stage, so that the parallel efficiency drops by about this fraction
-    /// (in (0, 1)). Such a run is never a result: the summary and the harness's rows record
+    /// (in (0, [`MAX_INJECT_SLOWDOWN`]]). Such a run is never a result: the summary and the harness's rows record
     /// it, and the analyses refuse it unless asked.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inject_slowdown: Option<f64>,
@@ -146,6 +152,7 @@ impl<'de> Deserialize<'de> for RiseLimit {
         enum Raw {
             Number(f64),
             Word(String),
+            Other(serde::de::IgnoredAny),
         }
         match Raw::deserialize(d)? {
             Raw::Number(f) => Ok(RiseLimit::Fraction(f)),
@@ -153,6 +160,7 @@ impl<'de> Deserialize<'de> for RiseLimit {
             Raw::Word(w) => Err(serde::de::Error::custom(format!(
                 "energy_rise_limit must be a fraction > 0 or \"off\", got \"{w}\""
             ))),
+            Raw::Other(_) => Err(serde::de::Error::custom("energy_rise_limit must be a fraction > 0 or \"off\"")),
         }
     }
 }
@@ -242,6 +250,11 @@ impl CheckpointEvery {
         if let Ok(n) = s.parse::<u64>() {
             return Ok(CheckpointEvery::Steps(n));
         }
+        if s.starts_with('-') {
+            return Err(format!(
+                "'{s}' is negative: the interval must be positive, a step count such as 500 or a duration such as 10m"
+            ));
+        }
         humantime::parse_duration(s).map(CheckpointEvery::Duration).map_err(|e| {
             format!("'{s}' is neither a step count nor a duration ({e}): give e.g. 500 (steps) or 10m, 90s, 1h 30m")
         })
@@ -273,10 +286,14 @@ impl<'de> Deserialize<'de> for CheckpointEvery {
         enum Raw {
             Steps(u64),
             Words(String),
+            Other(serde::de::IgnoredAny),
         }
         match Raw::deserialize(d)? {
             Raw::Steps(n) => Ok(CheckpointEvery::Steps(n)),
             Raw::Words(w) => CheckpointEvery::parse(&w).map_err(serde::de::Error::custom),
+            Raw::Other(_) => Err(serde::de::Error::custom(
+                "a checkpoint interval is a whole number of steps >= 1 (every = 500) or a duration (every = \"10m\")",
+            )),
         }
     }
 }
@@ -370,18 +387,24 @@ impl RunSpec {
                 .get("spec_version")
                 .and_then(toml::Value::as_integer),
             SpecFormat::Json => serde_json::from_str::<serde_json::Value>(text)
-                .map_err(|e| SpecError::Parse(e.to_string()))?
+                .map_err(|e| json_error(text, &e))?
                 .get("spec_version")
                 .and_then(serde_json::Value::as_i64),
         };
         match version {
             Some(v) if v == i64::from(SPEC_VERSION) => {}
             Some(v) => return Err(SpecError::Version(v)),
-            None => return Err(SpecError::Parse("missing key `spec_version`".into())),
+            None => {
+                return Err(SpecError::Parse(format!(
+                    "the key `spec_version` is missing or not a whole number: give spec_version = {SPEC_VERSION}"
+                )))
+            }
         }
         let spec: RunSpec = match format {
-            SpecFormat::Toml => toml::from_str(text).map_err(|e| SpecError::Parse(e.to_string()))?,
-            SpecFormat::Json => serde_json::from_str(text).map_err(|e| SpecError::Parse(e.to_string()))?,
+            SpecFormat::Toml => serde_path_to_error::deserialize(toml::Deserializer::new(text))
+                .map_err(|e| at_key(e.path(), e.inner().to_string()))?,
+            SpecFormat::Json => serde_path_to_error::deserialize(&mut serde_json::Deserializer::from_str(text))
+                .map_err(|e| at_key(e.path(), json_error(text, e.inner()).to_string()))?,
         };
         spec.check()?;
         Ok(spec)
@@ -430,17 +453,24 @@ impl RunSpec {
         self.ranks * self.threads
     }
 
-    /// Warm-up steps when the spec gives none: a tenth of the steps expected with first
-    /// step `dt_first`, at most 5.
-    pub fn default_warmup(&self, dt_first: f64) -> u64 {
-        let by_time = |t: f64| (t / dt_first).ceil() as u64;
-        let expected = match (self.budget.steps, self.budget.end_time_s) {
+    /// Steps the run is expected to take with first step `dt_first` (s): its step budget,
+    /// or its end time over the first step, whichever is less (`u64::MAX` for an end time
+    /// no number of such steps reaches).
+    pub fn expected_steps(&self, dt_first: f64) -> u64 {
+        // `as` saturates: an infinite or huge count is u64::MAX, a NaN 0.
+        let by_time = |t: f64| if dt_first > 0.0 { (t / dt_first).ceil() as u64 } else { u64::MAX };
+        match (self.budget.steps, self.budget.end_time_s) {
             (Some(n), None) => n,
             (Some(n), Some(t)) => n.min(by_time(t)),
             (None, Some(t)) => by_time(t),
             (None, None) => 0,
-        };
-        (expected / 10).min(5)
+        }
+    }
+
+    /// Warm-up steps when the spec gives none: a tenth of the steps expected with first
+    /// step `dt_first`, at most 5.
+    pub fn default_warmup(&self, dt_first: f64) -> u64 {
+        (self.expected_steps(dt_first) / 10).min(5)
     }
 
     /// Every check of the spec that needs no machine: ranges, the strategy against the
@@ -512,11 +542,15 @@ impl RunSpec {
         self.check_budget()?;
         self.check_paired()?;
         if let Some(f) = self.inject_slowdown {
-            if !(f > 0.0 && f < 1.0) {
+            if !(f > 0.0 && f <= MAX_INJECT_SLOWDOWN) {
                 return bad(
                     "inject_slowdown",
                     "--inject-slowdown",
-                    format!("the injected slowdown is a fraction in (0, 1) such as 0.1, got {f}"),
+                    format!(
+                        "the injected slowdown is a fraction in (0, {MAX_INJECT_SLOWDOWN}] such as 0.1, got {f}: it \
+                         makes every step 1 / (1 - F) times as long, {MAX_INJECT_SLOWDOWN} already ten times, and \
+                         0.999999 a million times (a run that never ends)"
+                    ),
                 );
             }
         }
@@ -539,7 +573,7 @@ impl RunSpec {
                     "a paired run of {} blocks takes warm-up + blocks x steps per block steps: {steps} steps with {warmup} warm-up leave {timed}, not a multiple of {} (e.g. --steps {})",
                     p.blocks,
                     p.blocks,
-                    warmup + p.blocks * (timed / p.blocks).max(1)
+                    warmup.saturating_add(p.blocks.saturating_mul((timed / p.blocks.max(1)).max(1)))
                 ),
             });
         }
@@ -698,6 +732,29 @@ impl RunSpec {
             });
         }
         Ok(())
+    }
+}
+
+/// A spec file's error at the key `path` (named unless it is the root).
+fn at_key(path: &serde_path_to_error::Path, why: String) -> SpecError {
+    let why = why.strip_prefix("cannot read the spec: ").unwrap_or(&why).to_string();
+    match path.to_string().as_str() {
+        "." | "" => SpecError::Parse(why),
+        key => SpecError::Parse(format!("at key `{key}`: {why}")),
+    }
+}
+
+/// A JSON spec's error with the text where it is (JSON's errors give only a line and a
+/// column; TOML's show the line): up to 40 characters before the column and 20 after, so
+/// that the key is named.
+fn json_error(text: &str, e: &serde_json::Error) -> SpecError {
+    let line = text.lines().nth(e.line().saturating_sub(1)).unwrap_or("");
+    let chars: Vec<char> = line.chars().collect();
+    let col = e.column().min(chars.len());
+    let near: String = chars[col.saturating_sub(40)..(col + 20).min(chars.len())].iter().collect();
+    match near.trim() {
+        "" => SpecError::Parse(e.to_string()),
+        near => SpecError::Parse(format!("{e}, at `{near}`")),
     }
 }
 

@@ -50,6 +50,13 @@ pub struct Figures {
     /// Each worker's CPU time against the wall time of the steps.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub noise: Option<NoiseReport>,
+    /// The CPU quota of the run's cgroup (cgroup v2 `cpu.max`, v1 `cpu.cfs_quota_us` over
+    /// `cpu.cfs_period_us`; the tightest of its cgroup and their ancestors) as CPUs of time
+    /// per period, where one is set; absent where none is. A quota below the thread count
+    /// shares that time between the workers: the run's timings do not show parallel
+    /// scaling (`mpm` warns, the harness flags the run).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpu_quota: Option<f64>,
     /// A paired run's blocks.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub paired: Option<PairedReport>,
@@ -187,7 +194,9 @@ pub struct Memory {
     /// unreadable.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub peak_rss_sum_bytes: Option<u64>,
-    /// Bytes held by the model: particles, nodal arrays, scatter buffers, strategy tables.
+    /// Bytes held by the model: particles, nodal arrays, scatter buffers, strategy tables;
+    /// of both solvers in a paired run (the `threads`-thread one and its one-thread
+    /// reference, both held by the process).
     pub model_memory_bytes: usize,
 }
 

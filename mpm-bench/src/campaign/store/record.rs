@@ -251,12 +251,13 @@ impl Row {
     /// The columns of a row: its parts flattened, the planned run's `outputs` and `cpus`
     /// left out (the solver's outputs are the harness's business; the CPUs are
     /// `requested_cpus`), and the summary's records of the run's course (`history`,
-    /// `cloud_history`), which stay in its JSON.
+    /// `cloud_history`) and its cgroup's CPU quota (`cpu_quota`, keeping schema 8's
+    /// columns), which stay in its JSON.
     pub fn layout() -> &'static Layout {
         static LAYOUT: OnceLock<Layout> = OnceLock::new();
         LAYOUT.get_or_init(|| {
             let shapes = Row::shapes().expect("every part of a row can be filled");
-            Layout::of(&shapes, &[&["outputs"], &["cpus"], &["history"], &["cloud_history"]])
+            Layout::of(&shapes, &[&["outputs"], &["cpus"], &["history"], &["cloud_history"], &["cpu_quota"]])
                 .expect("the row's shape has every column")
         })
     }
@@ -286,6 +287,7 @@ impl Row {
                     communication: filled()?,
                     work: filled()?,
                     noise: filled()?,
+                    cpu_quota: filled()?,
                     paired: filled()?,
                     checkpoint: filled()?,
                     injected_s: filled()?,

@@ -166,14 +166,15 @@ pub struct ResumeCmd {
 
     /// Continue on another number of worker threads (the same physics to round-off, not bit
     /// for bit).
-    #[arg(long, value_name = "N", value_parser = parse_threads, conflicts_with = "spec")]
+    #[arg(long, value_name = "N", allow_hyphen_values = true, value_parser = parse_threads, conflicts_with = "spec")]
     pub threads: Option<usize>,
 
     /// Pin worker j to the j-th CPU of LIST (`--cpus` of `mpm run`); `none` unpins.
-    #[arg(long, value_name = "LIST", conflicts_with = "spec")]
+    #[arg(long, value_name = "LIST", allow_hyphen_values = true, conflicts_with = "spec")]
     pub cpus: Option<String>,
 
-    /// Run even when the memory estimate exceeds the memory available.
+    /// Run even when the memory estimate exceeds the memory the run may use here (the
+    /// least of its cgroup's, its Slurm job's and the host's available memory).
     #[arg(long)]
     pub force: bool,
 }
@@ -211,8 +212,9 @@ pub struct Control {
     #[arg(long)]
     pub print_spec: bool,
 
-    /// Run even when the memory estimate exceeds the memory available (the run may then be
-    /// killed by the system, or swap).
+    /// Run even when the memory estimate exceeds the memory the run may use here (the least
+    /// of its cgroup's, its Slurm job's and the host's available memory: the run may then be
+    /// killed by the system, or swap), or when it would take more steps than a run that ends.
     #[arg(long)]
     pub force: bool,
 }
@@ -264,7 +266,7 @@ pub struct PlateArgs {
 
     /// Particles per cell along each axis.
     #[arg(long, value_name = "N", default_value_t = plate::DEFAULT_PARTICLES_PER_CELL as u8,
-          allow_hyphen_values = true, value_parser = clap::value_parser!(u8).range(1..=8))]
+          allow_hyphen_values = true, value_parser = |s: &str| parse_between(s, 1, 8))]
     pub particles_per_cell: u8,
 
     #[command(flatten)]
@@ -324,7 +326,7 @@ pub struct ImpactArgs {
 pub struct TaylorArgs {
     /// Model 1-4 of the paper's Table 2: 56,056 / 244,341 / 1,155,192 / 12,416,320
     /// particles on a fixed grid of 49,152 / 165,888 / 1,022,208 / 8,177,664 cells.
-    #[arg(long, value_name = "1-4", allow_hyphen_values = true, value_parser = clap::value_parser!(u8).range(1..=4))]
+    #[arg(long, value_name = "1-4", allow_hyphen_values = true, value_parser = |s: &str| parse_between(s, 1, 4))]
     pub model: u8,
 
     /// Impact speed towards the wall, m/s.
@@ -403,7 +405,7 @@ pub struct RunOptions {
 
     /// Pin worker j to the j-th CPU of LIST (one CPU per thread), e.g. `0,1` or `0-3`.
     /// The workers' real affinity and CPU are read back and recorded. Default: not pinned.
-    #[arg(long, value_name = "LIST", value_parser = parse_cpus)]
+    #[arg(long, value_name = "LIST", allow_hyphen_values = true, value_parser = parse_cpus)]
     pub cpus: Option<CpuList>,
 
     /// Leading steps that are timed but left out of the steady-state figures
@@ -443,7 +445,7 @@ pub struct RunOptions {
     /// With several ranks: boxes per axis as `RXxRYxRZ` (e.g. `2x1x1`), their product the
     /// rank count. Default: the domain-decomposition layout for that count (2: 2x1x1,
     /// 4: 2x2x1, 8: 2x2x2), cut uniformly over the particles' initial bounding box.
-    #[arg(long, value_name = "RXxRYxRZ", value_parser = parse_layout)]
+    #[arg(long, value_name = "RXxRYxRZ", allow_hyphen_values = true, value_parser = parse_layout)]
     pub rank_layout: Option<[usize; 3]>,
 
     /// With several ranks: wait at a barrier in front of every exchange operation and report
@@ -465,7 +467,7 @@ pub struct RunOptions {
     /// disk needs for 137 bytes per particle; it is left out of every timing and reported
     /// in the summary's `checkpoint` section.
     #[arg(long, value_name = "N|DURATION", default_value = "10m", requires = "checkpoint_dir",
-          value_parser = CheckpointEvery::parse)]
+          allow_hyphen_values = true, value_parser = CheckpointEvery::parse)]
     pub checkpoint_every: CheckpointEvery,
 
     /// Measure the parallel efficiency in the paired design: beside the --threads solver, a
@@ -501,9 +503,9 @@ pub struct RunOptions {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct CpuList(pub Vec<usize>);
 
-/// `--cpus`: a CPU list such as `0,1` or `0-3` (an error says its causes on one line).
+/// `--cpus`: a CPU list such as `0,1` or `0-3`.
 fn parse_cpus(s: &str) -> Result<CpuList, String> {
-    mpm_host::pinning::parse_cpu_list(s).map(CpuList).map_err(|e| format!("{:#}", anyhow::Error::new(e)))
+    mpm_host::pinning::parse_cpu_list(s).map(CpuList).map_err(|e| e.to_string())
 }
 
 /// `2x1x1` as `[2, 1, 1]`.
@@ -578,6 +580,15 @@ pub fn parse_count(s: &str) -> Result<u64, String> {
     }
 }
 
+/// A whole number from `least` to `most` (`--model`, `--particles-per-cell`).
+pub fn parse_between(s: &str, least: u8, most: u8) -> Result<u8, String> {
+    match s.trim().parse::<i128>() {
+        Ok(n) if (i128::from(least)..=i128::from(most)).contains(&n) => Ok(n as u8),
+        Ok(n) => Err(format!("{n} is not in {least}..={most}: give a whole number from {least} to {most}")),
+        Err(_) => Err(format!("'{s}' is not a whole number: give one from {least} to {most}")),
+    }
+}
+
 /// `--q C1,C2`: two numbers (the spec's check wants them finite and >= 0).
 pub fn parse_q(s: &str) -> Result<BulkViscosity, String> {
     let parts: Vec<&str> = s.split(',').collect();
@@ -596,7 +607,7 @@ pub fn parse_energy_rise_limit(s: &str) -> Result<f64, String> {
 }
 
 pub fn parse_threads(s: &str) -> Result<usize, String> {
-    match s.trim().parse::<i64>() {
+    match s.trim().parse::<i128>() {
         Ok(n) if n >= 1 => usize::try_from(n).map_err(|_| format!("{s} threads is too many")),
         Ok(_) => Err(format!("the thread count must be at least 1, got {s}")),
         Err(_) => Err(format!("'{s}' is not a thread count")),

@@ -233,14 +233,14 @@ fn physics(s: &Summary) -> Vec<String> {
     let cloud = s.figures.scenario.impact().cloned().unwrap_or_default();
     if let (Some(front), Some(width)) = (cloud.cloud_front_m, cloud.cloud_width_m) {
         lines.push(format!(
-            "debris cloud: leading edge {:.2} mm behind the plate (robust {:.2} mm), width {:.2} mm (robust {:.2} mm), hole {:.2} mm, front velocity {:.0} m/s (fitted), leading debris {:.0} m/s",
+            "debris cloud: leading edge {:.2} mm behind the plate (robust {} mm), width {:.2} mm (robust {} mm), hole {} mm, front velocity {} m/s (fitted), leading debris {} m/s",
             front * 1e3,
-            cloud.cloud_front_robust_m.unwrap_or(f64::NAN) * 1e3,
+            measured(cloud.cloud_front_robust_m, 1e3, 2),
             width * 1e3,
-            cloud.cloud_width_robust_m.unwrap_or(f64::NAN) * 1e3,
-            cloud.hole_diameter_m.unwrap_or(f64::NAN) * 1e3,
-            cloud.front_velocity_m_s.unwrap_or(f64::NAN),
-            cloud.leading_debris_velocity_m_s.unwrap_or(f64::NAN)
+            measured(cloud.cloud_width_robust_m, 1e3, 2),
+            measured(cloud.hole_diameter_m, 1e3, 2),
+            measured(cloud.front_velocity_m_s, 1.0, 0),
+            measured(cloud.leading_debris_velocity_m_s, 1.0, 0)
         ));
     }
     lines.extend(shock(s));
@@ -310,4 +310,13 @@ fn shock(s: &Summary) -> Vec<String> {
         format!("  pressure -s_zz   {:10.3} GPa  vs {:10.3} GPa  ({:+.2} %)", p * 1e-9, p_rh * 1e-9, pct(p, p_rh)),
         format!("  particle vel.    {up:10.1} m/s  vs {up_rh:10.1} m/s  ({:+.2} %)", pct(up, up_rh)),
     ]
+}
+
+/// A figure `v` times `scale` with `decimals`, or `n/a` where the run gives none or none
+/// that is a number (a hole no row of particles spans, a front fitted to too few samples).
+fn measured(v: Option<f64>, scale: f64, decimals: usize) -> String {
+    match v.map(|v| v * scale) {
+        Some(x) if x.is_finite() => format!("{x:.decimals$}"),
+        _ => "n/a".into(),
+    }
 }

@@ -2,7 +2,8 @@
 //! snapshots). See `mpm run taylor --help`.
 //!
 //! A run in steps: [`cli`] parses the command line into a run spec (`mpm_spec::RunSpec`,
-//! or reads one with `--spec`, [`run`]); [`start`] sets the run up, fresh or from a
+//! or reads one with `--spec`, [`run`]; [`paths`] refuses outputs that would overwrite
+//! its inputs); [`start`] sets the run up, fresh or from a
 //! checkpoint: checks it against the machine ([`machine`]), builds the scenario ([`ranks`]:
 //! over MPI ranks too), the pinned pool and the simulation ([`solver`]); [`stepping`] steps
 //! it ([`output`] writes snapshots and pictures on the way, [`checkpointing`] the run's
@@ -19,6 +20,7 @@ mod interrupt;
 mod machine;
 mod output;
 mod paired;
+mod paths;
 mod progress;
 mod ranks;
 mod resume;

@@ -27,6 +27,9 @@ pub struct PairedOutcome {
     pub report: PairedReport,
     /// The `T`-thread workers' CPU time against the wall time of their blocks.
     pub noise: Option<NoiseReport>,
+    /// Bytes held by the one-thread reference's model (the summary's model memory counts
+    /// both solvers).
+    pub reference_memory_bytes: usize,
 }
 
 /// The one-thread pool of the reference solver: pinned to `cpus[0]` when the run is pinned.
@@ -108,5 +111,6 @@ pub fn run(
     };
     let end_reason = if blocks < p.blocks { EndReason::EndTime } else { EndReason::StepLimit };
     let noise = many.usage.report(MIN_CPU_SHARE);
-    Ok((many.sim, PairedOutcome { end_reason, timing, report, noise }))
+    let reference_memory_bytes = one.sim.memory_bytes();
+    Ok((many.sim, PairedOutcome { end_reason, timing, report, noise, reference_memory_bytes }))
 }

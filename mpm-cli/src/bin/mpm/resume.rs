@@ -12,6 +12,7 @@
 
 use crate::checkpointing::Saved;
 use crate::cli::ResumeCmd;
+use crate::paths::{check_outputs, Named};
 use crate::ranks::Ranks;
 use crate::start::{start, Origin, Restart};
 use anyhow::{bail, Context, Result};
@@ -163,6 +164,9 @@ pub fn resume(cmd: ResumeCmd, _command_line: Vec<String>) -> Result<()> {
     let binary_sha256 = check_writer(&loaded.header, &pick, &ranks)?;
     let saved = Saved::from_table(loaded.header.state.clone())?;
     let spec = continued_spec(&cmd, saved.spec.clone())?;
+    let mut inputs = vec![Named::folder("the checkpoint folder", &cmd.dir)];
+    inputs.extend(cmd.spec.as_deref().map(|f| Named::file("the spec file --spec", f)));
+    check_outputs(&spec, &inputs, Some(&cmd.dir))?;
     if let (Some(newest), 0) = (&passed_over, rank) {
         let aside = Folder::new(&cmd.dir).set_aside(newest)?;
         eprintln!("note: the damaged checkpoint {} is kept as {}", newest.path.display(), aside.display());

@@ -1,11 +1,13 @@
 //! `mpm run`: the run's spec, read from its file or built from the flags on the launcher's
-//! rank count, set up and stepped to its summary ([`crate::start::start`]).
+//! rank count, its outputs checked against its inputs ([`crate::paths`]), set up and
+//! stepped to its summary ([`crate::start::start`]).
 
 use crate::cli::Control;
+use crate::paths::{check_outputs, Named};
 use crate::ranks::Ranks;
 use crate::start::{start, Invocation, Origin};
 use anyhow::Result;
-use mpm_spec::RunSpec;
+use mpm_spec::{RunSpec, SpecError};
 use std::path::PathBuf;
 
 /// Where a run's spec comes from.
@@ -28,7 +30,15 @@ impl Request {
     /// from its file.
     fn before_start(&self) -> Result<(Option<usize>, Option<RunSpec>)> {
         match self {
-            Request::Flags(sc) => Ok((sc.options().ranks.map(|r| r as usize), None)),
+            Request::Flags(sc) => match sc.options().ranks {
+                Some(0) => Err(SpecError::Invalid {
+                    key: "ranks",
+                    flag: "--ranks",
+                    why: "the rank count must be at least 1, got 0 (leave it out to take the launcher's)".into(),
+                }
+                .into()),
+                r => Ok((r.map(|r| r as usize), None)),
+            },
             Request::File { path, json, quiet } => {
                 let mut spec = RunSpec::read(path)?;
                 if json.is_some() {
@@ -58,5 +68,15 @@ pub fn run(request: Request, control: Control, command_line: Vec<String>) -> Res
         }
         return Ok(());
     }
-    start(spec, control.force, Origin::Fresh(Invocation { started_unix_s, command_line }), &mut ranks)
+    let inputs = match &request {
+        Request::File { path, .. } => vec![Named::file("the spec file --spec", path)],
+        Request::Flags(_) => Vec::new(),
+    };
+    check_outputs(&spec, &inputs, None)?;
+    start(
+        spec,
+        control.force,
+        Origin::Fresh(Invocation { started_unix_s, command_line, force: control.force }),
+        &mut ranks,
+    )
 }

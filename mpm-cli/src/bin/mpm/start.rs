@@ -5,7 +5,7 @@
 //! [`Origin`]: built from the set-up, or taken back from the checkpoint's files.
 
 use crate::checkpointing::{RunLog, Saved};
-use crate::machine::{place_rank, start_pool, Plan};
+use crate::machine::{check_progress, place_rank, start_pool, Plan};
 use crate::output::Outputs;
 use crate::ranks::Ranks;
 use crate::solver::{resumed, simulation};
@@ -36,6 +36,9 @@ pub struct Invocation {
     pub started_unix_s: f64,
     /// The command line.
     pub command_line: Vec<String>,
+    /// `--force`: run even if the run is expected to take more steps than one that ends
+    /// ([`check_progress`]).
+    pub force: bool,
 }
 
 /// A checkpoint to continue from, read and checked.
@@ -142,6 +145,7 @@ fn fresh(
     // A paired run builds its one-thread reference from the same set-up.
     let reference_setup = spec.paired.map(|_| setup.clone());
     let sim = simulation(spec, setup, pool, exchange)?;
+    check_progress(spec, sim.dt_first(), invocation.force)?;
     let (cells, nodes) = (sim.global_geom().num_cells(), sim.global_geom().num_nodes());
     let warmup = spec.budget.warmup.unwrap_or_else(|| spec.default_warmup(sim.dt_first()));
     spec.budget.warmup = Some(warmup);

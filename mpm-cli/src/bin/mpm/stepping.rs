@@ -242,11 +242,13 @@ pub struct Ready {
 }
 
 /// How the stepping ended: why, what the workers got of the wall time, a paired run's
-/// blocks.
+/// blocks and its reference's model.
 struct Stepped {
     end_reason: EndReason,
     noise: Option<NoiseReport>,
     paired: Option<PairedReport>,
+    /// A paired run's one-thread reference's model bytes (0 otherwise).
+    reference_memory_bytes: usize,
 }
 
 /// Step a ready run to its end, then measure, write and print its summary.
@@ -291,7 +293,12 @@ fn step(
             record(&mut run.carry.log.history, &run.sim);
             run.carry.tracking.observe(&run.sim, ranks.collectives())?;
             run.carry.log.timing = out.timing;
-            Stepped { end_reason: out.end_reason, noise: out.noise, paired: Some(out.report) }
+            Stepped {
+                end_reason: out.end_reason,
+                noise: out.noise,
+                paired: Some(out.report),
+                reference_memory_bytes: out.reference_memory_bytes,
+            }
         }
         None => {
             let ctx =
@@ -301,7 +308,7 @@ fn step(
             let (sim, outputs, carry) = (&mut run.sim, &mut run.outputs, &mut run.carry);
             let end_reason = step_loop(&ctx, sim, outputs, carry, run.checkpoints.as_mut(), ranks.collectives())?;
             usage.end(&run.pool.pool);
-            Stepped { end_reason, noise: usage.report(MIN_CPU_SHARE), paired: None }
+            Stepped { end_reason, noise: usage.report(MIN_CPU_SHARE), paired: None, reference_memory_bytes: 0 }
         }
     };
     Ok((run, stepped))
@@ -344,6 +351,7 @@ fn summarize(
                 pool: &pool,
                 available_cores: plan.available_cores,
                 oversubscribed: plan.oversubscribed,
+                cpu_quota: plan.cpu_quota,
                 history: carry.log.history.finish(200),
                 failed_particles: figures.failed,
                 taylor: carry.log.initial_taylor.zip(figures.taylor),
@@ -366,6 +374,7 @@ fn summarize(
     };
     let Some(mut summary) = summary else { return Ok(()) };
     summary::finish(&mut summary, reports, stepped.noise, stepped.paired);
+    summary.figures.memory.model_memory_bytes += stepped.reference_memory_bytes;
     outputs.commit_json(&summary)?;
     if !spec.outputs.quiet {
         print_human(&summary, spec.outputs.json.as_deref(), outputs.snapshots());
