@@ -18,11 +18,12 @@
 //! campaign with runs over several MPI ranks also gets `fig_hybrid.{png,svg}` (speedup
 //! against total cores, [`super::hybrid`]).
 
-use super::plot::{write_png_svg, Line, Panel, PlotPoint};
+use super::plot::{write_png_svg, Line, Panel};
+use super::points::{memory_points, plot_point};
 use crate::analysis::hybrid::HybridAnalysis;
 use crate::analysis::results::{load_campaigns, Campaign};
 use crate::analysis::select::{LeftOut, RowFilter};
-use crate::analysis::stats::{parallel_strategies, tag, Analysis, CellKey, Point, Stage, StatsOptions};
+use crate::analysis::stats::{parallel_strategies, tag, Analysis, CellKey, Stage, StatsOptions};
 use anyhow::{Context, Result};
 use mpm_core::Strategy;
 use plotters::style::RGBColor;
@@ -54,14 +55,7 @@ pub struct FiguresOptions {
     pub include_injected: bool,
 }
 
-/// Speedup or efficiency.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Metric {
-    /// `T1 / Tn`.
-    Speedup,
-    /// `speedup / n`.
-    Efficiency,
-}
+pub use super::points::Metric;
 
 /// One of the paper's Figures 7-14.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -122,22 +116,6 @@ pub fn model_colour(m: u32) -> RGBColor {
 
 fn marker_of(model: u32) -> usize {
     (model as usize + 3) % 4
-}
-
-pub(super) fn plot_point(p: &Point, metric: Metric) -> Option<PlotPoint> {
-    let e = match metric {
-        Metric::Speedup => p.speedup?,
-        Metric::Efficiency => p.efficiency?,
-    };
-    Some(PlotPoint {
-        x: p.key.threads as f64,
-        y: e.value,
-        lo: e.lo,
-        hi: e.hi,
-        hollow: p.oversubscribed,
-        grey: p.noisy,
-        flagged: !p.flags.is_empty(),
-    })
 }
 
 /// One point a figure draws: a row of `points.csv`.
@@ -355,35 +333,6 @@ pub fn footnotes(c: &Campaign, an: &Analysis) -> Vec<String> {
     out
 }
 
-/// Bytes per GiB.
-const GIB: f64 = (1u64 << 30) as f64;
-
-/// Peak memory (GiB) of model `m`, `strat`, `opt` by thread count, and the thread counts
-/// whose runs were skipped or failed.
-pub(super) fn memory_points(an: &Analysis, m: u32, strat: Strategy, opt: &str) -> (Vec<PlotPoint>, Vec<String>) {
-    let o = StatsOptions::default();
-    let mut pts = Vec::new();
-    let mut skipped = Vec::new();
-    for n in an.thread_counts() {
-        let key = CellKey::new(m, strat, opt, n);
-        let Some(cell) = an.cells.get(&key) else { continue };
-        match an.memory(&key, &o) {
-            Some(e) => pts.push(PlotPoint {
-                x: n as f64,
-                y: e.value / GIB,
-                lo: e.lo / GIB,
-                hi: e.hi / GIB,
-                hollow: cell.oversubscribed,
-                grey: cell.noisy > 0,
-                flagged: false,
-            }),
-            None if !cell.not_ok.is_empty() => skipped.push(n.to_string()),
-            None => {}
-        }
-    }
-    (pts, skipped)
-}
-
 /// The memory panel of model `m`: AE and DD (solid O3, dashed O0), in MiB for small models.
 fn memory_panel(an: &Analysis, m: u32, x_max: f64) -> Panel {
     let mut lines = Vec::new();
@@ -537,24 +486,7 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
             m.software.rustc
         );
     }
-    let _ = writeln!(s, "| file | content |\n|---|---|");
-    for spec in &PAPER_FIGURES {
-        let _ = writeln!(s, "| {}.png / .svg | {} |", spec.stem(), spec.title());
-    }
-    let _ = writeln!(s, "| fig_memory.png / .svg | Peak memory vs threads, AE vs DD, per model (claims C2, C6) |");
-    let _ = writeln!(
-        s,
-        "| points.csv | every point of these figures: figure, panel, model, strategy, opt level, threads, metric, value, interval, repetitions, flags |"
-    );
-    if super::strategies::wanted(an) {
-        let _ = writeln!(s, "| {}.png / .svg | {} |", super::strategies::STEM, super::strategies::TITLE);
-    }
-    if !hybrid.points.is_empty() {
-        let _ = writeln!(
-            s,
-            "| fig_hybrid.png / .svg | Hybrid MPI x threads: speedup, efficiency, communication and waiting for other ranks (% of wall time, apart) vs total cores, one line per rank count |"
-        );
-    }
+    file_table(&mut s, an, hybrid);
     let _ = writeln!(s);
     if !c.hybrid.is_empty() {
         let _ = writeln!(
@@ -586,6 +518,29 @@ fn readme_text(c: &Campaign, an: &Analysis, hybrid: &HybridAnalysis, command: &s
         let _ = writeln!(s, "\nNote: {n}");
     }
     s
+}
+
+/// The README's table of the files `figures` writes (the strategies and hybrid figures only
+/// where drawn).
+fn file_table(s: &mut String, an: &Analysis, hybrid: &HybridAnalysis) {
+    let _ = writeln!(s, "| file | content |\n|---|---|");
+    for spec in &PAPER_FIGURES {
+        let _ = writeln!(s, "| {}.png / .svg | {} |", spec.stem(), spec.title());
+    }
+    let _ = writeln!(s, "| fig_memory.png / .svg | Peak memory vs threads, AE vs DD, per model (claims C2, C6) |");
+    let _ = writeln!(
+        s,
+        "| points.csv | every point of these figures: figure, panel, model, strategy, opt level, threads, metric, value, interval, repetitions, flags |"
+    );
+    if super::strategies::wanted(an) {
+        let _ = writeln!(s, "| {}.png / .svg | {} |", super::strategies::STEM, super::strategies::TITLE);
+    }
+    if !hybrid.points.is_empty() {
+        let _ = writeln!(
+            s,
+            "| fig_hybrid.png / .svg | Hybrid MPI x threads: speedup, efficiency, communication and waiting for other ranks (% of wall time, apart) vs total cores, one line per rank count |"
+        );
+    }
 }
 
 /// `mpm-bench figures`.

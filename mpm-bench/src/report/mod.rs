@@ -18,6 +18,7 @@ pub mod imbalance;
 pub mod impact_table;
 mod machines;
 pub mod plot;
+mod points;
 mod report_figures;
 pub mod roofline_table;
 mod sets;

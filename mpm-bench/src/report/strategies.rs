@@ -5,8 +5,8 @@
 //! model and thread count ([`crate::analysis::strategies`]).
 
 use super::doc::{Block, Section};
-use super::figures::{memory_points, plot_point, Metric};
 use super::plot::{series_colour, write_png_svg, Line, Panel, PlotPoint};
+use super::points::{memory_points, plot_point, Metric};
 use super::sets::Set;
 use crate::analysis::stats::{tag, Analysis, Stage};
 use crate::analysis::strategies::{self as cmp, CHOICE_HEAD, NEW};

@@ -32,6 +32,9 @@ use std::arch::x86_64::*;
 
 /// `kernel`'s additions for the particles `ids`, in order, into `data` (see the module).
 ///
+/// One function of 81 lines, a kernel: a particle's weights and its record live in vector
+/// registers across the whole body; split into calls, they would pass through memory.
+///
 /// # Safety
 /// The CPU must execute AVX-512F (`SimdLevel::Avx512.is_available()`).
 #[target_feature(enable = "avx512f,avx2")]
