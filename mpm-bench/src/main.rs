@@ -112,6 +112,42 @@ enum Cmd {
     Claims(cli::analysis::ClaimsArgs),
     /// Compare a campaign with a baseline: exit 0 pass, 1 regression or missing cell, 2 error or incomparable.
     Regress(cli::analysis::RegressArgs),
+    /// Two builds measured side by side in one sitting: the CI gate of a pull request against its base.
+    #[command(
+        long_about = "Measure two builds of the solver side by side on this host and judge the candidate against the \
+            baseline: exit 0 pass, 1 regression (or a cell the candidate did not measure), 2 incomparable or bad \
+            input.\n\n\
+            The baseline is a git revision (--baseline-rev: checked out into a worktree and built into a target \
+            folder of its own) or binaries (--baseline-bin); the candidate is this checkout's build (or \
+            --candidate-bin). Every planned run of the preset (default ci) runs once per build, the two processes \
+            back to back, which build goes first alternating ABBA from a seed, so that the host's drift reaches \
+            both alike. Each process is a paired run as in `mpm-bench run`. Per pair, the log ratio candidate / \
+            baseline of the paired efficiency and of the time per step; per cell and pooled over the cells, an \
+            interval over the pairs (Student's t), Holm over every check. A check fails when the candidate is \
+            worse than --tolerance beyond the noise. Time per step is gated (the builds ran moments apart on one \
+            host, unlike a stored baseline's); the work counters are compared exactly.\n\n\
+            The output folder keeps both campaigns (baseline/, candidate/), the order that ran (ab.json, with the \
+            builds and their seconds) and the verdict (verdict.json).",
+        after_help = "Examples:\n  \
+            mpm-bench ab --baseline-rev origin/main                       # this checkout against main\n  \
+            mpm-bench ab --baseline-rev HEAD~1 --markdown \"$GITHUB_STEP_SUMMARY\"\n  \
+            mpm-bench ab --baseline-bin /opt/mpm-1.2/bin --candidate-bin target --no-build\n  \
+            mpm-bench ab --baseline-rev HEAD --candidate-inject-step-slowdown 0.1   # the gate must fail (exit 1)\n  \
+            mpm-bench ab --baseline-rev HEAD --work-snapshot ci/work-baseline.json --json verdict.json"
+    )]
+    Ab(Box<cli::ab::AbArgs>),
+    /// The work counters of the gate's cells against a committed snapshot (exact, on any machine).
+    #[command(
+        long_about = "The work counters of the gate's cells (bytes per sub-stage and worker over a run) are the \
+            same on every machine for a given commit. --check FILE runs every cell of the preset once (or reads \
+            --campaign DIR) and compares exactly: exit 0 equal, 1 changed, naming the cell and the sub-stage. \
+            --write FILE records them: commit the file when a change is intended, as a snapshot test's.",
+        after_help = "Examples:\n  \
+            mpm-bench work-snapshot --check ci/work-baseline.json\n  \
+            mpm-bench work-snapshot --write ci/work-baseline.json      # after an intended change; commit it\n  \
+            mpm-bench work-snapshot --check ci/work-baseline.json --campaign results/local/ab/candidate/<fp>/ci"
+    )]
+    WorkSnapshot(cli::ab::WorkSnapshotArgs),
     /// Measure the gate itself on this host: its false-alarm rate (A/A) and what it detects (an injected slowdown).
     #[command(
         long_about = "Measure the regression gate on this host: run its campaign (a preset, by default ci) \
@@ -209,6 +245,20 @@ fn main() {
         // regress: 0 pass, 1 regression, 2 error or incomparable (a CI gate must tell a
         // regression from a broken comparison).
         Cmd::Regress(a) => match regress::run(a.into()) {
+            Ok(code) => std::process::exit(code),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::exit(2);
+            }
+        },
+        Cmd::Ab(a) => match cli::ab::cmd_ab(*a) {
+            Ok(code) => std::process::exit(code),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::exit(2);
+            }
+        },
+        Cmd::WorkSnapshot(a) => match cli::ab::cmd_work_snapshot(a) {
             Ok(code) => std::process::exit(code),
             Err(e) => {
                 eprintln!("error: {e:#}");

@@ -52,6 +52,18 @@ pub struct AbSettings {
     pub work_snapshot: Option<PathBuf>,
 }
 
+/// Refuse settings that cannot make a verdict, before anything runs.
+pub fn check_settings(s: &AbSettings) -> Result<()> {
+    Metrics::parse(&s.metrics)?;
+    if !(s.tolerance.is_finite() && (0.0..1.0).contains(&s.tolerance)) {
+        anyhow::bail!("--tolerance {} is not a fraction in [0, 1) such as 0.05 (5 %)", s.tolerance);
+    }
+    if let Some(p) = s.work_snapshot.as_deref() {
+        super::work_snapshot::read(p)?;
+    }
+    Ok(())
+}
+
 /// The verdict of `mpm-bench ab`.
 #[derive(Clone, Debug, Serialize)]
 pub struct AbReport {
@@ -233,4 +245,21 @@ pub fn markdown(r: &AbReport) -> String {
 pub fn lines(r: &AbReport) -> String {
     let text = regress::lines(&r.gate).replacen("regress: baseline", "ab: baseline", 1);
     format!("{} pairs compared ({} incomplete), ABBA order\n{text}", r.pairs, r.incomplete_pairs)
+}
+
+/// Print the verdict (to standard error when the JSON goes to standard output), write its
+/// JSON and append its Markdown when asked; the exit code (0 pass, 1 fail, 2 incomparable).
+pub fn emit(r: &AbReport, json: Option<&Path>, markdown_to: Option<&Path>) -> Result<i32> {
+    if let Some(p) = markdown_to {
+        regress::append(p, &markdown(r))?;
+    }
+    if let Some(p) = json {
+        regress::write_json(p, r)?;
+        if p == Path::new("-") {
+            eprint!("{}", lines(r));
+            return Ok(r.exit_code());
+        }
+    }
+    print!("{}", lines(r));
+    Ok(r.exit_code())
 }

@@ -882,7 +882,7 @@ fn conclude(r: &mut RegressReport, base: &Analysis, cur: &Analysis) {
 }
 
 /// Write the JSON verdict to `path`, or to standard output when `path` is `-`.
-pub(crate) fn write_json(path: &Path, r: &RegressReport) -> Result<()> {
+pub fn write_json<T: Serialize>(path: &Path, r: &T) -> Result<()> {
     let text = serde_json::to_string_pretty(r)?;
     if path == Path::new("-") {
         println!("{text}");
@@ -1000,7 +1000,7 @@ fn grouped(n: &[NotCompared]) -> Vec<(String, String)> {
 }
 
 /// Append `text` to the file at `path` (created when absent).
-pub(crate) fn append(path: &Path, text: &str) -> Result<()> {
+pub fn append(path: &Path, text: &str) -> Result<()> {
     use std::io::Write as _;
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;

@@ -239,6 +239,15 @@ pub fn read(path: &Path) -> Result<WorkSnapshot> {
     Ok(s)
 }
 
+/// Write `snapshot` to `path` (atomically, pretty JSON with a final newline).
+pub fn write(path: &Path, snapshot: &WorkSnapshot) -> Result<()> {
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+    }
+    let text = serde_json::to_string_pretty(snapshot)? + "\n";
+    mpm_host::atomic::write_atomic(path, text.as_bytes()).with_context(|| format!("cannot write {}", path.display()))
+}
+
 /// Check the `ok` rows of a campaign against the snapshot at `path`.
 pub fn check_rows(path: &Path, rows: &[Row]) -> Result<SnapshotCheck> {
     let snapshot = read(path)?;

@@ -106,7 +106,7 @@ impl Session {
         opts: &ExecOptions,
         counts: manifest::SessionCounts,
         watch: Option<&HostWatch>,
-        eta: Option<&mut dyn Runner>,
+        eta: Option<&mut (dyn Runner + '_)>,
     ) -> Result<Self> {
         let here = opts.scheduler.runs_here();
         let (log, json_dir) = plan.open_folder(opts.fresh, here)?;
