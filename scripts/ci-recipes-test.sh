@@ -25,7 +25,7 @@ step() { printf '\n==> %s\n' "$*" >&2; }
 step "actionlint ci/github/*.yml"
 "$actionlint" ci/github/*.yml
 tmp=$(mktemp -d)
-trap 'git -C "$repo" worktree prune; rm -rf "$tmp"' EXIT
+trap 'rm -rf "$tmp" "$repo"/target/recipe-test/ab-src-* "$repo"/target/recipe-test/ab-bin-*' EXIT
 sed 's/runs-on:/runs_on:/' ci/github/efficiency-gate.yml > "$tmp/broken.yml"
 if "$actionlint" "$tmp/broken.yml" >/dev/null 2>&1; then
     echo "ci-recipes-test: actionlint accepted a workflow without runs-on" >&2
