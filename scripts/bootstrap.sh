@@ -43,6 +43,7 @@ command -v slurmctld >/dev/null 2>&1 && command -v slurmd >/dev/null 2>&1 && com
 command -v munged >/dev/null 2>&1 || missing+=(munge)
 python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || missing+=(python3-venv)
 command -v npm >/dev/null 2>&1 || missing+=(nodejs npm)
+command -v rsync >/dev/null 2>&1 || missing+=(rsync)
 if [ "${#missing[@]}" -gt 0 ]; then
     if ! command -v apt-get >/dev/null 2>&1; then
         echo "bootstrap: please install ${missing[*]} with your package manager (no apt-get here)" >&2

@@ -65,7 +65,8 @@ base=$(git rev-parse HEAD~1)
 gate() {
     rm -rf ab .gitlab-ci-local
     set +e
-    "$glci" --file .gitlab-ci.yml --force-shell-executor --no-color \
+    GCL_IGNORE_PREDEFINED_VARS=CI_PIPELINE_SOURCE,CI_MERGE_REQUEST_DIFF_BASE_SHA \
+        "$glci" --file .gitlab-ci.yml --force-shell-executor --no-color \
         --variable CI_PIPELINE_SOURCE=merge_request_event \
         --variable "CI_MERGE_REQUEST_DIFF_BASE_SHA=$base" \
         --variable "CARGO_TARGET_DIR=$repo/target/recipe-test" \
