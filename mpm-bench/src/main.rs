@@ -313,6 +313,9 @@ pub(crate) fn bad_input(e: anyhow::Error) -> ! {
 /// `mpm-bench calibrate`: check the settings, build (unless --no-build or --mock), run, print, write the JSON.
 fn cmd_calibrate(a: calibrate_measure::CalibrateOptions) -> Result<()> {
     calibrate::check_args(&a)?;
+    if a.design_ab {
+        return cmd_calibrate_ab(&a);
+    }
     let machine = Machine::detect()?;
     let interrupted = schedule::install_interrupt_handler();
     let c = if a.mock {
@@ -334,6 +337,38 @@ fn cmd_calibrate(a: calibrate_measure::CalibrateOptions) -> Result<()> {
             std::path::Path::new(&a.preset).file_stem().map_or("preset".into(), |s| s.to_string_lossy().into_owned());
         a.out.join(fingerprint::fingerprint(&machine)).join(format!("calibrate-{name}")).join("calibration.json")
     });
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+    }
+    write_atomic(&path, serde_json::to_string_pretty(&c)?.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+/// `mpm-bench calibrate --design ab`: the sides side by side, every comparison, the JSON.
+fn cmd_calibrate_ab(a: &calibrate_measure::CalibrateOptions) -> Result<()> {
+    use mpm_bench::analysis::calibrate_ab;
+    use mpm_bench::campaign::measure::calibrate_ab as measure_ab;
+    let machine = Machine::detect()?;
+    let interrupted = schedule::install_interrupt_handler();
+    let name = std::path::Path::new(&a.preset).file_stem().map_or("preset".into(), |s| s.to_string_lossy().into_owned());
+    let dir = a.out.join(fingerprint::fingerprint(&machine)).join(format!("calibrate-ab-{name}"));
+    let (record, kinds) = if a.mock {
+        let solvers = calibrate_measure::mock_solvers();
+        measure_ab::run(a, &dir, &machine, &solvers, &mut MockRunner::default(), &interrupted)?
+    } else {
+        let opts = measure_ab::side_campaign(a, measure_ab::SideKind::Clean)?.opts;
+        let solvers = solver::prepare_solvers(&opts, !a.no_build, a.quiet)?;
+        let mut r = ProcessRunner::new(interrupted.clone());
+        measure_ab::run(a, &dir, &machine, &solvers, &mut r, &interrupted)?
+    };
+    if record.interrupted {
+        anyhow::bail!("interrupted: the sides' rows so far are kept in {}; the same command continues", dir.display());
+    }
+    let c = calibrate_ab::judge(a, &machine, record, &kinds)?;
+    print!("{}", calibrate_ab::table(&c));
+    let path = a.json.clone().unwrap_or_else(|| dir.join("calibration.json"));
     if let Some(parent) = path.parent() {
         std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
     }

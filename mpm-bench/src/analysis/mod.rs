@@ -22,6 +22,7 @@
 
 pub mod ab;
 pub mod calibrate;
+pub mod calibrate_ab;
 pub mod claims;
 pub mod estimate;
 pub mod hybrid;
