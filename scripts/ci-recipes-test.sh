@@ -90,7 +90,7 @@ echo "the candidate equal to the base: job passed (verdict $verdict)" >&2
 
 rc=$(gate "--candidate-inject-step-slowdown 0.5")
 failed=$(python3 -c 'import json,sys; v=json.load(open(sys.argv[1])); print(v["verdict"], sorted({c["metric"] for c in v["checks"] if c["outcome"] == "regressed"}))' ab/verdict.json 2>/dev/null || echo none)
-if [ "$rc" -eq 0 ] || ! grep -q 'exit code 1\|exited with 1\|exit 1' "$tmp/job.log" || [ "$failed" != "fail ['time_per_step']" ]; then
+if [ "$rc" -eq 0 ] || ! grep -q 'efficiency-gate finished in .* FAIL 1 ' "$tmp/job.log" || [ "$failed" != "fail ['time_per_step']" ]; then
     tail -n 40 "$tmp/job.log" >&2
     echo "ci-recipes-test: the candidate with a 50 % step slowdown: gitlab-ci-local exit $rc, verdict $failed (want a failed job, fail ['time_per_step'])" >&2
     exit 1

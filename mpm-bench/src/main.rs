@@ -163,11 +163,19 @@ enum Cmd {
             recommended processes per cell and blocks per process, and the coverage of one campaign's \
             intervals on the others. The comparisons reuse campaigns (7 clean give 21 A/A pairs): they are \
             not independent, see the method in the JSON. Run it on a quiet machine of the kind the gate \
-            runs on; the same command resumes an interrupted calibration.",
+            runs on; the same command resumes an interrupted calibration.\n\n\
+            --design ab calibrates `mpm-bench ab` instead: --clean sides of one build, --injected sides with \
+            the efficiency loss and as many with a step slowdown (--inject-step-slowdown F: every step 1 / (1 - F) \
+            times as long on every worker alike), all run side by side process by process as ab runs its two \
+            builds; ab's verdict on every pair of clean sides (A/A) and on every clean side against every \
+            injected one. calibration.json then has design \"ab\", aa_comparisons, false_alarms, gate_wall_s \
+            and one entry per injected kind (kind, injected_slowdown, injected_comparisons, detected), and the \
+            smallest change of each metric found with 90 % power.",
         after_help = "Examples:\n  \
             mpm-bench calibrate                                  # ci preset, 7 clean + 3 injected (10 %) campaigns\n  \
             mpm-bench calibrate --clean 7 --injected 3 --budget 100m --json results/<fp>/calibrate-ci/calibration.json\n  \
-            mpm-bench calibrate --preset configs/my-ci.toml --inject-slowdown 0.05 --tolerance 0.03"
+            mpm-bench calibrate --preset configs/my-ci.toml --inject-slowdown 0.05 --tolerance 0.03\n  \
+            mpm-bench calibrate --design ab --clean 7 --injected 3      # the side-by-side gate: 21 A/A, 21 + 21 injected"
     )]
     Calibrate(cli::measure::CalibrateArgs),
     /// Hardware report (one HTML page, Markdown, JSON) of a campaign, or several compared with the first.
@@ -352,7 +360,8 @@ fn cmd_calibrate_ab(a: &calibrate_measure::CalibrateOptions) -> Result<()> {
     use mpm_bench::campaign::measure::calibrate_ab as measure_ab;
     let machine = Machine::detect()?;
     let interrupted = schedule::install_interrupt_handler();
-    let name = std::path::Path::new(&a.preset).file_stem().map_or("preset".into(), |s| s.to_string_lossy().into_owned());
+    let name =
+        std::path::Path::new(&a.preset).file_stem().map_or("preset".into(), |s| s.to_string_lossy().into_owned());
     let dir = a.out.join(fingerprint::fingerprint(&machine)).join(format!("calibrate-ab-{name}"));
     let (record, kinds) = if a.mock {
         let solvers = calibrate_measure::mock_solvers();

@@ -68,7 +68,13 @@ fn ab_passes_the_same_build_and_fails_each_injected_change() {
 fn ab_refuses_bad_input() {
     let tmp = tempfile::tempdir().unwrap();
     let run = |args: &[&str]| {
-        Command::new(env!("CARGO_BIN_EXE_mpm-bench")).arg("ab").args(args).arg("--out").arg(tmp.path()).output().unwrap()
+        Command::new(env!("CARGO_BIN_EXE_mpm-bench"))
+            .arg("ab")
+            .args(args)
+            .arg("--out")
+            .arg(tmp.path())
+            .output()
+            .unwrap()
     };
     let o = run(&["--mock"]);
     assert_eq!(o.status.code(), Some(2));

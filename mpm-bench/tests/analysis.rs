@@ -526,8 +526,21 @@ fn regress_first_baseline_mode() {
     let (code, text) = regress_cli(&nowhere, &tmp.path().join("no-current"), &["--missing-baseline", "pass"]);
     assert_eq!(code, 2, "{text}");
     // With a baseline, the mode changes nothing.
-    let (code, text) = regress_cli(&cur, &cur, &["--missing-baseline", "pass"]);
+    let other = write_campaign(&tmp.path().join("other"), &Craft::default());
+    let (code, text) = regress_cli(&other, &cur, &["--missing-baseline", "pass"]);
     assert!(code == 0 && !text.contains("no baseline yet"), "{text}");
+}
+
+/// A campaign compared with itself is refused (it would always pass), also through another
+/// spelling of its path.
+#[test]
+fn regress_refuses_a_campaign_against_itself() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cur = write_campaign(&tmp.path().join("cur"), &Craft::default());
+    let again = tmp.path().join("cur").join("..").join("cur");
+    let (code, text) = regress_cli(&again, &cur, &[]);
+    assert_eq!(code, 2, "{text}");
+    assert!(text.contains("are the same campaign"), "{text}");
 }
 
 /// `mpm-bench regress` as CI runs it: the exit code and the console.
@@ -546,8 +559,9 @@ fn regress_cli(base: &Path, cur: &Path, extra: &[&str]) -> (i32, String) {
 fn regress_exit_codes_of_the_binary() {
     let tmp = tempfile::tempdir().unwrap();
     let base = write_campaign(&tmp.path().join("base"), &Craft::default());
-    // 0: the same campaign.
-    let (code, text) = regress_cli(&base, &base, &[]);
+    // 0: the same measurements in another folder.
+    let same = write_campaign(&tmp.path().join("same"), &Craft::default());
+    let (code, text) = regress_cli(&base, &same, &[]);
     assert_eq!(code, 0, "{text}");
     assert!(text.contains("verdict: pass") && text.contains("Holm"), "{text}");
     // 1: parallel runs 25 % slower; every check line carries its units.
@@ -575,7 +589,7 @@ fn regress_exit_codes_of_the_binary() {
     let (code, text) = regress_cli(&base, &disjoint, &[]);
     assert_eq!(code, 2, "{text}");
     assert!(text.contains("nothing to compare"), "{text}");
-    let (code, text) = regress_cli(&base, &base, &["--tolerance", "3"]);
+    let (code, text) = regress_cli(&base, &same, &["--tolerance", "3"]);
     assert_eq!(code, 2, "{text}");
 }
 

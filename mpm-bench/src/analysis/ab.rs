@@ -199,7 +199,8 @@ pub fn judge(settings: &AbSettings, base: &Path, cand: &Path, labels: (&str, &st
     let mut gate = regress::blank_report(&args, metrics, sides.0, sides.1);
     let (cells, incomplete) = pairs(&a.rows, &b.rows);
     let pairs_n = cells.values().map(|c| c.time.len().max(c.efficiency.len())).sum();
-    let report = |gate| AbReport { design: "interleaved", pairs: pairs_n, incomplete_pairs: incomplete, method: METHOD, gate };
+    let report =
+        |gate| AbReport { design: "interleaved", pairs: pairs_n, incomplete_pairs: incomplete, method: METHOD, gate };
     if let Some(why) = incomparable(&a, &b) {
         gate.reason = why;
         return Ok(report(gate));
@@ -210,7 +211,8 @@ pub fn judge(settings: &AbSettings, base: &Path, cand: &Path, labels: (&str, &st
     let work_only = Metrics { efficiency: false, time: false, work: metrics.work };
     let mut cmp = regress::compare_analyses(&ba, &ca, &[Stage::Total], settings.tolerance, false, work_only);
     cmp.checks = checks;
-    let snapshot = settings.work_snapshot.as_deref().map(|p| super::work_snapshot::check_rows(p, &b.rows)).transpose()?;
+    let snapshot =
+        settings.work_snapshot.as_deref().map(|p| super::work_snapshot::check_rows(p, &b.rows)).transpose()?;
     regress::settle(&mut gate, cmp, snapshot, &ba, &ca);
     Ok(report(gate))
 }

@@ -150,7 +150,13 @@ pub fn judge(a: &CalibrateOptions, machine: &Machine, record: AbRecord, kinds: &
             .collect::<std::collections::BTreeSet<_>>()
             .into_iter()
             .collect();
-        let pooled_ratios = r.gate.checks.iter().filter(|c| c.cell.key().is_none()).map(|c| (c.metric.to_string(), c.ratio.value)).collect();
+        let pooled_ratios = r
+            .gate
+            .checks
+            .iter()
+            .filter(|c| c.cell.key().is_none())
+            .map(|c| (c.metric.to_string(), c.ratio.value))
+            .collect();
         comparisons.push(AbComparison {
             kind,
             baseline: sides[i].label.clone(),
@@ -196,7 +202,9 @@ fn summarise(
         .map(|(kind, f)| {
             let of: Vec<&AbComparison> = comparisons.iter().filter(|c| c.kind == kind.name()).collect();
             let measured_change = match kind {
-                SideKind::Step => median(of.iter().filter_map(|c| pooled(c, "time_per_step")).collect()).map(|r| r - 1.0),
+                SideKind::Step => {
+                    median(of.iter().filter_map(|c| pooled(c, "time_per_step")).collect()).map(|r| r - 1.0)
+                }
                 _ => median(of.iter().filter_map(|c| pooled(c, "efficiency")).collect()).map(|r| 1.0 - r),
             };
             InjectedKind {
@@ -249,9 +257,22 @@ fn summarise(
 pub fn table(c: &AbCalibration) -> String {
     use std::fmt::Write as _;
     let mut s = String::new();
-    let rate = |n: usize, of: usize| if of == 0 { "n/a".to_string() } else { format!("{:.0} %", 100.0 * n as f64 / of as f64) };
-    let _ = writeln!(s, "calibration of the side-by-side gate (ab) on {} ({} pairs per side)", c.machine, c.pairs_per_side);
-    let _ = writeln!(s, "  A/A comparisons: {}, false alarms: {} ({})", c.aa_comparisons, c.false_alarms, rate(c.false_alarms, c.aa_comparisons));
+    let rate = |n: usize, of: usize| {
+        if of == 0 {
+            "n/a".to_string()
+        } else {
+            format!("{:.0} %", 100.0 * n as f64 / of as f64)
+        }
+    };
+    let _ =
+        writeln!(s, "calibration of the side-by-side gate (ab) on {} ({} pairs per side)", c.machine, c.pairs_per_side);
+    let _ = writeln!(
+        s,
+        "  A/A comparisons: {}, false alarms: {} ({})",
+        c.aa_comparisons,
+        c.false_alarms,
+        rate(c.false_alarms, c.aa_comparisons)
+    );
     for k in &c.injected {
         let _ = writeln!(
             s,

@@ -130,7 +130,8 @@ fn builds(a: &AbArgs, campaign: &Campaign) -> Result<[(Vec<Solver>, BuildRecord)
         None => {
             let t0 = std::time::Instant::now();
             if !a.no_build {
-                let ws = ws.as_deref().context("cannot find the workspace to build the candidate: run from a checkout")?;
+                let ws =
+                    ws.as_deref().context("cannot find the workspace to build the candidate: run from a checkout")?;
                 for &opt in &campaign.opts {
                     solver::build_solver_in(ws, &solver::target_dir(ws), opt, &a.cargo_args, a.quiet)?;
                 }
@@ -175,7 +176,8 @@ pub fn cmd_ab(a: AbArgs) -> Result<i32> {
         Side { label: "candidate".into(), campaign: &cand, solvers: &cand_solvers, out_root: a.out.join("candidate") },
     ];
     let interrupted = schedule::install_interrupt_handler();
-    let opts = ExecOptions { quiet: a.quiet, command: std::env::args().collect::<Vec<_>>().join(" "), ..Default::default() };
+    let opts =
+        ExecOptions { quiet: a.quiet, command: std::env::args().collect::<Vec<_>>().join(" "), ..Default::default() };
     let mut runner: Box<dyn Runner> =
         if a.mock { Box::new(MockRunner::default()) } else { Box::new(ProcessRunner::new(interrupted.clone())) };
     let seed = a.seed.unwrap_or(base.seed);

@@ -99,10 +99,12 @@ pub fn build_rev(
         if !quiet {
             eprintln!("building the baseline {rev} ({}) in profile {opt} into {}", &sha[..12], target.display());
         }
-        build_solver_in(&src, target, opt, cargo_args, quiet).with_context(|| format!("building the baseline {rev}"))?;
+        build_solver_in(&src, target, opt, cargo_args, quiet)
+            .with_context(|| format!("building the baseline {rev}"))?;
     }
     let solvers = keep_aside(&solvers_in(target, opts)?, &target.join(format!("ab-bin-{}", &sha[..12])))?;
-    let record = BuildRecord { source: format!("rev {rev} ({sha})"), commit: Some(sha), build_s: t0.elapsed().as_secs_f64() };
+    let record =
+        BuildRecord { source: format!("rev {rev} ({sha})"), commit: Some(sha), build_s: t0.elapsed().as_secs_f64() };
     Ok((solvers, record))
 }
 
@@ -111,9 +113,11 @@ pub fn keep_aside(solvers: &[Solver], dir: &Path) -> Result<Vec<Solver>> {
     let mut out = Vec::new();
     for s in solvers {
         let to = dir.join(s.opt.as_str()).join("mpm");
-        std::fs::create_dir_all(to.parent().unwrap_or(dir)).with_context(|| format!("cannot create {}", dir.display()))?;
+        std::fs::create_dir_all(to.parent().unwrap_or(dir))
+            .with_context(|| format!("cannot create {}", dir.display()))?;
         let tmp = to.with_extension("tmp");
-        std::fs::copy(&s.path, &tmp).with_context(|| format!("cannot copy {} to {}", s.path.display(), tmp.display()))?;
+        std::fs::copy(&s.path, &tmp)
+            .with_context(|| format!("cannot copy {} to {}", s.path.display(), tmp.display()))?;
         std::fs::rename(&tmp, &to).with_context(|| format!("cannot move {} into place", tmp.display()))?;
         out.push(Solver { opt: s.opt, path: to, sha256: s.sha256.clone() });
     }

@@ -105,7 +105,8 @@ impl AbRecord {
     /// Write it to `path` (atomically).
     pub fn write(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(self)?;
-        mpm_host::atomic::write_atomic(path, text.as_bytes()).with_context(|| format!("cannot write {}", path.display()))
+        mpm_host::atomic::write_atomic(path, text.as_bytes())
+            .with_context(|| format!("cannot write {}", path.display()))
     }
 }
 
@@ -130,7 +131,8 @@ pub fn run_sides(
     if sides.len() < 2 {
         bail!("side-by-side runs need at least two sides, got {}", sides.len());
     }
-    let side_opts = |s: &Side<'_>| ExecOptions { out_root: s.out_root.clone(), quiet: true, eta: false, ..opts.clone() };
+    let side_opts =
+        |s: &Side<'_>| ExecOptions { out_root: s.out_root.clone(), quiet: true, eta: false, ..opts.clone() };
     let mut sessions = Vec::new();
     for s in sides {
         let o = side_opts(s);
@@ -210,8 +212,7 @@ pub fn run_sides(
 /// Run the side's planned run labelled `label` (the one of its runs still to do) and record
 /// its row.
 fn run_in(state: &mut CampaignState<'_>, runner: &mut dyn Runner, label: &str, bar: &ProgressBar) -> Result<()> {
-    let Some((n, (order_index, spec))) =
-        state.plan.todo.iter().enumerate().find(|(_, (_, r))| pair_label(r) == label)
+    let Some((n, (order_index, spec))) = state.plan.todo.iter().enumerate().find(|(_, (_, r))| pair_label(r) == label)
     else {
         return Ok(());
     };

@@ -7,12 +7,12 @@ use super::scheduler::Scheduler;
 use super::slurm::Slurm;
 use super::state::{Books, CampaignProgress, CampaignState, ExecOptions, ExecSummary, ManifestLog, Plan};
 use crate::campaign::exec::estimate::{estimate_duration, nominal_estimate};
-use crate::campaign::store::csv::CsvLog;
 use crate::campaign::exec::process::Runner;
 use crate::campaign::exec::run::RunContext;
 use crate::campaign::exec::solver::Solver;
 use crate::campaign::exec::watch::HostWatch;
 use crate::campaign::plan::matrix::Campaign;
+use crate::campaign::store::csv::CsvLog;
 use crate::campaign::store::manifest::{self};
 use crate::machine::topology::Machine;
 use anyhow::{bail, Context, Result};
@@ -138,8 +138,12 @@ impl Session {
             checkpoint_root: self.plan.dir.join("checkpoints"),
             interrupted,
         };
-        let books =
-            Books { log: &mut self.log, counts: &mut self.counts, manifest: &mut self.manifest, progress: &self.progress };
+        let books = Books {
+            log: &mut self.log,
+            counts: &mut self.counts,
+            manifest: &mut self.manifest,
+            progress: &self.progress,
+        };
         CampaignState::new(ctx, &self.plan, solvers, books)
     }
 

@@ -332,7 +332,13 @@ fn step(
             let end_reason = step_loop(&ctx, sim, outputs, carry, ck, collectives, &mut slow)?;
             usage.end(&run.pool.pool);
             let injected_step_s = slow.map(|s| s.total_s);
-            Stepped { end_reason, noise: usage.report(MIN_CPU_SHARE), paired: None, reference_memory_bytes: 0, injected_step_s }
+            Stepped {
+                end_reason,
+                noise: usage.report(MIN_CPU_SHARE),
+                paired: None,
+                reference_memory_bytes: 0,
+                injected_step_s,
+            }
         }
     };
     Ok((run, stepped))
