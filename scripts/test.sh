@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The test command: formatting, lints with warnings as errors, every test of the workspace
 # (unit, integration, CLI, end-to-end harness, doc tests), built optimised (profile o3-test:
-# o3 without its LTO, see Cargo.toml) so the physics tests run fast, the bundle test, and the
-# loom model check of mpm-core's parallel primitives. mpm-bench's Slurm test starts a one-node Slurm of its own
+# o3 without its LTO, see Cargo.toml) so the physics tests run fast, the bundle test, the loom
+# model check of mpm-core's parallel primitives, the work counters against their committed
+# snapshot and the CI job files run for real (scripts/ci-recipes-test.sh). mpm-bench's Slurm test starts a one-node Slurm of its own
 # (scripts/slurm-local.sh) and stops it: it needs root and the packages the bootstrap installs.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -38,6 +39,18 @@ scripts/bundle-test.sh
 # seconds once built.
 step "loom model check of the parallel primitives (mpm-core parallel::)"
 RUSTFLAGS="--cfg loom" CARGO_TARGET_DIR=target/loom cargo test --profile o3-test -p mpm-core --lib parallel::
+
+# The work counters are the same on every machine for a given commit: the ci preset's cells
+# run once (about 20 s, the o3-test build: the counters do not depend on the optimisation)
+# and compared exactly with the committed snapshot; an intended change rewrites it
+# (`mpm-bench work-snapshot --write ci/work-baseline.json`).
+step "the work counters against ci/work-baseline.json (mpm-bench work-snapshot --check)"
+MPM_BENCH_SOLVER_O3=target/o3-test/mpm target/o3-test/mpm-bench work-snapshot --check ci/work-baseline.json --no-build
+
+# The CI job files in ci/: actionlint, and the GitLab gate end to end under gitlab-ci-local
+# on a temporary clone of HEAD (its own build of both sides: a few minutes the first time).
+step "the CI recipes (scripts/ci-recipes-test.sh)"
+scripts/ci-recipes-test.sh
 
 step "the docs' measured tables against results/ (scripts/docs-tables.sh --check)"
 scripts/docs-tables.sh --check

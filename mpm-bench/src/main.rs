@@ -112,6 +112,42 @@ enum Cmd {
     Claims(cli::analysis::ClaimsArgs),
     /// Compare a campaign with a baseline: exit 0 pass, 1 regression or missing cell, 2 error or incomparable.
     Regress(cli::analysis::RegressArgs),
+    /// Two builds measured side by side in one sitting: the CI gate of a pull request against its base.
+    #[command(
+        long_about = "Measure two builds of the solver side by side on this host and judge the candidate against the \
+            baseline: exit 0 pass, 1 regression (or a cell the candidate did not measure), 2 incomparable or bad \
+            input.\n\n\
+            The baseline is a git revision (--baseline-rev: checked out into a worktree and built into a target \
+            folder of its own) or binaries (--baseline-bin); the candidate is this checkout's build (or \
+            --candidate-bin). Every planned run of the preset (default ci) runs once per build, the two processes \
+            back to back, which build goes first alternating ABBA from a seed, so that the host's drift reaches \
+            both alike. Each process is a paired run as in `mpm-bench run`. Per pair, the log ratio candidate / \
+            baseline of the paired efficiency and of the time per step; per cell and pooled over the cells, an \
+            interval over the pairs (Student's t), Holm over every check. A check fails when the candidate is \
+            worse than --tolerance beyond the noise. Time per step is gated (the builds ran moments apart on one \
+            host, unlike a stored baseline's); the work counters are compared exactly.\n\n\
+            The output folder keeps both campaigns (baseline/, candidate/), the order that ran (ab.json, with the \
+            builds and their seconds) and the verdict (verdict.json).",
+        after_help = "Examples:\n  \
+            mpm-bench ab --baseline-rev origin/main                       # this checkout against main\n  \
+            mpm-bench ab --baseline-rev HEAD~1 --markdown \"$GITHUB_STEP_SUMMARY\"\n  \
+            mpm-bench ab --baseline-bin /opt/mpm-1.2/bin --candidate-bin target --no-build\n  \
+            mpm-bench ab --baseline-rev HEAD --candidate-inject-step-slowdown 0.1   # the gate must fail (exit 1)\n  \
+            mpm-bench ab --baseline-rev HEAD --work-snapshot ci/work-baseline.json --json verdict.json"
+    )]
+    Ab(Box<cli::ab::AbArgs>),
+    /// The work counters of the gate's cells against a committed snapshot (exact, on any machine).
+    #[command(
+        long_about = "The work counters of the gate's cells (bytes per sub-stage and worker over a run) are the \
+            same on every machine for a given commit. --check FILE runs every cell of the preset once (or reads \
+            --campaign DIR) and compares exactly: exit 0 equal, 1 changed, naming the cell and the sub-stage. \
+            --write FILE records them: commit the file when a change is intended, as a snapshot test's.",
+        after_help = "Examples:\n  \
+            mpm-bench work-snapshot --check ci/work-baseline.json\n  \
+            mpm-bench work-snapshot --write ci/work-baseline.json      # after an intended change; commit it\n  \
+            mpm-bench work-snapshot --check ci/work-baseline.json --campaign results/local/ab/candidate/<fp>/ci"
+    )]
+    WorkSnapshot(cli::ab::WorkSnapshotArgs),
     /// Measure the gate itself on this host: its false-alarm rate (A/A) and what it detects (an injected slowdown).
     #[command(
         long_about = "Measure the regression gate on this host: run its campaign (a preset, by default ci) \
@@ -127,11 +163,19 @@ enum Cmd {
             recommended processes per cell and blocks per process, and the coverage of one campaign's \
             intervals on the others. The comparisons reuse campaigns (7 clean give 21 A/A pairs): they are \
             not independent, see the method in the JSON. Run it on a quiet machine of the kind the gate \
-            runs on; the same command resumes an interrupted calibration.",
+            runs on; the same command resumes an interrupted calibration.\n\n\
+            --design ab calibrates `mpm-bench ab` instead: --clean sides of one build, --injected sides with \
+            the efficiency loss and as many with a step slowdown (--inject-step-slowdown F: every step 1 / (1 - F) \
+            times as long on every worker alike), all run side by side process by process as ab runs its two \
+            builds; ab's verdict on every pair of clean sides (A/A) and on every clean side against every \
+            injected one. calibration.json then has design \"ab\", aa_comparisons, false_alarms, gate_wall_s \
+            and one entry per injected kind (kind, injected_slowdown, injected_comparisons, detected), and the \
+            smallest change of each metric found with 90 % power.",
         after_help = "Examples:\n  \
             mpm-bench calibrate                                  # ci preset, 7 clean + 3 injected (10 %) campaigns\n  \
             mpm-bench calibrate --clean 7 --injected 3 --budget 100m --json results/<fp>/calibrate-ci/calibration.json\n  \
-            mpm-bench calibrate --preset configs/my-ci.toml --inject-slowdown 0.05 --tolerance 0.03"
+            mpm-bench calibrate --preset configs/my-ci.toml --inject-slowdown 0.05 --tolerance 0.03\n  \
+            mpm-bench calibrate --design ab --clean 7 --injected 3      # the side-by-side gate: 21 A/A, 21 + 21 injected"
     )]
     Calibrate(cli::measure::CalibrateArgs),
     /// Hardware report (one HTML page, Markdown, JSON) of a campaign, or several compared with the first.
@@ -215,6 +259,20 @@ fn main() {
                 std::process::exit(2);
             }
         },
+        Cmd::Ab(a) => match cli::ab::cmd_ab(*a) {
+            Ok(code) => std::process::exit(code),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::exit(2);
+            }
+        },
+        Cmd::WorkSnapshot(a) => match cli::ab::cmd_work_snapshot(a) {
+            Ok(code) => std::process::exit(code),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::exit(2);
+            }
+        },
         Cmd::Report(a) => comparison::run(a.into()),
         Cmd::Calibrate(a) => cmd_calibrate(a.into()),
         Cmd::ImpactTable(a) => impact_table::run(a.into()),
@@ -263,6 +321,9 @@ pub(crate) fn bad_input(e: anyhow::Error) -> ! {
 /// `mpm-bench calibrate`: check the settings, build (unless --no-build or --mock), run, print, write the JSON.
 fn cmd_calibrate(a: calibrate_measure::CalibrateOptions) -> Result<()> {
     calibrate::check_args(&a)?;
+    if a.design_ab {
+        return cmd_calibrate_ab(&a);
+    }
     let machine = Machine::detect()?;
     let interrupted = schedule::install_interrupt_handler();
     let c = if a.mock {
@@ -284,6 +345,39 @@ fn cmd_calibrate(a: calibrate_measure::CalibrateOptions) -> Result<()> {
             std::path::Path::new(&a.preset).file_stem().map_or("preset".into(), |s| s.to_string_lossy().into_owned());
         a.out.join(fingerprint::fingerprint(&machine)).join(format!("calibrate-{name}")).join("calibration.json")
     });
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+    }
+    write_atomic(&path, serde_json::to_string_pretty(&c)?.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+/// `mpm-bench calibrate --design ab`: the sides side by side, every comparison, the JSON.
+fn cmd_calibrate_ab(a: &calibrate_measure::CalibrateOptions) -> Result<()> {
+    use mpm_bench::analysis::calibrate_ab;
+    use mpm_bench::campaign::measure::calibrate_ab as measure_ab;
+    let machine = Machine::detect()?;
+    let interrupted = schedule::install_interrupt_handler();
+    let name =
+        std::path::Path::new(&a.preset).file_stem().map_or("preset".into(), |s| s.to_string_lossy().into_owned());
+    let dir = a.out.join(fingerprint::fingerprint(&machine)).join(format!("calibrate-ab-{name}"));
+    let (record, kinds) = if a.mock {
+        let solvers = calibrate_measure::mock_solvers();
+        measure_ab::run(a, &dir, &machine, &solvers, &mut MockRunner::default(), &interrupted)?
+    } else {
+        let opts = measure_ab::side_campaign(a, measure_ab::SideKind::Clean)?.opts;
+        let solvers = solver::prepare_solvers(&opts, !a.no_build, a.quiet)?;
+        let mut r = ProcessRunner::new(interrupted.clone());
+        measure_ab::run(a, &dir, &machine, &solvers, &mut r, &interrupted)?
+    };
+    if record.interrupted {
+        anyhow::bail!("interrupted: the sides' rows so far are kept in {}; the same command continues", dir.display());
+    }
+    let c = calibrate_ab::judge(a, &machine, record, &kinds)?;
+    print!("{}", calibrate_ab::table(&c));
+    let path = a.json.clone().unwrap_or_else(|| dir.join("calibration.json"));
     if let Some(parent) = path.parent() {
         std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
     }

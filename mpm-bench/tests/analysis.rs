@@ -445,6 +445,104 @@ fn regress_refuses_other_machines_unless_forced() {
     assert_eq!(regress::run(args).unwrap(), 0);
 }
 
+/// The campaign in `dir` as if measured on another host of the same hardware: its manifest's
+/// identity gets the machine id `machine_id` (and another microcode and kernel), and its
+/// rows and manifest the fingerprint that follows. Returns the new fingerprint.
+fn move_to_host(dir: &Path, machine_id: &str) -> String {
+    use mpm_bench::campaign::store::manifest;
+    use mpm_bench::machine::fingerprint as fp;
+    let path = dir.join("manifest.json");
+    let mut m = manifest::read(&path).unwrap();
+    let machine = mpm_bench::machine::topology::Machine::synthetic("pack:2 core:4 pu:1").unwrap();
+    let mut id = mpm_host::identity::parse_cpuinfo("vendor_id : GenuineIntel\ncpu family : 6\nmodel : 15\n");
+    id.machine_id_sha256 = Some(mpm_host::identity::sha256_hex(machine_id.as_bytes()));
+    id.microcode = format!("0x{}", machine_id.len());
+    id.kernel = format!("6.{}", machine_id.len());
+    let new = fp::fingerprint_with(&machine, Some(&id));
+    m.machine.fingerprint = new.clone();
+    m.machine.hardware_class = Some(fp::hardware_class_with(&machine, Some(&id), vec!["avx2".into()]));
+    m.machine.identity = Some(id);
+    manifest::write(&path, &m).unwrap();
+    let rows = read_rows(&dir.join("runs.csv")).unwrap();
+    std::fs::remove_file(dir.join("runs.csv")).unwrap();
+    let mut log = CsvLog::open(&dir.join("runs.csv")).unwrap();
+    for mut r in rows {
+        r.id.machine_id = new.clone();
+        log.append(&r).unwrap();
+    }
+    new
+}
+
+/// Two campaigns of one hardware class measured on two hosts that differ only in their
+/// machine id (two VMs of one runner type; microcode and kernel differ too) compare: exit 0,
+/// both fingerprints kept in the verdict. Another CPU model is another class: exit 2
+/// unless --force.
+#[test]
+fn regress_compares_two_machine_ids_of_one_hardware_class() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = write_campaign(&tmp.path().join("base"), &Craft::default());
+    let cur = write_campaign(&tmp.path().join("cur"), &Craft::default());
+    let (fa, fb) = (move_to_host(&base, "machine-a"), move_to_host(&cur, "machine-b-other"));
+    assert_ne!(fa, fb);
+    let r = regress::evaluate(&regress_args(&base, &cur)).unwrap();
+    assert_eq!(r.exit_code(), 0, "{}", r.reason);
+    assert_eq!((r.baseline.fingerprint.as_str(), r.current.fingerprint.as_str()), (fa.as_str(), fb.as_str()));
+    assert!(r.baseline.hardware_class.is_some() && r.baseline.hardware_class == r.current.hardware_class);
+    assert!(regress::lines(&r).contains("two hosts of one hardware class"), "{}", regress::lines(&r));
+    // Another CPU model: another class.
+    let path = cur.join("manifest.json");
+    let mut m = mpm_bench::campaign::store::manifest::read(&path).unwrap();
+    m.machine.hardware_class.as_mut().unwrap().cpu_model = "85".into();
+    mpm_bench::campaign::store::manifest::write(&path, &m).unwrap();
+    let r = regress::evaluate(&regress_args(&base, &cur)).unwrap();
+    assert_eq!(r.exit_code(), 2, "{}", r.reason);
+    assert!(r.reason.contains("model 15 vs 85") && r.reason.contains("--force"), "{}", r.reason);
+    let forced = regress::evaluate(&RegressOptions { force: true, ..regress_args(&base, &cur) }).unwrap();
+    assert_eq!((forced.exit_code(), forced.forced), (0, true), "{}", forced.reason);
+}
+
+/// A CI job's first run has no baseline: an error by default (exit 2), a pass with
+/// `--missing-baseline pass` ("no baseline yet; this run becomes it"), with the JSON and
+/// Markdown verdicts written; a broken current campaign is still an error.
+#[test]
+fn regress_first_baseline_mode() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cur = write_campaign(&tmp.path().join("cur"), &Craft::default());
+    let nowhere = tmp.path().join("baseline");
+    let (code, text) = regress_cli(&nowhere, &cur, &[]);
+    assert_eq!(code, 2, "{text}");
+    std::fs::create_dir_all(&nowhere).unwrap();
+    let (json, md) = (tmp.path().join("v.json"), tmp.path().join("gate.md"));
+    let (code, text) = regress_cli(
+        &nowhere,
+        &cur,
+        &["--missing-baseline", "pass", "--json", json.to_str().unwrap(), "--markdown", md.to_str().unwrap()],
+    );
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("no baseline yet; this run becomes it"), "{text}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!((v["verdict"].as_str(), v["no_baseline"].as_bool()), (Some("pass"), Some(true)), "{v}");
+    assert!(std::fs::read_to_string(&md).unwrap().contains("PASS"));
+    let (code, text) = regress_cli(&nowhere, &tmp.path().join("no-current"), &["--missing-baseline", "pass"]);
+    assert_eq!(code, 2, "{text}");
+    // With a baseline, the mode changes nothing.
+    let other = write_campaign(&tmp.path().join("other"), &Craft::default());
+    let (code, text) = regress_cli(&other, &cur, &["--missing-baseline", "pass"]);
+    assert!(code == 0 && !text.contains("no baseline yet"), "{text}");
+}
+
+/// A campaign compared with itself is refused (it would always pass), also through another
+/// spelling of its path.
+#[test]
+fn regress_refuses_a_campaign_against_itself() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cur = write_campaign(&tmp.path().join("cur"), &Craft::default());
+    let again = tmp.path().join("cur").join("..").join("cur");
+    let (code, text) = regress_cli(&again, &cur, &[]);
+    assert_eq!(code, 2, "{text}");
+    assert!(text.contains("are the same campaign"), "{text}");
+}
+
 /// `mpm-bench regress` as CI runs it: the exit code and the console.
 fn regress_cli(base: &Path, cur: &Path, extra: &[&str]) -> (i32, String) {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_mpm-bench"))
@@ -461,8 +559,9 @@ fn regress_cli(base: &Path, cur: &Path, extra: &[&str]) -> (i32, String) {
 fn regress_exit_codes_of_the_binary() {
     let tmp = tempfile::tempdir().unwrap();
     let base = write_campaign(&tmp.path().join("base"), &Craft::default());
-    // 0: the same campaign.
-    let (code, text) = regress_cli(&base, &base, &[]);
+    // 0: the same measurements in another folder.
+    let same = write_campaign(&tmp.path().join("same"), &Craft::default());
+    let (code, text) = regress_cli(&base, &same, &[]);
     assert_eq!(code, 0, "{text}");
     assert!(text.contains("verdict: pass") && text.contains("Holm"), "{text}");
     // 1: parallel runs 25 % slower; every check line carries its units.
@@ -490,7 +589,7 @@ fn regress_exit_codes_of_the_binary() {
     let (code, text) = regress_cli(&base, &disjoint, &[]);
     assert_eq!(code, 2, "{text}");
     assert!(text.contains("nothing to compare"), "{text}");
-    let (code, text) = regress_cli(&base, &base, &["--tolerance", "3"]);
+    let (code, text) = regress_cli(&base, &same, &["--tolerance", "3"]);
     assert_eq!(code, 2, "{text}");
 }
 

@@ -1461,6 +1461,10 @@ fn calibrate_counts_false_alarms_and_detections_on_the_mock() {
         no_build: true,
         quiet: true,
         mock: true,
+        design_ab: false,
+        inject_step_slowdown: 0.1,
+        reps: None,
+        seed: None,
     };
     let c = campaign("ci", &Overrides::default());
     let flag = AtomicBool::new(false);

@@ -243,6 +243,7 @@ fn configuration(sim: &Simulation, ctx: &RunContext<'_>) -> Summary {
         plate_configuration: ctx.plate.as_ref().map(|_| PLATE_CONFIGURATION.to_string()),
         started_unix_s: ctx.started_unix_s,
         inject_slowdown: ctx.spec.inject_slowdown,
+        inject_step_slowdown: ctx.spec.inject_step_slowdown,
         ..Summary::default()
     }
 }

@@ -1,13 +1,20 @@
-//! What identifies the host and the build a measurement came from: the CPU (vendor, family,
-//! model, stepping, microcode, per-level cache sizes, SMT state), a hash of `/etc/machine-id`,
-//! the kernel, and this binary's commit, rustc and SHA-256 ([`Provenance`]).
+//! What identifies the host and the build a measurement came from, in two identities:
 //!
-//! Shared by `mpm` (the `provenance` block of every JSON summary) and the harness (the
-//! machine fingerprint that names a results folder and decides whether a campaign may be
-//! resumed). Everything is read from `/proc` and `/sys` where readable and `unknown` (or
-//! `None`) where not: containers and VMs hide some of it, and a missing file is never an
-//! error.
+//! * the *host identity* ([`HostIdentity`]): the CPU (vendor, family, model, stepping,
+//!   microcode, per-level cache sizes, SMT state), a hash of `/etc/machine-id`, the kernel,
+//!   and this binary's commit, rustc and SHA-256 ([`Provenance`]). Exact: another VM of the
+//!   same image and hardware has another one (its machine id). It names a results folder,
+//!   decides whether a campaign may be resumed, and is the provenance of every summary;
+//! * the *hardware class* ([`HardwareClass`]): what makes two hosts time the same code
+//!   alike: the CPU model, sockets, cores, SMT, a memory size class and the instruction-set
+//!   levels the kernels use. A hosted CI runner is a new VM per job: a new host of the same
+//!   class. Comparing campaigns (`mpm-bench regress`, `report`, `ab`) goes by the class.
+//!
+//! Shared by `mpm` (the `provenance` block of every JSON summary) and the harness. Everything
+//! is read from `/proc` and `/sys` where readable and `unknown` (or `None`) where not:
+//! containers and VMs hide some of it, and a missing file is never an error.
 
+use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::io::Read;
 use std::path::Path;
@@ -40,6 +47,122 @@ pub fn read_host() -> HostIdentity {
     id.machine_id_sha256 = read_trim("/etc/machine-id").map(|m| sha256_hex(m.as_bytes()));
     id.kernel = read_trim("/proc/sys/kernel/osrelease").unwrap_or_else(|| "unknown".into());
     id
+}
+
+/// The instruction-set levels the solver's kernels dispatch on (`mpm_core::simd`: AVX2, and
+/// AVX-512F beside it), as `/proc/cpuinfo` names them.
+pub const KERNEL_ISA: [&str; 2] = ["avx2", "avx512f"];
+
+/// Which of [`KERNEL_ISA`] the first processor's `flags` (or ARM's `Features`) line of a
+/// `/proc/cpuinfo` text lists, in that order.
+pub fn parse_kernel_isa(cpuinfo: &str) -> Vec<String> {
+    let first = cpuinfo.split("\n\n").next().unwrap_or("");
+    let flags: Vec<&str> = first
+        .lines()
+        .filter_map(|l| l.split_once(':').filter(|(k, _)| matches!(k.trim(), "flags" | "Features")))
+        .flat_map(|(_, v)| v.split_whitespace())
+        .collect();
+    KERNEL_ISA.iter().filter(|f| flags.contains(f)).map(|f| f.to_string()).collect()
+}
+
+/// This host's [`KERNEL_ISA`] levels, from `/proc/cpuinfo` (none when unreadable).
+pub fn read_kernel_isa() -> Vec<String> {
+    parse_kernel_isa(&std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default())
+}
+
+/// The memory size class of a host with `mem_total_bytes` of memory as the kernel reports it
+/// (`MemTotal`): the power of two of GiB at or above it (at least 1). `MemTotal` is the
+/// installed memory less what the firmware and the kernel keep, a share that varies with the
+/// kernel, its settings and the hypervisor (a 16 GiB VM reports 15.2-15.9 GiB): rounding to
+/// the nearest GiB would split one VM size into two classes, rounding up to a power of two
+/// does not. It merges sizes between two powers (24 and 32 GiB are one class), which is
+/// harmless: memory size changes nothing in a run's speed while the run fits, and a run that
+/// does not fit is skipped by the harness's memory guard and shows as a missing cell.
+pub fn memory_class_gib(mem_total_bytes: u64) -> u64 {
+    let gib = (mem_total_bytes as f64 / (1u64 << 30) as f64).ceil().max(1.0) as u64;
+    gib.next_power_of_two()
+}
+
+/// The hardware class of a host (module docs): two campaigns of one class compare; another
+/// machine id, microcode, kernel or cache report does not change it, another CPU model,
+/// socket, core or SMT count, memory class or ISA level does.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct HardwareClass {
+    /// `/proc/cpuinfo` `vendor_id` (or `CPU implementer`); `unknown` when not read.
+    pub cpu_vendor: String,
+    /// `cpu family` (or `CPU architecture`).
+    pub cpu_family: String,
+    /// `model` number (or `CPU part`).
+    pub cpu_model: String,
+    /// The CPU's model name (hwloc's, else `model name`).
+    pub cpu_model_name: String,
+    /// Architecture (`x86_64`, `aarch64`).
+    pub arch: String,
+    /// Packages (sockets) with usable PUs.
+    pub sockets: usize,
+    /// Physical cores with usable PUs.
+    pub cores: usize,
+    /// PUs per core (2 with SMT on).
+    pub smt: usize,
+    /// Memory size class, GiB ([`memory_class_gib`]).
+    pub memory_class_gib: u64,
+    /// The [`KERNEL_ISA`] levels the CPU has.
+    pub isa: Vec<String>,
+}
+
+impl HardwareClass {
+    /// The class as one line (every field, named).
+    pub fn key(&self) -> String {
+        format!(
+            "vendor={}|family={}|model={}|name={}|arch={}|sockets={}|cores={}|smt={}|mem_class_gib={}|isa={}",
+            self.cpu_vendor,
+            self.cpu_family,
+            self.cpu_model,
+            self.cpu_model_name,
+            self.arch,
+            self.sockets,
+            self.cores,
+            self.smt,
+            self.memory_class_gib,
+            self.isa.join(",")
+        )
+    }
+
+    /// A short id of the class: 12 hex digits of the SHA-256 of [`HardwareClass::key`].
+    pub fn id(&self) -> String {
+        sha256_hex(self.key().as_bytes())[..12].to_string()
+    }
+
+    /// What differs from `other`, field by field (`cores 2 vs 4`); empty when the classes
+    /// are the same.
+    pub fn differences(&self, other: &HardwareClass) -> Vec<String> {
+        let text = |c: &HardwareClass| -> Vec<(String, String)> {
+            c.key()
+                .split('|')
+                .filter_map(|kv| kv.split_once('=').map(|(k, v)| (k.to_string(), v.to_string())))
+                .collect()
+        };
+        text(self)
+            .into_iter()
+            .zip(text(other))
+            .filter(|(a, b)| a.1 != b.1)
+            .map(|((name, a), (_, b))| format!("{name} {a} vs {b}"))
+            .collect()
+    }
+
+    /// In words: `AMD EPYC (x86_64), 1 socket x 2 cores, SMT 1, 16 GiB class, avx2`.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} ({}), {} socket(s) x {} cores, SMT {}, {} GiB class, ISA {}",
+            self.cpu_model_name,
+            self.arch,
+            self.sockets,
+            self.cores,
+            self.smt,
+            self.memory_class_gib,
+            if self.isa.is_empty() { "baseline".to_string() } else { self.isa.join("+") }
+        )
+    }
 }
 
 /// Cache levels under a `cpuN/cache` folder, sorted by level and kind.
@@ -113,6 +236,30 @@ fn read_trim(p: impl AsRef<Path>) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn kernel_isa_and_memory_class() {
+        let text = "processor : 0\nflags : fpu sse2 avx avx2 fma avx512f avx512dq\n\nprocessor : 1\nflags : fpu\n";
+        assert_eq!(parse_kernel_isa(text), ["avx2", "avx512f"]);
+        assert_eq!(parse_kernel_isa("processor : 0\nflags : fpu sse2 avx2\n"), ["avx2"]);
+        assert!(parse_kernel_isa("processor : 0\nFeatures : fp asimd\n").is_empty());
+        let gib = 1u64 << 30;
+        // A 16 GiB VM reports a little less; so does a 24 GiB one (one class with 32 GiB).
+        assert_eq!(memory_class_gib(15 * gib + gib / 2), 16);
+        assert_eq!(memory_class_gib(16 * gib), 16);
+        assert_eq!(memory_class_gib(23 * gib), 32);
+        assert_eq!(memory_class_gib(0), 1);
+    }
+
+    #[test]
+    fn class_differences_name_the_fields() {
+        let a = HardwareClass { cpu_model_name: "X".into(), cores: 2, ..HardwareClass::default() };
+        let b = HardwareClass { cores: 4, ..a.clone() };
+        assert_eq!(a.differences(&a), Vec::<String>::new());
+        assert_eq!(a.differences(&b), ["cores 2 vs 4"]);
+        assert_ne!(a.id(), b.id());
+        assert_eq!(a.id().len(), 12);
+    }
 
     #[test]
     fn caches_read_from_a_sysfs_like_folder() {

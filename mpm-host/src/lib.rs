@@ -3,8 +3,9 @@
 //! What the two programs, `mpm` (crate `mpm-cli`) and the benchmark harness `mpm-bench`,
 //! know of the host and do on it, in one library both build on:
 //!
-//! * [`identity`]: the host's identity (CPU, caches, SMT, machine id) and the build's
-//!   provenance (commit, dirty flag, rustc, binary SHA-256);
+//! * [`identity`]: the host's identity (CPU, caches, SMT, machine id), its hardware class
+//!   (what decides whether two hosts' timings compare) and the build's provenance (commit,
+//!   dirty flag, rustc, binary SHA-256);
 //! * [`memory`]: the memory a run may use here: the least of its cgroups' headroom, its
 //!   Slurm job's allocation and the host's `MemAvailable`, with the one that binds;
 //! * [`cgroup`]: this process's cgroup (v1 or v2) and the limits it and its ancestors set
@@ -15,6 +16,7 @@
 //!   switches, its CPU's steal), the noise a run can see;
 //! * [`paired`]: solvers advancing in alternating timed blocks on their pinned pools (the
 //!   paired design), in `mpm run` and in the harness's own process;
+//! * [`slowdown`]: the injected step slowdown, a test knob that slows every worker alike;
 //! * [`atomic`]: atomic file writes, synced with their folder;
 //! * [`durable`]: `fsync` of files and folders whose failure is an error, and lines
 //!   appended durably;
@@ -46,4 +48,5 @@ pub mod lock;
 pub mod memory;
 pub mod paired;
 pub mod pinning;
+pub mod slowdown;
 pub mod usage;

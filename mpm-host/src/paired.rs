@@ -9,6 +9,7 @@
 //! serial solver and several strategies at 1 and `T` threads in the harness's own process.
 
 use crate::pinning::PinnedPool;
+use crate::slowdown::StepSlowdown;
 use crate::usage::UsageMeter;
 use mpm_core::{SimError, Simulation, StageTimes};
 use mpm_spec::summary::load_imbalance;
@@ -44,6 +45,8 @@ pub struct Contender<'p> {
     pub busy_at_start: Option<Vec<f64>>,
     /// Steps of each timed block actually taken (fewer than asked only at an end time).
     pub steps: Vec<u64>,
+    /// The injected step slowdown after each step (a test knob; `None`: off).
+    pub slowdown: Option<StepSlowdown>,
 }
 
 impl<'p> Contender<'p> {
@@ -62,19 +65,30 @@ impl<'p> Contender<'p> {
             times_at_start,
             busy_at_start,
             steps: Vec::new(),
+            slowdown: None,
         }
+    }
+
+    /// With the injected step slowdown `fraction` after every step (`None`: none).
+    pub fn with_step_slowdown(mut self, fraction: Option<f64>) -> Self {
+        self.slowdown = fraction.map(StepSlowdown::new);
+        self
     }
 
     /// Take up to `steps` steps inside the pool; returns the steps taken and their wall time.
     pub fn advance(&mut self, steps: u64, limit: Limit<'_>) -> Result<(u64, f64), SimError> {
         let pool = &self.pool.pool;
-        let sim = &mut self.sim;
+        let (sim, slowdown) = (&mut self.sim, &mut self.slowdown);
         let t0 = Instant::now();
         let taken = pool.install(|| {
             let mut taken = 0;
             while taken < steps {
                 let Some(dt_max) = limit(sim) else { break };
+                let step = Instant::now();
                 sim.step(dt_max)?;
+                if let Some(s) = slowdown.as_mut() {
+                    s.after_step(pool, step.elapsed().as_secs_f64());
+                }
                 taken += 1;
             }
             Ok::<u64, SimError>(taken)

@@ -71,6 +71,13 @@ pub struct RunSpec {
     /// it, and the analyses refuse it unless asked.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inject_slowdown: Option<f64>,
+    /// A test knob, absent (off) by default: after every step, every worker (of the
+    /// `threads`-thread solver and of a paired run's one-thread reference alike) waits,
+    /// busy, so that each step takes `1 / (1 - F)` times as long: the time per step grows,
+    /// the parallel efficiency does not move (in (0, 1)). Never a result: recorded in the
+    /// summary and the rows, refused by the analyses unless asked.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inject_step_slowdown: Option<f64>,
     /// What to write besides the run itself. Not part of [`RunSpec::key`].
     #[serde(default)]
     pub outputs: Outputs,
@@ -374,6 +381,7 @@ impl RunSpec {
             split_wait: false,
             paired: None,
             inject_slowdown: None,
+            inject_step_slowdown: None,
             outputs: Outputs::default(),
         })
     }
@@ -541,11 +549,14 @@ impl RunSpec {
         self.check_physics()?;
         self.check_budget()?;
         self.check_paired()?;
-        if let Some(f) = self.inject_slowdown {
-            if !(f > 0.0 && f <= MAX_INJECT_SLOWDOWN) {
+        for (f, key, flag) in [
+            (self.inject_slowdown, "inject_slowdown", "--inject-slowdown"),
+            (self.inject_step_slowdown, "inject_step_slowdown", "--inject-step-slowdown"),
+        ] {
+            if let Some(f) = f.filter(|f| !(*f > 0.0 && *f <= MAX_INJECT_SLOWDOWN)) {
                 return bad(
-                    "inject_slowdown",
-                    "--inject-slowdown",
+                    key,
+                    flag,
                     format!(
                         "the injected slowdown is a fraction in (0, {MAX_INJECT_SLOWDOWN}] such as 0.1, got {f}: it \
                          makes every step 1 / (1 - F) times as long, {MAX_INJECT_SLOWDOWN} already ten times, and \
@@ -798,6 +809,12 @@ mod tests {
         knob.inject_slowdown = Some(0.1);
         assert_eq!(RunSpec::parse(&knob.to_toml(), SpecFormat::Toml).unwrap(), knob);
         assert_ne!(knob.key(), s.key(), "an injected run is another computation's timing");
+        let mut step = s.clone();
+        step.inject_step_slowdown = Some(0.1);
+        step.check().unwrap();
+        assert_eq!(RunSpec::parse(&step.to_toml(), SpecFormat::Toml).unwrap(), step);
+        assert_ne!(step.key(), s.key());
+        assert_ne!(step.key(), knob.key());
     }
 
     #[test]
@@ -889,6 +906,7 @@ mod tests {
                 "--checkpoint-every",
             ),
             (RunSpec { inject_slowdown: Some(1.0), ..taylor(1) }, "--inject-slowdown"),
+            (RunSpec { inject_step_slowdown: Some(0.0), ..taylor(1) }, "--inject-step-slowdown"),
             (RunSpec { paired: Some(Paired { blocks: 4 }), ..taylor(1) }, "--paired-blocks"),
             (paired(4, 12, Some(2)), "--steps"),
             (paired(1, 12, Some(2)), "--paired-blocks"),

@@ -1,8 +1,10 @@
 //! `mpm-bench regress`: a CI gate on parallel efficiency and time per step.
 //!
 //! Compares a current campaign to a baseline campaign cell by cell, like with like: the same
-//! machine fingerprint (unless `--force`) and the same (model, strategy, optimisation level,
-//! threads) cells, for the stages asked (default: the total step) and the metrics asked
+//! hardware class (CPU model, sockets, cores, SMT, memory class, ISA levels: another machine
+//! id, microcode or kernel compares; another class does not unless `--force`, see
+//! [`crate::machine::fingerprint::incomparable`]) and the same (model, strategy, optimisation
+//! level, threads) cells, for the stages asked (default: the total step) and the metrics asked
 //! (`--metrics`, default all three). For each cell measured in both:
 //!
 //! * `time`: the ratio `T_current / T_baseline` of the median times per step;
@@ -46,8 +48,18 @@
 //! Rows with an injected slowdown (`--inject-slowdown`, a test knob) are compared like any
 //! other (that is how `mpm-bench calibrate` measures the gate), and the verdict says so.
 //!
-//! Exit code: 0 pass, 1 regression (or a missing cell), 2 error or incomparable (unreadable
-//! input, different machines without `--force`, no cell in common). The JSON verdict
+//! `--work-snapshot FILE` also checks the current campaign's work counters exactly against a
+//! committed snapshot ([`super::work_snapshot`]): a cell whose counters differ fails the gate,
+//! named with the sub-stage, however the timing went.
+//!
+//! A first run has no baseline: by default that is an error (exit 2); with
+//! `--missing-baseline pass` (a CI job's first run, [`RegressOptions::missing_baseline_passes`])
+//! the verdict is `pass`, "no baseline yet; this run becomes it" (exit 0), and the job stores
+//! its campaign as the baseline.
+//!
+//! Exit code: 0 pass, 1 regression (or a missing cell, or work counters off the snapshot), 2
+//! error or incomparable (unreadable input, another hardware class without `--force`, no cell
+//! in common). The JSON verdict
 //! (`--json FILE`, `-` for standard output) is written whenever both campaigns could be
 //! read; `--markdown FILE` appends a Markdown summary (for `$GITHUB_STEP_SUMMARY` or a
 //! merge-request comment).
@@ -55,6 +67,7 @@
 use super::results::{load_campaign, Campaign};
 use super::select::{configuration_differences, RowFilter};
 use super::stats::{bootstrap_test, holm, Analysis, Cell, CellKey, Design, Estimate, Stage, StatsOptions, Tails};
+use super::work_snapshot::{work_changes, SnapshotCheck};
 use crate::campaign::store::record::Status;
 use crate::util::median;
 use anyhow::{bail, Context, Result};
@@ -66,8 +79,8 @@ use std::path::{Path, PathBuf};
 /// A check fails when it got worse than --tolerance AND the change is beyond the noise
 /// (bootstrap p-value, Holm-corrected over all cells). A baseline cell missing, failed or
 /// invalid in the current campaign fails too (unless --allow-missing). Exit code 0 = pass,
-/// 1 = regression, 2 = error or incomparable (unreadable input, different machines without
-/// --force, no cell in common). Use in CI with a committed baseline campaign.
+/// 1 = regression, 2 = error or incomparable (unreadable input, another hardware class
+/// without --force, no cell in common). Use in CI with a committed baseline campaign.
 #[derive(Debug, Clone)]
 pub struct RegressOptions {
     /// Baseline results: a campaign folder (holding runs.csv) or a folder containing
@@ -77,11 +90,16 @@ pub struct RegressOptions {
     pub current: PathBuf,
     /// Relative change tolerated before a check can fail (0.05 = 5 %).
     pub tolerance: f64,
-    /// Compare even when the machine fingerprints differ (the verdict then compares
-    /// different hardware: use with care).
+    /// Compare even when the hardware classes differ (the verdict then compares different
+    /// hardware: use with care).
     pub force: bool,
     /// Write the machine-readable verdict here (JSON).
     pub json: Option<PathBuf>,
+    /// A missing baseline (no folder, or no campaign in it) passes: "no baseline yet; this
+    /// run becomes it" (exit 0). Otherwise it is an error (exit 2).
+    pub missing_baseline_passes: bool,
+    /// Check the current campaign's work counters exactly against this snapshot file.
+    pub work_snapshot: Option<PathBuf>,
     /// Stages to gate, comma-separated: total, grid, particle.
     pub stages: Vec<String>,
     /// Also gate oversubscribed cells (more threads than cores; noisy).
@@ -110,6 +128,8 @@ impl RegressOptions {
             tolerance: 0.05,
             force: false,
             json: None,
+            missing_baseline_passes: false,
+            work_snapshot: None,
             stages: vec!["total".into()],
             include_oversubscribed: false,
             pin: None,
@@ -292,8 +312,11 @@ pub struct Side {
     pub dir: String,
     /// Campaign id.
     pub campaign: String,
-    /// Machine fingerprint.
+    /// Machine fingerprint (the exact host).
     pub fingerprint: String,
+    /// Hardware class id (what decides comparability; `null` for a manifest older than
+    /// the class).
+    pub hardware_class: Option<String>,
 }
 
 /// The machine-readable verdict.
@@ -311,8 +334,13 @@ pub struct RegressReport {
     pub baseline: Side,
     /// Current.
     pub current: Side,
-    /// Fingerprints differ and `--force` was given.
+    /// The hardware classes differ and `--force` was given.
     pub forced: bool,
+    /// There was no baseline and `--missing-baseline pass` was given: this run becomes it.
+    pub no_baseline: bool,
+    /// The current campaign's work counters against the committed snapshot
+    /// (`--work-snapshot`); differing counters fail the gate.
+    pub work_snapshot: Option<SnapshotCheck>,
     /// Every sample had a single repetition: the tolerance alone decided.
     pub single_repetition: bool,
     /// Number of checks that count for the gate.
@@ -361,12 +389,12 @@ impl RegressReport {
 }
 
 /// Family-wise significance level per direction for the bootstrap settings.
-fn alpha(o: &StatsOptions) -> f64 {
+pub(crate) fn alpha(o: &StatsOptions) -> f64 {
     (1.0 - o.confidence) / 2.0
 }
 
 /// A check before the multiple-testing correction decides its outcome.
-fn check(
+pub(crate) fn check(
     (subject, stage, metric): (Subject, Stage, &'static str),
     (baseline, current): (f64, f64),
     (ratio, tails): (Estimate, Option<Tails>),
@@ -543,35 +571,7 @@ fn work_check(key: &CellKey, bcell: &Cell, ccell: &Cell) -> Result<WorkCheck, St
     }
     let (bw, cw) = (worker_totals(b), worker_totals(c));
     let max = |v: &[u64]| v.iter().copied().max().unwrap_or(0);
-    let mut changes = Vec::new();
-    let (mut more, mut less) = (false, false);
-    for s in mpm_core::Substage::ALL {
-        let empty = Vec::new();
-        let (x, y) = (b.get(&s).unwrap_or(&empty), c.get(&s).unwrap_or(&empty));
-        if x == y {
-            continue;
-        }
-        let (mx, my, sx, sy) = (max(x), max(y), x.iter().sum::<u64>(), y.iter().sum::<u64>());
-        more |= my > mx || sy > sx;
-        less |= my < mx || sy < sx;
-        let pct = |a: u64, b: u64| {
-            if a > 0 {
-                format!("{:+.1} %", 100.0 * (b as f64 / a as f64 - 1.0))
-            } else {
-                "new".into()
-            }
-        };
-        changes.push(format!(
-            "{}: busiest worker {mx} -> {my} B ({}), all workers {sx} -> {sy} B ({})",
-            s.name(),
-            pct(mx, my),
-            pct(sx, sy)
-        ));
-    }
-    if bw.len() != cw.len() {
-        more = true;
-        changes.push(format!("{} workers counted, {} in the baseline", cw.len(), bw.len()));
-    }
+    let (changes, more, less) = work_changes(b, c);
     let outcome = if more {
         Outcome::Regressed
     } else if less {
@@ -619,7 +619,7 @@ fn missing(key: &CellKey, bcell: &Cell, ccell: Option<&Cell>, include_over: bool
 
 /// Decide every check's outcome: Holm over the gated checks' p-values per direction, the
 /// tolerance alone for checks without p-values, unadjusted p-values for ungated checks.
-fn decide(checks: &mut [Check], tol: f64, a: f64) {
+pub(crate) fn decide(checks: &mut [Check], tol: f64, a: f64) {
     let gated: Vec<usize> = (0..checks.len()).filter(|&i| checks[i].gated && checks[i].p_worse.is_some()).collect();
     for worse in [true, false] {
         let p: Vec<f64> =
@@ -695,8 +695,13 @@ pub fn compare_analyses(
     out
 }
 
-fn side(c: &Campaign) -> Side {
-    Side { dir: c.dir.display().to_string(), campaign: c.id(), fingerprint: c.fingerprint() }
+pub(crate) fn side(c: &Campaign) -> Side {
+    Side {
+        dir: c.dir.display().to_string(),
+        campaign: c.id(),
+        fingerprint: c.fingerprint(),
+        hardware_class: c.hardware_class().map(|h| h.id()),
+    }
 }
 
 /// Build the verdict for two results folders (no printing). Unreadable input is an error.
@@ -722,6 +727,14 @@ pub fn load(args: &RegressOptions) -> Result<(Campaign, Campaign)> {
     let filter = RowFilter::analysis(args.include_noisy).with_injected(true);
     let base = load_campaign(&args.baseline, &filter).context("reading --baseline")?;
     let cur = load_campaign(&args.current, &filter).context("reading --current")?;
+    let same = |a: &Path, b: &Path| a.canonicalize().ok().zip(b.canonicalize().ok()).is_some_and(|(a, b)| a == b);
+    if same(&base.dir, &cur.dir) {
+        anyhow::bail!(
+            "--baseline and --current are the same campaign ({}): a campaign compared with itself always passes; give \
+             the baseline's folder (the main branch's stored campaign) and this run's",
+            cur.dir.display()
+        );
+    }
     Ok((base, cur))
 }
 
@@ -731,35 +744,11 @@ pub fn load(args: &RegressOptions) -> Result<(Campaign, Campaign)> {
 pub fn compare_campaigns(args: &RegressOptions, base: &Campaign, cur: &Campaign) -> Result<RegressReport> {
     let (stages, metrics) = settings(args)?;
     let (bs, cs) = (side(base), side(cur));
-    let mut report = RegressReport {
-        verdict: "incomparable".into(),
-        reason: String::new(),
-        tolerance: args.tolerance,
-        alpha: alpha(&StatsOptions::default()),
-        baseline: bs.clone(),
-        current: cs.clone(),
-        forced: false,
-        single_repetition: false,
-        gated_checks: 0,
-        regressions: vec![],
-        improvements: vec![],
-        checks: vec![],
-        missing_in_current: vec![],
-        allow_missing: args.allow_missing,
-        metrics: [("efficiency", metrics.efficiency), ("time", metrics.time), ("work", metrics.work)]
-            .into_iter()
-            .filter_map(|(n, on)| on.then_some(n))
-            .collect(),
-        work_checks: vec![],
-        work_regressions: vec![],
-        not_compared: vec![],
-        baseline_injected: None,
-        current_injected: None,
-    };
-    if bs.fingerprint != cs.fingerprint {
+    let mut report = blank_report(args, metrics, bs.clone(), cs.clone());
+    if let Some(why) = base.incomparable_with(cur) {
         if !args.force {
             report.reason = format!(
-                "different machines: baseline {} vs current {}; compare results of the same machine, or pass --force",
+                "{why}: baseline {} vs current {}; compare results of one hardware class, or pass --force",
                 bs.fingerprint, cs.fingerprint
             );
             return Ok(report);
@@ -777,10 +766,25 @@ pub fn compare_campaigns(args: &RegressOptions, base: &Campaign, cur: &Campaign)
     }
     let ba = base.analyse(args.pin.as_deref());
     let ca = cur.analyse(args.pin.as_deref());
-    let injected = |a: &Analysis| a.cells.values().filter_map(|c| c.injected).reduce(f64::max);
-    report.baseline_injected = injected(&ba);
-    report.current_injected = injected(&ca);
     let cmp = compare_analyses(&ba, &ca, &stages, args.tolerance, args.include_oversubscribed, metrics);
+    let snapshot = args.work_snapshot.as_deref().map(|p| super::work_snapshot::check_rows(p, &cur.rows)).transpose()?;
+    settle(&mut report, cmp, snapshot, &ba, &ca);
+    Ok(report)
+}
+
+/// Fill `report` from a comparison of the analyses `ba` (baseline) and `ca` (current) and
+/// the work snapshot's check, and decide its verdict: what `regress` does after comparing,
+/// and `ab` after its pair-by-pair checks.
+pub(crate) fn settle(
+    report: &mut RegressReport,
+    cmp: Comparison,
+    snapshot: Option<SnapshotCheck>,
+    ba: &Analysis,
+    ca: &Analysis,
+) {
+    let injected = |a: &Analysis| a.cells.values().filter_map(|c| c.injected).reduce(f64::max);
+    report.baseline_injected = injected(ba);
+    report.current_injected = injected(ca);
     let checks = cmp.checks;
     report.missing_in_current = cmp.missing;
     report.single_repetition = !checks.is_empty() && checks.iter().all(|c| c.p_worse.is_none());
@@ -791,8 +795,40 @@ pub fn compare_campaigns(args: &RegressOptions, base: &Campaign, cur: &Campaign)
     report.work_regressions = cmp.work.iter().filter(|w| w.outcome == Outcome::Regressed).cloned().collect();
     report.work_checks = cmp.work;
     report.not_compared = cmp.not_compared;
-    conclude(&mut report, &ba, &ca);
-    Ok(report)
+    report.work_snapshot = snapshot;
+    conclude(report, ba, ca);
+}
+
+/// A verdict of `baseline` against `current` with nothing compared yet: `incomparable`, no
+/// reason, no check.
+pub(crate) fn blank_report(args: &RegressOptions, metrics: Metrics, baseline: Side, current: Side) -> RegressReport {
+    RegressReport {
+        verdict: "incomparable".into(),
+        reason: String::new(),
+        tolerance: args.tolerance,
+        alpha: alpha(&StatsOptions::default()),
+        baseline,
+        current,
+        forced: false,
+        no_baseline: false,
+        work_snapshot: None,
+        single_repetition: false,
+        gated_checks: 0,
+        regressions: vec![],
+        improvements: vec![],
+        checks: vec![],
+        missing_in_current: vec![],
+        allow_missing: args.allow_missing,
+        metrics: [("efficiency", metrics.efficiency), ("time", metrics.time), ("work", metrics.work)]
+            .into_iter()
+            .filter_map(|(n, on)| on.then_some(n))
+            .collect(),
+        work_checks: vec![],
+        work_regressions: vec![],
+        not_compared: vec![],
+        baseline_injected: None,
+        current_injected: None,
+    }
 }
 
 /// The verdict and its reason from the checks and the missing cells.
@@ -820,7 +856,8 @@ fn conclude(r: &mut RegressReport, base: &Analysis, cur: &Analysis) {
     } else {
         format!("; work counters: {} of {} cell(s) moved more bytes", r.work_regressions.len(), r.work_checks.len())
     };
-    if !r.regressions.is_empty() || failing > 0 || !r.work_regressions.is_empty() {
+    let snapshot_off = r.work_snapshot.as_ref().is_some_and(|c| !c.changed.is_empty());
+    if !r.regressions.is_empty() || failing > 0 || !r.work_regressions.is_empty() || snapshot_off {
         r.verdict = "fail".into();
         r.reason = format!(
             "{} of {} checks got worse by more than {tol:.1} % beyond the noise ({holm}){work}; {failing} baseline cell(s) missing, failed or invalid in the current campaign",
@@ -838,6 +875,9 @@ fn conclude(r: &mut RegressReport, base: &Analysis, cur: &Analysis) {
             r.reason.push_str(&format!("; {} baseline cell(s) not measured, allowed", r.missing_in_current.len()));
         }
     }
+    if let Some(c) = &r.work_snapshot {
+        r.reason.push_str(&format!("; {}", c.summary()));
+    }
     for (side, f) in [("baseline", r.baseline_injected), ("current", r.current_injected)] {
         if let Some(f) = f {
             r.reason.push_str(&format!(
@@ -850,7 +890,7 @@ fn conclude(r: &mut RegressReport, base: &Analysis, cur: &Analysis) {
 }
 
 /// Write the JSON verdict to `path`, or to standard output when `path` is `-`.
-fn write_json(path: &Path, r: &RegressReport) -> Result<()> {
+pub fn write_json<T: Serialize>(path: &Path, r: &T) -> Result<()> {
     let text = serde_json::to_string_pretty(r)?;
     if path == Path::new("-") {
         println!("{text}");
@@ -934,6 +974,12 @@ pub fn markdown(r: &RegressReport) -> String {
         }
         s.push('\n');
     }
+    if let Some(c) = &r.work_snapshot {
+        let _ = writeln!(s, "- work snapshot: {}", c.summary());
+        for ch in &c.changed {
+            let _ = writeln!(s, "  - **{}**: {}", ch.cell, ch.changes.join("; "));
+        }
+    }
     for m in &r.missing_in_current {
         let _ = writeln!(s, "- {} {}: {}", m.status.to_uppercase(), m.cell, m.reason);
     }
@@ -962,7 +1008,7 @@ fn grouped(n: &[NotCompared]) -> Vec<(String, String)> {
 }
 
 /// Append `text` to the file at `path` (created when absent).
-fn append(path: &Path, text: &str) -> Result<()> {
+pub fn append(path: &Path, text: &str) -> Result<()> {
     use std::io::Write as _;
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
@@ -995,6 +1041,7 @@ fn check_line(c: &Check) -> String {
     let what = match (c.unit == "s", c.design) {
         (true, _) => "time/step",
         (false, Design::Paired) => "efficiency (paired)",
+        (false, Design::Interleaved) => "efficiency (ab)",
         (false, Design::Separate) => "efficiency",
     };
     let p = c.p_worse_holm.or(c.p_worse).zip(c.p_better_holm.or(c.p_better));
@@ -1028,24 +1075,66 @@ fn check_line(c: &Check) -> String {
 /// error (the CLI exits 2).
 pub fn run(args: RegressOptions) -> Result<i32> {
     settings(&args)?;
+    if args.missing_baseline_passes && !has_campaign(&args.baseline) {
+        return first_baseline(&args);
+    }
     let (base, cur) = load(&args)?;
     for c in [&base, &cur] {
         c.note_left_out("regress");
         c.note_hybrid_left_out("regress");
     }
     let r = compare_campaigns(&args, &base, &cur)?;
+    emit(&args, &r)
+}
+
+/// Whether `dir` holds a campaign (a `runs.csv` at most three levels down).
+fn has_campaign(dir: &Path) -> bool {
+    super::results::find_campaigns(dir).is_ok_and(|c| !c.is_empty())
+}
+
+/// `--missing-baseline pass` without a baseline: the current campaign is read (it must be
+/// readable: it is what becomes the baseline), its work counters checked against the
+/// snapshot when asked, and the verdict is `pass` unless they are off.
+fn first_baseline(args: &RegressOptions) -> Result<i32> {
+    let filter = RowFilter::analysis(args.include_noisy).with_injected(true);
+    let cur = load_campaign(&args.current, &filter).context("reading --current")?;
+    let (_, metrics) = settings(args)?;
+    let baseline = Side {
+        dir: args.baseline.display().to_string(),
+        campaign: String::new(),
+        fingerprint: String::new(),
+        hardware_class: None,
+    };
+    let mut r = blank_report(args, metrics, baseline, side(&cur));
+    r.verdict = "pass".into();
+    r.reason = format!("no baseline yet ({} holds no campaign); this run becomes it", args.baseline.display());
+    r.no_baseline = true;
+    r.current_injected = cur.analyse(args.pin.as_deref()).cells.values().filter_map(|c| c.injected).reduce(f64::max);
+    if let Some(path) = &args.work_snapshot {
+        let c = super::work_snapshot::check_rows(path, &cur.rows)?;
+        if !c.changed.is_empty() {
+            r.verdict = "fail".into();
+        }
+        r.reason.push_str(&format!("; {}", c.summary()));
+        r.work_snapshot = Some(c);
+    }
+    emit(args, &r)
+}
+
+/// Print the verdict, write its JSON and Markdown when asked; the exit code.
+fn emit(args: &RegressOptions, r: &RegressReport) -> Result<i32> {
     if let Some(p) = &args.markdown {
-        append(p, &markdown(&r))?;
+        append(p, &markdown(r))?;
     }
     if let Some(p) = &args.json {
-        write_json(p, &r)?;
+        write_json(p, r)?;
         if p == Path::new("-") {
             // The JSON is the standard output: the lines for people go to standard error.
-            eprint!("{}", lines(&r));
+            eprint!("{}", lines(r));
             return Ok(r.exit_code());
         }
     }
-    print!("{}", lines(&r));
+    print!("{}", lines(r));
     Ok(r.exit_code())
 }
 
@@ -1064,7 +1153,13 @@ pub fn lines(r: &RegressReport) -> String {
         100.0 * r.alpha
     );
     if r.forced {
-        let _ = writeln!(s, "warning: different machines compared (--force)");
+        let _ = writeln!(s, "warning: different hardware classes compared (--force)");
+    } else if r.baseline.fingerprint != r.current.fingerprint && !r.no_baseline {
+        let _ = writeln!(
+            s,
+            "note: two hosts of one hardware class ({}): compared",
+            r.current.hardware_class.as_deref().unwrap_or("unknown")
+        );
     }
     for c in r.checks.iter().filter(|c| c.outcome != Outcome::Unchanged) {
         let _ = writeln!(s, "{}", check_line(c));
@@ -1081,6 +1176,11 @@ pub fn lines(r: &RegressReport) -> String {
     }
     for (what, cells) in grouped(&r.not_compared) {
         let _ = writeln!(s, "  not compared: {what}: {cells}");
+    }
+    if let Some(c) = &r.work_snapshot {
+        for ch in &c.changed {
+            let _ = writeln!(s, "  {:<10} {:<28} {}", "SNAPSHOT", ch.cell, ch.changes.join("; "));
+        }
     }
     for m in &r.missing_in_current {
         let effect = if !m.gated {

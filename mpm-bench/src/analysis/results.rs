@@ -61,6 +61,21 @@ impl Campaign {
             .unwrap_or_else(|| "unknown".into())
     }
 
+    /// The hardware class of the campaign's machine, from its manifest (`None` without a
+    /// manifest, or with one older than the class).
+    pub fn hardware_class(&self) -> Option<mpm_host::identity::HardwareClass> {
+        let m = self.manifest.as_ref()?;
+        m.machine_of(&self.fingerprint()).and_then(|i| i.hardware_class.clone())
+    }
+
+    /// Why this campaign's results do not compare with `other`'s (another hardware class, or
+    /// another machine when a class is unknown); `None` when they do
+    /// ([`crate::machine::fingerprint::incomparable`]).
+    pub fn incomparable_with(&self, other: &Campaign) -> Option<String> {
+        let (a, b) = (self.hardware_class(), other.hardware_class());
+        crate::machine::fingerprint::incomparable((&self.fingerprint(), a.as_ref()), (&other.fingerprint(), b.as_ref()))
+    }
+
     /// The campaign id, with the machine when the folder holds several: `smoke@54276cbdfe10`.
     pub fn label(&self) -> String {
         if self.split {

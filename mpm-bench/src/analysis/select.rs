@@ -39,7 +39,8 @@ pub struct RowFilter {
 
 /// Why a row that ran with an injected slowdown is left out.
 pub const INJECTED_LEFT_OUT: &str =
-    "ran with an injected slowdown (inject_slowdown, a test knob: never a result; --include-injected keeps them)";
+    "ran with an injected slowdown (inject_slowdown or inject_step_slowdown, a test knob: never a result; \
+     --include-injected keeps them)";
 
 /// Rows the rule left out for one reason.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
@@ -103,6 +104,7 @@ fn configuration(r: &Row) -> BTreeMap<String, Value> {
     spec.outputs = Default::default();
     spec.paired = None;
     spec.inject_slowdown = None;
+    spec.inject_step_slowdown = None;
     let mut out = BTreeMap::new();
     leaves(&serde_json::to_value(&spec).unwrap_or(Value::Null), "", &mut out);
     out

@@ -69,6 +69,9 @@ pub enum Design {
     /// One-thread and `n`-thread solvers in the same processes, alternating blocks; the
     /// interval over processes.
     Paired,
+    /// Two builds' processes of the same cell run back to back in pairs, in ABBA order
+    /// (`mpm-bench ab`); the interval over the pairs' log ratios.
+    Interleaved,
 }
 
 impl Design {
@@ -77,6 +80,7 @@ impl Design {
         match self {
             Design::Separate => "separate",
             Design::Paired => "paired",
+            Design::Interleaved => "interleaved",
         }
     }
 }

@@ -91,7 +91,7 @@ impl From<ClaimsArgs> for mpm_bench::analysis::claims::ClaimsOptions {
 /// A check fails when it got worse than --tolerance AND the change is beyond the noise
 /// (bootstrap p-value, Holm-corrected over all cells). A baseline cell missing, failed or
 /// invalid in the current campaign fails too (unless --allow-missing). Exit code 0 = pass,
-/// 1 = regression, 2 = error or incomparable (unreadable input, different machines without
+/// 1 = regression, 2 = error or incomparable (unreadable input, another hardware class without
 /// --force, no cell in common). Use in CI with a committed baseline campaign.
 #[derive(clap::Args, Debug, Clone)]
 pub struct RegressArgs {
@@ -105,13 +105,23 @@ pub struct RegressArgs {
     /// Relative change tolerated before a check can fail (0.05 = 5 %).
     #[arg(long, default_value_t = 0.05)]
     pub tolerance: f64,
-    /// Compare even when the machine fingerprints differ (the verdict then compares
-    /// different hardware: use with care).
+    /// Compare even when the hardware classes differ (another CPU model, core count, memory
+    /// class or ISA level: the verdict then compares different hardware; use with care).
+    /// Hosts of one class (another machine id, microcode or kernel) compare without it.
     #[arg(long)]
     pub force: bool,
     /// Write the machine-readable verdict here (JSON).
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// What a missing baseline (no folder, or no campaign in it) means: `fail` (exit 2, an
+    /// error) or `pass` (exit 0, "no baseline yet; this run becomes it": a CI job's first
+    /// run, which then stores its campaign as the baseline).
+    #[arg(long, value_name = "WHAT", default_value = "fail", value_parser = ["fail", "pass"])]
+    pub missing_baseline: String,
+    /// Also check the current campaign's work counters exactly against a committed snapshot
+    /// (`mpm-bench work-snapshot --write FILE`), naming the cell and sub-stage that changed.
+    #[arg(long, value_name = "FILE")]
+    pub work_snapshot: Option<PathBuf>,
     /// Stages to gate, comma-separated: total, grid, particle.
     #[arg(long, value_delimiter = ',', default_value = "total")]
     pub stages: Vec<String>,
@@ -146,6 +156,8 @@ impl From<RegressArgs> for mpm_bench::analysis::regress::RegressOptions {
             tolerance: a.tolerance,
             force: a.force,
             json: a.json,
+            missing_baseline_passes: a.missing_baseline == "pass",
+            work_snapshot: a.work_snapshot,
             stages: a.stages,
             include_oversubscribed: a.include_oversubscribed,
             pin: a.pin,

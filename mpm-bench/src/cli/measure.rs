@@ -127,6 +127,11 @@ impl From<ImbalanceArgs> for mpm_bench::campaign::measure::imbalance::ImbalanceO
 /// Measure the gate's false-alarm rate and detection power on this host.
 #[derive(clap::Args, Debug, Clone)]
 pub struct CalibrateArgs {
+    /// The gate to calibrate: `regress` (whole campaigns against a stored baseline) or `ab`
+    /// (sides of one build side by side, process by process, as `mpm-bench ab` runs them;
+    /// --injected sides per change: an efficiency loss and a step slowdown).
+    #[arg(long, default_value = "regress", value_parser = ["regress", "ab"])]
+    pub design: String,
     /// The preset of every gate run: a name (ci, quick, ...) or a TOML file.
     #[arg(long, default_value = "ci")]
     pub preset: String,
@@ -139,6 +144,16 @@ pub struct CalibrateArgs {
     /// The injected efficiency loss, a fraction (0.1: the T-thread efficiency drops by 10 %).
     #[arg(long, default_value_t = 0.1)]
     pub inject_slowdown: f64,
+    /// With --design ab: the injected step slowdown of the time-per-step sides (0.1: every
+    /// step takes 1 / 0.9 as long on every worker alike).
+    #[arg(long, default_value_t = 0.1)]
+    pub inject_step_slowdown: f64,
+    /// With --design ab: processes per cell and side (default: the preset's).
+    #[arg(long)]
+    pub reps: Option<u32>,
+    /// With --design ab: the seed of the sides' order.
+    #[arg(long)]
+    pub seed: Option<u64>,
     /// Stop starting campaigns when the next would likely end after this much time (e.g.
     /// 90m); the comparisons are made with the campaigns done.
     #[arg(long, value_name = "DURATION")]
@@ -146,9 +161,10 @@ pub struct CalibrateArgs {
     /// The gate's tolerance, as `regress --tolerance`.
     #[arg(long, default_value_t = 0.05)]
     pub tolerance: f64,
-    /// The gate's metrics, as `regress --metrics` (the CI recipe gates efficiency and work).
-    #[arg(long, value_delimiter = ',', default_value = "efficiency,work")]
-    pub metrics: Vec<String>,
+    /// The gate's metrics, as `regress --metrics` (default: efficiency,work for `regress`,
+    /// as its CI recipe; efficiency,time,work for `ab`).
+    #[arg(long, value_delimiter = ',')]
+    pub metrics: Option<Vec<String>>,
     /// Root of the results tree: the campaigns go to
     /// <out>/<fingerprint>/calibrate-<preset>-{clean,inject<F>}-<i>/.
     #[arg(long, default_value = "results/local")]
@@ -176,12 +192,20 @@ impl From<CalibrateArgs> for mpm_bench::campaign::measure::calibrate::CalibrateO
             inject_slowdown: a.inject_slowdown,
             budget: a.budget,
             tolerance: a.tolerance,
-            metrics: a.metrics,
+            metrics: a.metrics.unwrap_or_else(|| {
+                let m: &[&str] =
+                    if a.design == "ab" { &["efficiency", "time", "work"] } else { &["efficiency", "work"] };
+                m.iter().map(|s| s.to_string()).collect()
+            }),
             out: a.out,
             json: a.json,
             no_build: a.no_build,
             quiet: a.quiet,
             mock: a.mock,
+            design_ab: a.design == "ab",
+            inject_step_slowdown: a.inject_step_slowdown,
+            reps: a.reps,
+            seed: a.seed,
         }
     }
 }

@@ -2,6 +2,7 @@
 //! command list), converted into the options its library function takes (the library has
 //! no clap); `run` and `topology` are commands of the program itself.
 
+pub mod ab;
 pub mod analysis;
 pub mod measure;
 pub mod run;

@@ -157,6 +157,11 @@ pub struct RunArgs {
     /// What `mpm-bench calibrate` measures the gate's detection with.
     #[arg(long, value_name = "F")]
     inject_slowdown: Option<f64>,
+    /// TEST KNOB, never for results: every run's workers wait after every step so that each
+    /// step takes 1 / (1 - F) times as long, the efficiency unchanged (`mpm run
+    /// --inject-step-slowdown`). Recorded and refused like --inject-slowdown.
+    #[arg(long, value_name = "F")]
+    inject_step_slowdown: Option<f64>,
     /// Use a fake solver (testing the harness itself).
     #[arg(long, hide = true)]
     mock: bool,
@@ -260,6 +265,7 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
         paired_blocks: a.paired_blocks,
         inject_slowdown: a.inject_slowdown,
         skip_above_cores: a.skip_above_cores,
+        inject_step_slowdown: a.inject_step_slowdown,
     })
 }
 

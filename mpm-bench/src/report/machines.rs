@@ -69,6 +69,10 @@ pub(super) fn machines_section(sets: &[Set]) -> Section {
     head.extend(sets.iter().map(|s| s.label.clone()));
     let mut rows =
         vec![row("fingerprint", sets, |s| s.campaign.fingerprint()), row("campaign", sets, |s| s.campaign.id())];
+    // What decides whether two sets time the same hardware (another host of one class does).
+    rows.push(row("hardware class", sets, |s| {
+        s.campaign.hardware_class().map_or("not recorded".into(), |h| format!("{} ({})", h.id(), h.describe()))
+    }));
     for (name, get) in manifest_rows() {
         rows.push(row(name, sets, |s| s.campaign.manifest.as_ref().map_or("no manifest.json".into(), get)));
     }

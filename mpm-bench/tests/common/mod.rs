@@ -207,6 +207,9 @@ pub fn write_manifest(dir: &Path, t: &str) {
     // Fixed host facts, so that reports of crafted campaigns are the same on every machine.
     (info.os, info.kernel, info.arch, info.cpu_governor) =
         ("Test OS".into(), "6.1.0-test".into(), "x86_64".into(), "performance".into());
+    if let Some(h) = info.hardware_class.as_mut() {
+        h.arch = "x86_64".into();
+    }
     let m = Manifest {
         manifest_version: MANIFEST_VERSION,
         campaign_id: dir.file_name().unwrap().to_string_lossy().into_owned(),

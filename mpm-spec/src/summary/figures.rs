@@ -68,6 +68,10 @@ pub struct Figures {
     /// knob: such a run is never a result).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub injected_s: Option<f64>,
+    /// Seconds the injected step slowdown added over the run (this process's, the
+    /// `threads`-thread solver's; a test knob: such a run is never a result).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub injected_step_s: Option<f64>,
     /// The scenario's own figures, tagged by the key `scenario` (`taylor`, `impact`,
     /// `plate`).
     #[serde(flatten)]

@@ -74,8 +74,10 @@
 //!   its involuntary context switches and its CPU's steal, and flags a worker that got less
 //!   than a threshold share of the wall as CPU time. `paired` ([`PairedReport`]) holds a
 //!   paired run's block times (the summary's own times are the `threads`-thread solver's).
-//!   `inject_slowdown` and `injected_s` say that a test knob slowed the run on purpose: such
-//!   a summary is never a result. All four `null` in older summaries.
+//!   `inject_slowdown` and `injected_s` (the parallel efficiency's knob), and
+//!   `inject_step_slowdown` and `injected_step_s` (the time per step's), say that a test
+//!   knob slowed the run on purpose: such a summary is never a result. All `null` in older
+//!   summaries.
 
 pub mod figures;
 pub mod reports;
@@ -284,6 +286,9 @@ pub struct Summary {
     /// The injected slowdown this run was asked for (a test knob: never a result).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inject_slowdown: Option<f64>,
+    /// The injected step slowdown this run was asked for (a test knob: never a result).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inject_step_slowdown: Option<f64>,
     /// Everything the run measured ([`Figures`]), its groups' fields top-level keys.
     #[serde(flatten)]
     pub figures: Figures,

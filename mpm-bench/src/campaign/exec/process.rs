@@ -555,11 +555,19 @@ fn mock_noise_work_paired(
     if inject > 0.0 && t > 1 {
         s.figures.injected_s = Some(inject * wall_s);
     }
+    // The step slowdown slows both solvers of a paired run alike (already in the mock's
+    // T-thread step).
+    let step = spec.inject_step_slowdown.unwrap_or(0.0);
+    s.inject_step_slowdown = spec.inject_step_slowdown;
+    if step > 0.0 {
+        s.figures.injected_step_s = Some(step * wall_s);
+    }
     let Some(p) = spec.paired else { return (noise, None) };
     let warmup = spec.budget.warmup.unwrap_or(0);
     let Ok(block_steps) = spec.paired_block_steps(warmup) else { return (noise, None) };
     let mut rng = mock_rng(req);
-    // The one-thread time: the mock's T-thread step (slowed by the injection) at 0.9.
+    // The one-thread time: the mock's T-thread step (slowed by the injection) at 0.9; the
+    // step slowdown stays in both.
     let t1 = s.figures.timing.steady_s_per_step.unwrap_or(1e-3) * (1.0 - inject) * t as f64 * 0.9;
     let effect = (spread * mock_normal(&mut rng)).exp();
     let (mut t1s, mut tts) = (Vec::new(), Vec::new());
@@ -599,11 +607,13 @@ fn mock_summary(req: &RunRequest, requested: Vec<usize>, observed: Vec<usize>) -
         Strategy::Serial | Strategy::ArrayExpansion => 0.8,
         Strategy::Atomic => 0.6,
     } * (s.total_workers().min(2) as f64);
-    // An injected slowdown F slows every run of more than one worker to 1 / (1 - F).
+    // An injected slowdown F slows every run of more than one worker to 1 / (1 - F); the
+    // step slowdown every run.
     let inject = if s.total_workers() > 1 { s.inject_slowdown.unwrap_or(0.0) } else { 0.0 };
     let per_step = size.particles as f64 * 50e-9 * if req.planned.opt == OptLevel::O0 { 8.0 } else { 1.0 }
         / speed
-        / (1.0 - inject);
+        / (1.0 - inject)
+        / (1.0 - s.inject_step_slowdown.unwrap_or(0.0));
     let wall = per_step * steps as f64;
     let steady = per_step * (steps - warmup) as f64;
     Summary {

@@ -110,12 +110,25 @@ pub fn prepare_solvers(opts: &[OptLevel], build: bool, quiet: bool) -> Result<Ve
 
 /// `cargo build --profile <opt> -p mpm-cli --bin mpm` in `workspace`.
 pub fn build_solver(workspace: &Path, opt: OptLevel, quiet: bool) -> Result<()> {
+    build(workspace, None, opt, &[], quiet)
+}
+
+/// [`build_solver`] of the workspace at `workspace` into the target folder `target` (another
+/// checkout's build), with `extra` arguments for cargo (e.g. `--no-default-features`).
+pub fn build_solver_in(workspace: &Path, target: &Path, opt: OptLevel, extra: &[String], quiet: bool) -> Result<()> {
+    build(workspace, Some(target), opt, extra, quiet)
+}
+
+fn build(workspace: &Path, target: Option<&Path>, opt: OptLevel, extra: &[String], quiet: bool) -> Result<()> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    if !quiet {
+    if !quiet && target.is_none() {
         eprintln!("building the solver: cargo build --profile {opt} -p mpm-cli --bin mpm");
     }
     let mut cmd = Command::new(&cargo);
-    cmd.current_dir(workspace).args(["build", "--profile", opt.as_str(), "-p", "mpm-cli", "--bin", "mpm"]);
+    cmd.current_dir(workspace).args(["build", "--profile", opt.as_str(), "-p", "mpm-cli", "--bin", "mpm"]).args(extra);
+    if let Some(t) = target {
+        cmd.env("CARGO_TARGET_DIR", t);
+    }
     if quiet {
         cmd.arg("--quiet");
     }
@@ -123,7 +136,7 @@ pub fn build_solver(workspace: &Path, opt: OptLevel, quiet: bool) -> Result<()> 
         .status()
         .with_context(|| format!("cannot run cargo ({}) to build the solver", Path::new(&cargo).display()))?;
     if !status.success() {
-        bail!("building the `mpm` solver in profile {opt} failed ({status})");
+        bail!("building the `mpm` solver in profile {opt} in {} failed ({status})", workspace.display());
     }
     Ok(())
 }

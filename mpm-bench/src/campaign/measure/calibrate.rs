@@ -45,6 +45,15 @@ pub struct CalibrateOptions {
     pub quiet: bool,
     /// Use a fake solver (testing the harness itself).
     pub mock: bool,
+    /// Calibrate `mpm-bench ab` (sides of one build run side by side, process by process)
+    /// instead of `regress` on whole campaigns.
+    pub design_ab: bool,
+    /// With `design_ab`: the injected step slowdown of the time-per-step sides (a fraction).
+    pub inject_step_slowdown: f64,
+    /// With `design_ab`: processes per cell and side (default: the preset's).
+    pub reps: Option<u32>,
+    /// With `design_ab`: the seed of the sides' order.
+    pub seed: Option<u64>,
 }
 
 /// One campaign of the calibration.

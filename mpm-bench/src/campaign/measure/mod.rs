@@ -3,5 +3,6 @@
 //! gate's own error rates ([`calibrate`], which runs the gate's campaigns).
 
 pub mod calibrate;
+pub mod calibrate_ab;
 pub mod imbalance;
 pub mod paired;

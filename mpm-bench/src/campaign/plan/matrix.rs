@@ -70,6 +70,8 @@ pub struct Overrides {
     /// `--skip-above-cores`: leave out the cells of more workers than the machine's usable
     /// cores (also when the preset does not say so).
     pub skip_above_cores: bool,
+    /// `--inject-step-slowdown`: the other test knob (every worker alike: the time per step).
+    pub inject_step_slowdown: Option<f64>,
 }
 
 impl Overrides {
@@ -143,6 +145,9 @@ impl Overrides {
         if let Some(f) = self.inject_slowdown {
             parts.push(format!("inject{f}"));
         }
+        if let Some(f) = self.inject_step_slowdown {
+            parts.push(format!("injectstep{f}"));
+        }
         parts.join("_")
     }
 }
@@ -203,6 +208,7 @@ impl PlannedRun {
             spec.budget.warmup = Some(0);
             spec.paired = Some(mpm_spec::spec::Paired { blocks: 0 });
             spec.inject_slowdown = Some(0.0);
+            spec.inject_step_slowdown = Some(0.0);
             Self { spec, model: 1, opt: OptLevel::O3, pin: PinPolicy::CLOSE, launcher: Some("mpirun".into()), rep: 0 }
         })
         .collect()
@@ -317,6 +323,9 @@ pub struct Campaign {
     /// [`Campaign::cap_workers`]; cells above it are not run. `None`: no limit.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_workers: Option<usize>,
+    /// The injected step slowdown of every run (a test knob; `None`: off).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inject_step_slowdown: Option<f64>,
 }
 
 /// The preset's pinning policies with the places asked (`--places`, else the preset's
@@ -362,6 +371,7 @@ impl Campaign {
             inject_slowdown: overrides.inject_slowdown,
             skip_above_cores: overrides.skip_above_cores || preset.skip_above_cores,
             max_workers: None,
+            inject_step_slowdown: overrides.inject_step_slowdown,
             preset,
         };
         c.check_matrix()?;
@@ -490,6 +500,7 @@ impl Campaign {
         // one thread (and the serial strategy) stay separate runs.
         spec.paired = self.paired.filter(|_| strategy.is_parallel() && threads > 1 && ranks == 1);
         spec.inject_slowdown = self.inject_slowdown;
+        spec.inject_step_slowdown = self.inject_step_slowdown;
         Ok(spec)
     }
 

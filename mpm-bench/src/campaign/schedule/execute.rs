@@ -12,6 +12,7 @@ use crate::campaign::exec::run::RunContext;
 use crate::campaign::exec::solver::Solver;
 use crate::campaign::exec::watch::HostWatch;
 use crate::campaign::plan::matrix::Campaign;
+use crate::campaign::store::csv::CsvLog;
 use crate::campaign::store::manifest::{self};
 use crate::machine::topology::Machine;
 use anyhow::{bail, Context, Result};
@@ -33,7 +34,7 @@ pub fn execute(
         machine.check_policy(p).with_context(|| format!("pinning policy {p}"))?;
     }
     let plan = Plan::of(campaign, machine, solvers, opts)?;
-    let mut counts = manifest::SessionCounts {
+    let counts = manifest::SessionCounts {
         planned: plan.planned,
         already_done: plan.planned - plan.todo.len(),
         ..Default::default()
@@ -59,34 +60,101 @@ pub fn execute(
             bail!("{why}");
         }
     }
-    let (mut log, json_dir) = plan.open_folder(opts.fresh, here)?;
     // Under a scheduler each job watches its own node.
     let watch = opts.watch.filter(|_| here).map(|w| HostWatch::start(w, machine.usable_pus().len()));
-    let calibration = watch.as_ref().map(HostWatch::calibration);
-    let mut manifest = ManifestLog::start(campaign, machine, solvers, opts, &plan.dir, counts, calibration)?;
-    if opts.eta && here {
-        match estimate_duration(runner, solvers, &plan.todo, &json_dir, machine.usable_pus().len()) {
-            Ok(eta) => eprintln!("{eta}"),
-            Err(e) => eprintln!("note: no duration estimate: {e:#}"),
-        }
-    }
-    let progress = CampaignProgress::new(&plan.todo, !opts.quiet);
-    let checkpoint_root = plan.dir.join("checkpoints");
-    let ctx = RunContext { campaign, machine, git: manifest.git(), json_dir, checkpoint_root, interrupted };
-    let books = Books { log: &mut log, counts: &mut counts, manifest: &mut manifest, progress: &progress };
-    let mut state = CampaignState::new(ctx, &plan, solvers, books);
+    let eta = (opts.eta && here).then_some(&mut *runner);
+    let mut session = Session::open(plan, (campaign, machine, solvers), opts, counts, watch.as_ref(), eta)?;
+    let mut state = session.state(campaign, machine, solvers, interrupted);
     let mut scheduler: Box<dyn Scheduler + '_> = match &opts.scheduler {
         SchedulerKind::Slurm(options) => Box::new(Slurm { options, watch: opts.watch }),
         SchedulerKind::Local => Box::new(Local { runner, watch }),
     };
     scheduler.run_all(&mut state)?;
     drop(state);
-    progress.finish();
-    counts.interrupted |= interrupted.load(Ordering::SeqCst);
-    let wall = t0.elapsed();
-    manifest.finish(counts)?;
-    debug_assert_eq!(log.path(), plan.csv_path.as_path());
-    Ok(ExecSummary { dir: plan.dir, counts, wall })
+    let dir = session.plan.dir.clone();
+    let counts = session.close(interrupted)?;
+    Ok(ExecSummary { dir, counts, wall: t0.elapsed() })
+}
+
+/// A session's campaign folder open for appending (what a scheduler's runs are recorded
+/// in): the plan, the CSV log, the folder of the runs' files, the manifest with this
+/// session, its counts and the progress bar. `mpm-bench run` opens one
+/// ([`execute`]); `mpm-bench ab` two, one per build.
+pub struct Session {
+    /// The folder and the runs still to do.
+    pub plan: Plan,
+    /// The CSV log.
+    pub log: CsvLog,
+    /// The folder of the runs' summaries and spec files.
+    pub json_dir: std::path::PathBuf,
+    /// The manifest with this session appended.
+    pub manifest: ManifestLog,
+    /// The session's counts so far.
+    pub counts: manifest::SessionCounts,
+    /// The progress bar and the runs' lines.
+    pub progress: CampaignProgress,
+}
+
+impl Session {
+    /// Create the folder, open its CSV and append this session to its manifest (with the
+    /// host watch's calibration when the host is watched); with `eta`, time a short run per
+    /// optimisation level and print the session's estimated duration before the progress
+    /// bar starts.
+    pub fn open(
+        plan: Plan,
+        (campaign, machine, solvers): (&Campaign, &Machine, &[Solver]),
+        opts: &ExecOptions,
+        counts: manifest::SessionCounts,
+        watch: Option<&HostWatch>,
+        eta: Option<&mut (dyn Runner + '_)>,
+    ) -> Result<Self> {
+        let here = opts.scheduler.runs_here();
+        let (log, json_dir) = plan.open_folder(opts.fresh, here)?;
+        let calibration = watch.map(HostWatch::calibration);
+        let manifest = ManifestLog::start(campaign, machine, solvers, opts, &plan.dir, counts, calibration)?;
+        if let Some(runner) = eta {
+            match estimate_duration(runner, solvers, &plan.todo, &json_dir, machine.usable_pus().len()) {
+                Ok(eta) => eprintln!("{eta}"),
+                Err(e) => eprintln!("note: no duration estimate: {e:#}"),
+            }
+        }
+        let progress = CampaignProgress::new(&plan.todo, !opts.quiet);
+        Ok(Self { plan, log, json_dir, manifest, counts, progress })
+    }
+
+    /// The state a scheduler works on: every run of the session with its books.
+    pub fn state<'a>(
+        &'a mut self,
+        campaign: &'a Campaign,
+        machine: &'a Machine,
+        solvers: &'a [Solver],
+        interrupted: &'a AtomicBool,
+    ) -> CampaignState<'a> {
+        let ctx = RunContext {
+            campaign,
+            machine,
+            git: self.manifest.git(),
+            json_dir: self.json_dir.clone(),
+            checkpoint_root: self.plan.dir.join("checkpoints"),
+            interrupted,
+        };
+        let books = Books {
+            log: &mut self.log,
+            counts: &mut self.counts,
+            manifest: &mut self.manifest,
+            progress: &self.progress,
+        };
+        CampaignState::new(ctx, &self.plan, solvers, books)
+    }
+
+    /// The session is over: the bar goes, the manifest records its end and counts.
+    pub fn close(mut self, interrupted: &AtomicBool) -> Result<manifest::SessionCounts> {
+        self.progress.finish();
+        self.counts.interrupted |= interrupted.load(Ordering::SeqCst);
+        self.manifest.finish(self.counts)?;
+        debug_assert_eq!(self.log.path(), self.plan.csv_path.as_path());
+        Ok(self.counts)
+    }
 }
 
 /// A dry run's estimate: the calibration runs write into a folder of their own under the

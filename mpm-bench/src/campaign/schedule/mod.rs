@@ -11,6 +11,7 @@
 //! runs one run). [`execute`] is a session: plan, open, schedule, close; [`interrupt`] is
 //! Ctrl-C.
 
+pub mod ab;
 pub mod execute;
 pub mod interrupt;
 pub mod job;

@@ -291,6 +291,7 @@ impl Row {
                     paired: filled()?,
                     checkpoint: filled()?,
                     injected_s: filled()?,
+                    injected_step_s: filled()?,
                     scenario,
                 };
                 Ok(Row {
@@ -397,9 +398,11 @@ impl Row {
             if self.host.host_noise.is_empty() { why } else { format!("{}; {why}", self.host.host_noise) };
     }
 
-    /// The injected slowdown the row ran with (a test knob), if any.
+    /// The injected slowdown the row ran with (a test knob: `inject_slowdown` or
+    /// `inject_step_slowdown`, the larger), if any.
     pub fn injected(&self) -> Option<f64> {
-        self.run.spec.inject_slowdown.filter(|&f| f > 0.0)
+        let s = &self.run.spec;
+        s.inject_slowdown.into_iter().chain(s.inject_step_slowdown).filter(|&f| f > 0.0).reduce(f64::max)
     }
 
     /// Whether the row measured a paired cell (its blocks are in `paired.t1_s_per_step`,

@@ -489,6 +489,16 @@ pub struct RunOptions {
     #[arg(long, value_name = "F", allow_hyphen_values = true, value_parser = parse_f64)]
     pub inject_slowdown: Option<f64>,
 
+    /// TEST KNOB, never for results: after every step every worker (and a paired run's
+    /// one-thread reference alike) waits, busy, so that each step takes 1 / (1 - F) times as
+    /// long (0 < F < 1): the time per step grows by that factor, the parallel efficiency
+    /// stays. The results are bitwise those without it. Recorded in the summary
+    /// (`inject_step_slowdown`, `injected_step_s`); the harness's rows record it and its
+    /// analyses refuse such runs unless asked. What `mpm-bench calibrate --design ab` uses
+    /// to measure whether the gate sees a slower step.
+    #[arg(long, value_name = "F", allow_hyphen_values = true, value_parser = parse_f64)]
+    pub inject_step_slowdown: Option<f64>,
+
     /// Write the final particle state to FILE (binary, little-endian, sorted by particle id:
     /// per particle the id as u64, then position, velocity and stress as 12 f64). Used to
     /// compare runs over different rank and thread counts.
@@ -723,6 +733,7 @@ impl Scenario {
         spec.split_wait = o.split_wait;
         spec.paired = o.paired_blocks.map(|blocks| Paired { blocks });
         spec.inject_slowdown = o.inject_slowdown;
+        spec.inject_step_slowdown = o.inject_step_slowdown;
         spec.outputs = Outputs {
             json: o.json.clone(),
             quiet: o.quiet,

@@ -187,6 +187,13 @@ fn efficiency_notes(s: &Summary) -> Vec<String> {
             s.figures.injected_s.unwrap_or(0.0)
         ));
     }
+    if let Some(f) = s.inject_step_slowdown {
+        lines.push(format!(
+            "TEST KNOB: an injected step slowdown of {:.0} % ({:.3} s of waiting): these times are not a result",
+            100.0 * f,
+            s.figures.injected_step_s.unwrap_or(0.0)
+        ));
+    }
     lines
 }
 

@@ -30,6 +30,8 @@ pub struct PairedOutcome {
     /// Bytes held by the one-thread reference's model (the summary's model memory counts
     /// both solvers).
     pub reference_memory_bytes: usize,
+    /// Seconds the injected step slowdown added to the `T`-thread solver (a test knob).
+    pub injected_step_s: Option<f64>,
 }
 
 /// The one-thread pool of the reference solver: pinned to `cpus[0]` when the run is pinned.
@@ -72,7 +74,11 @@ pub fn run(
             None => Some(f64::INFINITY),
         }
     };
-    let mut solvers = [Contender::new(one, &one_pool), Contender::new(sim, pool)];
+    // The step slowdown (a test knob) slows both alike: the time per step grows, their
+    // ratio stays.
+    let slow = spec.inject_step_slowdown;
+    let mut solvers =
+        [Contender::new(one, &one_pool).with_step_slowdown(slow), Contender::new(sim, pool).with_step_slowdown(slow)];
     for c in solvers.iter_mut() {
         c.warm_up(warmup, &stop).context("the paired run failed in its warm-up")?;
     }
@@ -112,5 +118,6 @@ pub fn run(
     let end_reason = if blocks < p.blocks { EndReason::EndTime } else { EndReason::StepLimit };
     let noise = many.usage.report(MIN_CPU_SHARE);
     let reference_memory_bytes = one.sim.memory_bytes();
-    Ok((many.sim, PairedOutcome { end_reason, timing, report, noise, reference_memory_bytes }))
+    let injected_step_s = many.slowdown.as_ref().map(|s| s.total_s);
+    Ok((many.sim, PairedOutcome { end_reason, timing, report, noise, reference_memory_bytes, injected_step_s }))
 }

@@ -18,6 +18,7 @@ use mpm_core::scenario::impact::{History, ImpactGeometry};
 use mpm_core::scenario::plate::PlateGeometry;
 use mpm_core::{Collectives, Simulation};
 use mpm_host::pinning::PinnedPool;
+use mpm_host::slowdown::StepSlowdown;
 use mpm_host::usage::UsageMeter;
 use mpm_spec::spec::Budget;
 use mpm_spec::summary::{
@@ -129,7 +130,8 @@ struct LoopContext<'a> {
 /// the pool per run, not per step); the solver's parallel phases broadcast from there.
 /// Returns why it stopped; `carry.log.timing` holds the loop's timing (output and checkpoint
 /// writes excluded, added to what a checkpoint carried). `ranks`: what the tracking
-/// measures with.
+/// measures with. `slowdown`: the injected step slowdown after every step (a test knob),
+/// inside the loop's timing.
 fn step_loop(
     ctx: &LoopContext<'_>,
     sim: &mut Simulation,
@@ -137,6 +139,7 @@ fn step_loop(
     carry: &mut Carry,
     mut checkpoints: Option<&mut Checkpoints>,
     ranks: &mut dyn Collectives,
+    slowdown: &mut Option<StepSlowdown>,
 ) -> Result<EndReason> {
     let (base_wall, base_output) = (carry.log.timing.wall_s, carry.log.timing.output_s);
     let warmup = carry.log.timing.warmup_steps;
@@ -159,7 +162,7 @@ fn step_loop(
                 return Err(Interrupted(sim.steps()).into());
             }
             let dt_max = budget.end_time_s.map_or(f64::INFINITY, |end| end - sim.time());
-            if let Err(e) = sim.step(dt_max) {
+            if let Err(e) = step_once(sim, dt_max, ctx.pool, slowdown) {
                 ctx.progress.inspect(|p| p.bar.abandon());
                 return Err(anyhow::Error::new(e).context(format!(
                     "the simulation failed in the step starting at t = {:.6e} s ({}, strategy {}, {} thread(s)); no summary written",
@@ -207,6 +210,21 @@ fn step_loop(
     Ok(end_reason)
 }
 
+/// One step, then the injected step slowdown (a test knob) when there is one.
+fn step_once(
+    sim: &mut Simulation,
+    dt_max: f64,
+    pool: &PinnedPool,
+    slowdown: &mut Option<StepSlowdown>,
+) -> Result<(), mpm_core::SimError> {
+    let start = Instant::now();
+    sim.step(dt_max)?;
+    if let Some(s) = slowdown {
+        s.after_step(&pool.pool, start.elapsed().as_secs_f64());
+    }
+    Ok(())
+}
+
 /// A run ready to step, set up by [`crate::start::start`]: fresh from its spec or taken back
 /// from a checkpoint.
 pub struct Ready {
@@ -249,6 +267,8 @@ struct Stepped {
     paired: Option<PairedReport>,
     /// A paired run's one-thread reference's model bytes (0 otherwise).
     reference_memory_bytes: usize,
+    /// Seconds the injected step slowdown added in this process (a test knob).
+    injected_step_s: Option<f64>,
 }
 
 /// Step a ready run to its end, then measure, write and print its summary.
@@ -298,6 +318,7 @@ fn step(
                 noise: out.noise,
                 paired: Some(out.report),
                 reference_memory_bytes: out.reference_memory_bytes,
+                injected_step_s: out.injected_step_s,
             }
         }
         None => {
@@ -306,9 +327,18 @@ fn step(
             let mut usage = UsageMeter::new(run.spec.threads, &run.pool.observed_cpus());
             usage.begin(&run.pool.pool);
             let (sim, outputs, carry) = (&mut run.sim, &mut run.outputs, &mut run.carry);
-            let end_reason = step_loop(&ctx, sim, outputs, carry, run.checkpoints.as_mut(), ranks.collectives())?;
+            let mut slow = run.spec.inject_step_slowdown.map(StepSlowdown::new);
+            let (ck, collectives) = (run.checkpoints.as_mut(), ranks.collectives());
+            let end_reason = step_loop(&ctx, sim, outputs, carry, ck, collectives, &mut slow)?;
             usage.end(&run.pool.pool);
-            Stepped { end_reason, noise: usage.report(MIN_CPU_SHARE), paired: None, reference_memory_bytes: 0 }
+            let injected_step_s = slow.map(|s| s.total_s);
+            Stepped {
+                end_reason,
+                noise: usage.report(MIN_CPU_SHARE),
+                paired: None,
+                reference_memory_bytes: 0,
+                injected_step_s,
+            }
         }
     };
     Ok((run, stepped))
@@ -375,6 +405,7 @@ fn summarize(
     let Some(mut summary) = summary else { return Ok(()) };
     summary::finish(&mut summary, reports, stepped.noise, stepped.paired);
     summary.figures.memory.model_memory_bytes += stepped.reference_memory_bytes;
+    summary.figures.injected_step_s = stepped.injected_step_s;
     outputs.commit_json(&summary)?;
     if !spec.outputs.quiet {
         print_human(&summary, spec.outputs.json.as_deref(), outputs.snapshots());
