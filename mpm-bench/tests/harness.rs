@@ -480,10 +480,19 @@ fn resume_refuses_a_csv_with_missing_columns() {
     assert!(msg.contains("missing column") && msg.contains("observed_cpus"), "{msg}");
     // The old file is untouched.
     assert_eq!(std::fs::read_to_string(d.join("runs.csv")).unwrap(), "schema_version,campaign_id,model\n1,smoke,1\n");
-    // A readable file of an older schema (here without the schema-3 column host_noise) is
-    // not appended to: a new folder starts.
+    // A file of this schema without one of its columns (host_noise) is refused, naming it:
+    // its rows would read that column as its default, not as written.
     let header: Vec<String> = Row::header().into_iter().filter(|h| h != "host_noise").collect();
     std::fs::write(d.join("runs.csv"), header.join(",") + "\n").unwrap();
+    let e =
+        schedule::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &opts(dir.path()), &flag).unwrap_err();
+    assert!(format!("{e:#}").contains("lacks 1 column(s) of CSV schema 8 (host_noise)"), "{e:#}");
+    // A readable file of an older schema (the header of the committed schema-7 campaign) is
+    // not appended to: a new folder starts.
+    let v7 =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../results/54276cbdfe10/quick/runs.csv"))
+            .unwrap();
+    std::fs::write(d.join("runs.csv"), v7.lines().next().unwrap().to_string() + "\n").unwrap();
     let mut r = MockRunner::default();
     let s = schedule::execute(&c, &m, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
     assert_eq!((s.dir, r.calls.len()), (d.with_file_name("smoke-2"), 8));
