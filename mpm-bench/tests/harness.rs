@@ -1139,6 +1139,22 @@ fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses()
     let files = mpm_bench::report::figures::write_all(&camp, &an, &out, "test").unwrap();
     assert!(files.iter().any(|f| f.ends_with("fig_hybrid.png")));
     assert!(std::fs::read_to_string(out.join("README.md")).unwrap().contains("over several MPI ranks"));
+    // points.csv lists fig_hybrid's points too: the value drawn, with its ranks.
+    let points: Vec<std::collections::HashMap<String, String>> =
+        csv::Reader::from_path(out.join("points.csv")).unwrap().deserialize().map(Result::unwrap).collect();
+    let drawn = h.line(1, Strategy::DomainDecomposition, "o3", 2)[0];
+    let point = points
+        .iter()
+        .find(|p| {
+            p["figure"] == "fig_hybrid" && p["panel"] == "Model1 DD O3" && p["metric"] == "speedup" && p["ranks"] == "2"
+        })
+        .expect("fig_hybrid's 2 x 1 speedup in points.csv");
+    assert_eq!(
+        (point["threads"].as_str(), point["value"].parse::<f64>().unwrap()),
+        ("1", drawn.speedup.unwrap().value)
+    );
+    assert!(points.iter().any(|p| p["figure"] == "fig_hybrid" && p["metric"] == "waiting_percent"));
+    assert!(points.iter().filter(|p| p["figure"] != "fig_hybrid").all(|p| p["ranks"] == "1"));
     // regress: a current campaign without the rows over two ranks misses no baseline cell
     // (those rows are not cells of the one-process comparison), and says what it left out.
     let cur = dir.path().join("current");
