@@ -23,7 +23,8 @@
 #   lib/                     every shared library they load beyond the C runtime (hwloc, udev),
 #                            found through mpm-bench's run path $ORIGIN/../lib (mpm-bench/build.rs),
 #                            so no LD_LIBRARY_PATH leaks into the programs the harness starts
-#   configs/                 the presets; manycore.sh; README.txt
+#   configs/                 the presets; manycore.sh (with campaign-steps.sh, its shared steps);
+#                            README.txt
 #   bundle.toml              what was built, from which commit, with which compiler and Cargo
 #                            profiles, and the oldest glibc it runs on (campaign manifests record it)
 # The SIMD kernels are chosen at run time (AVX-512, AVX2 or scalar): one build serves every
@@ -88,6 +89,8 @@ fi
 install -m 755 "$bench" "$root/libexec/mpm-bench"
 cp configs/*.toml "$root/configs/"
 install -m 755 scripts/manycore.sh "$root/manycore.sh"
+# The steps manycore.sh shares with scripts/reproduce.sh, sourced from beside it.
+install -m 644 scripts/campaign-steps.sh "$root/campaign-steps.sh"
 
 # mpm-bench's libraries beyond the C runtime go into lib/. `mpm` needs none without MPI;
 # with MPI it needs the machine's own Open MPI (its libraries, plugins and mpirun go

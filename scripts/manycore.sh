@@ -47,41 +47,24 @@ else
     bench="$(cd "$repo" && pwd)/target/o3/mpm-bench"
 fi
 
-step() { printf '\n==> %s\n' "$*" >&2; }
 logs=$(mktemp -d)
 trap 'rm -rf "$logs"' EXIT
+. "$here/campaign-steps.sh"
 
 step "machine topology"
 "$bench" topology --threads 1,2,4,8,16 | tee "$logs/topology"
 cores=$(sed -n 's/^Summary .* \([0-9][0-9]*\) core(s), .*/\1/p' "$logs/topology")
 
 step "campaign: preset $preset"
-# Shown as it comes, and kept: the folder from standard output, the runs' lines from stderr.
-set +e
-(
-    "$bench" run --preset "$preset" --out "$out" --no-build "${args[@]}" 2>&1 1>&3 3>&- | tee "$logs/err" >&2
-    exit "${PIPESTATUS[0]}"
-) 3>&1 | tee "$logs/out"
-status=${PIPESTATUS[0]}
-set -e
-[ "$dry" = 1 ] && exit "$status"
-campaign=$(sed -n 's/^campaign folder: //p' "$logs/out" | tail -n 1)
+run_campaign "$logs" "$bench" run --preset "$preset" --out "$out" --no-build "${args[@]}"
+[ "$dry" = 1 ] && exit "$campaign_status"
 if [ -z "$campaign" ] || [ ! -f "$campaign/runs.csv" ]; then
-    echo "manycore: the campaign wrote no results (exit status $status); nothing to analyse" >&2
+    echo "manycore: the campaign wrote no results (exit status $campaign_status); nothing to analyse" >&2
     exit 1
 fi
-# The per-run lines of the runs that did not end well: `[n/N] <run> : failed (reason)`.
-failed=$(grep -E '^\[[0-9]+/[0-9]+\] .* : (failed|invalid)' "$logs/err" || true)
-[ "$status" = 0 ] || echo "manycore: some runs failed (exit status $status); analysing the others" >&2
+[ "$campaign_status" = 0 ] || echo "manycore: some runs failed (exit status $campaign_status); analysing the others" >&2
 
 # Each analysis step runs even when one before it failed; the failures are named at the end.
-broken=()
-analyse() { # analyse WHAT COMMAND...
-    local what="$1"
-    shift
-    step "$what"
-    "$@" || broken+=("$what")
-}
 threads=$(for t in 1 2 4 8 16; do if [ "$t" -le "${cores:-1}" ]; then printf "%s," "$t"; fi; done)
 analyse "memory-bandwidth ceiling (STREAM triad, threads ${threads%,}, close and spread)" \
     "$bench" bandwidth --threads "${threads%,}" --pin close --pin spread --out "$campaign/bandwidth.json"
@@ -108,12 +91,7 @@ if [ "$size" -gt "$limit" ]; then
 fi
 
 step "done: $archive ($((size / 1024)) KiB); open $campaign/report/index.html"
-if [ -n "$failed" ]; then
-    echo "manycore: these runs failed (their rows in $campaign/runs.csv say why; running the same command again runs them again):" >&2
-    echo "$failed" >&2
-fi
-[ "${#broken[@]}" = 0 ] || echo "manycore: these steps failed: ${broken[*]}" >&2
+status=0
+name_failures manycore || status=1
 echo "$archive"
-if [ "$status" != 0 ] || [ "${#broken[@]}" != 0 ]; then
-    exit 1
-fi
+exit "$status"

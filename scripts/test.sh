@@ -19,6 +19,9 @@ cargo fmt --all -- --check
 step "cargo clippy (all targets, -D warnings)"
 cargo clippy --workspace --all-targets --profile o3 -- -D warnings
 
+step "the campaign scripts' shared steps (scripts/campaign-steps-test.sh)"
+scripts/campaign-steps-test.sh
+
 # The AVX-512 kernels' tests run where the CPU has AVX-512F and say they are skipped where
 # it does not; told what /proc/cpuinfo lists, they fail instead if its flags and the
 # run-time detection disagree (a skip on a CPU that has it).

@@ -347,7 +347,9 @@ fn noisy_rows_are_excluded_unless_asked_and_grey_in_figures() {
         .flat_map(|r| {
             (10..13).map(move |rep| {
                 let mut b = r.clone();
-                b.run.rep = rep;
+                b.run.rep = 100 * (r.run.rep + 1) + rep;
+                // A new repetition: its own run key (a key written twice counts once).
+                b.id.run_key = b.run.key().0;
                 b.id.run_id = format!("{}-busy{rep}", r.id.run_id);
                 let m = &mut b.measured_mut().timing;
                 for t in [&mut m.steady_s_per_step, &mut m.steady_grid_stage_s, &mut m.steady_particle_stage_s] {
@@ -933,4 +935,47 @@ fn runs_of_several_machines_are_split_by_fingerprint() {
     assert_eq!(report.comparisons.len(), 1, "two sets, one comparison");
     let md = report.page.to_markdown();
     assert!(md.contains(&fa) && md.contains(&fb));
+}
+
+/// `claims` on a campaign with no usable row (every run failed) is an error naming the
+/// folder and its rows by status, never a table of "cannot tell" with exit status 0.
+#[test]
+fn claims_refuse_a_campaign_without_a_usable_row() {
+    use mpm_core::Strategy;
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("failed");
+    std::fs::create_dir_all(&dir).unwrap();
+    let fp = fingerprint(None);
+    let mut log = CsvLog::open(&dir.join("runs.csv")).unwrap();
+    for threads in [1, 2] {
+        log.append(&failed_row(&dir, &fp, 1, Strategy::DomainDecomposition, "o3", threads, 0)).unwrap();
+    }
+    let args = claims::ClaimsOptions {
+        results: dir.clone(),
+        markdown: None,
+        pin: None,
+        include_noisy: false,
+        include_injected: false,
+    };
+    let err = format!("{:#}", claims::run(args).unwrap_err());
+    assert!(err.contains("no usable row") && err.contains("2 failed"), "{err}");
+    assert!(err.contains(&dir.display().to_string()) && err.contains("reason"), "{err}");
+}
+
+/// A run key written twice (`ok` rows of one planned run appended again) counts once in
+/// the analyses: the campaign loads with the rows it had, each cell's repetitions unchanged.
+#[test]
+fn a_repeated_run_key_counts_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = write_campaign(&tmp.path().join("twice"), &Craft::default());
+    let once = load_campaign(&dir, &RowFilter::analysis(false)).unwrap();
+    let csv = dir.join("runs.csv");
+    let again: Vec<Row> = read_rows(&csv).unwrap().into_iter().filter(|r| r.outcome.status == Status::Ok).collect();
+    assert!(!again.is_empty());
+    let mut log = CsvLog::open(&csv).unwrap();
+    for r in &again {
+        log.append(r).unwrap();
+    }
+    let twice = load_campaign(&dir, &RowFilter::analysis(false)).unwrap();
+    assert_eq!(twice.rows, once.rows, "the repeated rows are left out");
 }

@@ -480,10 +480,19 @@ fn resume_refuses_a_csv_with_missing_columns() {
     assert!(msg.contains("missing column") && msg.contains("observed_cpus"), "{msg}");
     // The old file is untouched.
     assert_eq!(std::fs::read_to_string(d.join("runs.csv")).unwrap(), "schema_version,campaign_id,model\n1,smoke,1\n");
-    // A readable file of an older schema (here without the schema-3 column host_noise) is
-    // not appended to: a new folder starts.
+    // A file of this schema without one of its columns (host_noise) is refused, naming it:
+    // its rows would read that column as its default, not as written.
     let header: Vec<String> = Row::header().into_iter().filter(|h| h != "host_noise").collect();
     std::fs::write(d.join("runs.csv"), header.join(",") + "\n").unwrap();
+    let e =
+        schedule::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &opts(dir.path()), &flag).unwrap_err();
+    assert!(format!("{e:#}").contains("lacks 1 column(s) of CSV schema 8 (host_noise)"), "{e:#}");
+    // A readable file of an older schema (the header of the committed schema-7 campaign) is
+    // not appended to: a new folder starts.
+    let v7 =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../results/54276cbdfe10/quick/runs.csv"))
+            .unwrap();
+    std::fs::write(d.join("runs.csv"), v7.lines().next().unwrap().to_string() + "\n").unwrap();
     let mut r = MockRunner::default();
     let s = schedule::execute(&c, &m, &mock_solvers(&c), &mut r, &opts(dir.path()), &flag).unwrap();
     assert_eq!((s.dir, r.calls.len()), (d.with_file_name("smoke-2"), 8));
@@ -1130,6 +1139,22 @@ fn hybrid_mock_campaign_records_ranks_and_keeps_them_out_of_the_paper_analyses()
     let files = mpm_bench::report::figures::write_all(&camp, &an, &out, "test").unwrap();
     assert!(files.iter().any(|f| f.ends_with("fig_hybrid.png")));
     assert!(std::fs::read_to_string(out.join("README.md")).unwrap().contains("over several MPI ranks"));
+    // points.csv lists fig_hybrid's points too: the value drawn, with its ranks.
+    let points: Vec<std::collections::HashMap<String, String>> =
+        csv::Reader::from_path(out.join("points.csv")).unwrap().deserialize().map(Result::unwrap).collect();
+    let drawn = h.line(1, Strategy::DomainDecomposition, "o3", 2)[0];
+    let point = points
+        .iter()
+        .find(|p| {
+            p["figure"] == "fig_hybrid" && p["panel"] == "Model1 DD O3" && p["metric"] == "speedup" && p["ranks"] == "2"
+        })
+        .expect("fig_hybrid's 2 x 1 speedup in points.csv");
+    assert_eq!(
+        (point["threads"].as_str(), point["value"].parse::<f64>().unwrap()),
+        ("1", drawn.speedup.unwrap().value)
+    );
+    assert!(points.iter().any(|p| p["figure"] == "fig_hybrid" && p["metric"] == "waiting_percent"));
+    assert!(points.iter().filter(|p| p["figure"] != "fig_hybrid").all(|p| p["ranks"] == "1"));
     // regress: a current campaign without the rows over two ranks misses no baseline cell
     // (those rows are not cells of the one-process comparison), and says what it left out.
     let cur = dir.path().join("current");

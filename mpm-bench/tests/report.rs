@@ -152,7 +152,9 @@ fn report_and_claims_agree_on_a_campaign_with_noisy_rows() {
         .flat_map(|r| {
             (10..16).map(move |rep| {
                 let mut b = r.clone();
-                b.run.rep = rep;
+                b.run.rep = 100 * (r.run.rep + 1) + rep;
+                // A new repetition: its own run key (a key written twice counts once).
+                b.id.run_key = b.run.key().0;
                 let m = &mut b.measured_mut().timing;
                 for t in [&mut m.steady_s_per_step, &mut m.steady_grid_stage_s, &mut m.steady_particle_stage_s] {
                     *t = t.map(|t| 5.0 * t);

@@ -32,7 +32,7 @@ use super::strategies;
 use crate::campaign::store::record::Status;
 use crate::machine::placement::{PinPolicy, Places};
 use crate::machine::topology::Machine;
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use mpm_core::Strategy;
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
@@ -637,11 +637,35 @@ pub fn few_repetitions(an: &Analysis) -> Option<String> {
     ))
 }
 
+/// A campaign with no `ok` row of one process that the selection rule kept has nothing to
+/// judge: an error naming its rows by status and what the rule left out, never a table of
+/// "cannot tell" with exit status 0.
+fn refuse_without_usable_rows(parts: &[Campaign]) -> Result<()> {
+    if parts.iter().any(|c| c.rows.iter().any(|r| r.outcome.status == Status::Ok)) {
+        return Ok(());
+    }
+    let mut by_status: BTreeMap<&str, usize> = BTreeMap::new();
+    for r in parts.iter().flat_map(Campaign::all_rows) {
+        *by_status.entry(r.outcome.status.as_str()).or_default() += 1;
+    }
+    let mut had: Vec<String> = by_status.iter().map(|(s, n)| format!("{n} {s}")).collect();
+    had.extend(parts.iter().flat_map(|c| &c.left_out).map(|l| format!("left out: {}", l.describe())));
+    let dir = parts.first().map_or_else(String::new, |c| c.dir.display().to_string());
+    bail!(
+        "campaign {dir} has no usable row (one process, status ok) to judge the claims on ({}): run it to the \
+         end (`mpm-bench run` resumes it), or see the `reason` column of its runs.csv for why its runs did not \
+         finish",
+        if had.is_empty() { "it has no rows".to_string() } else { had.join(", ") }
+    )
+}
+
 /// `mpm-bench claims`: the claims of each machine's runs (a campaign of several machines,
-/// under a scheduler, gets a verdict per machine; with `--markdown`, one section each).
+/// under a scheduler, gets a verdict per machine; with `--markdown`, one section each). A
+/// campaign without a usable row is an error.
 pub fn run(args: ClaimsOptions) -> Result<()> {
     let parts =
         load_campaigns(&args.results, &RowFilter::analysis(args.include_noisy).with_injected(args.include_injected))?;
+    refuse_without_usable_rows(&parts)?;
     let mut text = String::new();
     for c in &parts {
         c.note_left_out("claims");

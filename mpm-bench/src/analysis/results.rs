@@ -12,6 +12,7 @@ use super::stats::{Analysis, StatsOptions};
 use crate::campaign::store::csv::read_rows;
 use crate::campaign::store::manifest::{self, Manifest};
 use crate::campaign::store::record::Row;
+use crate::campaign::store::repeats::first_per_run_key;
 use crate::machine::bandwidth::{self, BandwidthReport};
 use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
@@ -214,7 +215,8 @@ fn read_beside<T>(path: &Path, read: impl FnOnce(&Path) -> Result<T>) -> Option<
     read(path).map_err(|e| eprintln!("warning: ignoring {}: {e:#}", path.display())).ok()
 }
 
-/// Read the campaign `dir` names (see [`resolve_campaign`]): rows, manifest, bandwidth; one
+/// Read the campaign `dir` names (see [`resolve_campaign`]): rows (a run key's first `ok`
+/// row only, [`first_per_run_key`]), manifest, bandwidth; one
 /// [`Campaign`] per machine fingerprint of its rows, in fingerprint order (one for a campaign
 /// run on one machine); in each, the rows an analysis uses by the one rule of
 /// [`super::select`] with `filter`, and what it left out. A machine's part takes its manifest
@@ -223,7 +225,8 @@ fn read_beside<T>(path: &Path, read: impl FnOnce(&Path) -> Result<T>) -> Option<
 /// several.
 pub fn load_campaigns(dir: &Path, filter: &RowFilter) -> Result<Vec<Campaign>> {
     let dir = resolve_campaign(dir)?;
-    let all = read_rows(&dir.join("runs.csv"))?;
+    let csv = dir.join("runs.csv");
+    let all = first_per_run_key(read_rows(&csv)?, &csv);
     let manifest = read_beside(&dir.join("manifest.json"), manifest::read);
     let bandwidth = read_beside(&dir.join("bandwidth.json"), bandwidth::read);
     let mut by_machine: BTreeMap<String, Vec<Row>> = BTreeMap::new();

@@ -121,9 +121,10 @@ fn marker_of(model: u32) -> usize {
 /// One point a figure draws: a row of `points.csv`.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct FigurePoint {
-    /// File stem: `fig07` .. `fig14`, `fig_memory`.
+    /// File stem: `fig07` .. `fig14`, `fig_memory`, `fig_hybrid`.
     pub figure: String,
-    /// Panel: `total`, `grid`, `particle` (Figures 7-14) or `Model<n>` (memory).
+    /// Panel: `total`, `grid`, `particle` (Figures 7-14), `Model<n>` (memory) or the
+    /// hybrid figure's `Model<n> <strategy> <opt>` row.
     pub panel: String,
     /// Model number.
     pub model: u32,
@@ -131,9 +132,13 @@ pub struct FigurePoint {
     pub strategy: Strategy,
     /// Optimisation level.
     pub opt: String,
-    /// Threads.
+    /// Threads (of each rank).
     pub threads: usize,
-    /// `speedup`, `efficiency` or `peak_memory_bytes`.
+    /// MPI ranks (1: one process; more only in `fig_hybrid`).
+    pub ranks: usize,
+    /// `speedup`, `efficiency` or `peak_memory_bytes`; in `fig_hybrid` also the shares of
+    /// the wall time (`communication_percent`, `waiting_percent`, or
+    /// `exchange_incl_wait_percent` where the waiting was not measured apart).
     pub metric: String,
     /// The value drawn (median; a ratio of medians for speedup and efficiency).
     pub value: f64,
@@ -173,6 +178,7 @@ pub fn figure_points(an: &Analysis) -> Vec<FigurePoint> {
                         strategy: spec.strategy,
                         opt: spec.opt_level.to_string(),
                         threads: p.key.threads,
+                        ranks: 1,
                         metric: match spec.metric {
                             Metric::Speedup => "speedup",
                             Metric::Efficiency => "efficiency",
@@ -205,6 +211,7 @@ pub fn figure_points(an: &Analysis) -> Vec<FigurePoint> {
                         strategy,
                         opt: opt.into(),
                         threads: n,
+                        ranks: 1,
                         metric: "peak_memory_bytes".into(),
                         value: e.value,
                         lo: e.lo,
@@ -220,6 +227,31 @@ pub fn figure_points(an: &Analysis) -> Vec<FigurePoint> {
         }
     }
     out
+}
+
+/// Every point the hybrid figure draws ([`super::hybrid::drawn`]), in panel order.
+pub fn hybrid_points(h: &HybridAnalysis) -> Vec<FigurePoint> {
+    super::hybrid::drawn(h)
+        .into_iter()
+        .map(|(p, metric, (value, lo, hi))| FigurePoint {
+            figure: "fig_hybrid".into(),
+            panel: format!("Model{} {} {}", p.key.model, tag(p.key.strategy), p.key.opt_level.to_uppercase()),
+            model: p.key.model,
+            strategy: p.key.strategy,
+            opt: p.key.opt_level.clone(),
+            threads: p.key.threads,
+            ranks: p.key.ranks,
+            metric: metric.into(),
+            value,
+            lo,
+            hi,
+            reps: p.reps,
+            design: "separate".into(),
+            oversubscribed: p.oversubscribed,
+            noisy: p.noisy,
+            flags: String::new(),
+        })
+        .collect()
 }
 
 /// Write `points` as CSV to `path`.
@@ -445,7 +477,7 @@ pub fn write_all(c: &Campaign, an: &Analysis, out: &Path, command: &str) -> Resu
         )?);
     }
     let points = out.join("points.csv");
-    write_points(&points, &figure_points(an))?;
+    write_points(&points, &[figure_points(an), hybrid_points(&hybrid)].concat())?;
     files.push(points);
     let readme = out.join("README.md");
     std::fs::write(&readme, readme_text(c, an, &hybrid, command))

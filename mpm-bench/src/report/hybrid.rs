@@ -35,7 +35,7 @@ pub fn footnotes() -> Vec<String> {
 }
 
 /// What a panel of the hybrid figure shows.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, PartialEq, Eq)]
 enum Metric {
     Speedup,
     Efficiency,
@@ -44,6 +44,41 @@ enum Metric {
     Communication,
     /// Seconds waiting for other ranks over the wall time, in percent.
     Waiting,
+}
+
+/// The panels of one combination, in column order.
+const METRICS: [Metric; 4] = [Metric::Speedup, Metric::Efficiency, Metric::Communication, Metric::Waiting];
+
+impl Metric {
+    /// Its name in `points.csv` (the panel's column): the exchange of a point whose waiting
+    /// was not measured apart is named as including it.
+    fn name(self, p: &HybridPoint) -> &'static str {
+        match self {
+            Metric::Speedup => "speedup",
+            Metric::Efficiency => "efficiency",
+            Metric::Communication if p.comm_includes_wait => "exchange_incl_wait_percent",
+            Metric::Communication => "communication_percent",
+            Metric::Waiting => "waiting_percent",
+        }
+    }
+}
+
+/// Every value the hybrid figure draws, in panel order: the point, the metric's name in
+/// `points.csv`, and the value with its 95 % interval (`value, lo, hi`).
+pub fn drawn(h: &HybridAnalysis) -> Vec<(&HybridPoint, &'static str, (f64, f64, f64))> {
+    let mut out = Vec::new();
+    for (model, strategy, opt) in h.combos() {
+        for metric in METRICS {
+            for ranks in h.rank_counts() {
+                for p in h.line(model, strategy, &opt, ranks) {
+                    if let Some(v) = value(p, metric) {
+                        out.push((p, metric.name(p), v));
+                    }
+                }
+            }
+        }
+    }
+    out
 }
 
 fn value(p: &HybridPoint, m: Metric) -> Option<(f64, f64, f64)> {
@@ -138,7 +173,6 @@ fn panel(h: &HybridAnalysis, model: u32, strategy: Strategy, opt: &str, metric: 
 /// The panels (a row of speedup, efficiency, communication share and waiting share per
 /// combination) and the grid (rows, columns). Empty when the analysis has no point.
 pub fn panels(h: &HybridAnalysis) -> (Vec<Panel>, (usize, usize)) {
-    const METRICS: [Metric; 4] = [Metric::Speedup, Metric::Efficiency, Metric::Communication, Metric::Waiting];
     let combos = h.combos();
     let panels: Vec<Panel> = combos.iter().flat_map(|(m, s, o)| METRICS.map(|k| panel(h, *m, *s, o, k))).collect();
     (panels, (combos.len(), METRICS.len()))

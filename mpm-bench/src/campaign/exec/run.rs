@@ -16,7 +16,7 @@ use crate::campaign::exec::process::{RunOutput, RunRequest, Runner};
 use crate::campaign::exec::solver::Solver;
 use crate::campaign::exec::watch::HostWatch;
 use crate::campaign::plan::matrix::{Campaign, PlannedRun};
-use crate::campaign::plan::memory::{available_memory, estimate_run_memory, memory_verdict};
+use crate::campaign::plan::memory::{estimate_run_memory, memory_here, memory_verdict};
 use crate::campaign::store::manifest::{self};
 use crate::campaign::store::record::{HostColumns, Outcome, Placement, Row, RowId, Status};
 use crate::machine::fingerprint;
@@ -132,7 +132,7 @@ impl RunContext<'_> {
     ) -> Result<Option<Row>> {
         let plan = RunPlan::of(self.machine, planned)?;
         let estimate = estimate_run_memory(&planned.spec);
-        let attempt = match memory_verdict(estimate, available_memory(), self.campaign.mem_limit) {
+        let attempt = match memory_verdict(estimate, memory_here().as_ref(), self.campaign.mem_limit) {
             Some(reason) => Attempt::skipped(reason),
             None => match self.attempt(runner, watch, solver, planned, &plan, &run_id)? {
                 Some(a) => a,

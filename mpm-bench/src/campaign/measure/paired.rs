@@ -32,7 +32,7 @@
 //! `j`-th CPU). Build the harness optimised (`--profile o3`): the solver runs in this
 //! process, so this binary's optimisation level is the one measured.
 
-use crate::campaign::plan::memory::{available_memory, estimate_memory};
+use crate::campaign::plan::memory::{estimate_memory, memory_here};
 use crate::machine::placement::PinPolicy;
 use crate::machine::topology::{human_bytes, Machine};
 use crate::util::now_rfc3339;
@@ -235,15 +235,14 @@ fn configurations<'p>(
     }
     let need: u64 =
         configs.iter().map(|&(s, t)| estimate_memory(mpm_spec::ScenarioKind::Taylor, u32::from(a.model), s, t)).sum();
-    if let Some(avail) = available_memory() {
-        if need > avail {
+    if let Some(here) = memory_here() {
+        if need > here.bytes {
             bail!(
-                "{} configurations of Model {} need about {}, but {} is available: measure one strategy \
-                 (--strategies ae) or a smaller model",
+                "{} configurations of Model {} need about {}, more than the memory they may use here ({here}): \
+                 measure one strategy (--strategies ae) or a smaller model",
                 configs.len(),
                 a.model,
                 human_bytes(need),
-                human_bytes(avail)
             );
         }
     }

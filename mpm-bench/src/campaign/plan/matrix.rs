@@ -431,6 +431,7 @@ impl Campaign {
         if self.reps == 0 {
             bail!("repetitions must be at least 1");
         }
+        self.check_no_repeats()?;
         if self.grid == GridMode::Sparse && self.ranks.iter().any(|&r| r > 1) {
             bail!(
                 "the sparse grid runs in one process only: use grid = \"adaptive\" for a campaign over several ranks"
@@ -438,6 +439,29 @@ impl Campaign {
         }
         if self.scenario == ScenarioKind::Plate {
             bail!("the campaign harness runs the taylor and impact scenarios; run the plate with `mpm run plate`");
+        }
+        Ok(())
+    }
+
+    /// No list of the matrix names one value twice (`--threads 1,1`): its runs would be
+    /// planned twice under one run key, and counted as two repetitions of one.
+    fn check_no_repeats(&self) -> Result<()> {
+        fn repeated<T: PartialEq>(items: &[T]) -> Option<&T> {
+            items.iter().enumerate().find(|(i, x)| items[..*i].contains(x)).map(|(_, x)| x)
+        }
+        let lists = [
+            ("models", repeated(&self.models).map(u32::to_string)),
+            ("thread counts", repeated(&self.threads).map(usize::to_string)),
+            ("rank counts", repeated(&self.ranks).map(usize::to_string)),
+            ("strategies", repeated(&self.strategies).map(Strategy::to_string)),
+            ("optimisation levels", repeated(&self.opts).map(OptLevel::to_string)),
+            ("pinning policies", repeated(&self.pins).map(PinPolicy::label)),
+        ];
+        if let Some((what, item)) = lists.into_iter().find_map(|(what, item)| Some((what, item?))) {
+            bail!(
+                "the campaign's {what} name {item} twice: list each once (its runs would be planned twice under \
+                 one run key; repetitions are `--reps` or the preset's `reps`)"
+            );
         }
         Ok(())
     }
@@ -846,6 +870,23 @@ mod tests {
         assert!(s.skip_above_cores);
         let err = s.cap_workers(2).unwrap_err().to_string();
         assert!(err.contains("nothing is left to run") && err.contains("--threads"), "{err}");
+    }
+
+    /// A list naming one value twice (`--threads 1,1`) is refused, naming the list and the
+    /// value: its runs would share one run key.
+    #[test]
+    fn a_value_listed_twice_is_refused() {
+        let (p, _) = load_preset("smoke", None).unwrap();
+        let ov = Overrides { threads: Some(vec![1, 2, 1]), ..Overrides::default() };
+        let err = Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap_err().to_string();
+        assert!(err.contains("thread counts name 1 twice") && err.contains("--reps"), "{err}");
+        let ov = Overrides { opt: Some(vec![OptLevel::O3, OptLevel::O3]), ..Overrides::default() };
+        let err = Campaign::resolve(p.clone(), "builtin".into(), &ov).unwrap_err().to_string();
+        assert!(err.contains("optimisation levels name o3 twice"), "{err}");
+        let ov = Overrides { threads: Some(vec![1, 2]), ..Overrides::default() };
+        let runs = Campaign::resolve(p, "builtin".into(), &ov).unwrap().expand();
+        let keys: std::collections::HashSet<_> = runs.iter().map(PlannedRun::key).collect();
+        assert_eq!(keys.len(), runs.len(), "one run key per planned run");
     }
 
     #[test]

@@ -8,7 +8,7 @@ use crate::campaign::exec::run::{short_hash, RunContext, RunPlan};
 use crate::campaign::exec::solver::{workspace_root, Solver};
 use crate::campaign::exec::watch::WatchSettings;
 use crate::campaign::plan::matrix::{Campaign, PlannedRun, RunKey};
-use crate::campaign::plan::memory::{available_memory, estimate_run_memory, memory_verdict};
+use crate::campaign::plan::memory::{estimate_run_memory, memory_here, memory_verdict};
 use crate::campaign::plan::preset::OptLevel;
 use crate::campaign::store::csv::{read_rows, repair_garbage, repair_torn_tail, CsvLog};
 use crate::campaign::store::lock::{self, FolderLock};
@@ -301,6 +301,7 @@ impl Plan {
         if let Some(cores) = assumed {
             writeln!(out, "planned for a machine of {cores} usable core(s), not this one: no CPUs listed")?;
         }
+        let here = memory_here();
         for (i, r) in &self.todo {
             let pl = RunPlan::of(machine, r)?;
             let (cpus, oversubscribed) = match assumed {
@@ -309,7 +310,7 @@ impl Plan {
                 None => (format_cpu_list(pl.requested()), pl.oversubscribed),
             };
             let est = estimate_run_memory(&r.spec);
-            let verdict = memory_verdict(est, available_memory(), campaign.mem_limit);
+            let verdict = memory_verdict(est, here.as_ref(), campaign.mem_limit);
             writeln!(
                 out,
                 "{:>4}  {:<48} {:<12} cpus {:<16} mem {:>9}{}{}",

@@ -1,5 +1,7 @@
-//! The campaign's `runs.csv`: rows appended and flushed (and synced) right after each run
-//! ([`CsvLog`]), so an interrupted campaign keeps every finished run, and read back
+//! The campaign's `runs.csv`: rows appended durably right after each run ([`CsvLog`],
+//! through [`mpm_host::durable::Appender`]: a row is recorded once it is written and
+//! `fdatasync`ed, and an `fsync` that fails is an error, the run not counted done), so an
+//! interrupted campaign keeps every finished run, and read back
 //! ([`read_rows`]) after a check of the header: this schema's columns, or files of CSV
 //! schemas 1-7, converted ([`super::legacy`]).
 //!
@@ -12,8 +14,9 @@
 
 use crate::campaign::store::record::{Row, SCHEMA_VERSION};
 use anyhow::{bail, Context, Result};
-use std::fs::{File, OpenOptions};
-use std::io::{Read, Write};
+use mpm_host::durable::Appender;
+use std::fs::OpenOptions;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// Length in bytes of the complete part of a results CSV: the header and every record that
@@ -53,6 +56,7 @@ pub struct Garbage {
 
 /// The rows of a CSV's complete part and its garbage lines.
 struct Parsed {
+    schema: Schema,
     rows: Vec<Row>,
     garbage: Vec<Garbage>,
     /// Byte ranges of the header and of every good record, in order.
@@ -75,7 +79,44 @@ pub fn read_rows(path: &Path) -> Result<Vec<Row>> {
     }
     let parsed = parse_rows(&bytes[..good], path)?;
     warn_garbage(path, &parsed.garbage, "resuming the campaign moves them aside and redoes their runs");
+    for warning in foreign_schema_warnings(path, parsed.schema, &parsed.rows) {
+        eprintln!("{warning}");
+    }
     Ok(parsed.rows)
+}
+
+/// Warnings about rows whose `schema_version` is not one of the schemas their file's
+/// columns are (a row of a newer harness, which this one may misread; a row of another
+/// version appended to the file), one per version.
+fn foreign_schema_warnings(path: &Path, schema: Schema, rows: &[Row]) -> Vec<String> {
+    let (versions, columns) = match schema {
+        Schema::Flat => (1..=5, "schemas 1-5"),
+        Schema::Renamed => (6..=7, "schemas 6-7"),
+        Schema::Current => (SCHEMA_VERSION..=SCHEMA_VERSION, "this harness's schema"),
+    };
+    let mut foreign: std::collections::BTreeMap<u32, usize> = std::collections::BTreeMap::new();
+    for r in rows.iter().filter(|r| !versions.contains(&r.id.schema_version)) {
+        *foreign.entry(r.id.schema_version).or_default() += 1;
+    }
+    foreign
+        .into_iter()
+        .map(|(v, n)| {
+            if v > SCHEMA_VERSION {
+                format!(
+                    "warning: {}: {n} row(s) of CSV schema {v}, newer than this harness's {SCHEMA_VERSION}: read \
+                     with the columns this version knows, their values may be misread; analyse them with the \
+                     harness version that wrote them",
+                    path.display()
+                )
+            } else {
+                format!(
+                    "warning: {}: {n} row(s) say CSV schema {v} in a file of the columns of {columns}: rows of \
+                     another harness version appended to it? check them, or move them aside",
+                    path.display()
+                )
+            }
+        })
+        .collect()
 }
 
 fn warn_garbage(path: &Path, garbage: &[Garbage], then: &str) {
@@ -127,7 +168,9 @@ pub fn repair_torn_tail(path: &Path) -> Result<Option<PathBuf>> {
     mpm_host::atomic::write_atomic(&aside, &bytes[good..])?;
     let f = OpenOptions::new().write(true).open(path).with_context(|| format!("cannot repair {}", path.display()))?;
     f.set_len(good as u64).with_context(|| format!("cannot repair {}", path.display()))?;
-    f.sync_all().ok();
+    mpm_host::durable::sync_file(&f).with_context(|| {
+        format!("cannot sync {} after cutting its torn line: check the file system and run again", path.display())
+    })?;
     eprintln!(
         "warning: {} ended in a torn line (an interrupted write); moved it to {}; its run will be redone",
         path.display(),
@@ -177,6 +220,20 @@ fn schema_of(have: &[String], path: &Path) -> Result<Schema> {
             path.display()
         );
     }
+    // A file of this schema has every column: one without some (cut by hand or by another
+    // program) would read them as their defaults (a wall time of 0), never as written.
+    let missing: Vec<&String> = want.iter().filter(|c| !names.contains(c)).collect();
+    if schema == Schema::Current && !missing.is_empty() {
+        let named: Vec<&str> = missing.iter().take(5).map(|c| c.as_str()).collect();
+        bail!(
+            "{} lacks {} column(s) of CSV schema {SCHEMA_VERSION} ({}{}): its rows cannot be read as written; \
+             restore the file from a copy, or move it aside",
+            path.display(),
+            missing.len(),
+            named.join(", "),
+            if missing.len() > named.len() { ", ..." } else { "" }
+        );
+    }
     Ok(schema)
 }
 
@@ -212,7 +269,7 @@ fn parse_rows(bytes: &[u8], path: &Path) -> Result<Parsed> {
     let headers = csv::StringRecord::from(have.clone());
     let renamed = super::legacy::v7_header_as_current(&have);
     let records = records(bytes);
-    let mut parsed = Parsed { rows: Vec::new(), garbage: Vec::new(), good: Vec::new() };
+    let mut parsed = Parsed { schema, rows: Vec::new(), garbage: Vec::new(), good: Vec::new() };
     let header_end = records.first().map_or(bytes.len(), |(s, _, _)| *s);
     parsed.good.push(0..header_end);
     for (i, (start, line, rec)) in records.iter().enumerate() {
@@ -239,10 +296,10 @@ fn parse_rows(bytes: &[u8], path: &Path) -> Result<Parsed> {
     Ok(parsed)
 }
 
-/// An append-only CSV log: header written once, every row flushed and synced.
+/// An append-only CSV log: header written once, every row written and synced before
+/// [`CsvLog::append`] returns.
 pub struct CsvLog {
-    path: PathBuf,
-    file: File,
+    log: Appender,
 }
 
 impl CsvLog {
@@ -255,20 +312,11 @@ impl CsvLog {
             // Rewrites the file (by a rename): before the handle below is opened.
             repair_garbage(path)?;
         }
-        let mut file = OpenOptions::new()
-            .read(true)
-            .append(true)
-            .create(true)
-            .open(path)
-            .with_context(|| format!("cannot open {} for appending", path.display()))?;
+        let mut log = Appender::open(path)?;
         let mut text = Vec::new();
-        file.read_to_end(&mut text).with_context(|| format!("cannot read {}", path.display()))?;
+        log.file().read_to_end(&mut text).with_context(|| format!("cannot read {}", path.display()))?;
         if text.is_empty() {
-            let mut w = csv::WriterBuilder::new().has_headers(false).from_writer(Vec::new());
-            w.write_record(Row::header())?;
-            let bytes = w.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
-            file.write_all(&bytes).with_context(|| format!("cannot write {}", path.display()))?;
-            file.sync_data().ok();
+            log.append(&csv_line(Row::header())?)?;
         } else {
             // Demand this schema's exact header: rows appended under another header would be
             // misread.
@@ -281,24 +329,27 @@ impl CsvLog {
                 );
             }
         }
-        Ok(Self { path: path.to_path_buf(), file })
+        Ok(Self { log })
     }
 
-    /// Append one row and make it durable.
+    /// Append one row and make it durable. An error (a write or an `fsync` that failed)
+    /// means the row is not recorded: its run is not done.
     pub fn append(&mut self, row: &Row) -> Result<()> {
-        let mut w = csv::WriterBuilder::new().has_headers(false).from_writer(Vec::new());
-        w.write_record(row.record()?)?;
-        let bytes = w.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
-        self.file.write_all(&bytes).with_context(|| format!("cannot append to {}", self.path.display()))?;
-        self.file.flush()?;
-        self.file.sync_data().ok();
+        self.log.append(&csv_line(row.record()?)?)?;
         Ok(())
     }
 
     /// Path of the log.
     pub fn path(&self) -> &Path {
-        &self.path
+        self.log.path()
     }
+}
+
+/// `cells` as one CSV line, its line end included.
+fn csv_line(cells: Vec<String>) -> Result<Vec<u8>> {
+    let mut w = csv::WriterBuilder::new().has_headers(false).from_writer(Vec::new());
+    w.write_record(cells)?;
+    w.into_inner().map_err(|e| anyhow::anyhow!("{e}"))
 }
 
 #[cfg(test)]
@@ -313,6 +364,7 @@ mod tests {
     use mpm_spec::summary::{EndReason, StageSeconds};
     use mpm_spec::OptLevel;
     use mpm_spec::Scenario;
+    use std::io::Write;
 
     /// A planned Taylor run of `model`, `threads` threads, DD, o3, 10 steps.
     fn row(model: u32, threads: usize) -> Row {
@@ -370,6 +422,27 @@ mod tests {
         assert_eq!(std::fs::read(aside[0].path()).unwrap(), b"1,abc,");
     }
 
+    /// An `fsync` of a row that fails (injected: no unprivileged test can make a local file
+    /// system fail one) is an error naming the file and saying the row is not recorded; the
+    /// next row, once the disk answers again, is appended after it.
+    #[test]
+    fn a_failed_sync_of_a_row_is_an_error() {
+        use mpm_host::fault::{inject, Fault};
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("runs.csv");
+        let mut log = CsvLog::open(&p).unwrap();
+        log.append(&row(1, 1)).unwrap();
+        let fault = inject(Fault::SyncFile, libc::EIO);
+        let err = format!("{:#}", log.append(&row(2, 1)).unwrap_err());
+        assert!(err.contains(&p.display().to_string()) && err.contains("not recorded"), "{err}");
+        drop(fault);
+        log.append(&row(3, 1)).unwrap();
+        assert_eq!(log.path(), p);
+        let _fault = inject(Fault::SyncFile, libc::EIO);
+        std::fs::write(&p, [std::fs::read(&p).unwrap(), b"1,torn".to_vec()].concat()).unwrap();
+        assert!(CsvLog::open(&p).is_err(), "a torn tail cut without its sync is an error");
+    }
+
     /// Both kinds of torn tail are found before parsing: no trailing newline, and a line
     /// with fewer fields than the header; readers skip them, the repair moves them aside.
     #[test]
@@ -398,6 +471,27 @@ mod tests {
         assert_eq!(repair_torn_tail(&p).unwrap(), None);
     }
 
+    /// Rows of a newer schema, and rows of an older one among this schema's columns, are
+    /// read with a warning naming the version and what to do; this schema's rows are not.
+    #[test]
+    fn rows_of_a_foreign_schema_are_flagged() {
+        let p = Path::new("c/runs.csv");
+        let mut future = row(1, 1);
+        future.id.schema_version = SCHEMA_VERSION + 1;
+        let mut old = row(2, 1);
+        old.id.schema_version = 3;
+        let rows = vec![row(1, 2), future.clone(), future, old];
+        let w = foreign_schema_warnings(p, Schema::Current, &rows);
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(w[0].contains("c/runs.csv: 1 row(s) say CSV schema 3") && w[0].contains("move them aside"), "{w:?}");
+        let newer = format!("2 row(s) of CSV schema {}, newer", SCHEMA_VERSION + 1);
+        assert!(w[1].contains(&newer) && w[1].contains("harness version that wrote them"), "{w:?}");
+        assert!(foreign_schema_warnings(p, Schema::Current, &rows[..1]).is_empty());
+        let mut v7 = row(1, 1);
+        v7.id.schema_version = 7;
+        assert!(foreign_schema_warnings(p, Schema::Renamed, &[v7]).is_empty());
+    }
+
     #[test]
     fn missing_and_unknown_columns_are_named() {
         let dir = tempfile::tempdir().unwrap();
@@ -409,6 +503,11 @@ mod tests {
         std::fs::write(&p, "schema_version,run_key,from_the_future\n6,k,1\n").unwrap();
         let err = format!("{:#}", read_rows(&p).unwrap_err());
         assert!(err.contains("from_the_future") && err.contains("newer version"), "{err}");
+        // This schema without one of its columns: refused, naming it.
+        let header: Vec<String> = Row::header().into_iter().filter(|c| c != "wall_s").collect();
+        std::fs::write(&p, header.join(",") + "\n").unwrap();
+        let err = format!("{:#}", read_rows(&p).unwrap_err());
+        assert!(err.contains("lacks 1 column(s)") && err.contains("(wall_s)"), "{err}");
     }
 
     /// `row` as a legacy CSV file (header and one line) without the columns `drop` (none of

@@ -1,5 +1,5 @@
-//! What was recorded: the CSV row and its columns, the file, older schemas, the manifest (with
-//! a bundle's record of its build) and the campaign folder's lock.
+//! What was recorded: the CSV row and its columns, the file, older schemas, rows repeating a
+//! run, the manifest (with a bundle's record of its build) and the campaign folder's lock.
 
 pub mod bundle;
 pub mod columns;
@@ -9,3 +9,4 @@ pub mod legacy;
 pub mod lock;
 pub mod manifest;
 pub mod record;
+pub mod repeats;
