@@ -383,13 +383,13 @@ fn pinning_none_passes_no_cpus() {
 /// readers would misread it). The spec's columns come from `mpm_spec::RunSpec` itself.
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::store::record::SCHEMA_VERSION, 8);
+    assert_eq!(mpm_bench::campaign::store::record::SCHEMA_VERSION, 9);
     let want = "schema_version,campaign_id,run_id,run_key,timestamp,git_commit,git_dirty,machine_id,node,job_id,\
 binary_sha256,seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,\
 scenario.wall,scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell,\
 strategy,threads,ranks,rank_layout,grid,physics.eos,physics.q.c1,physics.q.c2,physics.cfl,\
 physics.energy_rise_limit,budget.steps,budget.end_time_s,budget.warmup,split_wait,paired.blocks,\
-inject_slowdown,model,opt,pin,launcher,rep,requested_cpus,observed_cpus,rank_cpus,oversubscribed,\
+inject_slowdown,inject_step_slowdown,model,opt,pin,launcher,rep,requested_cpus,observed_cpus,rank_cpus,oversubscribed,\
 particles,cells,nodes,mean_nodes,final_nodes,final_stored_nodes,final_occupancy.cells,\
 final_occupancy.occupied_cells,final_occupancy.occupied_blocks,final_occupancy.block_cells,dx_m,\
 steps,warmup_steps,steady_steps,dt_first,dt_next,sim_time,end_reason,wall_s,output_s,grid_stage_s,\
@@ -452,7 +452,7 @@ paired.reference_noise.workers.voluntary_switches,paired.reference_noise.workers
 paired.reference_noise.min_cpu_share,paired.reference_noise.threshold,\
 paired.reference_noise.low_cpu_share,paired.max_position_difference,paired.reference_grid_stage_s,\
 paired.reference_particle_stage_s,checkpoint.written,checkpoint.write_s,checkpoint.last_bytes,\
-checkpoint.restarts,checkpoint.restart_steps,checkpoint.restart_setup_s,injected_s,scenario,\
+checkpoint.restarts,checkpoint.restart_steps,checkpoint.restart_setup_s,injected_s,injected_step_s,scenario,\
 initial_length_m,final_length_m,initial_face_diameter_m,face_diameter_m,cloud_front_m,\
 cloud_front_robust_m,cloud_width_m,cloud_width_robust_m,hole_diameter_m,front_velocity_m_s,\
 debris_mass_kg,spacing_m,leading_debris_velocity_m_s,slab_length_m,shock_speed_m_s,\
@@ -486,7 +486,7 @@ fn resume_refuses_a_csv_with_missing_columns() {
     std::fs::write(d.join("runs.csv"), header.join(",") + "\n").unwrap();
     let e =
         schedule::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &opts(dir.path()), &flag).unwrap_err();
-    assert!(format!("{e:#}").contains("lacks 1 column(s) of CSV schema 8 (host_noise)"), "{e:#}");
+    assert!(format!("{e:#}").contains("lacks 1 column(s) of CSV schema 9 (host_noise)"), "{e:#}");
     // A readable file of an older schema (the header of the committed schema-7 campaign) is
     // not appended to: a new folder starts.
     let v7 =

@@ -3,7 +3,8 @@
 //! `fdatasync`ed, and an `fsync` that fails is an error, the run not counted done), so an
 //! interrupted campaign keeps every finished run, and read back
 //! ([`read_rows`]) after a check of the header: this schema's columns, or files of CSV
-//! schemas 1-7, converted ([`super::legacy`]).
+//! schemas 1-7, converted ([`super::legacy`]); schema 8, whose columns are this schema's but
+//! two, read with those empty.
 //!
 //! A torn last line (power loss, disk full, a kill in the middle of a write: no trailing
 //! newline, or fewer fields than the header) is found before the file is parsed
@@ -92,7 +93,7 @@ fn foreign_schema_warnings(path: &Path, schema: Schema, rows: &[Row]) -> Vec<Str
     let (versions, columns) = match schema {
         Schema::Flat => (1..=5, "schemas 1-5"),
         Schema::Renamed => (6..=7, "schemas 6-7"),
-        Schema::Current => (SCHEMA_VERSION..=SCHEMA_VERSION, "this harness's schema"),
+        Schema::Current => (8..=SCHEMA_VERSION, "schemas 8-9"),
     };
     let mut foreign: std::collections::BTreeMap<u32, usize> = std::collections::BTreeMap::new();
     for r in rows.iter().filter(|r| !versions.contains(&r.id.schema_version)) {
@@ -222,8 +223,10 @@ fn schema_of(have: &[String], path: &Path) -> Result<Schema> {
     }
     // A file of this schema has every column: one without some (cut by hand or by another
     // program) would read them as their defaults (a wall time of 0), never as written.
+    // A schema-8 file lacks only the columns schema 9 added: those read as empty.
     let missing: Vec<&String> = want.iter().filter(|c| !names.contains(c)).collect();
-    if schema == Schema::Current && !missing.is_empty() {
+    let only_newer = missing.iter().all(|c| super::legacy::ADDED_IN_V9.contains(&c.as_str()));
+    if schema == Schema::Current && !missing.is_empty() && !only_newer {
         let named: Vec<&str> = missing.iter().take(5).map(|c| c.as_str()).collect();
         bail!(
             "{} lacks {} column(s) of CSV schema {SCHEMA_VERSION} ({}{}): its rows cannot be read as written; \

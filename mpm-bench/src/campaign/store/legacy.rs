@@ -62,6 +62,9 @@ pub const ADDED_SINCE_V1: [&str; 28] = [
     "wait_frac",
 ];
 
+/// Columns added in schema 9: a schema-8 file lacks them and reads them as empty.
+pub const ADDED_IN_V9: [&str; 2] = ["inject_step_slowdown", "injected_step_s"];
+
 /// A row of CSV schemas 1-5 (field order is their column order).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LegacyRow {

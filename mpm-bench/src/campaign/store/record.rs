@@ -42,8 +42,10 @@ use std::sync::OnceLock;
 /// summary (`sim_time`, `kinetic_energy`, `work.bytes.<stage>`, `noise.workers.cpu_share`,
 /// `checkpoint.restarts`, `measured.paired.blocks`, the scenario's figures beside the tag
 /// `scenario`); schema 6-7 files read with their columns renamed
-/// ([`super::legacy::v7_as_current`]).
-pub const SCHEMA_VERSION: u32 = 8;
+/// ([`super::legacy::v7_as_current`]). Schema 9 adds the injected step slowdown
+/// (`inject_step_slowdown`, `injected_step_s`); schema-8 files read with these empty
+/// ([`super::legacy::ADDED_IN_V9`]).
+pub const SCHEMA_VERSION: u32 = 9;
 
 /// Outcome of one run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -251,7 +253,7 @@ impl Row {
     /// The columns of a row: its parts flattened, the planned run's `outputs` and `cpus`
     /// left out (the solver's outputs are the harness's business; the CPUs are
     /// `requested_cpus`), and the summary's records of the run's course (`history`,
-    /// `cloud_history`) and its cgroup's CPU quota (`cpu_quota`, keeping schema 8's
+    /// `cloud_history`) and its cgroup's CPU quota (`cpu_quota`, keeping the schema's
     /// columns), which stay in its JSON.
     pub fn layout() -> &'static Layout {
         static LAYOUT: OnceLock<Layout> = OnceLock::new();
