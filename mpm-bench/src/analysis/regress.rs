@@ -727,14 +727,6 @@ pub fn load(args: &RegressOptions) -> Result<(Campaign, Campaign)> {
     let filter = RowFilter::analysis(args.include_noisy).with_injected(true);
     let base = load_campaign(&args.baseline, &filter).context("reading --baseline")?;
     let cur = load_campaign(&args.current, &filter).context("reading --current")?;
-    let same = |a: &Path, b: &Path| a.canonicalize().ok().zip(b.canonicalize().ok()).is_some_and(|(a, b)| a == b);
-    if same(&base.dir, &cur.dir) {
-        anyhow::bail!(
-            "--baseline and --current are the same campaign ({}): a campaign compared with itself always passes; give \
-             the baseline's folder (the main branch's stored campaign) and this run's",
-            cur.dir.display()
-        );
-    }
     Ok((base, cur))
 }
 
