@@ -108,6 +108,7 @@ fn help_teaches_the_commands_and_every_flag() {
         "--checkpoint-every",
         "--paired-blocks",
         "--inject-slowdown",
+        "--inject-step-slowdown",
         "--dump-state",
         "--print-spec",
         "--force",
