@@ -345,13 +345,7 @@ fn cmd_calibrate(a: calibrate_measure::CalibrateOptions) -> Result<()> {
             std::path::Path::new(&a.preset).file_stem().map_or("preset".into(), |s| s.to_string_lossy().into_owned());
         a.out.join(fingerprint::fingerprint(&machine)).join(format!("calibrate-{name}")).join("calibration.json")
     });
-    if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
-    }
-    write_atomic(&path, serde_json::to_string_pretty(&c)?.as_bytes())
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    println!("wrote {}", path.display());
-    Ok(())
+    write_json_file(&path, &c)
 }
 
 /// `mpm-bench calibrate --design ab`: the sides side by side, every comparison, the JSON.
@@ -378,10 +372,15 @@ fn cmd_calibrate_ab(a: &calibrate_measure::CalibrateOptions) -> Result<()> {
     let c = calibrate_ab::judge(a, &machine, record, &kinds)?;
     print!("{}", calibrate_ab::table(&c));
     let path = a.json.clone().unwrap_or_else(|| dir.join("calibration.json"));
+    write_json_file(&path, &c)
+}
+
+/// Write `value` as pretty JSON to `path` (atomically, its folder created) and say so.
+fn write_json_file(path: &std::path::Path, value: &impl serde::Serialize) -> Result<()> {
     if let Some(parent) = path.parent() {
         std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
     }
-    write_atomic(&path, serde_json::to_string_pretty(&c)?.as_bytes())
+    write_atomic(path, serde_json::to_string_pretty(value)?.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))?;
     println!("wrote {}", path.display());
     Ok(())
