@@ -190,19 +190,13 @@ pub fn cmd_ab(a: AbArgs) -> Result<i32> {
         eprintln!("interrupted: the rows so far are kept; the same command continues");
         return Ok(130);
     }
-    verdict(&a, &record)
+    verdict(&a, &settings, &record)
 }
 
 /// Judge the two sides the record names; write verdict.json beside it.
-fn verdict(a: &AbArgs, record: &AbRecord) -> Result<i32> {
-    let settings = AbSettings {
-        tolerance: a.tolerance,
-        metrics: a.metrics.clone(),
-        allow_missing: a.allow_missing,
-        work_snapshot: a.work_snapshot.clone(),
-    };
+fn verdict(a: &AbArgs, settings: &AbSettings, record: &AbRecord) -> Result<i32> {
     let (base, cand) = (&record.sides[0].dir, &record.sides[1].dir);
-    let r = ab::judge(&settings, base, cand, ("baseline", "candidate"))?;
+    let r = ab::judge(settings, base, cand, ("baseline", "candidate"))?;
     mpm_bench::analysis::regress::write_json(&a.out.join("verdict.json"), &r)?;
     ab::emit(&r, a.json.as_deref(), a.markdown.as_deref())
 }
