@@ -67,12 +67,16 @@ fn ab_passes_the_same_build_and_fails_each_injected_change() {
 #[test]
 fn ab_refuses_bad_input() {
     let tmp = tempfile::tempdir().unwrap();
+    // As on a clean clone, whatever this checkout has built: no candidate solver either, so
+    // the baseline's folder must be the error reported.
     let run = |args: &[&str]| {
         Command::new(env!("CARGO_BIN_EXE_mpm-bench"))
             .arg("ab")
             .args(args)
             .arg("--out")
             .arg(tmp.path())
+            .env("MPM_BENCH_SOLVER_O3", tmp.path().join("no-such-mpm"))
+            .env("MPM_BENCH_SOLVER_O0", tmp.path().join("no-such-mpm"))
             .output()
             .unwrap()
     };

@@ -120,13 +120,17 @@ fn builds(a: &AbArgs, campaign: &Campaign) -> Result<[(Vec<Solver>, BuildRecord)
         return Ok([mock("mock-a"), mock("mock-b")]);
     }
     let ws = solver::workspace_root();
-    // The candidate first, kept aside: a baseline built in the same target folder would
+    let given = |dir: &PathBuf| -> Result<(Vec<Solver>, BuildRecord)> {
+        let s = builds::solvers_in(dir, &campaign.opts)?;
+        Ok((s, BuildRecord { source: format!("binaries in {}", dir.display()), commit: None, build_s: 0.0 }))
+    };
+    // Binaries given as folders are checked before anything is built: a mistyped
+    // --baseline-bin is reported at once, not after the candidate's build.
+    let baseline_given = a.baseline_bin.as_ref().map(given).transpose()?;
+    // The candidate next, kept aside: a baseline built in the same target folder would
     // replace target/<profile>/mpm.
     let candidate = match &a.candidate_bin {
-        Some(dir) => {
-            let s = builds::solvers_in(dir, &campaign.opts)?;
-            (s, BuildRecord { source: format!("binaries in {}", dir.display()), commit: None, build_s: 0.0 })
-        }
+        Some(dir) => given(dir)?,
         None => {
             let t0 = std::time::Instant::now();
             if !a.no_build {
@@ -141,15 +145,12 @@ fn builds(a: &AbArgs, campaign: &Campaign) -> Result<[(Vec<Solver>, BuildRecord)
             (s, BuildRecord { source: "this checkout".into(), commit: None, build_s: t0.elapsed().as_secs_f64() })
         }
     };
-    let baseline = match (&a.baseline_rev, &a.baseline_bin) {
-        (Some(rev), _) => {
+    let baseline = match (baseline_given, &a.baseline_rev) {
+        (Some(b), _) => b,
+        (None, Some(rev)) => {
             let ws = ws.as_deref().context("--baseline-rev needs the repository: run from a checkout")?;
             let target = a.baseline_target.clone().unwrap_or_else(|| builds::default_baseline_root(ws));
             builds::build_rev(ws, rev, &campaign.opts, &target, &a.cargo_args, a.quiet)?
-        }
-        (None, Some(dir)) => {
-            let s = builds::solvers_in(dir, &campaign.opts)?;
-            (s, BuildRecord { source: format!("binaries in {}", dir.display()), commit: None, build_s: 0.0 })
         }
         (None, None) => anyhow::bail!("give the baseline: --baseline-rev REV or --baseline-bin DIR"),
     };
