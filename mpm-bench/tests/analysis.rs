@@ -748,7 +748,7 @@ fn stage_speedups_are_steady_state_and_impossible_ones_flagged() {
     assert!((s4 - 2.0).abs() < 1e-9 && p4.flags.is_empty(), "Model 4 particle stage: {s4}, {:?}", p4.flags);
     let p3 = an.point(3, DD, "o3", 2, Stage::Total).unwrap();
     assert!(p3.speedup.unwrap().value > 11.0 && !p3.flags.is_empty(), "{p3:?}");
-    assert!(p3.flags[0].contains("above the 2 core(s)"), "{:?}", p3.flags);
+    assert!(p3.flags[0].contains("above the 2 physical core(s)"), "{:?}", p3.flags);
     assert!(!p3.is_real_parallel(), "a flagged point is no evidence of scaling");
     let out = tmp.path().join("figs");
     figures::run(FiguresOptions {
@@ -769,7 +769,7 @@ fn stage_speedups_are_steady_state_and_impossible_ones_flagged() {
     };
     let pt = get("fig11", "particle", "4");
     assert_eq!((pt["value"].parse::<f64>().unwrap(), pt["flags"].as_str()), (2.0, ""));
-    assert!(get("fig11", "total", "3")["flags"].contains("above the 2 core(s)"));
+    assert!(get("fig11", "total", "3")["flags"].contains("above the 2 physical core(s)"));
     assert!(std::fs::read_to_string(out.join("README.md")).unwrap().contains("flagged"));
     // The same rows without steady stage times (written before schema 6): no stage point.
     let rows: Vec<_> = mpm_bench::campaign::store::csv::read_rows(&dir.join("runs.csv"))
@@ -785,6 +785,83 @@ fn stage_speedups_are_steady_state_and_impossible_ones_flagged() {
     assert!(an.point(4, DD, "o3", 2, Stage::Particle).is_none());
     assert!(an.point(4, DD, "o3", 2, Stage::Total).is_some());
     assert!(an.notes.iter().any(|n| n.contains("no steady-state stage times")), "{:?}", an.notes);
+}
+
+/// The flag counts physical cores: a 2-thread speedup of 1.8 on two SMT siblings of one
+/// core (schema 10's `physical_cores`) is flagged and says so; the same on two cores, or
+/// on a row that predates the column (its distinct CPUs count), is plain data.
+#[test]
+fn smt_siblings_count_as_one_core() {
+    let point = |physical: Option<usize>| {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("smt");
+        std::fs::create_dir_all(&dir).unwrap();
+        let fp = fingerprint(Some("pack:1 core:1 pu:2"));
+        let mut log = CsvLog::open(&dir.join("runs.csv")).unwrap();
+        for (threads, step) in [(1, 1.8), (2, 1.0)] {
+            for rep in 0..3 {
+                let mut r = planned_row(&dir, &fp, 2, DD, "o3", threads, rep, "close", 3);
+                r.placement.requested_cpus = (0..threads).collect();
+                r.placement.physical_cores = physical.map(|p: usize| p.min(threads));
+                r.outcome.status = Status::Ok;
+                let f = r.measured_mut();
+                (f.progress.steps, f.progress.steady_steps) = (3, 3);
+                f.timing.steady_s_per_step = Some(step);
+                f.timing.wall_s = 3.0 * step;
+                log.append(&r).unwrap();
+            }
+        }
+        drop(log);
+        let an = analysis(&dir);
+        an.point(2, DD, "o3", 2, Stage::Total).unwrap().flags.clone()
+    };
+    let flags = point(Some(1));
+    assert_eq!(flags.len(), 1, "{flags:?}");
+    assert!(flags[0].contains("above the 1 physical core(s)") && flags[0].contains("SMT siblings"), "{flags:?}");
+    assert!(point(Some(2)).is_empty());
+    assert!(point(None).is_empty(), "a row before schema 10: its 2 CPUs count");
+}
+
+/// The margin's measurement: no speedup in the committed campaigns' figures (their runs one
+/// worker per core, none oversubscribed) exceeds [`SUPERLINEAR_MARGIN`] per thread, the
+/// largest cache effect measured so far (DD's smaller blocks on Model 4) included.
+#[test]
+fn committed_speedups_stay_within_the_margin() {
+    use mpm_bench::analysis::stats::SUPERLINEAR_MARGIN;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let mut files = Vec::new();
+    let mut stack = vec![root.join("results"), root.join("paper-figures")];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap().map(Result::unwrap) {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.file_name().is_some_and(|n| n == "points.csv") {
+                files.push(p);
+            }
+        }
+    }
+    assert!(files.len() >= 2, "{files:?}");
+    let (mut worst, mut seen) = ((0.0f64, String::new()), 0);
+    for f in &files {
+        let mut rdr = csv::Reader::from_path(f).unwrap();
+        for r in rdr.deserialize::<std::collections::HashMap<String, String>>().map(Result::unwrap) {
+            let threads: f64 = r["threads"].parse().unwrap();
+            if r["metric"] != "speedup" || r["oversubscribed"] == "true" || threads < 2.0 {
+                continue;
+            }
+            seen += 1;
+            let per = r["value"].parse::<f64>().unwrap() / threads;
+            if per > worst.0 {
+                worst = (
+                    per,
+                    format!("{}: {} {} Model{} {}", f.display(), r["figure"], r["panel"], r["model"], r["strategy"]),
+                );
+            }
+        }
+    }
+    assert!(seen > 20, "{seen} speedups read");
+    assert!(worst.0 > 1.0 && worst.0 < SUPERLINEAR_MARGIN, "largest speedup per core {:.3} ({})", worst.0, worst.1);
 }
 
 /// Cells of different step budgets (a quick campaign against a smoke one) are refused, exit

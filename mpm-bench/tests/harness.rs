@@ -383,13 +383,13 @@ fn pinning_none_passes_no_cpus() {
 /// readers would misread it). The spec's columns come from `mpm_spec::RunSpec` itself.
 #[test]
 fn csv_header_snapshot() {
-    assert_eq!(mpm_bench::campaign::store::record::SCHEMA_VERSION, 9);
+    assert_eq!(mpm_bench::campaign::store::record::SCHEMA_VERSION, 10);
     let want = "schema_version,campaign_id,run_id,run_key,timestamp,git_commit,git_dirty,machine_id,node,job_id,\
 binary_sha256,seed,order_index,spec_version,scenario.kind,scenario.model,scenario.velocity_m_s,\
 scenario.wall,scenario.spacing_m,scenario.cell_m,scenario.length_m,scenario.particles_per_cell,\
 strategy,threads,ranks,rank_layout,grid,physics.eos,physics.q.c1,physics.q.c2,physics.cfl,\
 physics.energy_rise_limit,budget.steps,budget.end_time_s,budget.warmup,split_wait,paired.blocks,\
-inject_slowdown,inject_step_slowdown,model,opt,pin,launcher,rep,requested_cpus,observed_cpus,rank_cpus,oversubscribed,\
+inject_slowdown,inject_step_slowdown,model,opt,pin,launcher,rep,requested_cpus,observed_cpus,rank_cpus,oversubscribed,physical_cores,\
 particles,cells,nodes,mean_nodes,final_nodes,final_stored_nodes,final_occupancy.cells,\
 final_occupancy.occupied_cells,final_occupancy.occupied_blocks,final_occupancy.block_cells,dx_m,\
 steps,warmup_steps,steady_steps,dt_first,dt_next,sim_time,end_reason,wall_s,output_s,grid_stage_s,\
@@ -438,7 +438,7 @@ work.bytes.grid_update,work.bytes.gather,work.bytes.remap_scatter,work.bytes.rem
 work.bytes.stress_update,work.worker_bytes,work.serial_bytes,work.balance,work.overhead,\
 work.efficiency_bound,noise.wall_s,noise.workers.cpu_s,noise.workers.cpu_share,\
 noise.workers.involuntary_switches,noise.workers.voluntary_switches,noise.workers.steal_frac,\
-noise.min_cpu_share,noise.threshold,noise.low_cpu_share,paired.reference_threads,\
+noise.min_cpu_share,noise.threshold,noise.low_cpu_share,cpu_quota,paired.reference_threads,\
 measured.paired.blocks,paired.block_steps,paired.reference_cpus,paired.t1_s_per_step,\
 paired.tt_s_per_step,paired.reference_first,paired.block_efficiency,paired.efficiency,\
 paired.reference_steady_substages.reorder,paired.reference_steady_substages.grid_fit,\
@@ -486,7 +486,7 @@ fn resume_refuses_a_csv_with_missing_columns() {
     std::fs::write(d.join("runs.csv"), header.join(",") + "\n").unwrap();
     let e =
         schedule::execute(&c, &m, &mock_solvers(&c), &mut MockRunner::default(), &opts(dir.path()), &flag).unwrap_err();
-    assert!(format!("{e:#}").contains("lacks 1 column(s) of CSV schema 9 (host_noise)"), "{e:#}");
+    assert!(format!("{e:#}").contains("lacks 1 column(s) of CSV schema 10 (host_noise)"), "{e:#}");
     // A readable file of an older schema (the header of the committed schema-7 campaign) is
     // not appended to: a new folder starts.
     let v7 =
@@ -802,11 +802,14 @@ fn interrupted_and_timed_out_runs_continue_from_their_checkpoints() {
         .path();
     assert!(std::fs::read_to_string(&log).unwrap().contains("interrupted"));
     // 2. Resumed until the run ends, every attempt cut by the 3 s time-out but for the last.
+    // About 4 attempts on a quiet 2-core host; on a loaded one each attempt gets less CPU
+    // and fewer steps, but every attempt continues from the last checkpoint, so the run
+    // still ends (the restarts count below proves the continuation), only later.
     let mut sessions = 0;
     while !read_rows(&csv).unwrap_or_default().iter().any(|r| r.outcome.status == Status::Ok) {
         sessions += 1;
         assert!(
-            sessions <= 10,
+            sessions <= 60,
             "the run never finished: {:?}",
             read_rows(&csv).unwrap_or_default().iter().map(|r| r.outcome.reason.clone()).collect::<Vec<_>>()
         );

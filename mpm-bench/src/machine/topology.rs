@@ -181,6 +181,24 @@ impl Machine {
         self.packages.iter().map(|p| p.cores.len()).sum()
     }
 
+    /// The physical cores the PUs `cpus` (OS indices) belong to, each counted once
+    /// (two SMT siblings are one core); a PU this machine does not list counts as a core
+    /// of its own.
+    pub fn physical_cores_of(&self, cpus: &[usize]) -> usize {
+        let mut cores = std::collections::BTreeSet::new();
+        for &cpu in cpus {
+            let core = self
+                .packages
+                .iter()
+                .enumerate()
+                .flat_map(|(p, pkg)| pkg.cores.iter().enumerate().map(move |(c, core)| (p, c, core)))
+                .find(|(_, _, core)| core.pus.contains(&cpu))
+                .map_or((usize::MAX, cpu), |(p, c, _)| (p, c));
+            cores.insert(core);
+        }
+        cores.len()
+    }
+
     /// Every usable PU (OS index), in logical order.
     pub fn usable_pus(&self) -> Vec<usize> {
         self.packages.iter().flat_map(|p| p.cores.iter().flat_map(|c| c.pus.iter().copied())).collect()

@@ -283,11 +283,15 @@ impl Attempt {
     /// The row of this attempt of `run` (`id`), placed by `plan` with a memory estimate of
     /// `estimate` bytes on a host of `pus` usable PUs: the one place a run's row is made.
     fn into_row(self, id: RowId, run: &PlannedRun, plan: &RunPlan, estimate: u64, pus: usize) -> Row {
+        // A CPU quota below the workers shares their time like too few cores do.
+        let workers = run.spec.total_workers() as f64;
+        let quota_short = self.measured.as_ref().and_then(|m| m.cpu_quota).is_some_and(|q| q < workers);
         let placement = Placement {
             requested_cpus: plan.requested().to_vec(),
             observed_cpus: self.observed_cpus,
             rank_cpus: self.rank_cpus,
-            oversubscribed: plan.oversubscribed || self.oversubscribed,
+            oversubscribed: plan.oversubscribed || self.oversubscribed || quota_short,
+            physical_cores: Some(plan.physical_cores),
         };
         let host = self.host.map(|h| HostColumns::of(&h, run.spec.total_workers(), pus)).unwrap_or_default();
         let outcome = Outcome {
@@ -313,6 +317,9 @@ pub struct RunPlan {
     pub cpus: Option<Vec<usize>>,
     /// More workers than usable PUs, or two workers on one CPU.
     pub oversubscribed: bool,
+    /// The physical cores the run's workers can use (SMT siblings once): those of its
+    /// CPUs when pinned, else the workers up to the machine's cores.
+    pub physical_cores: usize,
 }
 
 impl RunPlan {
@@ -320,7 +327,11 @@ impl RunPlan {
     pub fn of(machine: &Machine, run: &PlannedRun) -> Result<Self> {
         let placement = machine.place_ranks(&run.pin, run.spec.ranks, run.spec.threads)?;
         let cpus = (!matches!(run.pin, PinPolicy::None)).then_some(placement.cpus);
-        Ok(Self { cpus, oversubscribed: placement.oversubscribed })
+        let physical_cores = match &cpus {
+            Some(c) => machine.physical_cores_of(c),
+            None => run.spec.total_workers().min(machine.num_cores().max(1)),
+        };
+        Ok(Self { cpus, oversubscribed: placement.oversubscribed, physical_cores })
     }
 
     /// What the row records as requested: `cpus`, or nothing.
@@ -530,6 +541,36 @@ mod tests {
         assert_eq!(RunPlan::of(&two, &spec(2, 2, PinPolicy::CLOSE)).unwrap().cpus, Some(vec![0, 1, 2, 3]));
         assert!(!RunPlan::of(&two, &spec(2, 4, PinPolicy::CLOSE)).unwrap().oversubscribed);
         assert!(RunPlan::of(&two, &spec(3, 3, PinPolicy::CLOSE)).unwrap().oversubscribed);
+    }
+
+    /// The physical cores a run could use count SMT siblings once; a cgroup CPU quota below
+    /// the workers flags the row as time sharing.
+    #[test]
+    fn physical_cores_and_a_short_cpu_quota() {
+        let smt = Machine::synthetic("pack:1 core:2 pu:2").unwrap();
+        assert_eq!(smt.physical_cores_of(&[0, 1, 2, 3]), 2);
+        assert_eq!(smt.physical_cores_of(&[0, 1]), 1, "PUs 0 and 1 are siblings of core 0");
+        let p = RunPlan::of(&smt, &spec(1, 4, PinPolicy::CLOSE)).unwrap();
+        assert_eq!((p.physical_cores, p.oversubscribed), (2, false));
+        assert_eq!(
+            RunPlan::of(&smt, &spec(1, 2, PinPolicy::CLOSE)).unwrap().physical_cores,
+            2,
+            "one PU per core first"
+        );
+        assert_eq!(RunPlan::of(&smt, &spec(1, 4, PinPolicy::None)).unwrap().physical_cores, 2);
+        assert_eq!(RunPlan::of(&smt, &spec(1, 1, PinPolicy::None)).unwrap().physical_cores, 1);
+
+        let run = spec(1, 2, PinPolicy::CLOSE);
+        let plan = RunPlan::of(&smt, &run).unwrap();
+        let row = |quota: Option<f64>| {
+            let f = Figures { cpu_quota: quota, ..Figures::default() };
+            let a = Attempt { status: Status::Ok, measured: Some(f), ..Attempt::default() };
+            a.into_row(RowId::default(), &run, &plan, 0, 4)
+        };
+        assert_eq!(row(None).placement.physical_cores, Some(2));
+        assert!(!row(None).placement.oversubscribed);
+        assert!(!row(Some(2.0)).placement.oversubscribed);
+        assert!(row(Some(1.5)).placement.oversubscribed, "1.5 CPUs of time for 2 workers");
     }
 
     fn summary(cpus: &[&[usize]]) -> Summary {

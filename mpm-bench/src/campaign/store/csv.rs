@@ -93,7 +93,7 @@ fn foreign_schema_warnings(path: &Path, schema: Schema, rows: &[Row]) -> Vec<Str
     let (versions, columns) = match schema {
         Schema::Flat => (1..=5, "schemas 1-5"),
         Schema::Renamed => (6..=7, "schemas 6-7"),
-        Schema::Current => (8..=SCHEMA_VERSION, "schemas 8-9"),
+        Schema::Current => (8..=SCHEMA_VERSION, "schemas 8-10"),
     };
     let mut foreign: std::collections::BTreeMap<u32, usize> = std::collections::BTreeMap::new();
     for r in rows.iter().filter(|r| !versions.contains(&r.id.schema_version)) {
@@ -223,9 +223,11 @@ fn schema_of(have: &[String], path: &Path) -> Result<Schema> {
     }
     // A file of this schema has every column: one without some (cut by hand or by another
     // program) would read them as their defaults (a wall time of 0), never as written.
-    // A schema-8 file lacks only the columns schema 9 added: those read as empty.
+    // A schema-8 or 9 file lacks only the columns later schemas added: those read as empty.
     let missing: Vec<&String> = want.iter().filter(|c| !names.contains(c)).collect();
-    let only_newer = missing.iter().all(|c| super::legacy::ADDED_IN_V9.contains(&c.as_str()));
+    let added = super::legacy::ADDED_IN_V9.iter().chain(&super::legacy::ADDED_IN_V10);
+    let added: Vec<&str> = added.copied().collect();
+    let only_newer = missing.iter().all(|c| added.contains(&c.as_str()));
     if schema == Schema::Current && !missing.is_empty() && !only_newer {
         let named: Vec<&str> = missing.iter().take(5).map(|c| c.as_str()).collect();
         bail!(

@@ -65,6 +65,9 @@ pub const ADDED_SINCE_V1: [&str; 28] = [
 /// Columns added in schema 9: a schema-8 file lacks them and reads them as empty.
 pub const ADDED_IN_V9: [&str; 2] = ["inject_step_slowdown", "injected_step_s"];
 
+/// Columns added in schema 10: a schema-8 or 9 file lacks them and reads them as empty.
+pub const ADDED_IN_V10: [&str; 2] = ["cpu_quota", "physical_cores"];
+
 /// A row of CSV schemas 1-5 (field order is their column order).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LegacyRow {
@@ -404,6 +407,7 @@ impl LegacyRow {
                     self.rank_cpus.split('|').map(cpus).collect()
                 },
                 oversubscribed: self.oversubscribed,
+                physical_cores: None,
             },
             measured,
             host: HostColumns {

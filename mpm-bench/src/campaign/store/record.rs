@@ -44,8 +44,10 @@ use std::sync::OnceLock;
 /// `scenario`); schema 6-7 files read with their columns renamed
 /// ([`super::legacy::v7_as_current`]). Schema 9 adds the injected step slowdown
 /// (`inject_step_slowdown`, `injected_step_s`); schema-8 files read with these empty
-/// ([`super::legacy::ADDED_IN_V9`]).
-pub const SCHEMA_VERSION: u32 = 9;
+/// ([`super::legacy::ADDED_IN_V9`]). Schema 10 adds the cgroup's CPU quota of the run
+/// (`cpu_quota`, CPUs of time per period) and the physical cores its workers could use
+/// (`physical_cores`); schema 8-9 files read with these empty ([`super::legacy::ADDED_IN_V10`]).
+pub const SCHEMA_VERSION: u32 = 10;
 
 /// Outcome of one run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -125,9 +127,13 @@ pub struct Placement {
     /// With several ranks: each rank's observed CPUs.
     #[serde(default)]
     pub rank_cpus: Vec<Vec<usize>>,
-    /// More workers than usable cores (time sharing: not a scaling point), as planned or as
-    /// the solver found.
+    /// More workers than usable cores, or a cgroup CPU quota (`cpu_quota`) below the
+    /// workers (time sharing: not a scaling point), as planned or as the solver found.
     pub oversubscribed: bool,
+    /// The physical cores the workers could use, SMT siblings counted once (since schema
+    /// 10; empty before): what a speedup is compared with.
+    #[serde(default)]
+    pub physical_cores: Option<usize>,
 }
 
 /// The host around the run (since schema 3; see `machine::load` for the rule).
@@ -253,13 +259,12 @@ impl Row {
     /// The columns of a row: its parts flattened, the planned run's `outputs` and `cpus`
     /// left out (the solver's outputs are the harness's business; the CPUs are
     /// `requested_cpus`), and the summary's records of the run's course (`history`,
-    /// `cloud_history`) and its cgroup's CPU quota (`cpu_quota`, keeping the schema's
-    /// columns), which stay in its JSON.
+    /// `cloud_history`), which stay in its JSON.
     pub fn layout() -> &'static Layout {
         static LAYOUT: OnceLock<Layout> = OnceLock::new();
         LAYOUT.get_or_init(|| {
             let shapes = Row::shapes().expect("every part of a row can be filled");
-            Layout::of(&shapes, &[&["outputs"], &["cpus"], &["history"], &["cloud_history"], &["cpu_quota"]])
+            Layout::of(&shapes, &[&["outputs"], &["cpus"], &["history"], &["cloud_history"]])
                 .expect("the row's shape has every column")
         })
     }
