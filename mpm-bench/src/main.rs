@@ -13,7 +13,7 @@ use mpm_bench::campaign::measure::paired as paired_measure;
 use mpm_bench::campaign::schedule::{self};
 use mpm_bench::machine::topology::Machine;
 use mpm_bench::machine::{bandwidth, fingerprint};
-use mpm_bench::report::{comparison, figures, imbalance as imbalance_figure, impact_table, roofline_table};
+use mpm_bench::report::{comparison, export, figures, imbalance as imbalance_figure, impact_table, roofline_table};
 use mpm_host::atomic::write_atomic;
 use std::path::{Path, PathBuf};
 
@@ -41,6 +41,7 @@ mod cli;
         mpm-bench regress --baseline A --current B   # CI gate on parallel efficiency\n  \
         mpm-bench calibrate --preset ci          # the gate's false-alarm rate and detection power here\n  \
         mpm-bench report --results A --results B --out cmp   # cmp/index.html: B vs A\n  \
+        mpm-bench export --results B --format bmf    # Bencher Metric Format JSON of B's cells\n  \
         mpm-bench impact-table --results results/impact   # table of the impact runs\n  \
         mpm-bench roofline-table --summary m1.json --bandwidth bw.json   # each sub-stage against its limits\n  \
         mpm-bench imbalance --scenario impact    # DD work imbalance, uniform vs balanced cuts\n\n\
@@ -180,6 +181,32 @@ enum Cmd {
     Calibrate(cli::measure::CalibrateArgs),
     /// Hardware report (one HTML page, Markdown, JSON) of a campaign, or several compared with the first.
     Report(cli::analysis::ReportArgs),
+    /// A campaign's efficiency, time per step and work bytes per cell for Bencher or github-action-benchmark.
+    #[command(
+        long_about = "Write a campaign's numbers per cell, with their intervals, in a benchmark dashboard's \
+            format: Bencher Metric Format (--format bmf) or github-action-benchmark's custom JSON \
+            (--format github-action-benchmark-bigger or -smaller: that tool takes one direction per file).\n\n\
+            One benchmark per cell (and stage asked), named from the cell's key only, so the name is the same \
+            on every run of the configuration: <scenario>-m<model>-<strategy>-<opt>-t<threads>-<pin>, e.g. \
+            taylor-m1-dd-o3-t2-close (with /grid or /particle for those stages). Each carries the parallel \
+            efficiency (cells of 2+ threads), the time per step and the work bytes (the busiest worker's bytes \
+            over the run, exact), from the same estimates as regress and report: the efficiency's interval is \
+            the paired design's over processes or the separate design's bootstrap, the time's a bootstrap of \
+            the median. A single repetition is exported without an interval.\n\n\
+            BMF measures: latency (Bencher's built-in measure, nanoseconds: the time per step), \
+            parallel-efficiency (a fraction; 1 is perfect scaling) and work-bytes. github-action-benchmark \
+            entries: <benchmark>/efficiency (unit fraction) in the bigger file; <benchmark>/time-per-step \
+            (ns/step) and <benchmark>/work-bytes (bytes) in the smaller one, with the interval in range. \
+            Oversubscribed cells and rows over several MPI ranks are left out (a note says so); an empty \
+            export, an unknown format and an --out that is one of the campaign's files are refused.",
+        after_help = "Examples:\n  \
+            mpm-bench export --results results/local --format bmf --out bmf.json\n  \
+            bencher run --adapter json --file bmf.json          # Bencher: track them\n  \
+            mpm-bench export --results current --format github-action-benchmark-bigger --out efficiency.json\n  \
+            mpm-bench export --results current --format github-action-benchmark-smaller --out time.json\n  \
+            mpm-bench export --results current --format bmf --stages total,grid,particle | jq 'keys'"
+    )]
+    Export(cli::export::ExportArgs),
     /// Markdown table of the impact runs under a folder, from their JSON summaries.
     ImpactTable(cli::tables::ImpactTableArgs),
     /// Markdown roofline table of runs (each sub-stage's bytes, flops and rates), from their JSON summaries.
@@ -274,6 +301,7 @@ fn main() {
             }
         },
         Cmd::Report(a) => comparison::run(a.into()),
+        Cmd::Export(a) => export::run(&a.into()),
         Cmd::Calibrate(a) => cmd_calibrate(a.into()),
         Cmd::ImpactTable(a) => impact_table::run(a.into()),
         Cmd::RooflineTable(a) => roofline_table::run(&a.into()),

@@ -551,7 +551,7 @@ fn cell_checks(
 }
 
 /// Each worker's bytes over every sub-stage of one row's counters.
-fn worker_totals(w: &std::collections::BTreeMap<mpm_core::Substage, Vec<u64>>) -> Vec<u64> {
+pub(crate) fn worker_totals(w: &std::collections::BTreeMap<mpm_core::Substage, Vec<u64>>) -> Vec<u64> {
     let n = w.values().map(Vec::len).max().unwrap_or(0);
     (0..n).map(|i| w.values().map(|v| v.get(i).copied().unwrap_or(0)).sum()).collect()
 }

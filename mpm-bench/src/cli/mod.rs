@@ -4,6 +4,7 @@
 
 pub mod ab;
 pub mod analysis;
+pub mod export;
 pub mod measure;
 pub mod run;
 pub mod tables;

@@ -8,10 +8,13 @@
 //! * [`impact_table`]: the table of the committed impact runs;
 //! * [`roofline_table`]: the roofline table of single runs, from their summaries;
 //! * [`imbalance`]: the figure of predicted DD work imbalance, uniform vs balanced cuts;
-//! * [`strategies`]: every strategy side by side (a figure) and the measured choice per model.
+//! * [`strategies`]: every strategy side by side (a figure) and the measured choice per model;
+//! * [`export`]: a campaign's efficiency, time per step and work bytes per cell for the
+//!   benchmark dashboards (Bencher's BMF, github-action-benchmark's JSON).
 
 pub mod comparison;
 pub mod doc;
+pub mod export;
 pub mod figures;
 pub mod hybrid;
 pub mod imbalance;
