@@ -421,7 +421,9 @@ pub struct RunOptions {
     pub json: Option<PathBuf>,
 
     /// Write VTU snapshots of the particles (velocity, stress, pressure, von Mises, plastic
-    /// strain, density, failure) and a .pvd collection into DIR (created if needed).
+    /// strain, density, failure) and a .pvd collection into DIR (created if needed). Over
+    /// several MPI ranks each rank writes its particles as one .vtu piece per snapshot and
+    /// rank 0 a .pvtu naming the pieces; the .pvd lists the .pvtu files.
     #[arg(long, value_name = "DIR")]
     pub vtk: Option<PathBuf>,
 
