@@ -8,14 +8,13 @@ PVD is the run's `.pvd` collection (`mpm run ... --vtk DIR`), STATE its final pa
 (Voigt xx yy zz yz zx xy) as f64, little-endian). Checked:
 
 * the collection parses as XML and lists its snapshots in time order, each a `.vtu` (one
-  rank) or a `.pvtu` (R ranks), each of them read by VTK (vtkXMLGenericDataObjectReader,
-  which chooses VTK's reader from the file) without an error, as an unstructured grid of
-  vertices, with the same particle count;
+  rank) or a `.pvtu` (R ranks), each of them read by VTK (vtkXMLUnstructuredGridReader or
+  vtkXMLPUnstructuredGridReader) without an error, as an unstructured grid of vertices,
+  with the same particle count;
 * the arrays are stored as asked (`ascii`, inline base64 `binary`, zlib `compressed`
   appended data);
-* the last snapshot, read by vtkXMLUnstructuredGridReader (one rank) or
-  vtkXMLPUnstructuredGridReader (R ranks: R pieces, each also read alone by
-  vtkXMLUnstructuredGridReader, their counts adding up), holds every particle of STATE:
+* the last snapshot (over R ranks: R pieces, each also read alone by
+  vtkXMLUnstructuredGridReader, their counts adding up) holds every particle of STATE:
   the point count, the field names, positions, velocities and stresses bit for bit
   (matched by position), pressure and von Mises stress from the stress to round-off,
   density positive, plastic strain non-negative, failure flags 0 or 1; a one-rank
@@ -39,11 +38,7 @@ try:
     from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkCommonCore import vtkCommand
     from vtkmodules.vtkCommonDataModel import VTK_VERTEX, vtkUnstructuredGrid
-    from vtkmodules.vtkIOXML import (
-        vtkXMLGenericDataObjectReader,
-        vtkXMLPUnstructuredGridReader,
-        vtkXMLUnstructuredGridReader,
-    )
+    from vtkmodules.vtkIOXML import vtkXMLPUnstructuredGridReader, vtkXMLUnstructuredGridReader
 except ImportError as e:
     sys.stderr.write(
         f"vtk-check: VTK's Python module cannot be imported ({e}): run scripts/bootstrap.sh, which "
@@ -102,7 +97,8 @@ def stored_as(path, encoding, ranks):
     with open(path, "rb") as f:
         head = f.read().split(b"<AppendedData")[0].decode()
     want = {"ascii": 'format="ascii"', "binary": 'format="binary"', "compressed": 'format="appended"'}[encoding]
-    arrays = [line for line in head.splitlines() if "<DataArray" in line and 'Name="TIME"' not in line and 'Name="CYCLE"' not in line]
+    field_data = ('Name="TIME"', 'Name="CYCLE"')
+    arrays = [a for a in head.splitlines() if "<DataArray" in a and not any(f in a for f in field_data)]
     check(arrays and all(want in a for a in arrays), f"{path}: arrays not all stored as {encoding} ({want})")
     if encoding == "compressed":
         check('compressor="vtkZLibDataCompressor"' in head, f"{path}: compressed without naming VTK's zlib compressor")
@@ -126,10 +122,15 @@ def vertices(grid, path):
     check(np.all(types == VTK_VERTEX), f"{path}: cells other than VTK_VERTEX")
 
 
+def snapshot(path, ranks):
+    """One snapshot read by VTK's reader of its kind."""
+    return read(vtkXMLUnstructuredGridReader if ranks == 1 else vtkXMLPUnstructuredGridReader, path)
+
+
 def last_snapshot(path, ranks):
-    """The last snapshot read by its specific VTK reader (pieces checked one by one)."""
+    """The last snapshot read by VTK, over ranks its pieces also one by one."""
     if ranks == 1:
-        return read(vtkXMLUnstructuredGridReader, path)
+        return snapshot(path, ranks)
     root = ET.parse(path).getroot()
     pieces = [p.get("Source") for p in root.iter("Piece")]
     check(len(pieces) == ranks, f"{path}: {len(pieces)} pieces for {ranks} ranks")
@@ -140,7 +141,7 @@ def last_snapshot(path, ranks):
         piece = read(vtkXMLUnstructuredGridReader, os.path.join(os.path.dirname(path), p))
         arrays(piece, p)
         counts += piece.GetNumberOfPoints()
-    grid = read(vtkXMLPUnstructuredGridReader, path)
+    grid = snapshot(path, ranks)
     check(grid.GetNumberOfPoints() == counts, f"{path}: {grid.GetNumberOfPoints()} points, its pieces {counts}")
     return grid
 
@@ -184,7 +185,7 @@ def main():
         entries = collection(a.pvd, a.ranks)
         counts = set()
         for t, path in entries:
-            grid = read(vtkXMLGenericDataObjectReader, path)
+            grid = snapshot(path, a.ranks)
             vertices(grid, path)
             counts.add(grid.GetNumberOfPoints())
             if a.ranks == 1:
