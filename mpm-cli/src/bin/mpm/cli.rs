@@ -42,7 +42,9 @@ The JSON summary (SI units) holds the configuration, counts, wall time split int
 grid-node and particle stages with sub-stages, steady-state ns per particle-step, peak
 memory (VmHWM), requested and observed CPUs, energies and the scenario's figures. It is
 written only when the run succeeds; on a solver error (blow-up, particle leaving the grid)
-the program prints the error with its step number and exits with status 1.";
+the program prints the error with its step number and exits with status 1. Ctrl-C or
+SIGTERM stops a run between steps (status 130; a second one at once); with --checkpoint-dir,
+SIGTERM or SIGUSR1 first writes a last checkpoint (status 75: `mpm resume DIR` continues).";
 
 pub const IMPACT_EXAMPLES: &str = "\
 Examples:
@@ -419,7 +421,9 @@ pub struct RunOptions {
     pub json: Option<PathBuf>,
 
     /// Write VTU snapshots of the particles (velocity, stress, pressure, von Mises, plastic
-    /// strain, density, failure) and a .pvd collection into DIR (created if needed).
+    /// strain, density, failure) and a .pvd collection into DIR (created if needed). Over
+    /// several MPI ranks each rank writes its particles as one .vtu piece per snapshot and
+    /// rank 0 a .pvtu naming the pieces; the .pvd lists the .pvtu files.
     #[arg(long, value_name = "DIR")]
     pub vtk: Option<PathBuf>,
 
@@ -459,6 +463,9 @@ pub struct RunOptions {
     /// Save the run's whole state into DIR (created if needed) every --checkpoint-every, the
     /// last two kept, so that `mpm resume DIR` continues it bit for bit after a kill, a
     /// time-out or a reboot. DIR must hold no checkpoints yet (nothing is overwritten).
+    /// SIGTERM or SIGUSR1 (a batch system's time limit: `sbatch --signal=USR1@120`) then
+    /// writes a last checkpoint of the step the run is in and stops it with exit status 75;
+    /// a second SIGTERM or Ctrl-C ends it at once (130).
     #[arg(long, value_name = "DIR")]
     pub checkpoint_dir: Option<PathBuf>,
 

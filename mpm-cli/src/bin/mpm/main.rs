@@ -10,8 +10,9 @@
 //! checkpoints, [`tracking`] the scenario's histories, [`progress`] shows a bar, [`paired`]
 //! runs a paired measurement instead), then writes the summary; [`human`] prints it for
 //! people. `mpm resume DIR` ([`resume`]) chooses and checks the checkpoint to take a run
-//! back from and goes on through the same set-up and loop. Ctrl-C ([`interrupt`]) stops a
-//! run between steps.
+//! back from and goes on through the same set-up and loop. Ctrl-C and SIGTERM ([`interrupt`])
+//! stop a run between steps; SIGTERM and SIGUSR1 to a run with `--checkpoint-dir` write a
+//! last checkpoint first (exit status 75).
 
 mod checkpointing;
 mod cli;
@@ -37,12 +38,20 @@ use run::Request;
 
 fn main() {
     let cli = Cli::parse();
+    // Before any thread starts (the pool's, MPI's): they all leave the signals to one.
+    interrupt::listen();
     if let Err(e) = dispatch(cli) {
         eprintln!("error: {e}");
         for cause in e.chain().skip(1) {
             eprintln!("  caused by: {cause}");
         }
-        let code = if e.downcast_ref::<interrupt::Interrupted>().is_some() { 130 } else { 1 };
+        let code = if e.downcast_ref::<interrupt::Interrupted>().is_some() {
+            130
+        } else if e.downcast_ref::<interrupt::LastCheckpoint>().is_some() {
+            interrupt::LAST_CHECKPOINT_EXIT
+        } else {
+            1
+        };
         std::process::exit(code);
     }
 }

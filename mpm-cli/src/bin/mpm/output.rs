@@ -28,25 +28,28 @@ impl Outputs {
     /// Check and reserve every output before the run: the JSON summary's file, the snapshot
     /// directory, the radiograph directory. `written`: the snapshots `(step, time, file)`
     /// the collection of a run continued from a checkpoint already lists (none for a fresh
-    /// run).
-    pub fn open(spec: &RunSpec, written: Vec<(u64, f64, String)>) -> Result<Self> {
+    /// run). `rank`: this process's rank; the ranks other than 0 of a run over several
+    /// write their pieces of the snapshots only.
+    pub fn open(spec: &RunSpec, written: Vec<(u64, f64, String)>, rank: usize) -> Result<Self> {
         let o = &spec.outputs;
-        let json = o.json.as_deref().map(PendingFile::reserve).transpose()?;
+        let lead = rank == 0;
+        let json = o.json.as_deref().filter(|_| lead).map(PendingFile::reserve).transpose()?;
         let name = spec.scenario.kind().name();
-        let snapshots =
-            o.vtk.as_ref().map(|v| SnapshotWriter::resumed(&v.dir, name, v.encoding, written.clone())).transpose()?;
-        let radiographs = o.radiograph.as_ref().map(|r| (r.dir.clone(), r.every));
+        let snapshots = o
+            .vtk
+            .as_ref()
+            .map(|v| {
+                SnapshotWriter::resumed(&v.dir, name, v.encoding, written.clone())
+                    .map(|w| w.over_ranks(rank, spec.ranks))
+            })
+            .transpose()?;
+        let radiographs = o.radiograph.as_ref().filter(|_| lead).map(|r| (r.dir.clone(), r.every));
         if let Some((dir, _)) = &radiographs {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create the radiograph directory {}", dir.display()))?;
         }
         let every = o.vtk.as_ref().map_or(1, |v| v.every);
         Ok(Self { json, snapshots, every, radiographs, spent: Duration::ZERO })
-    }
-
-    /// No outputs (the ranks other than 0 of a run over several ranks).
-    pub fn none() -> Self {
-        Self { json: None, snapshots: None, every: 1, radiographs: None, spent: Duration::ZERO }
     }
 
     /// The snapshot of the initial state (before the timed loop).

@@ -6,7 +6,7 @@
 //! The summary is the `T`-thread solver's (its times are its warm-up and its blocks); its
 //! `paired` section holds both solvers' seconds per step per block and their ratio.
 
-use crate::interrupt::Interrupted;
+use crate::interrupt::{Interrupted, Requests};
 use anyhow::{Context, Result};
 use mpm_cli::summary::Timing;
 use mpm_core::{SimConfig, Simulation};
@@ -14,7 +14,6 @@ use mpm_host::paired::{alternate, max_position_difference, Contender};
 use mpm_host::pinning::{self, PinnedPool};
 use mpm_spec::summary::{EndReason, NoiseReport, PairedReport, StageSeconds, MIN_CPU_SHARE};
 use mpm_spec::RunSpec;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 /// What a paired run hands back to the summary.
@@ -53,7 +52,7 @@ pub fn run(
     setup: mpm_core::Setup,
     config: SimConfig,
     warmup: u64,
-    interrupted: &AtomicBool,
+    requests: &Requests,
 ) -> Result<(Simulation, PairedOutcome)> {
     let p = spec.paired.context("not a paired run")?;
     let block_steps = spec.paired_block_steps(warmup)?;
@@ -65,7 +64,7 @@ pub fn run(
         .context("cannot set up the paired reference (1 thread)")?;
     let end = spec.budget.end_time_s;
     let stop = |s: &Simulation| -> Option<f64> {
-        if interrupted.load(Ordering::Relaxed) {
+        if requests.stop_now() {
             return None;
         }
         match end {
@@ -84,7 +83,7 @@ pub fn run(
     }
     let (blocks, first) = alternate(&mut solvers, p.blocks, block_steps, &stop, |_, _| {})
         .context("the paired run failed in a timed block")?;
-    if interrupted.load(Ordering::Relaxed) {
+    if requests.stop_now() {
         return Err(Interrupted(solvers[1].sim.steps()).into());
     }
     let [one, many] = solvers;

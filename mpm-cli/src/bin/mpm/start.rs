@@ -87,7 +87,7 @@ pub fn start(mut spec: RunSpec, force: bool, origin: Origin, ranks: &mut Ranks) 
         Origin::Checkpoint(_) => None,
     };
     let (cpus, rank_oversubscribed) = place_rank(&spec, &mut plan, ranks)?;
-    let mut outputs = if lead { Outputs::open(&spec, origin.snapshots())? } else { Outputs::none() };
+    let mut outputs = Outputs::open(&spec, origin.snapshots(), ranks.rank())?;
     let pool = start_pool(spec.threads, cpus.as_deref())?;
     let bare = matches!(origin, Origin::Checkpoint(_));
     let (prepared, exchange) =

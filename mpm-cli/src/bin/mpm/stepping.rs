@@ -5,7 +5,7 @@
 
 use crate::checkpointing::{Carried, Checkpointer, RunLog, SavedSnapshot};
 use crate::human::print_human;
-use crate::interrupt::{install_interrupt_handler, Interrupted};
+use crate::interrupt::{Interrupted, LastCheckpoint, Requests};
 use crate::machine::Plan;
 use crate::output::Outputs;
 use crate::progress::Progress;
@@ -25,7 +25,6 @@ use mpm_spec::summary::{
     CheckpointReport, EndReason, HistoryPoint, NoiseReport, PairedReport, RankReport, MIN_CPU_SHARE,
 };
 use mpm_spec::RunSpec;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 /// Why to stop before the next step, if it is time. The end time counts as reached when
@@ -120,13 +119,13 @@ impl Checkpoints {
 struct LoopContext<'a> {
     spec: &'a RunSpec,
     pool: &'a PinnedPool,
-    interrupted: &'a AtomicBool,
+    requests: &'a Requests,
     progress: Option<&'a Progress>,
     geometry: Option<&'a ImpactGeometry>,
 }
 
 /// Step until the end time or the step limit (or Ctrl-C, or a solver error), writing
-/// checkpoints when due. The whole loop runs on the pool's first worker (one hand-over to
+/// checkpoints when due (and a last one when a signal asks for it: [`checkpoint_after_step`]). The whole loop runs on the pool's first worker (one hand-over to
 /// the pool per run, not per step); the solver's parallel phases broadcast from there.
 /// Returns why it stopped; `carry.log.timing` holds the loop's timing (output and checkpoint
 /// writes excluded, added to what a checkpoint carried). `ranks`: what the tracking
@@ -141,7 +140,7 @@ fn step_loop(
     ranks: &mut dyn Collectives,
     slowdown: &mut Option<StepSlowdown>,
 ) -> Result<EndReason> {
-    let (base_wall, base_output) = (carry.log.timing.wall_s, carry.log.timing.output_s);
+    let base_wall = carry.log.timing.wall_s;
     let warmup = carry.log.timing.warmup_steps;
     let mut warm_done = warmup == 0 || sim.steps() >= warmup;
     let budget = &ctx.spec.budget;
@@ -157,7 +156,7 @@ fn step_loop(
             if let Some(reason) = reached(budget, sim) {
                 return Ok(reason);
             }
-            if ctx.interrupted.load(Ordering::Relaxed) {
+            if ctx.requests.stop_now() {
                 ctx.progress.inspect(|p| p.bar.abandon());
                 return Err(Interrupted(sim.steps()).into());
             }
@@ -183,21 +182,8 @@ fn step_loop(
             ctx.progress.inspect(|p| p.update(sim));
             outputs.after_step(sim, ctx.geometry)?;
             if let Some(ck) = checkpoints.as_deref_mut() {
-                // No checkpoint of the final state: the summary follows at once.
-                if reached(budget, sim).is_none() && ck.writer.due(sim, ranks)? {
-                    let timing = Timing {
-                        wall_s: wall(outputs, Some(ck)),
-                        output_s: base_output + outputs.spent.as_secs_f64(),
-                        ..carry.log.timing.clone()
-                    };
-                    let mut report = report_now(&carry.log.report, Some(ck));
-                    report.written += 1;
-                    let program = carry.saved(timing, report, outputs);
-                    if let Some(bytes) = ck.writer.write(ctx.spec, sim, program, ranks)? {
-                        ck.written += 1;
-                        ck.last_bytes = bytes;
-                    }
-                }
+                let wall_s = wall(outputs, Some(ck));
+                checkpoint_after_step(ctx, sim, outputs, carry, ck, ranks, wall_s)?;
             }
         }
     })?;
@@ -208,6 +194,55 @@ fn step_loop(
         mark_warmup(&mut carry.log.timing, sim, wall_s);
     }
     Ok(end_reason)
+}
+
+/// After a step of a run with checkpoints: the checkpoint when due, or the last one when
+/// SIGTERM or SIGUSR1 asked for it on any rank (collective over ranks every step: the ranks
+/// stop after the same step), then the error the run stops with ([`LastCheckpoint`], or
+/// [`Interrupted`] when it could not be written). None of the final state: the summary
+/// follows at once. `wall_s`: the loop's wall time so far.
+fn checkpoint_after_step(
+    ctx: &LoopContext<'_>,
+    sim: &Simulation,
+    outputs: &Outputs,
+    carry: &Carry,
+    ck: &mut Checkpoints,
+    ranks: &mut dyn Collectives,
+    wall_s: f64,
+) -> Result<()> {
+    if reached(&ctx.spec.budget, sim).is_some() {
+        return Ok(());
+    }
+    let mut last = [u64::from(ctx.requests.last_checkpoint())];
+    if ranks.ranks() > 1 {
+        ranks.sum_counts(&mut last)?;
+    }
+    let last = last[0] > 0;
+    if !last && !ck.writer.due(sim, ranks)? {
+        return Ok(());
+    }
+    let timing = Timing {
+        wall_s,
+        output_s: carry.log.timing.output_s + outputs.spent.as_secs_f64(),
+        ..carry.log.timing.clone()
+    };
+    let mut report = report_now(&carry.log.report, Some(ck));
+    report.written += 1;
+    let program = carry.saved(timing, report, outputs);
+    let written = ck.writer.write(ctx.spec, sim, program, ranks)?;
+    if let Some(bytes) = written {
+        ck.written += 1;
+        ck.last_bytes = bytes;
+    }
+    if !last {
+        return Ok(());
+    }
+    ctx.progress.inspect(|p| p.bar.abandon());
+    let dir = ctx.spec.outputs.checkpoint.as_ref().map_or_else(String::new, |c| c.dir.display().to_string());
+    Err(match written {
+        Some(_) => LastCheckpoint { step: sim.steps(), dir }.into(),
+        None => Interrupted(sim.steps()).into(),
+    })
 }
 
 /// One step, then the injected step slowdown (a test knob) when there is one.
@@ -274,10 +309,10 @@ struct Stepped {
 /// Step a ready run to its end, then measure, write and print its summary.
 pub fn go(run: Ready, ranks: &mut Ranks) -> Result<()> {
     let quiet = run.spec.outputs.quiet;
-    let interrupted = install_interrupt_handler();
+    let requests = Requests::arm(run.checkpoints.is_some());
     let budget = &run.spec.budget;
     let progress = Progress::new(quiet || ranks.rank() != 0, budget.end_time_s, budget.steps, &run.sim);
-    let (mut run, stepped) = step(run, &interrupted, progress.as_ref(), ranks)?;
+    let (mut run, stepped) = step(run, &requests, progress.as_ref(), ranks)?;
     // The final figures, measured once: the summary's, and the history's last sample.
     let figures = FinalFigures::measure(&run.sim, run.taylor, &run.carry.tracking, ranks.collectives())?;
     run.carry.tracking.finish(&run.sim, &figures);
@@ -297,7 +332,7 @@ pub fn go(run: Ready, ranks: &mut Ranks) -> Result<()> {
 /// stepping loop, with what each worker got of its wall time (the noise a run can see).
 fn step(
     mut run: Ready,
-    interrupted: &AtomicBool,
+    requests: &Requests,
     progress: Option<&Progress>,
     ranks: &mut Ranks,
 ) -> Result<(Ready, Stepped)> {
@@ -308,7 +343,7 @@ fn step(
         Some(setup) => {
             let warmup = run.carry.log.timing.warmup_steps;
             let config = sim_config(&run.spec);
-            let (sim, out) = crate::paired::run(&run.spec, run.sim, &run.pool, setup, config, warmup, interrupted)?;
+            let (sim, out) = crate::paired::run(&run.spec, run.sim, &run.pool, setup, config, warmup, requests)?;
             run.sim = sim;
             record(&mut run.carry.log.history, &run.sim);
             run.carry.tracking.observe(&run.sim, ranks.collectives())?;
@@ -323,7 +358,7 @@ fn step(
         }
         None => {
             let ctx =
-                LoopContext { spec: &run.spec, pool: &run.pool, interrupted, progress, geometry: run.impact.as_ref() };
+                LoopContext { spec: &run.spec, pool: &run.pool, requests, progress, geometry: run.impact.as_ref() };
             let mut usage = UsageMeter::new(run.spec.threads, &run.pool.observed_cpus());
             usage.begin(&run.pool.pool);
             let (sim, outputs, carry) = (&mut run.sim, &mut run.outputs, &mut run.carry);
