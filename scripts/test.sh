@@ -3,7 +3,9 @@
 # (unit, integration, CLI, end-to-end harness, doc tests), built optimised (profile o3-test:
 # o3 without its LTO, see Cargo.toml) so the physics tests run fast, the bundle test, the loom
 # model check of mpm-core's parallel primitives, the work counters against their committed
-# snapshot and the CI job files run for real (scripts/ci-recipes-test.sh). mpm-bench's Slurm test starts a one-node Slurm of its own
+# snapshot, the fault-injection suite (scripts/fault-injection.sh: kills, a full disk, a
+# read-only folder; it needs root) and the CI job files run for real
+# (scripts/ci-recipes-test.sh). mpm-bench's Slurm test starts a one-node Slurm of its own
 # (scripts/slurm-local.sh) and stops it: it needs root and the packages the bootstrap installs.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -29,6 +31,16 @@ export MPM_CPU_HAS_AVX512=0
 if grep -qw avx512f /proc/cpuinfo 2>/dev/null && grep -qw avx2 /proc/cpuinfo; then MPM_CPU_HAS_AVX512=1; fi
 step "cargo test (profile o3-test: o3 without LTO; MPM_CPU_HAS_AVX512=$MPM_CPU_HAS_AVX512)"
 cargo test --workspace --profile o3-test
+
+# The fault-injection suite, with the programs the tests built (target/o3-test/mpm-bench,
+# target/o3-test/mpm as both solvers): the smoke campaign (three repetitions) killed with
+# SIGKILL at 20 seeded random moments and resumed to exactly the rows of an uninterrupted
+# one, the same campaign into a tmpfs that fills up and resumed when space is back, a
+# read-only results folder refused up front. It mounts tmpfs file systems: root only (it
+# fails elsewhere, saying so). About 2-3 minutes; FAULT_SEED=N draws other kill moments.
+step "the fault-injection suite (scripts/fault-injection.sh)"
+MPM_BENCH=target/o3-test/mpm-bench MPM_BENCH_SOLVER_O3=target/o3-test/mpm MPM_BENCH_SOLVER_O0=target/o3-test/mpm \
+    scripts/fault-injection.sh
 
 # The self-contained bundle for a machine without a toolchain (scripts/bundle.sh), made at
 # profile o3-test from the builds above and run unpacked without cargo: its libraries, the

@@ -11,6 +11,7 @@ use mpm_bench::campaign::plan::matrix::{Campaign, Overrides};
 use mpm_bench::campaign::plan::preset::{self, OptLevel};
 use mpm_bench::campaign::schedule::slurm::SlurmOptions;
 use mpm_bench::campaign::schedule::{self, ExecOptions, ExecSummary, SchedulerKind};
+use mpm_bench::campaign::store::disk;
 use mpm_bench::machine::placement::{PinPolicy, Places};
 use mpm_bench::machine::topology::Machine;
 use mpm_core::Strategy;
@@ -271,7 +272,8 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
 
 /// `mpm-bench run`; the exit code: 0, or 1 when a run of this invocation failed, timed out
 /// or was invalid (unless `--allow-failures`), or 130 when interrupted. Bad input (the
-/// preset, the overrides, a pinning policy this machine cannot honour) exits 2 at once.
+/// preset, the overrides, a pinning policy this machine cannot honour) exits 2 at once. A
+/// campaign stopped by a full disk says so and what to do ([`disk::explain_full`]).
 pub fn cmd_run(a: RunArgs) -> Result<i32> {
     let ov = overrides(&a).unwrap_or_else(|e| bad_input(e));
     let ws = solver::workspace_root();
@@ -316,7 +318,8 @@ pub fn cmd_run(a: RunArgs) -> Result<i32> {
             campaign.seed
         );
     }
-    let summary = execute_campaign(&a, &campaign, &machine, &opts, &interrupted)?;
+    let summary =
+        execute_campaign(&a, &campaign, &machine, &opts, &interrupted).map_err(|e| disk::explain_full(e, &a.out))?;
     if !a.dry_run {
         eprintln!("{}", summary.report());
         // Machine-readable (scripts/reproduce.sh reads it): where the results are.
@@ -413,11 +416,18 @@ fn execute_campaign(
     }
 }
 
-/// Fail early, with a clear message, when the results root cannot be written.
+/// Fail early (before any run starts), with a clear message, when the results root cannot
+/// be written.
 pub fn check_writable(out: &Path) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create the output folder {}", out.display()))?;
     let probe = out.join(format!(".mpm-bench-write-test-{}", std::process::id()));
-    std::fs::write(&probe, b"").with_context(|| format!("the output folder {} is not writable", out.display()))?;
+    std::fs::write(&probe, b"").with_context(|| {
+        format!(
+            "the output folder {} is not writable: a campaign runs only into a folder it can write; make it \
+             writable, or choose another --out",
+            out.display()
+        )
+    })?;
     let _ = std::fs::remove_file(&probe);
     Ok(())
 }

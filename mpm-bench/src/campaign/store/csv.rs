@@ -13,9 +13,10 @@
 //! moves the torn bytes to `runs.csv.torn-<time>`, says so, and redoes that run. Lines that
 //! are not rows are set aside the same way ([`repair_garbage`]).
 
+use super::disk::{self, DiskFull};
 use crate::campaign::store::record::{Row, SCHEMA_VERSION};
 use anyhow::{bail, Context, Result};
-use mpm_host::durable::Appender;
+use mpm_host::durable::{AppendError, Appender};
 use std::fs::OpenOptions;
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -338,10 +339,38 @@ impl CsvLog {
     }
 
     /// Append one row and make it durable. An error (a write or an `fsync` that failed)
-    /// means the row is not recorded: its run is not done.
+    /// means the row is not recorded: its run is not done. What was written of it is cut
+    /// back out, so the file ends in its last recorded row (no torn line, and no row that a
+    /// later reader would take as recorded although its `fsync` failed); a full disk is a
+    /// [`DiskFull`].
     pub fn append(&mut self, row: &Row) -> Result<()> {
-        self.log.append(&csv_line(row.record()?)?)?;
-        Ok(())
+        let line = csv_line(row.record()?)?;
+        let path = self.log.path().to_path_buf();
+        let len =
+            self.log.file().metadata().with_context(|| format!("cannot read the size of {}", path.display()))?.len();
+        let Err(e) = self.log.append(&line) else {
+            return Ok(());
+        };
+        let file = self.log.file();
+        let uncut = file.set_len(len).and_then(|()| mpm_host::durable::sync_data(file)).err().map(|cut| {
+            format!(
+                "what was written of it could not be cut back out durably ({cut}): resuming the campaign sets it aside"
+            )
+        });
+        let source = match &e {
+            AppendError::Write { source, .. } | AppendError::Sync { source, .. } => Some(source),
+            _ => None,
+        };
+        if let Some(why) = source.and_then(disk::full) {
+            let what = format!("the row of run {} could not be appended to {}", row.id.run_id, path.display());
+            let what = uncut.map_or(what.clone(), |uncut| format!("{what}; {uncut}"));
+            return Err(DiskFull { folder: mpm_host::durable::folder_of(&path).to_path_buf(), why, what }.into());
+        }
+        let e = anyhow::Error::new(e);
+        Err(match uncut {
+            Some(uncut) => e.context(uncut),
+            None => e,
+        })
     }
 
     /// Path of the log.
@@ -443,6 +472,15 @@ mod tests {
         drop(fault);
         log.append(&row(3, 1)).unwrap();
         assert_eq!(log.path(), p);
+        // The row whose sync failed was cut back out: a reader would count it recorded.
+        let models: Vec<u32> = read_rows(&p).unwrap().iter().map(Row::model).collect();
+        assert_eq!(models, [1, 3]);
+        // A sync that finds the disk full (NFS reports ENOSPC there) names the full disk.
+        let full = inject(Fault::SyncFile, libc::ENOSPC);
+        let err = format!("{:#}", log.append(&row(4, 1)).unwrap_err());
+        assert!(err.starts_with(&format!("the disk holding {} is full", dir.path().display())), "{err}");
+        drop(full);
+        assert_eq!(read_rows(&p).unwrap().len(), 2);
         let _fault = inject(Fault::SyncFile, libc::EIO);
         std::fs::write(&p, [std::fs::read(&p).unwrap(), b"1,torn".to_vec()].concat()).unwrap();
         assert!(CsvLog::open(&p).is_err(), "a torn tail cut without its sync is an error");

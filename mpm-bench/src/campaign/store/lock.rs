@@ -2,9 +2,11 @@
 //! a campaign runs into the folder and released when the process ends, however it ends (the
 //! kernel drops the lock with the last open handle, so a killed harness leaves no stale
 //! lock). The file holds the holder's pid and host, so a second `mpm-bench run` into the same
-//! folder can say who is there; it refuses, or with `--wait` waits. The lock itself is
-//! `mpm_host::lock`'s, which `mpm` takes on a run's checkpoint folder too.
+//! folder can say who is there; it refuses, or with `--wait` waits. A folder where the lock
+//! cannot be made (read-only, or not ours) is refused before any run starts. The lock itself
+//! is `mpm_host::lock`'s, which `mpm` takes on a run's checkpoint folder too.
 
+use super::disk::not_writable;
 use anyhow::{bail, Result};
 use mpm_host::lock::LockError;
 use std::path::Path;
@@ -22,6 +24,13 @@ pub fn acquire(dir: &Path, wait: bool) -> Result<FolderLock> {
             "the campaign folder {} is in use by {who}: two campaigns writing one folder would run every run twice; \
              wait for it to finish, add --wait to wait here, or write to another --out",
             dir.display()
+        ),
+        Err(LockError::Io { path, source }) if not_writable(&source) => bail!(
+            "the campaign folder {} cannot be written ({source}: its lock {} cannot be made): a campaign runs \
+             only into a folder it can write; make it writable, or write to another --out (the analyses read a \
+             read-only folder as it is)",
+            dir.display(),
+            path.display()
         ),
         Err(e) => Err(e.into()),
     }
