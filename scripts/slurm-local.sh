@@ -21,7 +21,8 @@
 # SelectType=select/cons_tres with CR_Core allocates cores; accounting is off (no slurmdbd:
 # the harness reads job states from slurmctld, which keeps finished jobs MinJobAge=3600 s);
 # SlurmUser=root. The munge socket and key are private to this instance (AuthInfo=socket=...),
-# so a machine's own munged is left alone.
+# so a machine's own munged is left alone. cred_expire=10 (Slurm's minimum is 5, its default 120):
+# a job requeued (`scontrol requeue`) may start again after that many seconds, not two minutes.
 set -euo pipefail
 
 dir=${MPM_SLURM_DIR:-/tmp/mpm-slurm-local}
@@ -87,7 +88,7 @@ SlurmUser=root
 SlurmdUser=root
 AuthType=auth/munge
 CredType=cred/munge
-AuthInfo=socket=$dir/run/munge.socket
+AuthInfo=socket=$dir/run/munge.socket,cred_expire=10
 StateSaveLocation=$dir/state
 SlurmdSpoolDir=$dir/spool
 SlurmctldPidFile=$dir/run/slurmctld.pid

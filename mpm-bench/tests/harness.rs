@@ -180,6 +180,41 @@ fn resume_adds_nothing_and_interrupts_keep_rows() {
 /// (Taylor Model 1 -> the impact's model 1, same name, same folder) runs again instead of
 /// presenting the Taylor row as the impact's; run once more, nothing is left to do. A
 /// physics option of the preset is a new run too.
+/// A campaign of an older harness, whose rows carry the 16-digit short form of the resume key,
+/// resumes: its rows count as the runs they name, the runs still to do run once, and their
+/// rows carry the whole SHA-256.
+#[test]
+fn a_campaign_with_short_keys_resumes() {
+    use mpm_bench::campaign::store::csv::CsvLog;
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign("smoke", &Overrides::default());
+    let m = laptop();
+    let s = interrupted_after_3(&c, &m, dir.path());
+    let csv = s.dir.join("runs.csv");
+    let old: Vec<Row> = read_rows(&csv)
+        .unwrap()
+        .into_iter()
+        .map(|mut r| {
+            r.id.run_key = r.key().short().0;
+            r
+        })
+        .collect();
+    std::fs::remove_file(&csv).unwrap();
+    let mut log = CsvLog::open(&csv).unwrap();
+    old.iter().for_each(|r| log.append(r).unwrap());
+    drop(log);
+    let mut r = MockRunner::default();
+    let s = run_mock(&c, &m, dir.path(), &mut r);
+    assert_eq!((s.counts.already_done, s.counts.written, r.calls.len()), (3, 5, 5));
+    let rows = read_rows(&csv).unwrap();
+    assert_eq!(rows.iter().filter(|r| r.key().is_short()).count(), 3, "the old rows are left as they were");
+    let new: Vec<&Row> = rows.iter().filter(|r| !r.key().is_short()).collect();
+    assert_eq!(new.len(), 5);
+    assert!(new.iter().all(|r| r.id.run_key.split_once("-r").is_some_and(|(h, _)| h.len() == 64)));
+    let runs: HashSet<_> = rows.iter().map(|r| r.key().short()).collect();
+    assert_eq!(runs.len(), 8, "one row per run");
+}
+
 #[test]
 fn changing_only_the_scenario_runs_again() {
     let dir = tempfile::tempdir().unwrap();

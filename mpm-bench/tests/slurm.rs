@@ -324,7 +324,10 @@ fn ctrl_c_cancels_only_this_invocations_jobs(slurm: &LocalSlurm, out: &Path) {
     wait_for(30, "the earlier job to run", || slurm.state(&j1) == "RUNNING");
     let log = std::fs::File::create(out.join("ctrl-c.log")).unwrap();
     let mut child = slurm.bench().args(args).arg("--out").arg(out).stdout(Stdio::null()).stderr(log).spawn().unwrap();
-    wait_for(30, "the second job to be submitted", || jobs(&dir).len() == 2);
+    wait_for(30, "the second job to be submitted", || {
+        let j = jobs(&dir);
+        j.len() == 2 && j.iter().all(|j| !j.job_id.is_empty())
+    });
     let j2 = jobs(&dir)[1].job_id.clone();
     assert!(Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap().success());
     let status = child.wait().unwrap();
@@ -338,6 +341,175 @@ fn ctrl_c_cancels_only_this_invocations_jobs(slurm: &LocalSlurm, out: &Path) {
     assert!(read_rows(&dir.join("runs.csv")).unwrap().is_empty(), "an interrupted run is not recorded");
 }
 
+/// The campaign folder under `out` of the only campaign there (a harness killed before it
+/// printed it).
+fn only_folder(out: &Path) -> PathBuf {
+    let all: Vec<PathBuf> =
+        std::fs::read_dir(out.join("slurm-mpmlocal")).unwrap().flatten().map(|e| e.path()).collect();
+    assert_eq!(all.len(), 1, "{all:?}");
+    all[0].clone()
+}
+
+/// A folder with an `sbatch` that logs every submission to `log` and forwards it to Slurm's;
+/// when `KILL_ONCE` names a file that does not exist, it creates it and kills its caller (the
+/// harness) with SIGKILL once Slurm has answered, before the caller could read the answer.
+fn logging_sbatch(dir: &Path, log: &Path) -> PathBuf {
+    let real = Command::new("sh").args(["-c", "command -v sbatch"]).output().unwrap();
+    let real = String::from_utf8_lossy(&real.stdout).trim().to_string();
+    assert!(!real.is_empty(), "no sbatch on PATH");
+    let bin = dir.join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    let script = format!(
+        "#!/bin/sh\necho \"$*\" >> '{}'\nanswer=$('{real}' \"$@\"); rc=$?\n\
+         if [ -n \"$KILL_ONCE\" ] && [ ! -e \"$KILL_ONCE\" ]; then : > \"$KILL_ONCE\"; kill -KILL $PPID; exit 1; fi\n\
+         printf '%s\\n' \"$answer\"\nexit $rc\n",
+        log.display()
+    );
+    let path = bin.join("sbatch");
+    std::fs::write(&path, script).unwrap();
+    std::fs::set_permissions(&path, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    bin
+}
+
+/// The harness killed with SIGKILL right after `sbatch` answered, before it wrote the job id
+/// down: the same command again adopts that job (found by its name), never submits its run a
+/// second time, and ends with one row per run key.
+fn a_job_submitted_by_a_killed_harness_is_adopted(slurm: &LocalSlurm, out: &Path) {
+    let log = out.join("sbatch.log");
+    let kill_once = out.join("killed");
+    std::fs::create_dir_all(out).unwrap();
+    let bin = logging_sbatch(out, &log);
+    let path = format!("{}:{}", bin.display(), std::env::var("PATH").unwrap_or_default());
+    let run = |kill: bool| {
+        let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3"];
+        let args2 = ["--threads", "1", "--strategies", "dd", "--reps", "2", "--out"];
+        let mut c = slurm.bench();
+        c.args(args).args(args2).arg(out).env("PATH", &path);
+        if kill {
+            c.env("KILL_ONCE", &kill_once);
+        }
+        c.output().unwrap()
+    };
+    let killed = run(true);
+    assert_eq!(std::os::unix::process::ExitStatusExt::signal(&killed.status), Some(9), "{}", text(&killed));
+    let dir = only_folder(out);
+    let left = jobs(&dir);
+    assert_eq!(left.len(), 1, "the run recorded before sbatch was asked");
+    assert_eq!(left[0].job_id, "", "sbatch's answer was never read");
+    let name = format!("mpm-{}-{}", dir.file_name().unwrap().to_str().unwrap(), left[0].run_id);
+    let o = slurm.command("squeue").args(["-h", "--states=all", "--name", &name, "-o", "%i"]).output().unwrap();
+    let job = String::from_utf8_lossy(&o.stdout).trim().to_string();
+    assert!(!job.is_empty() && !job.contains('\n'), "one job of that name in Slurm: {job:?}");
+    let again = run(false);
+    assert!(again.status.success(), "{}", text(&again));
+    assert!(text(&again).contains(&format!("adopting Slurm job {job} ({name})")), "{}", text(&again));
+    let submissions = std::fs::read_to_string(&log).unwrap().lines().count();
+    assert_eq!(submissions, 2, "two runs, two submissions: the killed one's run was not submitted again");
+    let rows = read_rows(&dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 2);
+    let keys: BTreeSet<&str> = rows.iter().map(|r| r.id.run_key.as_str()).collect();
+    assert_eq!(keys.len(), 2, "one row per run key");
+    assert!(rows.iter().all(|r| r.outcome.status == Status::Ok), "{rows:?}");
+    assert!(rows.iter().any(|r| r.id.job_id == job && r.id.run_id == left[0].run_id), "the adopted job's row");
+    assert!(jobs(&dir).is_empty());
+}
+
+/// `scontrol show job`'s `key=` value of job `id`.
+fn job_field(slurm: &LocalSlurm, id: &str, key: &str) -> String {
+    let o = slurm.command("scontrol").args(["show", "job", "-o", id]).output().unwrap();
+    let line = String::from_utf8_lossy(&o.stdout).into_owned();
+    line.split_whitespace().find_map(|w| w.strip_prefix(key)?.strip_prefix('=').map(str::to_string)).unwrap_or_default()
+}
+
+/// Make job `id` requeueable, as an administrator may (`scontrol update Requeue=1`): the
+/// harness submits with `--no-requeue`, which refuses a plain `scontrol requeue`.
+fn make_requeueable(slurm: &LocalSlurm, id: &str) {
+    let refused = slurm.command("scontrol").args(["requeue", id]).output().unwrap();
+    assert!(!refused.status.success(), "a job of the harness is not requeueable: {}", text(&refused));
+    assert_eq!(job_field(slurm, id, "Requeue"), "0");
+    let update = slurm.command("scontrol").args(["update", &format!("jobid={id}"), "Requeue=1"]).output().unwrap();
+    assert!(update.status.success(), "{}", text(&update));
+}
+
+/// `scontrol requeue` of job `id`.
+fn requeue(slurm: &LocalSlurm, id: &str) {
+    let requeue = slurm.command("scontrol").args(["requeue", id]).output().unwrap();
+    assert!(requeue.status.success(), "{}", text(&requeue));
+}
+
+/// A job requeued while it runs, and one requeued after its row was collected: the second
+/// start writes nothing (the ledger names the first start only, or no job at all), and the
+/// campaign has one row of the run.
+fn a_requeued_job_gives_one_row(slurm: &LocalSlurm, out: &Path) {
+    let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3", "--threads", "1"];
+    let args2 = ["--strategies", "dd", "--reps", "1", "--out"];
+    // While it runs (a long run): the restarted start is fenced out, the run is a failed row.
+    let log = std::fs::File::create(out.with_extension("log")).unwrap();
+    let mut bench = slurm.bench();
+    bench.args(args).args(["--steps", "100000"]).args(args2).arg(out).stdout(Stdio::null()).stderr(log);
+    let mut child = bench.spawn().unwrap();
+    let recorded = |dir: &Path| jobs(dir).iter().any(|j| !j.job_id.is_empty());
+    wait_for(60, "the job to be recorded", || {
+        std::fs::read_dir(out.join("slurm-mpmlocal")).is_ok_and(|d| d.flatten().any(|e| recorded(&e.path())))
+    });
+    let dir = only_folder(out);
+    let record = jobs(&dir)[0].clone();
+    wait_for(60, "the job to run", || slurm.state(&record.job_id) == "RUNNING");
+    make_requeueable(slurm, &record.job_id);
+    requeue(slurm, &record.job_id);
+    let t = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(t.elapsed() < Duration::from_secs(180), "the harness did not end after the requeue");
+        std::thread::sleep(Duration::from_millis(500));
+    };
+    let said = std::fs::read_to_string(out.with_extension("log")).unwrap();
+    assert_eq!(status.code(), Some(1), "a failed run: {said}");
+    assert_eq!(job_field(slurm, &record.job_id, "Restarts"), "1", "{said}");
+    let rows = read_rows(&dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 1, "{said}");
+    assert_eq!((rows[0].outcome.status, rows[0].id.job_id.as_str()), (Status::Failed, record.job_id.as_str()));
+    assert!(rows[0].outcome.reason.contains("started again by Slurm"), "{}", rows[0].outcome.reason);
+    assert!(!dir.join("json").join(format!("{}.row.json", record.run_id)).exists(), "no start wrote a row");
+    // After it was collected: the restart finds no record of its run and writes nothing. (A
+    // job that ended cannot be made requeueable: it is, while it waits behind another job.)
+    let quick = out.join("quick");
+    let blocker = slurm.foreign_job(&["--exclusive", "--wrap", "sleep 600"]);
+    wait_for(30, "the blocking job to run", || slurm.state(&blocker) == "RUNNING");
+    let o = slurm.bench().args(args).args(args2).arg(&quick).arg("--detach").output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let qdir = folder(&o);
+    make_requeueable(slurm, &jobs(&qdir)[0].job_id);
+    slurm.scancel(&blocker);
+    let o = slurm.bench().args(args).args(args2).arg(&quick).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let rows = read_rows(&qdir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 1);
+    let (job, run_id) = (rows[0].id.job_id.clone(), rows[0].id.run_id.clone());
+    let json = qdir.join("json");
+    let files_before: BTreeMap<String, Vec<u8>> = std::fs::read_dir(&json)
+        .unwrap()
+        .flatten()
+        .filter(|e| !e.file_name().to_string_lossy().ends_with(".slurm.out"))
+        .map(|e| (e.file_name().to_string_lossy().into_owned(), std::fs::read(e.path()).unwrap()))
+        .collect();
+    requeue(slurm, &job);
+    wait_for(120, "the requeued job to run again and end", || {
+        job_field(slurm, &job, "Restarts") == "1"
+            && ["COMPLETED", "FAILED"].contains(&job_field(slurm, &job, "JobState").as_str())
+    });
+    let output = std::fs::read_to_string(json.join(format!("{run_id}.slurm.out"))).unwrap();
+    assert!(output.contains(&format!("has no record of run {run_id}")), "{output}");
+    for (name, bytes) in &files_before {
+        assert_eq!(&std::fs::read(json.join(name)).unwrap(), bytes, "{name} was written again");
+    }
+    let o = slurm.bench().args(args).args(args2).arg(&quick).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(read_rows(&qdir.join("runs.csv")).unwrap().len(), 1, "one row of the run");
+}
+
 #[test]
 fn campaigns_through_a_one_node_slurm() {
     let t0 = Instant::now();
@@ -348,6 +520,8 @@ fn campaigns_through_a_one_node_slurm() {
     let tmp = tempfile::tempdir().unwrap();
     smoke_through_slurm_is_the_local_smoke(&slurm, &tmp.path().join("smoke"));
     pending_jobs_are_collected_not_submitted_twice(&slurm, &tmp.path().join("pending"));
+    a_job_submitted_by_a_killed_harness_is_adopted(&slurm, &tmp.path().join("killed"));
+    a_requeued_job_gives_one_row(&slurm, &tmp.path().join("requeue"));
     ctrl_c_cancels_only_this_invocations_jobs(&slurm, &tmp.path().join("ctrl-c"));
     // Jobs still run (the earlier invocation's, someone else's held one): stop takes them too.
     let steps: Vec<u32> = processes("slurmstepd");

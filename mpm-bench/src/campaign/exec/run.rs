@@ -75,9 +75,12 @@ pub struct RunCheckpoints {
 }
 
 impl RunCheckpoints {
-    /// The checkpoints of `run` under `root`.
+    /// The checkpoints of `run` under `root` (in the folder named with the short form of its
+    /// key when an older harness left one there).
     pub fn of(root: &Path, run: &PlannedRun) -> Self {
         let name = format!("{}-{}", run.label(), run.key().0);
+        let short = format!("{}-{}", run.label(), run.key().short().0);
+        let name = if !root.join(&name).exists() && root.join(&short).is_dir() { short } else { name };
         Self { dir: root.join(&name), log: root.join(format!("{name}.attempts.json")) }
     }
 

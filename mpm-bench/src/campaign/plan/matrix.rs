@@ -153,9 +153,47 @@ impl Overrides {
 }
 
 /// What identifies a configuration for resuming: two rows with the same key ran the same
-/// thing.
+/// thing. `<hash>-r<repetition>`, the hash the 64 hex digits of a SHA-256
+/// ([`PlannedRun::key`]); rows of older campaigns carry the first 16 digits only (the short
+/// form, [`RunKey::names`]).
 #[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct RunKey(pub String);
+
+impl RunKey {
+    /// Hex digits of the hash in the short form older campaigns wrote.
+    pub const SHORT_DIGITS: usize = 16;
+
+    /// The hash and the repetition (`None` when the key is not of the form `<hex>-r<n>`).
+    fn parts(&self) -> Option<(&str, &str)> {
+        let (hash, rep) = self.0.rsplit_once("-r")?;
+        let hex = !hash.is_empty() && hash.bytes().all(|b| b.is_ascii_hexdigit());
+        (hex && !rep.is_empty() && rep.bytes().all(|b| b.is_ascii_digit())).then_some((hash, rep))
+    }
+
+    /// Whether this key is of the short form of older campaigns (16 hex digits of the hash).
+    pub fn is_short(&self) -> bool {
+        self.parts().is_some_and(|(hash, _)| hash.len() == Self::SHORT_DIGITS)
+    }
+
+    /// The short form of this key (itself when it is short, or not a key of the harness).
+    pub fn short(&self) -> RunKey {
+        match self.parts() {
+            Some((hash, rep)) if hash.len() > Self::SHORT_DIGITS => {
+                RunKey(format!("{}-r{rep}", &hash[..Self::SHORT_DIGITS]))
+            }
+            _ => self.clone(),
+        }
+    }
+
+    /// Whether a row carrying this key is a row of `other`'s run: the same key, or the short
+    /// form of the other (either way round). A short key names every full key it is the
+    /// prefix of: whoever matches rows to planned runs must see that it names one only.
+    pub fn names(&self, other: &RunKey) -> bool {
+        self == other
+            || (self.is_short() && !other.is_short() && other.short() == *self)
+            || (other.is_short() && !self.is_short() && self.short() == *other)
+    }
+}
 
 /// One run of the matrix: the solver's spec and what the harness adds to it. Its
 /// serialisation is the run's configuration columns in the CSV (the spec flattened).
@@ -230,8 +268,8 @@ impl PlannedRun {
         self.spec.total_workers()
     }
 
-    /// Resume key: the first 16 hex digits of the SHA-256 of the canonical JSON of
-    /// everything that makes the run (the solver's spec without CPUs and outputs, the
+    /// Resume key: the SHA-256 (64 hex digits) of the canonical JSON of everything that
+    /// makes the run (the solver's spec without CPUs and outputs, the
     /// optimisation level, pinning policy, launcher and model), and the repetition. Any
     /// change of scenario, physics, budget, launcher, or a solver option added later, makes
     /// another run.
@@ -241,7 +279,7 @@ impl PlannedRun {
         canonical.spec.cpus = None;
         canonical.spec.outputs = Outputs::default();
         let text = serde_json::to_string(&canonical).expect("a planned run serialises");
-        RunKey(format!("{}-r{}", &hex_sha256(text.as_bytes())[..16], self.rep))
+        RunKey(format!("{}-r{}", hex_sha256(text.as_bytes()), self.rep))
     }
 
     /// A readable label of the configuration for run ids: `m1-dd-o3-t2-close`, with ranks
@@ -655,6 +693,30 @@ pub fn sanitize_id(s: &str) -> String {
 mod tests {
     use super::*;
     use crate::campaign::plan::preset::{load_preset, BUILTIN_PRESETS};
+
+    /// The key keeps the whole SHA-256; the short form of older campaigns names the run whose
+    /// hash it begins, of the same repetition, and no other.
+    #[test]
+    fn the_key_is_the_whole_sha256_and_the_short_form_names_it() {
+        let run = PlannedRun::taylor(1, Strategy::DomainDecomposition, OptLevel::O3, 2, 10);
+        let key = run.key();
+        let (hash, rep) = key.0.rsplit_once("-r").unwrap();
+        assert_eq!((hash.len(), rep), (64, "0"));
+        assert!(hash.bytes().all(|b| b.is_ascii_hexdigit()) && !key.is_short());
+        let short = RunKey(format!("{}-r0", &hash[..16]));
+        assert!(short.is_short());
+        assert_eq!(key.short(), short);
+        assert_eq!(short.short(), short);
+        assert!(short.names(&key) && key.names(&short) && key.names(&key));
+        let mut other_rep = run.clone();
+        other_rep.rep = 1;
+        assert!(!short.names(&other_rep.key()), "another repetition");
+        let other = PlannedRun::taylor(1, Strategy::DomainDecomposition, OptLevel::O3, 4, 10).key();
+        assert!(!short.names(&other) && !key.names(&other));
+        // Two short keys, or two full ones, name each other only when equal.
+        assert!(!short.names(&other.short()));
+        assert!(!RunKey("free text".into()).names(&key) && !RunKey("free text".into()).is_short());
+    }
 
     #[test]
     fn builtin_presets_parse_and_expand() {

@@ -13,12 +13,21 @@
 //!   so that even a job the scheduler kills later names the machine it ran on;
 //! * `nodes/<fingerprint>.json` and `nodes/<fingerprint>.topology.xml` the first time a node
 //!   of that machine runs a job (the manifest's `nodes`, see [`NodeInfo`]);
-//! * `json/<run id>.row.json`, the finished row, which the harness appends to `runs.csv`.
+//! * `json/<run id>.row.json`, the finished row with the job start that wrote it
+//!   ([`RowFile`]), which the harness appends to `runs.csv`.
+//!
+//! Inside a Slurm job, nothing is written unless the campaign's ledger (`slurm-jobs.json`)
+//! names this job and this start of it as its run's ([`Fence`]): a job started again by
+//! Slurm, or one whose run was collected or given up meanwhile, exits with [`FENCED`]
+//! without touching the run's files. The check is made when the job starts and again just
+//! before it writes the row.
 //!
 //! Before running, the job checks that the solver binary on this node is the one the
 //! campaign hashed (the binaries must be the same on every node); if not, it fails with
 //! exit code 2 and says so in the job's output.
 
+pub use super::ledger::{read_json, write_json};
+use super::ledger::{Fence, RowFile, FENCED};
 use crate::campaign::exec::process::ProcessRunner;
 use crate::campaign::exec::run::RunContext;
 use crate::campaign::exec::solver::{sha256_file, Solver};
@@ -26,7 +35,6 @@ use crate::campaign::exec::watch::{HostWatch, WatchSettings};
 use crate::campaign::plan::matrix::{Campaign, PlannedRun};
 use crate::campaign::schedule::install_interrupt_handler;
 use crate::campaign::store::manifest::{GitInfo, NodeInfo};
-use crate::campaign::store::record::Row;
 use crate::machine::fingerprint;
 use crate::machine::topology::Machine;
 use anyhow::{bail, Context, Result};
@@ -80,20 +88,8 @@ pub fn started_path(json_dir: &Path, run_id: &str) -> PathBuf {
     json_dir.join(format!("{run_id}.node.json"))
 }
 
-/// Write `value` as pretty JSON to `path`, atomically.
-pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
-    write_atomic(path, serde_json::to_string_pretty(value)?.as_bytes())
-        .with_context(|| format!("cannot write {}", path.display()))
-}
-
-/// Read the JSON file `path` as a `T`.
-pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{} is not what mpm-bench wrote", path.display()))
-}
-
-/// The finished row a job wrote, if it has.
-pub fn read_row(json_dir: &Path, run_id: &str) -> Result<Option<Row>> {
+/// The finished row a job wrote (with the start that wrote it), if it has.
+pub fn read_row(json_dir: &Path, run_id: &str) -> Result<Option<RowFile>> {
     let p = row_path(json_dir, run_id);
     if !p.is_file() {
         return Ok(None);
@@ -140,13 +136,30 @@ fn record_node(dir: &Path, machine: &Machine, node: &str) -> Result<String> {
     Ok(fp)
 }
 
+/// Whether this start of the Slurm job may write the files of run `run_id` of campaign
+/// folder `dir` (always, outside Slurm); when not, says why on standard error.
+fn fenced_out(fence: Option<&Fence>, dir: &Path, run_id: &str) -> bool {
+    let Some(f) = fence else { return false };
+    match f.check(dir, run_id) {
+        Ok(()) => false,
+        Err(why) => {
+            eprintln!("mpm-bench job: not running run {run_id}, writing nothing: {why}");
+            true
+        }
+    }
+}
+
 /// `mpm-bench job FILE`: run the job's run on this node and write its row; the exit code is
 /// 0 when a row was written, 130 when the job was stopped (cancelled, out of time) before
-/// the run ended.
+/// the run ended, [`FENCED`] when the ledger does not name this job start as its run's.
 pub fn run(file: &Path) -> Result<i32> {
     let job: JobFile = read_json(file)?;
     let json_dir = file.parent().unwrap_or(Path::new(".")).to_path_buf();
     let dir = json_dir.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let fence = Fence::here();
+    if fenced_out(fence.as_ref(), &dir, &job.run_id) {
+        return Ok(FENCED);
+    }
     let machine = Machine::detect()?;
     let node = crate::util::node_name();
     let fp = record_node(&dir, &machine, &node)?;
@@ -180,9 +193,11 @@ pub fn run(file: &Path) -> Result<i32> {
         job.watch.map(|w| HostWatch::start(WatchSettings { start_window: w.window, ..w }, machine.usable_pus().len()));
     let mut runner = ProcessRunner::new(interrupted.clone());
     match ctx.run_one(&mut runner, watch.as_mut(), &job.solver, &job.run, job.order_index, job.run_id.clone())? {
+        Some(_) if fenced_out(fence.as_ref(), &dir, &job.run_id) => Ok(FENCED),
         Some(row) => {
-            write_json(&row_path(&json_dir, &job.run_id), &row)?;
-            eprintln!("{}: {} on {node}", job.run.describe(), row.outcome.status.as_str());
+            let status = row.outcome.status.as_str();
+            write_json(&row_path(&json_dir, &job.run_id), &RowFile { fence: fence.unwrap_or_default(), row })?;
+            eprintln!("{}: {status} on {node}", job.run.describe());
             Ok(0)
         }
         None => {

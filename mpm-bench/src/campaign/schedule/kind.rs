@@ -77,10 +77,13 @@ impl SlurmOptions {
         s
     }
 
-    /// The `sbatch` options every job of the campaign shares: a node of its own, and the
-    /// partition, account and time limit (`timeout`: the campaign's per-run limit).
+    /// The `sbatch` options every job of the campaign shares: a node of its own, never
+    /// requeued by Slurm (a job that ends, however, is collected as it ended; the harness
+    /// submits its run again), and the partition, account and time limit (`timeout`: the
+    /// campaign's per-run limit).
     pub fn sbatch_args(&self, timeout: Option<Duration>) -> Vec<String> {
-        let mut a: Vec<String> = ["--parsable", "--nodes=1", "--ntasks=1", "--exclusive"].map(String::from).to_vec();
+        let mut a: Vec<String> =
+            ["--parsable", "--nodes=1", "--ntasks=1", "--exclusive", "--no-requeue"].map(String::from).to_vec();
         if let Some(p) = &self.partition {
             a.push(format!("--partition={p}"));
         }

@@ -16,6 +16,7 @@ pub mod execute;
 pub mod interrupt;
 pub mod job;
 pub mod kind;
+pub mod ledger;
 pub mod local;
 pub mod scheduler;
 pub mod slurm;

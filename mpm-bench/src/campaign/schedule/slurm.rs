@@ -2,17 +2,24 @@
 //! with `sbatch`, watched with `squeue`, collected as they end ([`run_jobs`]).
 //!
 //! * A job is `mpm-bench job json/<run id>.job.json` ([`super::job`]) on a node of its own
-//!   (`--exclusive --nodes=1 --ntasks=1`): it runs the run there as a local campaign would
+//!   (`--exclusive --nodes=1 --ntasks=1`), named `mpm-<campaign>-<run id>` and never
+//!   requeued by Slurm (`--no-requeue`): it runs the run there as a local campaign would
 //!   (the pinning policy placed on that node's topology, the observed CPUs verified) and
 //!   writes the finished row to `json/<run id>.row.json`, which this side appends to
 //!   `runs.csv` as soon as it appears: rows arrive in the order jobs end, each at once.
 //! * The campaign folder is `<out>/slurm-<cluster>/<campaign>`: a cluster's runs may land on
 //!   several node types, and each row names its node and that node's fingerprint.
-//! * Job ids are kept in `slurm-jobs.json` in the campaign folder ([`JobsFile`]) from the
-//!   moment `sbatch` answers until the row is appended. Running the same command again
-//!   collects the jobs an earlier invocation submitted (whatever their state: pending,
-//!   running or ended meanwhile) instead of submitting their runs again. `--detach` submits
-//!   and exits, leaving the jobs to a later invocation.
+//! * Each run is recorded in `slurm-jobs.json` in the campaign folder ([`JobsFile`],
+//!   [`super::ledger`]) from just before `sbatch` is asked (its job id filled in when
+//!   `sbatch` answers) until the row is appended. Running the same command again collects
+//!   the jobs an earlier invocation submitted (whatever their state: pending, running or
+//!   ended meanwhile) instead of submitting their runs again; a record without a job id (an
+//!   invocation killed before it wrote `sbatch`'s answer down) is filled by finding the job
+//!   by its name (`squeue --name`, else `sacct`) and adopted. `--detach` submits and exits,
+//!   leaving the jobs to a later invocation.
+//! * Exactly once: a job writes its run's files only while the ledger names it and its first
+//!   start ([`super::ledger::Fence`]); only the row of that job and start is appended, and
+//!   only when `runs.csv` does not hold the run's row already (read from the file).
 //! * A job that ends without a row (failed, out of time, cancelled by someone, its node
 //!   lost, or purged from Slurm's memory) is a failed row whose reason holds Slurm's state,
 //!   reason and exit code (`scontrol show job`, else `sacct`) and the end of the job's output
@@ -25,6 +32,8 @@
 
 use super::job::{self, JobFile};
 pub use super::kind::{SlurmOptions, JOBS_FILE};
+use super::ledger::job_name;
+pub use super::ledger::{JobRecord, JobsFile};
 use super::scheduler::Scheduler;
 use super::state::{next_run_id, solver_for, Books, CampaignState, Plan};
 use crate::campaign::exec::run::{planned_row, RunContext};
@@ -33,10 +42,10 @@ use crate::campaign::exec::watch::WatchSettings;
 use crate::campaign::plan::matrix::{PlannedRun, RunKey};
 use crate::campaign::plan::memory::estimate_run_memory;
 use crate::campaign::plan::preset::OptLevel;
+use crate::campaign::store::csv::read_rows;
 use crate::campaign::store::record::{Row, Status};
 use crate::util::now_rfc3339;
 use anyhow::{anyhow, bail, Context, Result};
-use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -82,65 +91,6 @@ fn slurm_command(program: &str, args: &[&str]) -> Result<String> {
         );
     }
     Ok(String::from_utf8_lossy(&out.stdout).into_owned())
-}
-
-// ------------------------------------------------------------------------------------------
-// The jobs file
-// ------------------------------------------------------------------------------------------
-
-/// A submitted job whose row is not in `runs.csv` yet.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct JobRecord {
-    /// Slurm's job id.
-    pub job_id: String,
-    /// The run's resume key.
-    pub run_key: String,
-    /// The run's id (its files are `json/<run id>.*`).
-    pub run_id: String,
-    /// Its position in the seeded order of the session that submitted it.
-    pub order_index: usize,
-    /// When it was submitted (RFC 3339 UTC).
-    pub submitted: String,
-    /// Who submitted it: `mpm-bench pid N on HOST`.
-    pub by: String,
-}
-
-/// `slurm-jobs.json`: the jobs submitted and not yet collected.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub struct JobsFile {
-    /// In submission order.
-    pub jobs: Vec<JobRecord>,
-}
-
-impl JobsFile {
-    /// The file of campaign folder `dir` (empty when there is none).
-    pub fn load(dir: &Path) -> Result<Self> {
-        let p = dir.join(JOBS_FILE);
-        if !p.is_file() {
-            return Ok(Self::default());
-        }
-        job::read_json(&p)
-    }
-
-    /// Write it (atomically); an empty list removes the file.
-    pub fn save(&self, dir: &Path) -> Result<()> {
-        let p = dir.join(JOBS_FILE);
-        if self.jobs.is_empty() {
-            return match std::fs::remove_file(&p) {
-                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                    Err(e).with_context(|| format!("cannot remove {}", p.display()))
-                }
-                _ => Ok(()),
-            };
-        }
-        job::write_json(&p, self)
-    }
-
-    /// Drop the records of `ids` (and save).
-    fn forget(&mut self, dir: &Path, ids: &[String]) -> Result<()> {
-        self.jobs.retain(|j| !ids.contains(&j.job_id));
-        self.save(dir)
-    }
 }
 
 /// The jobs this process submitted and has not collected, with their campaign folder: what a
@@ -366,30 +316,25 @@ struct InFlight<'p> {
     ended: Option<Instant>,
 }
 
-/// Write `run`'s job file and script and submit it.
-fn submit(
-    ctx: &RunContext,
-    sub: &Submission,
-    exe: &Path,
-    (order_index, run): (usize, &PlannedRun),
-    run_id: String,
-) -> Result<JobRecord> {
+/// Write the job file and script of `record`'s run and submit it: its job id.
+fn submit(ctx: &RunContext, sub: &Submission, exe: &Path, record: &JobRecord, run: &PlannedRun) -> Result<String> {
     let solver = solver_for(sub.solvers, run)?;
     let dir = &ctx.json_dir;
+    let run_id = &record.run_id;
     let job = JobFile {
         campaign: ctx.campaign.clone(),
         timeout: ctx.campaign.timeout,
         git: ctx.git.clone(),
         solver: solver.clone(),
         run: run.clone(),
-        order_index,
+        order_index: record.order_index,
         run_id: run_id.clone(),
         watch: sub.watch,
     };
-    let job_file = job::job_path(dir, &run_id);
+    let job_file = job::job_path(dir, run_id);
     job::write_json(&job_file, &job)?;
     let mut args = sub.options.sbatch_args(ctx.campaign.timeout);
-    args.push(format!("--job-name=mpm-{}", run.label()));
+    args.push(format!("--job-name={}", job_name(&ctx.campaign.id, run_id)));
     args.push(format!("--output={}", dir.join(format!("{run_id}.slurm.out")).display()));
     args.push(format!("--chdir={}", dir.display()));
     let script = dir.join(format!("{run_id}.slurm.sh"));
@@ -409,22 +354,56 @@ fn submit(
         .output()
         .context("cannot run sbatch (Slurm's commands must be on PATH here)")?;
     let answer = String::from_utf8_lossy(&out.stdout);
-    let job_id = parse_sbatch(&answer).filter(|_| out.status.success()).ok_or_else(|| {
+    parse_sbatch(&answer).filter(|_| out.status.success()).ok_or_else(|| {
         anyhow!(
             "sbatch refused the job of {}: {}{}",
             run.describe(),
             String::from_utf8_lossy(&out.stderr).trim(),
             answer.trim()
         )
-    })?;
-    Ok(JobRecord {
-        job_id,
+    })
+}
+
+/// Submit `run` (at `order_index` of the seeded order) under a run id no earlier job used:
+/// recorded in the ledger before `sbatch` is asked, its job id filled in when it answers (a
+/// refused job is forgotten again).
+fn submit_recorded(
+    ctx: &RunContext,
+    sub: &Submission,
+    exe: &Path,
+    (order_index, run): (usize, &PlannedRun),
+    attempts: &mut HashMap<RunKey, usize>,
+    file: &mut JobsFile,
+) -> Result<JobRecord> {
+    let dir = ctx.json_dir.parent().unwrap_or(Path::new("."));
+    let mut run_id = next_run_id(attempts, run);
+    // A job file there: an earlier job had this id (its run forgotten, cancelled, purged).
+    while job::job_path(&ctx.json_dir, &run_id).exists() {
+        run_id = next_run_id(attempts, run);
+    }
+    let mut record = JobRecord {
+        job_id: String::new(),
         run_key: run.key().0,
         run_id,
         order_index,
         submitted: now_rfc3339(),
         by: format!("mpm-bench pid {} on {}", std::process::id(), crate::util::hostname()),
-    })
+        restart_count: 0,
+    };
+    file.jobs.push(record.clone());
+    file.save(dir)?;
+    match submit(ctx, sub, exe, &record, run) {
+        Ok(id) => record.job_id = id,
+        Err(e) => {
+            file.forget_run(dir, &record.run_id)?;
+            return Err(e);
+        }
+    }
+    if let Some(r) = file.jobs.iter_mut().find(|j| j.run_id == record.run_id) {
+        r.job_id = record.job_id.clone();
+    }
+    file.save(dir)?;
+    Ok(record)
 }
 
 /// The failed row of a job that ended without writing one: Slurm's state, reason and exit
@@ -503,11 +482,14 @@ fn ended_row(
     queue: Option<Option<&QueueEntry>>,
 ) -> Result<Option<Row>> {
     match job::read_row(&ctx.json_dir, &f.record.run_id) {
-        Ok(Some(mut row)) => {
+        // Only the row of the job and start the ledger names counts (another start's is
+        // not this run's result).
+        Ok(Some(written)) if f.record.admits(&written.fence).is_ok() && !f.record.job_id.is_empty() => {
+            let mut row = written.row;
             row.id.job_id = f.record.job_id.clone();
             return Ok(Some(row));
         }
-        Ok(None) => {}
+        Ok(_) => {}
         Err(e) => {
             let mut row = failed_row(ctx, sub, f, None, None)?;
             row.outcome.reason = format!("Slurm job {}: {e:#}", f.record.job_id);
@@ -557,11 +539,12 @@ fn run_jobs(
     if file.jobs.len() != before {
         file.save(dir)?;
     }
+    adopt_unrecorded(&ctx.campaign.id, &ctx.json_dir, &mut file, books, dir)?;
     let mut flight: Vec<InFlight> = Vec::new();
     let mut queue: VecDeque<(usize, &PlannedRun)> = VecDeque::new();
     for (order_index, run) in &plan.todo {
-        let key = run.key().0;
-        match file.jobs.iter().find(|j| j.run_key == key) {
+        let key = run.key();
+        match file.jobs.iter().find(|j| RunKey(j.run_key.clone()).names(&key)) {
             Some(j) => flight.push(InFlight { record: j.clone(), run, own: false, ended: None }),
             None => queue.push_back((*order_index, run)),
         }
@@ -578,6 +561,57 @@ fn run_jobs(
     let result = drive(ctx, sub, &exe, &mut file, &mut flight, &mut queue, attempts, books, dir);
     *submitted() = None;
     result
+}
+
+/// Records without a job id: an invocation stopped between asking `sbatch` and writing its
+/// answer down. Each job is looked for by its name and working folder (`squeue`, then `sacct`)
+/// and adopted; a run whose job Slurm does not know was not submitted, and its record goes
+/// (the run is submitted again). An error when Slurm cannot be asked: guessing could submit a
+/// run twice.
+fn adopt_unrecorded(campaign_id: &str, json_dir: &Path, file: &mut JobsFile, books: &Books, dir: &Path) -> Result<()> {
+    let mut lost = Vec::new();
+    for record in file.jobs.iter_mut().filter(|j| j.job_id.is_empty()) {
+        let name = job_name(campaign_id, &record.run_id);
+        match find_job(&name, json_dir, &record.submitted)? {
+            Some(id) => {
+                books.progress.say(&format!(
+                    "adopting Slurm job {id} ({name}): submitted by an invocation that stopped before recording it"
+                ));
+                record.job_id = id;
+            }
+            None => {
+                books.progress.say(&format!("no Slurm job {name} was submitted: its run is submitted now"));
+                lost.push(record.run_id.clone());
+            }
+        }
+    }
+    file.jobs.retain(|j| !lost.contains(&j.run_id));
+    file.save(dir)
+}
+
+/// The id of the job named `name` whose working folder is `workdir`: from `squeue` while
+/// slurmctld remembers it, else from `sacct` (jobs since a day before `submitted`) when the
+/// cluster keeps accounting.
+fn find_job(name: &str, workdir: &Path, submitted: &str) -> Result<Option<String>> {
+    let text = slurm_command("squeue", &["-h", "--states=all", "--name", name, "-o", "%i|%Z"])?;
+    if let Some(id) = job_in(&text, workdir) {
+        return Ok(Some(id));
+    }
+    let since = humantime::parse_rfc3339_weak(submitted).unwrap_or_else(|_| std::time::SystemTime::now())
+        - Duration::from_secs(86_400);
+    let since = humantime::format_rfc3339_seconds(since).to_string();
+    let since = since.trim_end_matches('Z');
+    let sacct = ["-n", "-P", "-X", "-S", since, "--name", name, "-o", "JobID,WorkDir"];
+    // Without accounting sacct fails: then slurmctld's memory was all there is.
+    Ok(slurm_command("sacct", &sacct).ok().and_then(|t| job_in(&t, workdir)))
+}
+
+/// The first job id of lines `id|working folder` whose folder is `workdir`.
+pub fn job_in(text: &str, workdir: &Path) -> Option<String> {
+    text.lines().find_map(|l| {
+        let (id, wd) = l.trim().split_once('|')?;
+        (Path::new(wd.trim()) == workdir && !id.trim().is_empty()).then(|| id.trim().to_string())
+    })
 }
 
 /// The loop of [`run_jobs`]: submit while there is room, ask Slurm how the jobs are, append
@@ -604,17 +638,15 @@ fn drive<'p>(
         }
         let mut submitted_now = false;
         while flight.len() < max {
-            let Some((order_index, run)) = queue.pop_front() else { break };
-            let run_id = next_run_id(attempts, run);
-            let record = submit(ctx, sub, exe, (order_index, run), run_id).with_context(|| {
+            let Some(next) = queue.pop_front() else { break };
+            let record = submit_recorded(ctx, sub, exe, next, attempts, file).with_context(|| {
                 format!(
                     "{} job(s) already submitted are kept in {}: run the same command again to collect them",
                     file.jobs.len(),
                     dir.join(JOBS_FILE).display()
                 )
             })?;
-            file.jobs.push(record.clone());
-            file.save(dir)?;
+            let run = next.1;
             if let Some((_, ids)) = submitted().as_mut() {
                 ids.push(record.job_id.clone());
             }
@@ -715,9 +747,17 @@ fn collect_ended(
         match ended_row(ctx, sub, &mut flight[i], answer)? {
             Some(row) => {
                 let f = flight.remove(i);
-                books.record(*done, f.run, &row)?;
-                *done += 1;
-                *last = format!("{}: {}", f.run.describe(), row.outcome.status.as_str());
+                if let Some(why) = in_csv(dir, &f.record)? {
+                    books.progress.say(&format!(
+                        "job {} of {}: not appended, {why}",
+                        f.record.job_id,
+                        f.run.describe()
+                    ));
+                } else {
+                    books.record(*done, f.run, &row)?;
+                    *done += 1;
+                    *last = format!("{}: {}", f.run.describe(), row.outcome.status.as_str());
+                }
                 file.forget(dir, std::slice::from_ref(&f.record.job_id))?;
                 if let Some((_, ids)) = submitted().as_mut() {
                     ids.retain(|id| *id != f.record.job_id);
@@ -727,6 +767,31 @@ fn collect_ended(
         }
     }
     Ok(())
+}
+
+/// Why `runs.csv` of campaign folder `dir` holds `record`'s run already (`None`: it does
+/// not): a row of its run id, or a done row (`ok`, or skipped by the memory guard) of its run
+/// key. The file is read, not this session's memory: a row is appended once per run.
+fn in_csv(dir: &Path, record: &JobRecord) -> Result<Option<String>> {
+    let csv = dir.join("runs.csv");
+    if !csv.is_file() {
+        return Ok(None);
+    }
+    let key = RunKey(record.run_key.clone());
+    Ok(read_rows(&csv)?.iter().find_map(|r| {
+        let done = matches!(r.outcome.status, Status::Ok | Status::Skipped);
+        if r.id.run_id == record.run_id {
+            Some(format!("runs.csv has the row of run {} already", r.id.run_id))
+        } else if done && r.key().names(&key) {
+            Some(format!(
+                "runs.csv has a {} row of its run key already (run {})",
+                r.outcome.status.as_str(),
+                r.id.run_id
+            ))
+        } else {
+            None
+        }
+    }))
 }
 
 #[cfg(test)]
@@ -770,20 +835,20 @@ mod tests {
         );
     }
 
-    /// Every job gets a node of its own; the time limit is the given one, else the per-run
+    /// Every job gets a node of its own and is never requeued by Slurm; the time limit is the given one, else the per-run
     /// timeout plus two minutes, in whole minutes.
     #[test]
     fn sbatch_options() {
         let mut o = SlurmOptions { cluster: "c".into(), ..SlurmOptions::default() };
-        let base = ["--parsable", "--nodes=1", "--ntasks=1", "--exclusive"];
+        let base = ["--parsable", "--nodes=1", "--ntasks=1", "--exclusive", "--no-requeue"];
         assert_eq!(o.sbatch_args(None), base);
-        assert_eq!(o.sbatch_args(Some(Duration::from_secs(300)))[4], "--time=7");
-        assert_eq!(o.sbatch_args(Some(Duration::from_secs(301)))[4], "--time=8");
+        assert_eq!(o.sbatch_args(Some(Duration::from_secs(300)))[5], "--time=7");
+        assert_eq!(o.sbatch_args(Some(Duration::from_secs(301)))[5], "--time=8");
         o.partition = Some("big".into());
         o.account = Some("proj".into());
         o.time_limit = Some("1:00:00".into());
         assert_eq!(
-            o.sbatch_args(Some(Duration::from_secs(300)))[4..],
+            o.sbatch_args(Some(Duration::from_secs(300)))[5..],
             ["--partition=big", "--account=proj", "--time=1:00:00"]
         );
         assert_eq!(o.folder(), "slurm-c");

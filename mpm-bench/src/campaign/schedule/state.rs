@@ -276,7 +276,10 @@ impl Plan {
             repair_torn_tail(&csv_path)?;
             repair_garbage(&csv_path)?;
         }
-        let existing = if csv_path.is_file() && !opts.fresh { read_rows(&csv_path)? } else { Vec::new() };
+        let mut existing = if csv_path.is_file() && !opts.fresh { read_rows(&csv_path)? } else { Vec::new() };
+        for note in resolve_short_keys(&mut existing, order.iter().map(PlannedRun::key)) {
+            eprintln!("note: {note}");
+        }
         let done = done_keys(&existing, opts.retry_failed);
         let planned = order.len();
         let todo = order.into_iter().enumerate().filter(|(_, r)| !done.contains(&r.key())).collect();
@@ -644,6 +647,43 @@ pub fn next_run_id(attempts: &mut HashMap<RunKey, usize>, run: &PlannedRun) -> S
     id
 }
 
+/// Give rows of an older campaign, whose keys have the short form ([`RunKey::names`]), the
+/// full key of the planned run they name, in memory (`runs.csv` is not rewritten): such a row
+/// counts as that run's. A short key that names several planned runs (their hashes share 16
+/// digits) names none of them: its row counts for no run, and those runs run (again). Returns
+/// what to say about such keys.
+pub fn resolve_short_keys(rows: &mut [Row], planned: impl IntoIterator<Item = RunKey>) -> Vec<String> {
+    if !rows.iter().any(|r| r.key().is_short()) {
+        return Vec::new();
+    }
+    let mut by_short: HashMap<RunKey, Vec<RunKey>> = HashMap::new();
+    for key in planned {
+        let keys = by_short.entry(key.short()).or_default();
+        if !keys.contains(&key) {
+            keys.push(key);
+        }
+    }
+    let mut notes = Vec::new();
+    for row in rows.iter_mut().filter(|r| r.key().is_short()) {
+        match by_short.get(&row.key()).map(Vec::as_slice) {
+            Some([one]) => row.id.run_key = one.0.clone(),
+            Some(several) => {
+                let note = format!(
+                    "the short run key {} of older rows names {} planned runs; those rows count for none of them, \
+                     which run again",
+                    row.id.run_key,
+                    several.len()
+                );
+                if !notes.contains(&note) {
+                    notes.push(note);
+                }
+            }
+            None => {}
+        }
+    }
+    notes
+}
+
 /// Keys of configurations that need no new run: those with an `ok` row, and those the
 /// memory guard skipped (unless `retry_skipped`). A failed or invalid run is not a result:
 /// it is run again.
@@ -652,4 +692,41 @@ fn done_keys(rows: &[Row], retry_skipped: bool) -> HashSet<RunKey> {
         .filter(|r| r.outcome.status == Status::Ok || (r.outcome.status == Status::Skipped && !retry_skipped))
         .map(Row::key)
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mpm_core::Strategy;
+
+    fn row(threads: usize, key: impl Fn(&RunKey) -> RunKey) -> Row {
+        let mut r = Row::planned(PlannedRun::taylor(1, Strategy::DomainDecomposition, OptLevel::O3, threads, 10));
+        r.id.run_key = key(&r.key()).0;
+        r.outcome.status = Status::Ok;
+        r
+    }
+
+    /// Rows of an older campaign (16-digit keys) count as the planned runs they name; new rows
+    /// and rows of runs not planned are left as they are; a short key that names two planned
+    /// runs counts for neither, and says so once.
+    #[test]
+    fn short_keys_of_older_rows_count_as_their_runs() {
+        let planned: Vec<RunKey> = [1, 2].map(|t| row(t, RunKey::clone).key()).to_vec();
+        let mut rows = vec![row(1, RunKey::short), row(2, RunKey::clone), row(4, RunKey::short)];
+        assert!(resolve_short_keys(&mut rows, planned.clone()).is_empty());
+        assert_eq!(rows[0].key(), planned[0], "the short key now reads as its run's");
+        assert_eq!(rows[1].key(), planned[1]);
+        assert!(rows[2].key().is_short(), "not a planned run: left alone");
+        let done = done_keys(&rows, false);
+        assert!(planned.iter().all(|k| done.contains(k)));
+        // Two planned keys of one short form (a collision of 16 digits, made up here).
+        let short = planned[0].short();
+        let twin = RunKey(format!("{}{}-r0", &short.0[..16], "0".repeat(48)));
+        let mut rows = vec![row(1, RunKey::short), row(1, RunKey::short)];
+        let notes = resolve_short_keys(&mut rows, [planned[0].clone(), twin.clone()]);
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(notes[0].contains("names 2 planned runs"), "{notes:?}");
+        let done = done_keys(&rows, false);
+        assert!(!done.contains(&planned[0]) && !done.contains(&twin), "neither run is done");
+    }
 }
