@@ -315,6 +315,11 @@ fn regress_passes_against_itself_and_fails_on_a_20_percent_efficiency_drop() {
     assert_eq!(regress::run(args).unwrap(), 0);
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(v["verdict"], "pass");
+    // It passes, but says that it compared one campaign with itself.
+    assert_eq!(v["same_rows"], true);
+    let r = regress::evaluate(&regress_args(&base, &base)).unwrap();
+    assert!(regress::lines(&r).contains("the same rows (one campaign given twice)"), "{}", regress::lines(&r));
+    assert!(regress::markdown(&r).contains("the same rows"));
 
     // Parallel runs 25 % slower: efficiency x 0.8.
     let cur = write_campaign(&tmp.path().join("drop"), &Craft { slow_parallel: 1.25, ..Craft::default() });
@@ -325,7 +330,9 @@ fn regress_passes_against_itself_and_fails_on_a_20_percent_efficiency_drop() {
     assert_eq!(v["verdict"], "fail");
     let regs = v["regressions"].as_array().unwrap();
     assert!(regs.iter().any(|r| r["metric"] == "efficiency"));
+    assert_eq!(v["same_rows"], false);
     let r = regress::evaluate(&regress_args(&base, &cur)).unwrap();
+    assert!(!regress::lines(&r).contains("the same rows"));
     let eff = r.regressions.iter().find(|c| c.metric == "efficiency").unwrap();
     assert!((eff.ratio.value - 0.8).abs() < 1e-9, "{:?}", eff.ratio);
 }

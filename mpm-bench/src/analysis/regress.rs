@@ -367,7 +367,14 @@ pub struct RegressReport {
     pub baseline_injected: Option<f64>,
     /// The largest injected slowdown among the current rows, if any.
     pub current_injected: Option<f64>,
+    /// The baseline and the current are the same rows (one campaign given twice): the
+    /// comparison tests nothing and its pass says nothing about a change.
+    pub same_rows: bool,
 }
+
+/// The warning of a comparison of a campaign with itself.
+const SAME_ROWS: &str = "warning: the baseline and the current are the same rows (one campaign given twice): the \
+                         comparison tests nothing; give the campaign of the change as --current";
 
 impl RegressReport {
     /// Exit code: 0 pass, 1 fail, 2 incomparable.
@@ -737,6 +744,7 @@ pub fn compare_campaigns(args: &RegressOptions, base: &Campaign, cur: &Campaign)
     let (stages, metrics) = settings(args)?;
     let (bs, cs) = (side(base), side(cur));
     let mut report = blank_report(args, metrics, bs.clone(), cs.clone());
+    report.same_rows = same_rows(base, cur);
     if let Some(why) = base.incomparable_with(cur) {
         if !args.force {
             report.reason = format!(
@@ -820,7 +828,22 @@ pub(crate) fn blank_report(args: &RegressOptions, metrics: Metrics, baseline: Si
         not_compared: vec![],
         baseline_injected: None,
         current_injected: None,
+        same_rows: false,
     }
+}
+
+/// Whether `a` and `b` hold the same measured rows (campaign, run id and time of every
+/// `ok` row), at least one.
+fn same_rows(a: &Campaign, b: &Campaign) -> bool {
+    let ids = |c: &Campaign| -> std::collections::BTreeSet<(String, String, String)> {
+        c.rows
+            .iter()
+            .filter(|r| r.outcome.status == crate::campaign::store::record::Status::Ok)
+            .map(|r| (r.id.campaign_id.clone(), r.id.run_id.clone(), r.id.timestamp.clone()))
+            .collect()
+    };
+    let ia = ids(a);
+    !ia.is_empty() && ia == ids(b)
 }
 
 /// The verdict and its reason from the checks and the missing cells.
@@ -907,6 +930,9 @@ pub fn markdown(r: &RegressReport) -> String {
     };
     let _ = writeln!(s, "### Parallel-efficiency gate: {icon}\n");
     let _ = writeln!(s, "{}\n", r.reason);
+    if r.same_rows {
+        let _ = writeln!(s, "**{SAME_ROWS}**\n");
+    }
     let _ = writeln!(
         s,
         "Baseline `{}` vs current `{}` (machine `{}`); metrics {}; tolerance {:.1} %, family-wise level {:.1} % per \
@@ -1144,6 +1170,9 @@ pub fn lines(r: &RegressReport) -> String {
         100.0 * r.tolerance,
         100.0 * r.alpha
     );
+    if r.same_rows {
+        let _ = writeln!(s, "{SAME_ROWS}");
+    }
     if r.forced {
         let _ = writeln!(s, "warning: different hardware classes compared (--force)");
     } else if r.baseline.fingerprint != r.current.fingerprint && !r.no_baseline {

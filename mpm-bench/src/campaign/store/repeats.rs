@@ -9,6 +9,7 @@
 //! different machines are never repeats of each other (the analyses take each machine's
 //! rows apart).
 
+use crate::campaign::plan::matrix::RunKey;
 use crate::campaign::store::record::{Row, Status};
 use std::collections::{BTreeMap, HashSet};
 use std::path::Path;
@@ -17,15 +18,17 @@ use std::path::Path;
 const NAMED_KEYS: usize = 5;
 
 /// `rows` with every `ok` row whose run key an earlier `ok` row of its machine already has
-/// left out, and the keys repeated with their number of `ok` rows. Rows without a key
-/// (none of a file this harness reads) are kept.
+/// left out, and the keys repeated with their number of `ok` rows. A key and its short form
+/// (the 16-digit keys of older campaigns, [`RunKey::short`]) are one run's. Rows without a
+/// key (none of a file this harness reads) are kept.
 pub fn split_repeats(rows: Vec<Row>) -> (Vec<Row>, BTreeMap<String, usize>) {
     let mut seen = HashSet::new();
     let mut repeated: BTreeMap<String, usize> = BTreeMap::new();
     let mut kept = Vec::with_capacity(rows.len());
     for r in rows {
         let counted = r.outcome.status == Status::Ok && !r.id.run_key.is_empty();
-        if !counted || seen.insert((r.id.machine_id.clone(), r.id.run_key.clone())) {
+        let key = RunKey(r.id.run_key.clone()).short().0;
+        if !counted || seen.insert((r.id.machine_id.clone(), key)) {
             kept.push(r);
         } else {
             *repeated.entry(r.id.run_key.clone()).or_insert(1) += 1;
@@ -101,6 +104,20 @@ mod tests {
         let (kept, repeated) = split_repeats(vec![row(1, Status::Ok, 1.0), row(2, Status::Ok, 1.0), elsewhere]);
         assert_eq!((kept.len(), repeated.len()), (3, 0), "one key on two machines is no repeat");
         assert_eq!(repeats_warning(Path::new("x"), &repeated), None);
+    }
+
+    /// An older row's 16-digit key and a newer row's whole key of the same run are one run.
+    #[test]
+    fn a_short_key_and_its_whole_key_are_one_run() {
+        let old = {
+            let mut r = row(1, Status::Ok, 1.0);
+            r.id.run_key = RunKey(r.id.run_key.clone()).short().0;
+            r
+        };
+        let new = row(1, Status::Ok, 2.0);
+        assert!(new.id.run_key.len() > old.id.run_key.len());
+        let (kept, repeated) = split_repeats(vec![old.clone(), new, row(2, Status::Ok, 1.0)]);
+        assert_eq!((kept[0].clone(), kept.len(), repeated.len()), (old, 2, 1));
     }
 
     /// Many repeated keys: the first few named, the rest counted.
