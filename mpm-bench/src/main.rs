@@ -266,7 +266,7 @@ enum Cmd {
 }
 
 fn main() {
-    let cli = Cli::parse();
+    let cli: Cli = cli::parse::parse();
     let result = match cli.command {
         Cmd::Topology(a) => cli::topology::cmd_topology(a),
         // run: 0 done, 1 a run failed (or an error while running), 2 bad input, 130

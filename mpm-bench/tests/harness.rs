@@ -18,7 +18,7 @@ use mpm_bench::machine::topology::Machine;
 use mpm_core::{Strategy, Substage};
 use mpm_spec::summary::EndReason;
 use std::collections::HashSet;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -584,6 +584,67 @@ fn fails_cleanly(args: &[&str], needle: &str) {
     assert!(!out.status.success(), "{args:?} should fail");
     assert!(err.contains(needle), "{args:?}: stderr {err}");
     assert!(!err.contains("panicked"), "{args:?}: {err}");
+}
+
+/// Negative numbers are values, refused naming the flag; absurd sizes are refused before
+/// anything is planned; an output is never written over a campaign's own record.
+#[test]
+fn negative_absurd_and_self_destroying_input_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    let run = |extra: &[&str]| -> Vec<String> {
+        ["run", "--preset", "smoke", "--mock", "--dry-run", "--out", out]
+            .iter()
+            .chain(extra)
+            .map(|s| s.to_string())
+            .collect()
+    };
+    let fails = |args: Vec<String>, needle: &str| {
+        let a: Vec<&str> = args.iter().map(String::as_str).collect();
+        fails_cleanly(&a, needle);
+        let err = String::from_utf8_lossy(&bench().args(&a).output().unwrap().stderr).into_owned();
+        assert!(!err.contains("unexpected argument") && !err.contains("invalid digit"), "{a:?}: {err}");
+    };
+    fails(run(&["--reps", "-1"]), "--reps <N>: -1 is negative");
+    fails(run(&["--steps", "-1"]), "-1 is negative");
+    fails(run(&["--warmup", "-1"]), "-1 is negative");
+    fails(run(&["--threads", "-2"]), "-2");
+    fails(run(&["--inject-slowdown", "-0.1"]), "fraction");
+    fails(run(&["--reps", "100000"]), "more than the 1000 a campaign plans");
+    fails(run(&["--mem-limit", "0"]), "would skip every run");
+    fails(["paired", "--blocks", "-3"].map(String::from).to_vec(), "-3 is negative");
+    fails(["calibrate", "--preset", "ci", "--reps", "-2"].map(String::from).to_vec(), "-2 is negative");
+    // regress --json over the campaign's runs.csv: refused, the file untouched.
+    let camp = write_campaign_for_regress(dir.path());
+    let csv = camp.join("runs.csv");
+    let before = std::fs::read(&csv).unwrap();
+    let c = camp.to_str().unwrap();
+    fails(
+        ["regress", "--baseline", c, "--current", c, "--tolerance", "-0.05"].map(String::from).to_vec(),
+        "out of range",
+    );
+    fails(
+        ["regress", "--baseline", c, "--current", c, "--json", csv.to_str().unwrap()].map(String::from).to_vec(),
+        "is a campaign's own record",
+    );
+    let md = camp.join("manifest.json");
+    fails(
+        ["regress", "--baseline", c, "--current", c, "--markdown", md.to_str().unwrap()].map(String::from).to_vec(),
+        "is a campaign's own record",
+    );
+    assert_eq!(std::fs::read(&csv).unwrap(), before, "runs.csv untouched");
+}
+
+/// A small finished mock campaign under `root`: its folder.
+fn write_campaign_for_regress(root: &Path) -> PathBuf {
+    let out = root.join("camp");
+    let o = bench()
+        .args(["run", "--preset", "smoke", "--mock", "--quiet", "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = mpm_bench::analysis::results::find_campaigns(&out).unwrap();
+    csv[0].clone()
 }
 
 #[test]

@@ -911,6 +911,7 @@ pub fn write_json<T: Serialize>(path: &Path, r: &T) -> Result<()> {
         println!("{text}");
         return Ok(());
     }
+    crate::campaign::store::refuse_record_as_output(path, "--json")?;
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
     }
@@ -1028,6 +1029,7 @@ fn grouped(n: &[NotCompared]) -> Vec<(String, String)> {
 /// Append `text` to the file at `path` (created when absent).
 pub fn append(path: &Path, text: &str) -> Result<()> {
     use std::io::Write as _;
+    crate::campaign::store::refuse_record_as_output(path, "--markdown")?;
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
     }

@@ -6,6 +6,7 @@ pub mod ab;
 pub mod analysis;
 pub mod export;
 pub mod measure;
+pub mod parse;
 pub mod run;
 pub mod tables;
 pub mod topology;

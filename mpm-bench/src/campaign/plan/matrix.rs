@@ -24,6 +24,10 @@ use mpm_spec::{RunSpec, Scenario, ScenarioKind};
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
 
+/// The most repetitions a cell may plan ([`Campaign`]'s check): beyond, a plan of hundreds of
+/// thousands of runs takes minutes to build and days to run.
+pub const MAX_REPS: u32 = 1000;
+
 /// Models of the Taylor bar benchmark.
 pub const KNOWN_MODELS: [u32; 4] = [1, 2, 3, 4];
 
@@ -418,6 +422,12 @@ impl Campaign {
             (None, Some(s)) => Some(parse_size(s).context("preset mem_limit")?),
             (None, None) => None,
         };
+        if let Some(m) = c.mem_limit.filter(|&m| m < 1 << 20) {
+            bail!(
+                "a memory limit of {m} bytes (--mem-limit or the preset's mem_limit) would skip every run: give \
+                 the memory the machine should be taken to have, e.g. 8GiB"
+            );
+        }
         c.timeout = match &c.preset.timeout {
             Some(t) => {
                 let d = humantime::parse_duration(t).map_err(|e| anyhow!("preset timeout '{t}': {e}"))?;
@@ -468,6 +478,14 @@ impl Campaign {
         }
         if self.reps == 0 {
             bail!("repetitions must be at least 1");
+        }
+        if self.reps > MAX_REPS {
+            bail!(
+                "{} repetitions a cell is more than the {MAX_REPS} a campaign plans (each is a process of its \
+                 own): the intervals narrow with the square root of the repetitions; use at most {MAX_REPS}, or \
+                 `mpm-bench paired --blocks` for many samples in one process",
+                self.reps
+            );
         }
         self.check_no_repeats()?;
         if self.grid == GridMode::Sparse && self.ranks.iter().any(|&r| r > 1) {
