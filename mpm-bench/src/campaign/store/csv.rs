@@ -227,8 +227,7 @@ fn schema_of(have: &[String], path: &Path) -> Result<Schema> {
     // A schema-8 or 9 file lacks only the columns later schemas added: those read as empty.
     let missing: Vec<&String> = want.iter().filter(|c| !names.contains(c)).collect();
     let added = super::legacy::ADDED_IN_V9.iter().chain(&super::legacy::ADDED_IN_V10);
-    let added: Vec<&str> = added.copied().collect();
-    let only_newer = missing.iter().all(|c| added.contains(&c.as_str()));
+    let only_newer = missing.iter().all(|c| added.clone().any(|a| a == c));
     if schema == Schema::Current && !missing.is_empty() && !only_newer {
         let named: Vec<&str> = missing.iter().take(5).map(|c| c.as_str()).collect();
         bail!(
