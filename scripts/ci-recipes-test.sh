@@ -58,8 +58,16 @@ paired = { blocks = 2 }
 steps = 14
 warmup = 2
 TOML
-git add .gitlab-ci.yml ab-test.toml
-git commit -q -m "The candidate: the gate's job and its cells"
+# The candidate also bumps the workspace's version, as a release's merge request would. Both
+# sides build into one target folder, and their build scripts record their commits: with the
+# same package ids each side's build would replace the other's artefacts, and the second job
+# would build both sides again (minutes); with different versions both sides' artefacts stay.
+sed -i '/^\[workspace.package\]/,/^\[/s/^version = "\(.*\)"/version = "\1-candidate"/' Cargo.toml
+sed -i '/^name = "mpm-\(bench\|cli\|core\|host\|spec\)"$/{n;s/^version = "\(.*\)"/version = "\1-candidate"/}' Cargo.lock
+grep -q -- '-candidate"' Cargo.toml && [ "$(grep -c -- '-candidate"' Cargo.lock)" = 5 ] \
+    || { echo "ci-recipes-test: cannot bump the candidate's version in Cargo.toml and Cargo.lock" >&2; exit 1; }
+git add .gitlab-ci.yml ab-test.toml Cargo.toml Cargo.lock
+git commit -q -m "The candidate: the gate's job and its cells, a new version"
 base=$(git rev-parse HEAD~1)
 
 gate() {

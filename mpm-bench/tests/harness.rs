@@ -614,6 +614,17 @@ fn negative_absurd_and_self_destroying_input_is_refused() {
     fails(run(&["--mem-limit", "0"]), "would skip every run");
     fails(["paired", "--blocks", "-3"].map(String::from).to_vec(), "-3 is negative");
     fails(["calibrate", "--preset", "ci", "--reps", "-2"].map(String::from).to_vec(), "-2 is negative");
+    // A Cargo profile for a level that cannot be one: refused naming the variable.
+    let bad = bench()
+        .args(["run", "--preset", "smoke", "--no-build", "--quiet", "--out", out])
+        .env_remove("MPM_BENCH_SOLVER_O3")
+        .env_remove("MPM_BENCH_SOLVER_O0")
+        .env("MPM_BENCH_CARGO_PROFILE_O3", "o3 --offline")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert_eq!(bad.status.code(), Some(2), "{err}");
+    assert!(err.contains("MPM_BENCH_CARGO_PROFILE_O3=\"o3 --offline\" is not a Cargo profile name"), "{err}");
     // regress --json over the campaign's runs.csv: refused, the file untouched.
     let camp = write_campaign_for_regress(dir.path());
     let csv = camp.join("runs.csv");
@@ -842,6 +853,15 @@ fn end_to_end_smoke_campaign_with_the_real_solver() {
     }
     let man = mpm_bench::campaign::store::manifest::read(&d.join("manifest.json")).unwrap();
     assert_eq!(man.software.binaries.len(), 2);
+    // Each level built with its Cargo profile (scripts/test.sh names o3-test for o3: the
+    // tests' own build), where the manifest says, with the variable that chose it.
+    for (level, b) in [("o3", &man.software.binaries[0]), ("o0", &man.software.binaries[1])] {
+        let key = format!("MPM_BENCH_CARGO_PROFILE_{}", level.to_ascii_uppercase());
+        let profile = std::env::var(&key).unwrap_or_else(|_| level.to_string());
+        assert_eq!(b.opt_level, level);
+        assert!(b.path.ends_with(&format!("/{profile}/mpm")), "{level}: {} (profile {profile})", b.path);
+        assert_eq!(man.software.env.get(&key), std::env::var(&key).ok().as_ref(), "{key} recorded");
+    }
     // Resume: nothing added.
     let second = bench().args(["run", "--preset", "smoke", "--out", out, "--quiet", "--no-build"]).output().unwrap();
     assert!(second.status.success(), "{}", String::from_utf8_lossy(&second.stderr));

@@ -272,13 +272,19 @@ fn overrides(a: &RunArgs) -> Result<Overrides> {
 
 /// `mpm-bench run`; the exit code: 0, or 1 when a run of this invocation failed, timed out
 /// or was invalid (unless `--allow-failures`), or 130 when interrupted. Bad input (the
-/// preset, the overrides, a pinning policy this machine cannot honour) exits 2 at once. A
+/// preset, the overrides, a pinning policy this machine cannot honour, a Cargo profile
+/// variable that names no profile) exits 2 at once. A
 /// campaign stopped by a full disk says so and what to do ([`disk::explain_full`]).
 pub fn cmd_run(a: RunArgs) -> Result<i32> {
     let ov = overrides(&a).unwrap_or_else(|e| bad_input(e));
     let ws = solver::workspace_root();
     let (preset, source) = preset::load_preset(&a.preset, ws.as_deref()).unwrap_or_else(|e| bad_input(e));
     let mut campaign = Campaign::resolve(preset, source, &ov).unwrap_or_else(|e| bad_input(e));
+    if !a.mock {
+        for &opt in &campaign.opts {
+            solver::cargo_profile(opt).unwrap_or_else(|e| bad_input(e));
+        }
+    }
     let machine = Machine::detect()?;
     for p in &campaign.pins {
         if let Err(e) = machine.check_policy(p) {

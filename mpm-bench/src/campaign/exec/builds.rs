@@ -4,7 +4,7 @@
 //! built (`DIR/o3/mpm`, `DIR/o0/mpm`, the layout of a Cargo target folder and of a bundle's
 //! `bin/`).
 
-use super::solver::{build_solver_in, sha256_file, Solver};
+use super::solver::{build_solver_in, cargo_profile, sha256_file, Solver};
 use crate::campaign::plan::preset::OptLevel;
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
@@ -24,19 +24,21 @@ pub struct BuildRecord {
     pub build_s: f64,
 }
 
-/// The solvers of `opts` found in `dir` (`DIR/<profile>/mpm`, or `DIR/mpm-<profile>` as a
-/// bundle names them).
+/// The solvers of `opts` found in `dir`: `DIR/<profile>/mpm` with the level's Cargo profile
+/// ([`cargo_profile`]), else `DIR/<level>/mpm`, else `DIR/mpm-<level>` as a bundle names them.
 pub fn solvers_in(dir: &Path, opts: &[OptLevel]) -> Result<Vec<Solver>> {
     let mut out = Vec::new();
     for &opt in opts {
-        let candidates = [dir.join(opt.as_str()).join("mpm"), dir.join(format!("mpm-{opt}"))];
+        let mut candidates = vec![dir.join(cargo_profile(opt)?).join("mpm")];
+        candidates.extend([dir.join(opt.as_str()).join("mpm"), dir.join(format!("mpm-{opt}"))]);
+        candidates.dedup();
         let Some(path) = candidates.iter().find(|p| p.is_file()) else {
+            let looked: Vec<String> = candidates.iter().map(|p| p.display().to_string()).collect();
             bail!(
-                "no `mpm` binary of profile {opt} in {} (looked for {} and {}): give the folder that holds the \
+                "no `mpm` binary of level {opt} in {} (looked for {}): give the folder that holds the \
                  profiles' folders, e.g. a Cargo target folder",
                 dir.display(),
-                candidates[0].display(),
-                candidates[1].display()
+                looked.join(" and ")
             );
         };
         let path = path.canonicalize().with_context(|| format!("cannot resolve {}", path.display()))?;

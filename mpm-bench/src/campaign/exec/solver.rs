@@ -1,6 +1,13 @@
-//! The solver binaries, in one place: build (`cargo build --profile <opt> -p mpm-cli --bin
+//! The solver binaries, in one place: build (`cargo build --profile <profile> -p mpm-cli --bin
 //! mpm`), locate (`target/<profile>/mpm`, or `MPM_BENCH_SOLVER_O3` / `MPM_BENCH_SOLVER_O0`)
 //! and hash (SHA-256, recorded in the manifest and, abbreviated, in every row).
+//!
+//! The Cargo profile of a level is the level's name (`o3`, `o0`), or the profile
+//! `MPM_BENCH_CARGO_PROFILE_O3` / `MPM_BENCH_CARGO_PROFILE_O0` names ([`cargo_profile`]): another
+//! profile of the same optimisation level, e.g. `o3-test` (o3 without link-time optimisation),
+//! which `scripts/test.sh` gives its tests so that the campaigns they build reuse the tests' own
+//! build instead of building o3 with LTO from scratch. The manifest records the variable (its
+//! `env`) and every row the binary's hash.
 
 use crate::campaign::plan::preset::OptLevel;
 use crate::campaign::store::manifest::BinaryInfo;
@@ -74,6 +81,22 @@ pub fn sha256_file(path: &Path) -> Result<String> {
     mpm_host::identity::sha256_file(path).with_context(|| format!("cannot hash {}", path.display()))
 }
 
+/// The Cargo profile that builds the solver of `opt`: `MPM_BENCH_CARGO_PROFILE_<OPT>` when set,
+/// else the level's own profile. An error names the variable when its value cannot be a
+/// profile name.
+pub fn cargo_profile(opt: OptLevel) -> Result<String> {
+    let key = format!("MPM_BENCH_CARGO_PROFILE_{}", opt.as_str().to_ascii_uppercase());
+    match std::env::var(&key) {
+        Err(std::env::VarError::NotPresent) => Ok(opt.as_str().to_string()),
+        Ok(p) if !p.is_empty() && p.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') => Ok(p),
+        Ok(p) => bail!(
+            "{key}={p:?} is not a Cargo profile name (letters, digits, '-' and '_'): name a profile of \
+             Cargo.toml, e.g. {key}=o3-test, or unset it"
+        ),
+        Err(e) => bail!("{key} is not valid text ({e}): unset it"),
+    }
+}
+
 /// Build (when `build`) and locate the `mpm` binary of each level in `opts`.
 pub fn prepare_solvers(opts: &[OptLevel], build: bool, quiet: bool) -> Result<Vec<Solver>> {
     let ws = workspace_root();
@@ -89,7 +112,7 @@ pub fn prepare_solvers(opts: &[OptLevel], build: bool, quiet: bool) -> Result<Ve
                      repository, set MPM_BENCH_WORKSPACE, or point {env_key} at a binary"
                 )
             })?;
-            let path = target_dir(ws).join(opt.as_str()).join("mpm");
+            let path = target_dir(ws).join(cargo_profile(opt)?).join("mpm");
             if build {
                 build_solver(ws, opt, quiet)?;
             }
@@ -99,7 +122,7 @@ pub fn prepare_solvers(opts: &[OptLevel], build: bool, quiet: bool) -> Result<Ve
             bail!(
                 "solver binary {} not found (build it with `cargo build --profile {} -p mpm-cli --bin mpm`)",
                 path.display(),
-                opt
+                cargo_profile(opt)?
             );
         }
         let sha256 = sha256_file(&path)?;
@@ -108,7 +131,7 @@ pub fn prepare_solvers(opts: &[OptLevel], build: bool, quiet: bool) -> Result<Ve
     Ok(out)
 }
 
-/// `cargo build --profile <opt> -p mpm-cli --bin mpm` in `workspace`.
+/// `cargo build --profile <profile> -p mpm-cli --bin mpm` in `workspace` ([`cargo_profile`]).
 pub fn build_solver(workspace: &Path, opt: OptLevel, quiet: bool) -> Result<()> {
     build(workspace, None, opt, &[], quiet)
 }
@@ -121,11 +144,12 @@ pub fn build_solver_in(workspace: &Path, target: &Path, opt: OptLevel, extra: &[
 
 fn build(workspace: &Path, target: Option<&Path>, opt: OptLevel, extra: &[String], quiet: bool) -> Result<()> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let profile = cargo_profile(opt)?;
     if !quiet && target.is_none() {
-        eprintln!("building the solver: cargo build --profile {opt} -p mpm-cli --bin mpm");
+        eprintln!("building the {opt} solver: cargo build --profile {profile} -p mpm-cli --bin mpm");
     }
     let mut cmd = Command::new(&cargo);
-    cmd.current_dir(workspace).args(["build", "--profile", opt.as_str(), "-p", "mpm-cli", "--bin", "mpm"]).args(extra);
+    cmd.current_dir(workspace).args(["build", "--profile", &profile, "-p", "mpm-cli", "--bin", "mpm"]).args(extra);
     if let Some(t) = target {
         cmd.env("CARGO_TARGET_DIR", t);
     }
@@ -136,7 +160,7 @@ fn build(workspace: &Path, target: Option<&Path>, opt: OptLevel, extra: &[String
         .status()
         .with_context(|| format!("cannot run cargo ({}) to build the solver", Path::new(&cargo).display()))?;
     if !status.success() {
-        bail!("building the `mpm` solver in profile {opt} in {} failed ({status})", workspace.display());
+        bail!("building the `mpm` solver in profile {profile} in {} failed ({status})", workspace.display());
     }
     Ok(())
 }
