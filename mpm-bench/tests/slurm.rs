@@ -11,8 +11,9 @@
 //! and give the rows a local hybrid campaign gives; jobs still pending are collected by a
 //! second invocation, never submitted twice, and a job someone else cancelled becomes a
 //! failed row with Slurm's state; an array submitted by a harness killed before it recorded
-//! it is adopted, never submitted twice; a requeued job gives one row; Ctrl-C cancels the
-//! arrays of the invocation that got it, and no other.
+//! it is adopted, never submitted twice; a requeued job gives one row; a checkpointed run
+//! signalled before its time limit continues from its last checkpoint on the next
+//! invocation; Ctrl-C cancels the arrays of the invocation that got it, and no other.
 
 use mpm_bench::campaign::store::record::{Row, Status};
 
@@ -155,6 +156,18 @@ impl Drop for LocalSlurm {
 fn wait_for(secs: u64, what: &str, mut cond: impl FnMut() -> bool) {
     let t = Instant::now();
     while !cond() {
+        assert!(t.elapsed() < Duration::from_secs(secs), "waited {secs} s for {what}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+/// Wait up to `secs` for `child` to exit: its status.
+fn wait_exit(child: &mut std::process::Child, secs: u64, what: &str) -> std::process::ExitStatus {
+    let t = Instant::now();
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
         assert!(t.elapsed() < Duration::from_secs(secs), "waited {secs} s for {what}");
         std::thread::sleep(Duration::from_millis(200));
     }
@@ -343,6 +356,52 @@ fn ctrl_c_cancels_only_this_invocations_arrays(slurm: &LocalSlurm, out: &Path) {
     assert!(read_rows(&dir.join("runs.csv")).unwrap_or_default().is_empty(), "an interrupted run is not recorded");
 }
 
+/// Whether a run of campaign folder `dir` has written a checkpoint.
+fn checkpoint_written(dir: &Path) -> bool {
+    let Ok(runs) = std::fs::read_dir(dir.join("checkpoints")) else { return false };
+    runs.flatten().any(|r| matches!(mpm_host::checkpoint::newest_header(&r.path()), Ok(Some(_))))
+}
+
+/// A checkpointed run's job sent SIGUSR1 mid-run (what `--signal=B:USR1@120` sends before
+/// the time limit) stops at a complete checkpoint: no row, the run still to do; the same
+/// command again continues it from that checkpoint: one row, ok, one restart.
+fn a_signalled_job_continues_from_its_last_checkpoint(slurm: &LocalSlurm, out: &Path) {
+    let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3", "--threads", "1"];
+    let args2 = ["--strategies", "dd", "--reps", "1", "--steps", "600", "--checkpoint-every", "100"];
+    let run = || {
+        let mut c = slurm.bench();
+        c.args(args).args(args2).args(["--poll-interval", "1", "--out"]).arg(out);
+        c
+    };
+    let log = std::fs::File::create(out.with_extension("log")).unwrap();
+    let mut child = run().stdout(Stdio::null()).stderr(log).spawn().unwrap();
+    let recorded = |dir: &Path| jobs(dir).iter().any(|j| !j.job_id.is_empty());
+    wait_for(60, "the job to be recorded", || {
+        std::fs::read_dir(out.join("slurm-mpmlocal")).is_ok_and(|d| d.flatten().any(|e| recorded(&e.path())))
+    });
+    let dir = only_folder(out);
+    let record = jobs(&dir)[0].clone();
+    let script = std::fs::read_to_string(dir.join("json").join(format!("{}.slurm.sh", record.batch))).unwrap();
+    assert!(script.contains("--signal=B:USR1@120"), "{script}");
+    wait_for(120, "the run's first checkpoint", || checkpoint_written(&dir));
+    let signal = slurm.command("scancel").args(["--signal=USR1", "--batch", &record.job_id]).output().unwrap();
+    assert!(signal.status.success(), "{}", text(&signal));
+    let status = wait_exit(&mut child, 120, "the harness to end after the signal");
+    let said = std::fs::read_to_string(out.with_extension("log")).unwrap();
+    assert_eq!(status.code(), Some(0), "{said}");
+    assert!(said.contains("stopped at a complete checkpoint"), "{said}");
+    assert!(read_rows(&dir.join("runs.csv")).unwrap_or_default().is_empty(), "no row: the run is still to do");
+    assert!(jobs(&dir).is_empty(), "{said}");
+    let again = run().output().unwrap();
+    assert!(again.status.success(), "{}", text(&again));
+    let rows = read_rows(&dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 1, "{}", text(&again));
+    assert_eq!(rows[0].outcome.status, Status::Ok, "{}", rows[0].outcome.reason);
+    let restarts = rows[0].measured.as_ref().and_then(|m| m.checkpoint.as_ref()).map(|c| c.restarts);
+    assert_eq!(restarts, Some(1), "continued from its checkpoint");
+    assert!(rows[0].outcome.lost_compute_s.is_some());
+}
+
 /// The launcher of the runs over two ranks: Open MPI as root, using the Slurm allocation's
 /// tasks as its slots (no --oversubscribe).
 const LAUNCHER: &str = "mpirun --allow-run-as-root --bind-to none -n {ranks}";
@@ -506,14 +565,7 @@ fn a_requeued_job_gives_one_row(slurm: &LocalSlurm, out: &Path) {
     wait_for(60, "the job to run", || slurm.state(&record.job_id) == "RUNNING");
     make_requeueable(slurm, &record.job_id);
     requeue(slurm, &record.job_id);
-    let t = Instant::now();
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(t.elapsed() < Duration::from_secs(180), "the harness did not end after the requeue");
-        std::thread::sleep(Duration::from_millis(500));
-    };
+    let status = wait_exit(&mut child, 180, "the harness to end after the requeue");
     let said = std::fs::read_to_string(out.with_extension("log")).unwrap();
     assert_eq!(status.code(), Some(1), "a failed run: {said}");
     assert_eq!(job_field(slurm, &record.job_id, "Restarts"), "1", "{said}");
@@ -570,12 +622,13 @@ fn campaigns_through_a_one_node_slurm() {
     let names: BTreeSet<&str> = daemons.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(names, BTreeSet::from(["munged", "slurmctld", "slurmd"]), "{daemons:?}");
     let tmp = tempfile::tempdir().unwrap();
-    let cases: [(&str, Case); 6] = [
+    let cases: [(&str, Case); 7] = [
         ("smoke", smoke_through_slurm_is_the_local_smoke),
         ("hybrid", hybrid_ranks_through_slurm),
         ("pending", pending_jobs_are_collected_not_submitted_twice),
         ("killed", an_array_submitted_by_a_killed_harness_is_adopted),
         ("requeue", a_requeued_job_gives_one_row),
+        ("checkpoint", a_signalled_job_continues_from_its_last_checkpoint),
         ("ctrl-c", ctrl_c_cancels_only_this_invocations_arrays),
     ];
     for (name, case) in cases {

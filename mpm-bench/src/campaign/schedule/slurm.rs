@@ -397,6 +397,14 @@ fn failed_row(
     Ok(row)
 }
 
+/// What the solver of `record`'s job said when it stopped at a complete checkpoint (its
+/// note, written by the job start the record names), if it did: no row, the run is still to
+/// do.
+fn stopped(json_dir: &Path, record: &JobRecord) -> Option<String> {
+    let s = job::read_stopped(json_dir, &record.run_id).ok().flatten()?;
+    (record.admits(&s.fence).is_ok() && !record.job_id.is_empty()).then_some(s.reason)
+}
+
 /// The row of `f` if its job has ended: the one it wrote, or a failed one when it ended
 /// without (`queue`: what `squeue` said, when it answered; `None` inside means Slurm no
 /// longer knows the job).
@@ -682,7 +690,8 @@ impl Poll {
 }
 
 /// Append the rows of the jobs in `flight` that ended (and forget them), counting them in
-/// `progress.0` and naming the last in `progress.1`.
+/// `progress.0` and naming the last in `progress.1`; forget those whose solver stopped at a
+/// complete checkpoint, saying so (their runs stay to do).
 #[allow(clippy::too_many_arguments)]
 fn collect_ended(
     ctx: &RunContext,
@@ -697,6 +706,16 @@ fn collect_ended(
     let (done, last) = progress;
     let mut i = 0;
     while i < flight.len() {
+        if let Some(why) = stopped(&ctx.json_dir, &flight[i].record) {
+            let f = flight.remove(i);
+            books.progress.say(&format!(
+                "job {} of {}: stopped at a complete checkpoint ({why}); the next invocation continues it from there",
+                f.record.job_id,
+                f.run.describe()
+            ));
+            forget_collected(file, dir, &f.record.job_id)?;
+            continue;
+        }
         let answer = poll.entry(&flight[i].record.job_id);
         match ended_row(ctx, sub, &mut flight[i], answer)? {
             Some(row) => {
@@ -712,13 +731,19 @@ fn collect_ended(
                     *done += 1;
                     *last = format!("{}: {}", f.run.describe(), row.outcome.status.as_str());
                 }
-                file.forget(dir, std::slice::from_ref(&f.record.job_id))?;
-                if let Some((_, ids)) = submitted().as_mut() {
-                    ids.retain(|id| *id != f.record.job_id);
-                }
+                forget_collected(file, dir, &f.record.job_id)?;
             }
             None => i += 1,
         }
+    }
+    Ok(())
+}
+
+/// Forget job `id`, collected: in the ledger and among the jobs a second Ctrl-C cancels.
+fn forget_collected(file: &mut JobsFile, dir: &Path, id: &str) -> Result<()> {
+    file.forget(dir, &[id.to_string()])?;
+    if let Some((_, ids)) = submitted().as_mut() {
+        ids.retain(|i| i != id);
     }
     Ok(())
 }
