@@ -20,7 +20,10 @@
 # track and bind jobs without cgroups (containers rarely have a writable cgroup tree);
 # SelectType=select/cons_tres with CR_Core allocates cores; accounting is off (no slurmdbd:
 # the harness reads job states from slurmctld, which keeps finished jobs MinJobAge=3600 s);
-# SlurmUser=root. The munge socket and key are private to this instance (AuthInfo=socket=...),
+# SlurmUser=root. The node declares this machine's CPUs (slurmd -C's CPUs=, sockets, cores,
+# threads): a job of a run over R ranks asks for R tasks (--ntasks=R --cpus-per-task=T), so a
+# 2-rank run of 1 thread needs a machine of 2 CPUs or more (sbatch refuses it otherwise).
+# The munge socket and key are private to this instance (AuthInfo=socket=...),
 # so a machine's own munged is left alone. cred_expire=10 (Slurm's minimum is 5, its default 120):
 # a job requeued (`scontrol requeue`) may start again after that many seconds, not two minutes.
 set -euo pipefail

@@ -5,10 +5,15 @@
 //! It needs root and the packages slurm-wlm and munge (`scripts/bootstrap.sh` installs them,
 //! and `scripts/test.sh` runs it first): without them it fails, it does not skip.
 //!
-//! One test, in order: the smoke preset through Slurm writes the configurations a local smoke
-//! campaign writes; jobs still pending are collected by a second invocation, never submitted
-//! twice, and a job someone else cancelled becomes a failed row with Slurm's state; Ctrl-C
-//! cancels the jobs of the invocation that got it, and no other.
+//! One test, its cases in order on one cluster (each case's seconds printed): the smoke
+//! preset through Slurm (one job array) writes the configurations a local smoke campaign
+//! writes; the hybrid preset's runs of 1 and 2 ranks run in allocations of that many tasks
+//! and give the rows a local hybrid campaign gives; jobs still pending are collected by a
+//! second invocation, never submitted twice, and a job someone else cancelled becomes a
+//! failed row with Slurm's state; an array submitted by a harness killed before it recorded
+//! it is adopted, never submitted twice; a requeued job gives one row; a checkpointed run
+//! signalled before its time limit continues from its last checkpoint on the next
+//! invocation; Ctrl-C cancels the arrays of the invocation that got it, and no other.
 
 use mpm_bench::campaign::store::record::{Row, Status};
 
@@ -117,7 +122,7 @@ impl LocalSlurm {
 
     /// Every job's state, by id.
     fn states(&self) -> BTreeMap<String, String> {
-        let out = self.command("squeue").args(["-h", "--states=all", "-o", "%i|%T"]).output().unwrap();
+        let out = self.command("squeue").args(["-h", "-r", "--states=all", "-o", "%i|%T"]).output().unwrap();
         assert!(out.status.success(), "{}", text(&out));
         String::from_utf8_lossy(&out.stdout)
             .lines()
@@ -156,6 +161,18 @@ fn wait_for(secs: u64, what: &str, mut cond: impl FnMut() -> bool) {
     }
 }
 
+/// Wait up to `secs` for `child` to exit: its status.
+fn wait_exit(child: &mut std::process::Child, secs: u64, what: &str) -> std::process::ExitStatus {
+    let t = Instant::now();
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
+        assert!(t.elapsed() < Duration::from_secs(secs), "waited {secs} s for {what}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
 /// The campaign folder an `mpm-bench run` printed.
 fn folder(o: &Output) -> PathBuf {
     let out = String::from_utf8_lossy(&o.stdout);
@@ -185,7 +202,7 @@ fn job_time(slurm: &LocalSlurm, id: &str, key: &str) -> String {
 /// each ok, verified on the CPUs placed, from a job of its own on this node, with the node's
 /// machine in the manifest; no job was submitted while two others were still out.
 fn smoke_through_slurm_is_the_local_smoke(slurm: &LocalSlurm, out: &Path) {
-    let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--max-jobs", "2", "--out"];
+    let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--max-jobs", "2", "--poll-interval", "1", "--out"];
     let o = slurm.bench().args(args).arg(out).output().unwrap();
     assert!(o.status.success(), "{}", text(&o));
     let dir = folder(&o);
@@ -218,15 +235,15 @@ fn smoke_through_slurm_is_the_local_smoke(slurm: &LocalSlurm, out: &Path) {
         assert_eq!((r.id.machine_id.as_str(), r.id.node.as_str()), (fp.as_str(), node.as_str()));
         assert!(r.measured.as_ref().and_then(|f| f.timing.steady_s_per_step).is_some_and(|t| t > 0.0));
     }
-    let ids: BTreeSet<u64> = rows.iter().filter_map(|r| r.id.job_id.parse().ok()).collect();
-    assert_eq!(ids.len(), rows.len(), "one job per run");
-    let times: Vec<(String, String)> = ids
-        .iter()
-        .map(|id| (job_time(slurm, &id.to_string(), "SubmitTime"), job_time(slurm, &id.to_string(), "EndTime")))
-        .collect();
-    for (i, (submit, _)) in times.iter().enumerate() {
-        let out_then = times[..i].iter().filter(|(_, end)| end > submit).count();
-        assert!(out_then < 2, "job {i} submitted while {out_then} others were out: {times:?}");
+    let ids: BTreeSet<&str> = rows.iter().map(|r| r.id.job_id.as_str()).collect();
+    assert_eq!(ids.len(), rows.len(), "one array task per run");
+    let arrays: BTreeSet<&str> = ids.iter().map(|id| id.split_once('_').expect("an array task").0).collect();
+    assert_eq!(arrays.len(), 1, "one array: {ids:?}");
+    let times: Vec<(String, String)> =
+        ids.iter().map(|id| (job_time(slurm, id, "StartTime"), job_time(slurm, id, "EndTime"))).collect();
+    for (i, (start, _)) in times.iter().enumerate() {
+        let running = times.iter().enumerate().filter(|(j, (s, end))| *j != i && s <= start && end > start).count();
+        assert!(running < 2, "task {i} started while {running} others ran (--max-jobs 2): {times:?}");
     }
     let man = mpm_bench::campaign::store::manifest::read(&dir.join("manifest.json")).unwrap();
     let n = &man.nodes[&fp];
@@ -243,7 +260,8 @@ fn pending_jobs_are_collected_not_submitted_twice(slurm: &LocalSlurm, out: &Path
     let blocker = slurm.foreign_job(&["--exclusive", "--wrap", "sleep 600"]);
     wait_for(30, "the blocking job to run", || slurm.state(&blocker) == "RUNNING");
     let run = |extra: &[&str]| {
-        let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3"];
+        let args =
+            ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3", "--poll-interval", "1"];
         let args2 = ["--threads", "1", "--strategies", "dd", "--reps", "3", "--out"];
         slurm.bench().args(args).args(args2).arg(out).args(extra).output().unwrap()
     };
@@ -292,53 +310,134 @@ fn pending_jobs_are_collected_not_submitted_twice(slurm: &LocalSlurm, out: &Path
     assert!(!ids.contains(last.id.job_id.as_str()));
 }
 
-/// Ctrl-C (SIGINT to the harness) cancels the jobs that invocation submitted, and only those:
-/// a job an earlier invocation submitted and someone else's job are left alone.
-fn ctrl_c_cancels_only_this_invocations_jobs(slurm: &LocalSlurm, out: &Path) {
+/// Ctrl-C (SIGINT to the harness) cancels the arrays that invocation submitted, and only
+/// those: the array of an earlier invocation (killed right after `sbatch` answered, its array
+/// adopted) and someone else's job are left alone. Runs of 1 and 2 ranks: two arrays.
+fn ctrl_c_cancels_only_this_invocations_arrays(slurm: &LocalSlurm, out: &Path) {
     let held = slurm.foreign_job(&["--hold", "--wrap", "true"]);
-    let args = [
-        "run",
-        "--preset",
-        "smoke",
-        "--scheduler",
-        "slurm",
-        "--no-build",
-        "--opt",
-        "o3",
-        "--threads",
-        "1",
-        "--strategies",
-        "dd",
-        "--reps",
-        "2",
-        "--steps",
-        "100000",
-    ];
-    // An earlier invocation submitted the first run (a long one) and left.
-    let earlier = slurm.bench().args(args).args(["--detach", "--max-jobs", "1", "--out"]).arg(out).output().unwrap();
-    assert!(earlier.status.success(), "{}", text(&earlier));
-    let dir = folder(&earlier);
+    std::fs::create_dir_all(out).unwrap();
+    let bin = logging_sbatch(out, &out.join("sbatch.log"));
+    let path = format!("{}:{}", bin.display(), std::env::var("PATH").unwrap_or_default());
+    let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3", "--threads", "1"];
+    let args2 = ["--ranks", "1,2", "--strategies", "dd", "--reps", "1", "--steps", "100000", "--poll-interval", "1"];
+    let run = || {
+        let mut c = slurm.bench();
+        c.args(args).args(args2).args(["--launcher", LAUNCHER, "--out"]).arg(out).env("PATH", &path);
+        c
+    };
+    // An earlier invocation submitted the first array (a long run) and was killed.
+    let earlier = run().env("KILL_ONCE", out.join("killed")).output().unwrap();
+    assert_eq!(std::os::unix::process::ExitStatusExt::signal(&earlier.status), Some(9), "{}", text(&earlier));
+    let dir = only_folder(out);
     let first = jobs(&dir);
-    assert_eq!(first.len(), 1);
-    let j1 = first[0].job_id.clone();
-    wait_for(30, "the earlier job to run", || slurm.state(&j1) == "RUNNING");
+    assert_eq!(first.len(), 1, "one run a shape");
+    let name = format!("mpm-{}-{}", dir.file_name().unwrap().to_str().unwrap(), first[0].batch);
+    let o = slurm.command("squeue").args(["-h", "--states=all", "--name", &name, "-o", "%F"]).output().unwrap();
+    let j1 = format!("{}_0", String::from_utf8_lossy(&o.stdout).trim());
+    wait_for(30, "the earlier array's task to run", || slurm.state(&j1) == "RUNNING");
     let log = std::fs::File::create(out.join("ctrl-c.log")).unwrap();
-    let mut child = slurm.bench().args(args).arg("--out").arg(out).stdout(Stdio::null()).stderr(log).spawn().unwrap();
-    wait_for(30, "the second job to be submitted", || {
+    let mut child = run().stdout(Stdio::null()).stderr(log).spawn().unwrap();
+    wait_for(30, "the second array to be submitted", || {
         let j = jobs(&dir);
         j.len() == 2 && j.iter().all(|j| !j.job_id.is_empty())
     });
-    let j2 = jobs(&dir)[1].job_id.clone();
+    let j2 = jobs(&dir).iter().find(|j| j.batch != first[0].batch).unwrap().job_id.clone();
+    let array2 = j2.split_once('_').unwrap().0.to_string();
     assert!(Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap().success());
     let status = child.wait().unwrap();
     let said = std::fs::read_to_string(out.join("ctrl-c.log")).unwrap();
     assert_eq!(status.code(), Some(130), "{said}");
-    assert!(said.contains(&format!("cancelling this invocation's jobs {j2}")), "{said}");
-    wait_for(15, "the cancelled job to end", || slurm.state(&j2) == "CANCELLED");
-    assert_eq!(slurm.state(&j1), "RUNNING", "the earlier invocation's job runs on");
+    assert!(said.contains(&format!("adopting Slurm job {}", j1.split_once('_').unwrap().0)), "{said}");
+    assert!(said.contains(&format!("cancelling this invocation's jobs {array2}\n")), "{said}");
+    wait_for(15, "the cancelled array to end", || slurm.state(&j2) == "CANCELLED");
+    assert_eq!(slurm.state(&j1), "RUNNING", "the earlier invocation's array runs on");
     assert_eq!(slurm.state(&held), "PENDING", "someone else's job is left alone");
     assert_eq!(jobs(&dir).iter().map(|j| j.job_id.clone()).collect::<Vec<_>>(), [j1], "still to collect");
-    assert!(read_rows(&dir.join("runs.csv")).unwrap().is_empty(), "an interrupted run is not recorded");
+    assert!(read_rows(&dir.join("runs.csv")).unwrap_or_default().is_empty(), "an interrupted run is not recorded");
+}
+
+/// Whether a run of campaign folder `dir` has written a checkpoint.
+fn checkpoint_written(dir: &Path) -> bool {
+    let Ok(runs) = std::fs::read_dir(dir.join("checkpoints")) else { return false };
+    runs.flatten().any(|r| matches!(mpm_host::checkpoint::newest_header(&r.path()), Ok(Some(_))))
+}
+
+/// A checkpointed run's job sent SIGUSR1 mid-run (what `--signal=B:USR1@120` sends before
+/// the time limit) stops at a complete checkpoint: no row, the run still to do; the same
+/// command again continues it from that checkpoint: one row, ok, one restart.
+fn a_signalled_job_continues_from_its_last_checkpoint(slurm: &LocalSlurm, out: &Path) {
+    let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3", "--threads", "1"];
+    let args2 = ["--strategies", "dd", "--reps", "1", "--steps", "600", "--checkpoint-every", "100"];
+    let run = || {
+        let mut c = slurm.bench();
+        c.args(args).args(args2).args(["--poll-interval", "1", "--out"]).arg(out);
+        c
+    };
+    let log = std::fs::File::create(out.with_extension("log")).unwrap();
+    let mut child = run().stdout(Stdio::null()).stderr(log).spawn().unwrap();
+    let recorded = |dir: &Path| jobs(dir).iter().any(|j| !j.job_id.is_empty());
+    wait_for(60, "the job to be recorded", || {
+        std::fs::read_dir(out.join("slurm-mpmlocal")).is_ok_and(|d| d.flatten().any(|e| recorded(&e.path())))
+    });
+    let dir = only_folder(out);
+    let record = jobs(&dir)[0].clone();
+    let script = std::fs::read_to_string(dir.join("json").join(format!("{}.slurm.sh", record.batch))).unwrap();
+    assert!(script.contains("--signal=B:USR1@120"), "{script}");
+    wait_for(120, "the run's first checkpoint", || checkpoint_written(&dir));
+    let signal = slurm.command("scancel").args(["--signal=USR1", "--batch", &record.job_id]).output().unwrap();
+    assert!(signal.status.success(), "{}", text(&signal));
+    let status = wait_exit(&mut child, 120, "the harness to end after the signal");
+    let said = std::fs::read_to_string(out.with_extension("log")).unwrap();
+    assert_eq!(status.code(), Some(0), "{said}");
+    assert!(said.contains("stopped at a complete checkpoint"), "{said}");
+    assert!(read_rows(&dir.join("runs.csv")).unwrap_or_default().is_empty(), "no row: the run is still to do");
+    assert!(jobs(&dir).is_empty(), "{said}");
+    let again = run().output().unwrap();
+    assert!(again.status.success(), "{}", text(&again));
+    let rows = read_rows(&dir.join("runs.csv")).unwrap();
+    assert_eq!(rows.len(), 1, "{}", text(&again));
+    assert_eq!(rows[0].outcome.status, Status::Ok, "{}", rows[0].outcome.reason);
+    let restarts = rows[0].measured.as_ref().and_then(|m| m.checkpoint.as_ref()).map(|c| c.restarts);
+    assert_eq!(restarts, Some(1), "continued from its checkpoint");
+    assert!(rows[0].outcome.lost_compute_s.is_some());
+}
+
+/// The launcher of the runs over two ranks: Open MPI as root, using the Slurm allocation's
+/// tasks as its slots (no --oversubscribe).
+const LAUNCHER: &str = "mpirun --allow-run-as-root --bind-to none -n {ranks}";
+
+/// The hybrid preset narrowed to Model 1, 1 thread, 1 repetition (ranks 1 and 2) through
+/// Slurm gives the rows a local hybrid campaign gives: the same run keys, each ok, its ranks
+/// recorded and each rank seen on its CPUs; the 2-rank run's job was allocated 2 tasks of 1
+/// CPU; the site's sbatch option passed through; an option the protocol relies on refused.
+fn hybrid_ranks_through_slurm(slurm: &LocalSlurm, out: &Path) {
+    let narrow = ["--models", "1", "--threads", "1", "--reps", "1", "--launcher", LAUNCHER, "--out"];
+    let slurm_args = ["run", "--preset", "hybrid", "--scheduler", "slurm", "--no-build", "--poll-interval", "1"];
+    let refused =
+        slurm.bench().args(slurm_args).arg("--sbatch-arg=--array=0-1").args(narrow).arg(out).output().unwrap();
+    assert_eq!(refused.status.code(), Some(2), "{}", text(&refused));
+    assert!(text(&refused).contains("--array is set by the harness"), "{}", text(&refused));
+    let o = slurm.bench().args(slurm_args).arg("--sbatch-arg=--nice=5").args(narrow).arg(out).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let rows = read_rows(&folder(&o).join("runs.csv")).unwrap();
+    let local_args = ["run", "--preset", "hybrid", "--mock", "--quiet"];
+    let local = slurm.bench().args(local_args).args(narrow).arg(out.join("local")).output().unwrap();
+    assert!(local.status.success(), "{}", text(&local));
+    let local_rows = read_rows(&folder(&local).join("runs.csv")).unwrap();
+    let keys = |rows: &[Row]| -> BTreeSet<(String, usize)> {
+        rows.iter().map(|r| (r.id.run_key.clone(), r.ranks())).collect()
+    };
+    assert_eq!(keys(&rows), keys(&local_rows));
+    assert_eq!(rows.iter().map(Row::ranks).collect::<BTreeSet<_>>(), BTreeSet::from([1, 2]));
+    for r in &rows {
+        assert_eq!(r.outcome.status, Status::Ok, "{}: {}", r.id.run_id, r.outcome.reason);
+        if r.ranks() == 2 {
+            assert_eq!(r.placement.rank_cpus.len(), 2, "each rank's CPUs recorded");
+            assert_eq!(job_field(slurm, &r.id.job_id, "NumTasks"), "2");
+            assert_eq!(job_field(slurm, &r.id.job_id, "CPUs/Task"), "1");
+        }
+        assert_eq!(job_field(slurm, &r.id.job_id, "Nice"), "5", "--sbatch-arg passed through");
+    }
 }
 
 /// The campaign folder under `out` of the only campaign there (a harness killed before it
@@ -371,18 +470,19 @@ fn logging_sbatch(dir: &Path, log: &Path) -> PathBuf {
     bin
 }
 
-/// The harness killed with SIGKILL right after `sbatch` answered, before it wrote the job id
-/// down: the same command again adopts that job (found by its name), never submits its run a
-/// second time, and ends with one row per run key.
-fn a_job_submitted_by_a_killed_harness_is_adopted(slurm: &LocalSlurm, out: &Path) {
+/// The harness killed with SIGKILL right after `sbatch` answered for an array, before it
+/// wrote the job ids down: the same command again adopts that array (found by its name),
+/// never submits its runs a second time, and ends with one row per run key; once all are
+/// done, the command again adds nothing.
+fn an_array_submitted_by_a_killed_harness_is_adopted(slurm: &LocalSlurm, out: &Path) {
     let log = out.join("sbatch.log");
     let kill_once = out.join("killed");
     std::fs::create_dir_all(out).unwrap();
     let bin = logging_sbatch(out, &log);
     let path = format!("{}:{}", bin.display(), std::env::var("PATH").unwrap_or_default());
     let run = |kill: bool| {
-        let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3"];
-        let args2 = ["--threads", "1", "--strategies", "dd", "--reps", "2", "--out"];
+        let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3", "--poll-interval"];
+        let args2 = ["1", "--threads", "1", "--strategies", "dd", "--reps", "2", "--out"];
         let mut c = slurm.bench();
         c.args(args).args(args2).arg(out).env("PATH", &path);
         if kill {
@@ -394,24 +494,32 @@ fn a_job_submitted_by_a_killed_harness_is_adopted(slurm: &LocalSlurm, out: &Path
     assert_eq!(std::os::unix::process::ExitStatusExt::signal(&killed.status), Some(9), "{}", text(&killed));
     let dir = only_folder(out);
     let left = jobs(&dir);
-    assert_eq!(left.len(), 1, "the run recorded before sbatch was asked");
-    assert_eq!(left[0].job_id, "", "sbatch's answer was never read");
-    let name = format!("mpm-{}-{}", dir.file_name().unwrap().to_str().unwrap(), left[0].run_id);
-    let o = slurm.command("squeue").args(["-h", "--states=all", "--name", &name, "-o", "%i"]).output().unwrap();
-    let job = String::from_utf8_lossy(&o.stdout).trim().to_string();
-    assert!(!job.is_empty() && !job.contains('\n'), "one job of that name in Slurm: {job:?}");
+    assert_eq!(left.len(), 2, "the runs recorded before sbatch was asked");
+    assert!(left.iter().all(|j| j.job_id.is_empty()), "sbatch's answer was never read");
+    assert_eq!(left[0].batch, left[1].batch, "one array");
+    let name = format!("mpm-{}-{}", dir.file_name().unwrap().to_str().unwrap(), left[0].batch);
+    let o = slurm.command("squeue").args(["-h", "--states=all", "--name", &name, "-o", "%F"]).output().unwrap();
+    let array = String::from_utf8_lossy(&o.stdout).trim().to_string();
+    assert!(!array.is_empty() && !array.contains('\n'), "one array of that name in Slurm: {array:?}");
     let again = run(false);
     assert!(again.status.success(), "{}", text(&again));
-    assert!(text(&again).contains(&format!("adopting Slurm job {job} ({name})")), "{}", text(&again));
-    let submissions = std::fs::read_to_string(&log).unwrap().lines().count();
-    assert_eq!(submissions, 2, "two runs, two submissions: the killed one's run was not submitted again");
+    assert!(text(&again).contains(&format!("adopting Slurm job {array} ({name})")), "{}", text(&again));
+    let submissions = || std::fs::read_to_string(&log).unwrap().lines().count();
+    assert_eq!(submissions(), 1, "one array, one submission: its runs were not submitted again");
     let rows = read_rows(&dir.join("runs.csv")).unwrap();
     assert_eq!(rows.len(), 2);
     let keys: BTreeSet<&str> = rows.iter().map(|r| r.id.run_key.as_str()).collect();
     assert_eq!(keys.len(), 2, "one row per run key");
     assert!(rows.iter().all(|r| r.outcome.status == Status::Ok), "{rows:?}");
-    assert!(rows.iter().any(|r| r.id.job_id == job && r.id.run_id == left[0].run_id), "the adopted job's row");
+    for j in &left {
+        let task = format!("{array}_{}", j.task);
+        assert!(rows.iter().any(|r| r.id.job_id == task && r.id.run_id == j.run_id), "the adopted task {task}'s row");
+    }
     assert!(jobs(&dir).is_empty());
+    let done = run(false);
+    assert!(done.status.success(), "{}", text(&done));
+    assert_eq!(read_rows(&dir.join("runs.csv")).unwrap().len(), 2, "nothing added: {}", text(&done));
+    assert_eq!(submissions(), 1, "nothing submitted");
 }
 
 /// `scontrol show job`'s `key=` value of job `id`.
@@ -442,7 +550,7 @@ fn requeue(slurm: &LocalSlurm, id: &str) {
 /// campaign has one row of the run.
 fn a_requeued_job_gives_one_row(slurm: &LocalSlurm, out: &Path) {
     let args = ["run", "--preset", "smoke", "--scheduler", "slurm", "--no-build", "--opt", "o3", "--threads", "1"];
-    let args2 = ["--strategies", "dd", "--reps", "1", "--out"];
+    let args2 = ["--strategies", "dd", "--reps", "1", "--poll-interval", "1", "--out"];
     // While it runs (a long run): the restarted start is fenced out, the run is a failed row.
     let log = std::fs::File::create(out.with_extension("log")).unwrap();
     let mut bench = slurm.bench();
@@ -457,14 +565,7 @@ fn a_requeued_job_gives_one_row(slurm: &LocalSlurm, out: &Path) {
     wait_for(60, "the job to run", || slurm.state(&record.job_id) == "RUNNING");
     make_requeueable(slurm, &record.job_id);
     requeue(slurm, &record.job_id);
-    let t = Instant::now();
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(t.elapsed() < Duration::from_secs(180), "the harness did not end after the requeue");
-        std::thread::sleep(Duration::from_millis(500));
-    };
+    let status = wait_exit(&mut child, 180, "the harness to end after the requeue");
     let said = std::fs::read_to_string(out.with_extension("log")).unwrap();
     assert_eq!(status.code(), Some(1), "a failed run: {said}");
     assert_eq!(job_field(slurm, &record.job_id, "Restarts"), "1", "{said}");
@@ -510,6 +611,9 @@ fn a_requeued_job_gives_one_row(slurm: &LocalSlurm, out: &Path) {
     assert_eq!(read_rows(&qdir.join("runs.csv")).unwrap().len(), 1, "one row of the run");
 }
 
+/// One case of the test: on the cluster, into its own results folder.
+type Case = fn(&LocalSlurm, &Path);
+
 #[test]
 fn campaigns_through_a_one_node_slurm() {
     let t0 = Instant::now();
@@ -518,11 +622,20 @@ fn campaigns_through_a_one_node_slurm() {
     let names: BTreeSet<&str> = daemons.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(names, BTreeSet::from(["munged", "slurmctld", "slurmd"]), "{daemons:?}");
     let tmp = tempfile::tempdir().unwrap();
-    smoke_through_slurm_is_the_local_smoke(&slurm, &tmp.path().join("smoke"));
-    pending_jobs_are_collected_not_submitted_twice(&slurm, &tmp.path().join("pending"));
-    a_job_submitted_by_a_killed_harness_is_adopted(&slurm, &tmp.path().join("killed"));
-    a_requeued_job_gives_one_row(&slurm, &tmp.path().join("requeue"));
-    ctrl_c_cancels_only_this_invocations_jobs(&slurm, &tmp.path().join("ctrl-c"));
+    let cases: [(&str, Case); 7] = [
+        ("smoke", smoke_through_slurm_is_the_local_smoke),
+        ("hybrid", hybrid_ranks_through_slurm),
+        ("pending", pending_jobs_are_collected_not_submitted_twice),
+        ("killed", an_array_submitted_by_a_killed_harness_is_adopted),
+        ("requeue", a_requeued_job_gives_one_row),
+        ("checkpoint", a_signalled_job_continues_from_its_last_checkpoint),
+        ("ctrl-c", ctrl_c_cancels_only_this_invocations_arrays),
+    ];
+    for (name, case) in cases {
+        let t = Instant::now();
+        case(&slurm, &tmp.path().join(name));
+        eprintln!("Slurm case {name}: {:.0} s", t.elapsed().as_secs_f64());
+    }
     // Jobs still run (the earlier invocation's, someone else's held one): stop takes them too.
     let steps: Vec<u32> = processes("slurmstepd");
     assert!(!steps.is_empty(), "a job step runs");

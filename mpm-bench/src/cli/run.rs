@@ -9,6 +9,7 @@ use mpm_bench::campaign::exec::solver::{self, Solver};
 use mpm_bench::campaign::exec::watch::WatchSettings;
 use mpm_bench::campaign::plan::matrix::{Campaign, Overrides};
 use mpm_bench::campaign::plan::preset::{self, OptLevel};
+use mpm_bench::campaign::schedule::kind::check_sbatch_arg;
 use mpm_bench::campaign::schedule::slurm::SlurmOptions;
 use mpm_bench::campaign::schedule::{self, ExecOptions, ExecSummary, SchedulerKind};
 use mpm_bench::campaign::store::disk;
@@ -166,9 +167,11 @@ pub struct RunArgs {
     /// Use a fake solver (testing the harness itself).
     #[arg(long, hide = true)]
     mock: bool,
-    /// Where the runs run: local (here, one fresh process after another) or slurm (one
-    /// batch job per run, each on a node of its own, `sbatch --exclusive`; the results
-    /// folder and the binaries must be on a filesystem every node sees). Under Slurm the
+    /// Where the runs run: local (here, one fresh process after another) or slurm (the runs
+    /// as job arrays, one task per run, one array per resource shape, each task on a node
+    /// of its own, `sbatch --exclusive`, with `--ntasks` its ranks and `--cpus-per-task` its
+    /// threads per rank when several ranks; the results folder and the binaries must be on
+    /// a filesystem every node sees). Under Slurm the
     /// campaign folder is <out>/slurm-<cluster>/<campaign>, each row names its node and that
     /// node's machine fingerprint, and the job ids are kept in slurm-jobs.json until the
     /// rows are in: running the same command again collects jobs an earlier invocation
@@ -186,9 +189,23 @@ pub struct RunArgs {
     /// [days-]hours:minutes:seconds). Default: the preset's per-run timeout plus 2 minutes.
     #[arg(long, value_name = "T")]
     time_limit: Option<String>,
-    /// Slurm: at most N of the campaign's jobs in the queue at once (default: all).
+    /// Slurm: at most N tasks of each of the campaign's job arrays running at once
+    /// (`sbatch --array=...%N`; default: no limit but the cluster's).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     max_jobs: Option<u64>,
+    /// Slurm: ask squeue how the jobs are every SECONDS seconds (default 30: sites expect no
+    /// faster, many rate-limit slurmctld; the finished rows are looked for more often, on
+    /// the filesystem). Below 30 only for a test cluster of your own.
+    #[arg(long, value_name = "SECONDS", value_parser = clap::value_parser!(u64).range(1..))]
+    poll_interval: Option<u64>,
+    /// Slurm: pass this option to sbatch, after the harness's own (so it overrides them);
+    /// repeat for several, e.g. --sbatch-arg=--constraint=skylake to keep a scaling study on
+    /// one node type, --sbatch-arg=--qos=long, --sbatch-arg=--reservation=R,
+    /// --sbatch-arg=--mem=16G. Options the harness relies on (--array, --parsable,
+    /// --requeue, --job-name, --output, --error, --chdir, --wrap, --ntasks, --cpus-per-task)
+    /// are refused.
+    #[arg(long, value_name = "ARG", allow_hyphen_values = true)]
+    sbatch_arg: Vec<String>,
     /// Slurm: submit the runs and exit without waiting; run the same command again (without
     /// --detach) to wait for them and collect their rows.
     #[arg(long)]
@@ -200,7 +217,7 @@ pub struct RunArgs {
 enum SchedulerFlag {
     /// Here, one fresh child process after another.
     Local,
-    /// One Slurm batch job per run.
+    /// Slurm job arrays, one task per run.
     Slurm,
 }
 
@@ -372,6 +389,8 @@ fn scheduler_of(a: &RunArgs) -> Result<SchedulerKind> {
         ("--time-limit", a.time_limit.is_some()),
         ("--max-jobs", a.max_jobs.is_some()),
         ("--detach", a.detach),
+        ("--poll-interval", a.poll_interval.is_some()),
+        ("--sbatch-arg", !a.sbatch_arg.is_empty()),
     ];
     if let Some((flag, _)) = slurm_only.iter().find(|(_, given)| *given && a.scheduler != SchedulerFlag::Slurm) {
         bad_input(anyhow::anyhow!("{flag} is an option of --scheduler slurm"));
@@ -380,6 +399,11 @@ fn scheduler_of(a: &RunArgs) -> Result<SchedulerKind> {
         if a.mock {
             bad_input(anyhow::anyhow!("--mock runs the fake solver in this process: it cannot go to Slurm"));
         }
+        for arg in &a.sbatch_arg {
+            if let Err(why) = check_sbatch_arg(arg) {
+                bad_input(anyhow::anyhow!(why));
+            }
+        }
         SchedulerKind::Slurm(SlurmOptions {
             cluster: mpm_bench::campaign::schedule::slurm::cluster_name()?,
             partition: a.partition.clone(),
@@ -387,6 +411,8 @@ fn scheduler_of(a: &RunArgs) -> Result<SchedulerKind> {
             time_limit: a.time_limit.clone(),
             max_jobs: a.max_jobs.map(|n| usize::try_from(n).unwrap_or(usize::MAX)),
             detach: a.detach,
+            poll_interval: a.poll_interval.map(Duration::from_secs),
+            sbatch_extra: a.sbatch_arg.iter().map(|s| s.trim().to_string()).collect(),
         })
     } else {
         SchedulerKind::Local

@@ -55,7 +55,8 @@ pub fn execute(
         // Nothing to do: the folder, its manifest and topology stay as they are.
         return Ok(ExecSummary { dir: plan.dir, counts, wall: t0.elapsed() });
     }
-    if here && plan.todo.iter().any(|(_, run)| run.spec.ranks > 1) {
+    // Under Slurm too: the jobs start the same launcher as the same user.
+    if plan.todo.iter().any(|(_, run)| run.spec.ranks > 1) {
         if let Some(why) = runner.launcher_refusal(&campaign.launcher) {
             bail!("{why}");
         }

@@ -14,7 +14,15 @@
 //! * `nodes/<fingerprint>.json` and `nodes/<fingerprint>.topology.xml` the first time a node
 //!   of that machine runs a job (the manifest's `nodes`, see [`NodeInfo`]);
 //! * `json/<run id>.row.json`, the finished row with the job start that wrote it
-//!   ([`RowFile`]), which the harness appends to `runs.csv`.
+//!   ([`RowFile`]), which the harness appends to `runs.csv`;
+//! * or, when the solver stopped at a complete checkpoint ([`LAST_CHECKPOINT_EXIT`]: Slurm's
+//!   SIGUSR1 before the time limit, or its SIGTERM), `json/<run id>.stopped.json`
+//!   ([`Stopped`]) and no row: the run is still to do, and the next job of it continues from
+//!   that checkpoint.
+//!
+//! A checkpointed run's job forwards SIGUSR1 and SIGTERM to the solver as SIGUSR1 (for a run
+//! over several ranks, to the launcher, which passes it to every rank): the solver writes a
+//! last checkpoint after its current step and exits ([`forward_stop_signals`]).
 //!
 //! Inside a Slurm job, nothing is written unless the campaign's ledger (`slurm-jobs.json`)
 //! names this job and this start of it as its run's ([`Fence`]): a job started again by
@@ -39,6 +47,8 @@ use crate::machine::fingerprint;
 use crate::machine::topology::Machine;
 use anyhow::{bail, Context, Result};
 use mpm_host::atomic::write_atomic;
+use nix::sys::signal::{kill, SigSet, Signal};
+use nix::unistd::Pid;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -73,6 +83,75 @@ pub struct Started {
     pub fingerprint: String,
 }
 
+/// The exit status of `mpm` (and of the job) stopped after writing its last checkpoint:
+/// `EX_TEMPFAIL` of `sysexits.h`, "try again later" (`mpm resume` continues the run).
+pub const LAST_CHECKPOINT_EXIT: i32 = 75;
+
+/// `json/<run id>.stopped.json`: the run's solver stopped at a complete checkpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Stopped {
+    /// The job start whose solver stopped.
+    pub fence: Fence,
+    /// What the solver said.
+    pub reason: String,
+}
+
+/// `json/<run id>.stopped.json`.
+pub fn stopped_path(json_dir: &Path, run_id: &str) -> PathBuf {
+    json_dir.join(format!("{run_id}.stopped.json"))
+}
+
+/// The note of a job whose solver stopped at a complete checkpoint, if it left one.
+pub fn read_stopped(json_dir: &Path, run_id: &str) -> Result<Option<Stopped>> {
+    read_if_there(&stopped_path(json_dir, run_id))
+}
+
+/// The JSON file `p` as a `T`, `None` when there is none.
+fn read_if_there<T: for<'de> Deserialize<'de>>(p: &Path) -> Result<Option<T>> {
+    if !p.is_file() {
+        return Ok(None);
+    }
+    read_json(p).map(Some)
+}
+
+/// Take SIGUSR1 and SIGTERM in a thread of their own (blocked in this thread, and so in the
+/// threads started after it: call it first; child processes start with no signal blocked)
+/// and pass each on to this process's children, the solver or its launcher, as SIGUSR1: a
+/// run with a checkpoint folder then writes a last checkpoint and exits with
+/// [`LAST_CHECKPOINT_EXIT`] (Open MPI's `mpirun` passes SIGUSR1 to its ranks, while it ends
+/// them at once on SIGTERM).
+pub fn forward_stop_signals() {
+    let mut set = SigSet::empty();
+    set.add(Signal::SIGUSR1);
+    set.add(Signal::SIGTERM);
+    if let Err(e) = set.thread_block() {
+        eprintln!("warning: cannot take SIGUSR1 and SIGTERM for the solver's last checkpoint: {e}");
+        return;
+    }
+    let spawned = std::thread::Builder::new().name("mpm-bench-signals".into()).spawn(move || {
+        while let Ok(signal) = set.wait() {
+            let pids = children();
+            eprintln!("mpm-bench job: {signal}: SIGUSR1 to the solver (pids {pids:?}) for its last checkpoint");
+            for pid in pids {
+                let _ = kill(Pid::from_raw(pid), Signal::SIGUSR1);
+            }
+        }
+    });
+    if let Err(e) = spawned {
+        eprintln!("warning: cannot take SIGUSR1 and SIGTERM for the solver's last checkpoint: {e}");
+    }
+}
+
+/// This process's child processes (`/proc/self/task/*/children`).
+fn children() -> Vec<i32> {
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else { return Vec::new() };
+    tasks
+        .flatten()
+        .filter_map(|t| std::fs::read_to_string(t.path().join("children")).ok())
+        .flat_map(|text| text.split_whitespace().filter_map(|p| p.parse().ok()).collect::<Vec<i32>>())
+        .collect()
+}
+
 /// `json/<run id>.job.json`.
 pub fn job_path(json_dir: &Path, run_id: &str) -> PathBuf {
     json_dir.join(format!("{run_id}.job.json"))
@@ -90,11 +169,7 @@ pub fn started_path(json_dir: &Path, run_id: &str) -> PathBuf {
 
 /// The finished row a job wrote (with the start that wrote it), if it has.
 pub fn read_row(json_dir: &Path, run_id: &str) -> Result<Option<RowFile>> {
-    let p = row_path(json_dir, run_id);
-    if !p.is_file() {
-        return Ok(None);
-    }
-    read_json(&p).map(Some)
+    read_if_there(&row_path(json_dir, run_id))
 }
 
 /// Where the job of `run_id` started, if it has.
@@ -104,11 +179,7 @@ pub fn read_started(json_dir: &Path, run_id: &str) -> Option<Started> {
 
 /// The machine of fingerprint `fp` as a node wrote it under the campaign folder `dir`.
 pub fn read_node(dir: &Path, fp: &str) -> Result<Option<NodeInfo>> {
-    let p = dir.join("nodes").join(format!("{fp}.json"));
-    if !p.is_file() {
-        return Ok(None);
-    }
-    read_json(&p).map(Some)
+    read_if_there(&dir.join("nodes").join(format!("{fp}.json")))
 }
 
 /// Record this node's machine under the campaign folder `dir` (`nodes/<fp>.json` and its
@@ -150,13 +221,18 @@ fn fenced_out(fence: Option<&Fence>, dir: &Path, run_id: &str) -> bool {
 }
 
 /// `mpm-bench job FILE`: run the job's run on this node and write its row; the exit code is
-/// 0 when a row was written, 130 when the job was stopped (cancelled, out of time) before
-/// the run ended, [`FENCED`] when the ledger does not name this job start as its run's.
+/// 0 when a row was written, [`LAST_CHECKPOINT_EXIT`] when the solver stopped at a complete
+/// checkpoint (no row: the run is still to do), 130 when the job was stopped (cancelled, out
+/// of time) before the run ended, [`FENCED`] when the ledger does not name this job start as
+/// its run's.
 pub fn run(file: &Path) -> Result<i32> {
     let job: JobFile = read_json(file)?;
     let json_dir = file.parent().unwrap_or(Path::new(".")).to_path_buf();
     let dir = json_dir.parent().unwrap_or(Path::new(".")).to_path_buf();
     let fence = Fence::here();
+    if fence.is_some() && job.campaign.checkpoint_every.is_some() {
+        forward_stop_signals();
+    }
     if fenced_out(fence.as_ref(), &dir, &job.run_id) {
         return Ok(FENCED);
     }
@@ -194,6 +270,12 @@ pub fn run(file: &Path) -> Result<i32> {
     let mut runner = ProcessRunner::new(interrupted.clone());
     match ctx.run_one(&mut runner, watch.as_mut(), &job.solver, &job.run, job.order_index, job.run_id.clone())? {
         Some(_) if fenced_out(fence.as_ref(), &dir, &job.run_id) => Ok(FENCED),
+        Some(row) if row.outcome.exit_code == Some(LAST_CHECKPOINT_EXIT) && campaign.checkpoint_every.is_some() => {
+            let stopped = Stopped { fence: fence.unwrap_or_default(), reason: row.outcome.reason };
+            write_json(&stopped_path(&json_dir, &job.run_id), &stopped)?;
+            eprintln!("{}: stopped at a complete checkpoint on {node}; no row", job.run.describe());
+            Ok(LAST_CHECKPOINT_EXIT)
+        }
         Some(row) => {
             let status = row.outcome.status.as_str();
             write_json(&row_path(&json_dir, &job.run_id), &RowFile { fence: fence.unwrap_or_default(), row })?;

@@ -2,9 +2,10 @@
 //!
 //! * [`SchedulerKind::Local`] (`--scheduler local`, the default): on this machine, one fresh
 //!   child process after another ([`super::local`]).
-//! * [`SchedulerKind::Slurm`] (`--scheduler slurm`): one Slurm batch job per run, submitted
-//!   and collected by [`super::slurm`]; each job runs `mpm-bench job FILE` on a node of its
-//!   own, which runs the run there exactly as the local loop would ([`super::job`]).
+//! * [`SchedulerKind::Slurm`] (`--scheduler slurm`): the runs as Slurm job arrays (one array
+//!   task per run, one array per resource shape), submitted and collected by
+//!   [`super::slurm`]; each task runs `mpm-bench job FILE` on a node of its own, which runs
+//!   the run there exactly as the local loop would ([`super::job`]).
 //!
 //! Either way a finished run is one row appended to the campaign's `runs.csv`, and resume,
 //! the memory guard, placement and its verification mean the same.
@@ -18,7 +19,7 @@ pub enum SchedulerKind {
     /// Here, one child process at a time.
     #[default]
     Local,
-    /// As Slurm batch jobs, one per run.
+    /// As Slurm job arrays, one task per run.
     Slurm(SlurmOptions),
 }
 
@@ -53,10 +54,95 @@ pub struct SlurmOptions {
     /// `--time` of every job, as `sbatch` takes it (`30`, `1:30:00`, `1-00:00:00`); default:
     /// the preset's per-run timeout plus two minutes, else the partition's default.
     pub time_limit: Option<String>,
-    /// At most this many of the campaign's jobs in the queue at once.
+    /// At most this many tasks of each of the campaign's arrays running at once (`%N`).
     pub max_jobs: Option<usize>,
     /// Submit, then exit without waiting: a later invocation collects the jobs.
     pub detach: bool,
+    /// How often `squeue` is asked (default [`DEFAULT_POLL`]).
+    pub poll_interval: Option<Duration>,
+    /// `--sbatch-arg`: options passed to `sbatch` after the harness's own (checked by
+    /// [`check_sbatch_arg`]).
+    pub sbatch_extra: Vec<String>,
+}
+
+/// How often `squeue` is asked unless `--poll-interval` says otherwise: sites expect no
+/// faster (many rate-limit slurmctld).
+pub const DEFAULT_POLL: Duration = Duration::from_secs(30);
+
+/// How many seconds before its time limit a checkpointed run's job is sent SIGUSR1
+/// (`--signal=B:USR1@...`): time for the solver's last checkpoint.
+pub const SIGNAL_LEAD_S: u64 = 120;
+
+/// The resources of one run's job: its ranks (`--ntasks`) and threads per rank
+/// (`--cpus-per-task` when several ranks).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Shape {
+    /// MPI ranks: the job's tasks.
+    pub ranks: usize,
+    /// Threads per rank: each task's CPUs (asked only with several ranks).
+    pub threads: usize,
+}
+
+impl Shape {
+    /// The shape a run of `ranks` ranks of `threads` threads needs: one task (its threads
+    /// use the node) for one rank, else `ranks` tasks of `threads` CPUs.
+    pub fn of(ranks: usize, threads: usize) -> Self {
+        if ranks > 1 {
+            Self { ranks, threads }
+        } else {
+            Self { ranks: 1, threads: 0 }
+        }
+    }
+
+    /// Its `sbatch` options: `--nodes=1 --ntasks=R [--cpus-per-task=T]`.
+    fn args(self) -> Vec<String> {
+        let mut a = vec!["--nodes=1".to_string(), format!("--ntasks={}", self.ranks)];
+        if self.ranks > 1 {
+            a.push(format!("--cpus-per-task={}", self.threads));
+        }
+        a
+    }
+}
+
+/// The `sbatch` options the protocol relies on, with why a `--sbatch-arg` may not give them:
+/// (long name, short letter).
+const PROTOCOL_OPTIONS: [(&str, Option<char>, &str); 10] = [
+    ("--array", Some('a'), "the harness submits the runs as job arrays of its own"),
+    ("--parsable", None, "the harness asks for sbatch's parsable answer itself"),
+    ("--requeue", None, "a requeued job would run its run twice: every job is submitted --no-requeue"),
+    ("--job-name", Some('J'), "the job name is how a later invocation finds an array that a killed one submitted"),
+    ("--output", Some('o'), "each task writes json/<run id>.slurm.out, where the harness reads it"),
+    ("--error", Some('e'), "each task writes json/<run id>.slurm.out, where the harness reads it"),
+    ("--chdir", Some('D'), "the working folder is how a later invocation finds its arrays"),
+    ("--wrap", None, "the batch script is the harness's"),
+    ("--ntasks", Some('n'), "the tasks are each run's ranks"),
+    ("--cpus-per-task", Some('c'), "each task's CPUs are the run's threads per rank"),
+];
+
+/// Whether `arg` may pass through to `sbatch` (`--sbatch-arg`): an option, and none the
+/// protocol relies on ([`PROTOCOL_OPTIONS`]); `Err` says why not.
+pub fn check_sbatch_arg(arg: &str) -> Result<(), String> {
+    let arg = arg.trim();
+    if !arg.starts_with('-') || arg == "-" || arg == "--" {
+        return Err(format!(
+            "--sbatch-arg '{arg}' is not an sbatch option: give one option a time, e.g. --sbatch-arg=--qos=normal"
+        ));
+    }
+    let name = arg.split('=').next().unwrap_or(arg);
+    let refused = PROTOCOL_OPTIONS.iter().find(|(long, short, _)| {
+        if let Some(given) = name.strip_prefix("--") {
+            // sbatch takes any unambiguous abbreviation of a long option.
+            *long == name || (given.len() >= 3 && long[2..].starts_with(given) && !given.contains('-'))
+        } else {
+            short.is_some_and(|c| name[1..].starts_with(c))
+        }
+    });
+    match refused {
+        Some((long, _, why)) => {
+            Err(format!("--sbatch-arg '{arg}' is refused: {long} is set by the harness ({why}); leave it out"))
+        }
+        None => Ok(()),
+    }
 }
 
 impl SlurmOptions {
@@ -74,16 +160,22 @@ impl SlurmOptions {
                 s.push_str(&format!(", {name} {v}"));
             }
         }
+        if !self.sbatch_extra.is_empty() {
+            s.push_str(&format!(", sbatch {}", self.sbatch_extra.join(" ")));
+        }
         s
     }
 
-    /// The `sbatch` options every job of the campaign shares: a node of its own, never
-    /// requeued by Slurm (a job that ends, however, is collected as it ended; the harness
-    /// submits its run again), and the partition, account and time limit (`timeout`: the
-    /// campaign's per-run limit).
-    pub fn sbatch_args(&self, timeout: Option<Duration>) -> Vec<String> {
-        let mut a: Vec<String> =
-            ["--parsable", "--nodes=1", "--ntasks=1", "--exclusive", "--no-requeue"].map(String::from).to_vec();
+    /// The `sbatch` options of an array of runs of `shape`: a node of its own for each task
+    /// with the tasks and CPUs the shape needs, never requeued by Slurm (a job that ends,
+    /// however, is collected as it ended; the harness submits its run again), the
+    /// partition, account and time limit (`timeout`: the campaign's per-run limit), with
+    /// `checkpointed` SIGUSR1 to the batch step [`SIGNAL_LEAD_S`] before the limit (the
+    /// solver's last checkpoint), then the `--sbatch-arg`s (after ours: the site overrides).
+    pub fn sbatch_args(&self, timeout: Option<Duration>, shape: Shape, checkpointed: bool) -> Vec<String> {
+        let mut a: Vec<String> = vec!["--parsable".into()];
+        a.extend(shape.args());
+        a.extend(["--exclusive", "--no-requeue"].map(String::from));
         if let Some(p) = &self.partition {
             a.push(format!("--partition={p}"));
         }
@@ -94,6 +186,15 @@ impl SlurmOptions {
         if let Some(t) = time {
             a.push(format!("--time={t}"));
         }
+        if checkpointed {
+            a.push(format!("--signal=B:USR1@{SIGNAL_LEAD_S}"));
+        }
+        a.extend(self.sbatch_extra.iter().cloned());
         a
+    }
+
+    /// How often `squeue` is asked.
+    pub fn poll(&self) -> Duration {
+        self.poll_interval.unwrap_or(DEFAULT_POLL)
     }
 }

@@ -1,15 +1,19 @@
 //! `slurm-jobs.json`, the ledger of a campaign's Slurm jobs ([`JobsFile`]), and the fence every
 //! job passes before it writes ([`Fence`]).
 //!
-//! The harness records a run in the ledger *before* `sbatch` is asked (with an empty job id),
-//! fills the job id in as soon as `sbatch` answers, and forgets the record once the run's row
-//! is in `runs.csv`. So a job always has a record while it may run, and a harness killed
-//! between `sbatch`'s answer and the ledger's update leaves a record without a job id, which
-//! the next invocation fills by finding the job by its name ([`job_name`]).
+//! The runs go to Slurm as job arrays, one task per run: the record of a run names its array
+//! task as Slurm does, `<array job id>_<task id>`, and the batch (the array) it went in with.
+//! The harness records the runs of a batch in the ledger *before* `sbatch` is asked (with
+//! empty job ids), fills the job ids in as soon as `sbatch` answers, and forgets a run's
+//! record once its row is in `runs.csv`. So a task always has a record while it may run, and
+//! a harness killed between `sbatch`'s answer and the ledger's update leaves records without
+//! job ids, which the next invocation fills by finding the array by its name ([`job_name`] of
+//! the batch).
 //!
-//! A job runs its run, and writes its files, only while the ledger's record of its run names
-//! it: this job id (or none yet: the harness is between `sbatch`'s answer and the ledger) and
-//! this start of it (`SLURM_RESTART_COUNT`, 0 for the first start; jobs are submitted with
+//! A task runs its run, and writes its files, only while the ledger's record of its run names
+//! it: this array task (`SLURM_ARRAY_JOB_ID`_`SLURM_ARRAY_TASK_ID`; or no job id yet: the
+//! harness is between `sbatch`'s answer and the ledger) and this start of it
+//! (`SLURM_RESTART_COUNT`, 0 for the first start; jobs are submitted with
 //! `--no-requeue`, so only someone overriding that restarts one). A job whose record is gone
 //! (its run was collected, or given up as failed and submitted again) or names another job,
 //! and a job started a second time, writes nothing and exits with [`FENCED`]; the row file a
@@ -26,11 +30,20 @@ use std::path::Path;
 /// The exit code of a job the fence stopped (its run belongs to another job or start).
 pub const FENCED: i32 = 3;
 
-/// A submitted job whose row is not in `runs.csv` yet.
+/// A submitted run (an array task) whose row is not in `runs.csv` yet.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct JobRecord {
-    /// Slurm's job id; empty from just before `sbatch` is asked until it answers.
+    /// Slurm's id of the run's job: `<array job id>_<task id>` (a plain job id in a ledger
+    /// of an older harness, which submitted a job per run); empty from just before `sbatch`
+    /// is asked until it answers.
     pub job_id: String,
+    /// The key of the batch the run was submitted in (its array is named
+    /// [`job_name`]`(campaign, batch)`); empty for a job of its own (an older harness).
+    #[serde(default)]
+    pub batch: String,
+    /// The run's task in its batch's array.
+    #[serde(default)]
+    pub task: usize,
     /// The run's resume key.
     pub run_key: String,
     /// The run's id (its files are `json/<run id>.*`).
@@ -104,6 +117,12 @@ impl JobsFile {
         self.save(dir)
     }
 
+    /// Drop the records of the runs of batch `batch` (and save).
+    pub fn forget_batch(&mut self, dir: &Path, batch: &str) -> Result<()> {
+        self.jobs.retain(|j| j.batch != batch);
+        self.save(dir)
+    }
+
     /// Drop the record of run `run_id` (and save).
     pub fn forget_run(&mut self, dir: &Path, run_id: &str) -> Result<()> {
         self.jobs.retain(|j| j.run_id != run_id);
@@ -116,16 +135,22 @@ impl JobsFile {
     }
 }
 
-/// The name of the job of run `run_id` of campaign `campaign_id`: how an invocation finds a
-/// job that an earlier one submitted and did not record (`squeue --name`).
-pub fn job_name(campaign_id: &str, run_id: &str) -> String {
-    format!("mpm-{campaign_id}-{run_id}")
+/// The name of the array of batch `batch` (or, from an older harness, of the job of run
+/// `batch`) of campaign `campaign_id`: how an invocation finds an array that an earlier one
+/// submitted and did not record (`squeue --name`).
+pub fn job_name(campaign_id: &str, batch: &str) -> String {
+    format!("mpm-{campaign_id}-{batch}")
+}
+
+/// The array job id of job id `job_id` (`123` of `123_4`; a plain job id is its own).
+pub fn array_of(job_id: &str) -> &str {
+    job_id.split('_').next().unwrap_or(job_id)
 }
 
 /// Which start of which Slurm job this process is.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Fence {
-    /// `SLURM_JOB_ID`.
+    /// `SLURM_ARRAY_JOB_ID`_`SLURM_ARRAY_TASK_ID` in an array task, else `SLURM_JOB_ID`.
     pub job_id: String,
     /// `SLURM_RESTART_COUNT` (0 when unset: the first start).
     pub restart_count: u32,
@@ -134,9 +159,18 @@ pub struct Fence {
 impl Fence {
     /// This process's, inside a Slurm job (`None` outside one).
     pub fn here() -> Option<Self> {
-        let job_id = std::env::var("SLURM_JOB_ID").ok().filter(|j| !j.trim().is_empty())?;
-        let restart_count = std::env::var("SLURM_RESTART_COUNT").ok().and_then(|c| c.trim().parse().ok()).unwrap_or(0);
-        Some(Self { job_id: job_id.trim().to_string(), restart_count })
+        Self::of(|name| std::env::var(name).ok())
+    }
+
+    /// The fence the Slurm variables `var` gives (`None` outside a job).
+    pub fn of(var: impl Fn(&str) -> Option<String>) -> Option<Self> {
+        let get = |name: &str| var(name).map(|v| v.trim().to_string()).filter(|v| !v.is_empty());
+        let job_id = match (get("SLURM_ARRAY_JOB_ID"), get("SLURM_ARRAY_TASK_ID")) {
+            (Some(array), Some(task)) => format!("{array}_{task}"),
+            _ => get("SLURM_JOB_ID")?,
+        };
+        let restart_count = get("SLURM_RESTART_COUNT").and_then(|c| c.parse().ok()).unwrap_or(0);
+        Some(Self { job_id, restart_count })
     }
 
     /// Whether the ledger of campaign folder `dir` lets this start write the files of run
@@ -182,6 +216,8 @@ mod tests {
     fn record(job_id: &str) -> JobRecord {
         JobRecord {
             job_id: job_id.into(),
+            batch: String::new(),
+            task: 0,
             run_key: "k-r0".into(),
             run_id: "m1-a0".into(),
             order_index: 0,
@@ -211,5 +247,25 @@ mod tests {
         std::fs::write(dir.path().join(JOBS_FILE), old).unwrap();
         assert_eq!(first.check(dir.path(), "m1-a0"), Ok(()));
         assert_eq!(job_name("smoke", "m1-a0"), "mpm-smoke-m1-a0");
+    }
+
+    /// An array task's fence is `<array>_<task>` (its own `SLURM_JOB_ID` is another number);
+    /// a plain job's is its job id; outside Slurm there is none.
+    #[test]
+    fn an_array_task_is_fenced_as_its_task() {
+        fn env<'a>(vars: &'a [(&'static str, &'static str)]) -> impl Fn(&str) -> Option<String> + 'a {
+            move |name: &str| vars.iter().find(|(k, _)| *k == name).map(|(_, v)| v.to_string())
+        }
+        let task = [
+            ("SLURM_JOB_ID", "45"),
+            ("SLURM_ARRAY_JOB_ID", "42"),
+            ("SLURM_ARRAY_TASK_ID", "3"),
+            ("SLURM_RESTART_COUNT", "1"),
+        ];
+        assert_eq!(Fence::of(env(&task)), Some(Fence { job_id: "42_3".into(), restart_count: 1 }));
+        assert_eq!(Fence::of(env(&[("SLURM_JOB_ID", "7")])), Some(Fence { job_id: "7".into(), restart_count: 0 }));
+        assert_eq!(Fence::of(env(&[])), None);
+        assert!(record("42_3").admits(&Fence { job_id: "42_2".into(), restart_count: 0 }).is_err());
+        assert_eq!((array_of("42_3"), array_of("7")), ("42", "7"));
     }
 }

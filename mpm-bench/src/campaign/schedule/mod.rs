@@ -3,8 +3,8 @@
 //! finished run is recorded in, the attempts' ids):
 //!
 //! * [`local::Local`]: here, one fresh child process after another;
-//! * [`slurm::Slurm`]: one Slurm batch job per run ([`job`]: the run on its node, `mpm-bench
-//!   job FILE`).
+//! * [`slurm::Slurm`]: Slurm job arrays, one task per run ([`array`]: the arrays;
+//!   [`job`]: the run on its node, `mpm-bench job FILE`).
 //!
 //! Either way a finished run is one row appended to the campaign's `runs.csv`, and resume,
 //! the memory guard, placement and its verification mean the same ([`crate::campaign::exec`]
@@ -12,6 +12,7 @@
 //! Ctrl-C.
 
 pub mod ab;
+pub mod array;
 pub mod execute;
 pub mod interrupt;
 pub mod job;

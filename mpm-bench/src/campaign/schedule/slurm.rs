@@ -1,22 +1,25 @@
-//! Runs as Slurm batch jobs (`mpm-bench run --scheduler slurm`): one job per run, submitted
-//! with `sbatch`, watched with `squeue`, collected as they end ([`run_jobs`]).
+//! Runs as Slurm job arrays (`mpm-bench run --scheduler slurm`): one array task per run, one
+//! array per resource shape ([`super::array`]), submitted with `sbatch`, watched with `squeue`
+//! (every `--poll-interval`, 30 s by default), collected as they end ([`run_jobs`]).
 //!
-//! * A job is `mpm-bench job json/<run id>.job.json` ([`super::job`]) on a node of its own
-//!   (`--exclusive --nodes=1 --ntasks=1`), named `mpm-<campaign>-<run id>` and never
-//!   requeued by Slurm (`--no-requeue`): it runs the run there as a local campaign would
+//! * A task is `mpm-bench job json/<run id>.job.json` ([`super::job`]) on a node of its own
+//!   (`--exclusive --nodes=1`, `--ntasks=<ranks>`, with several ranks `--cpus-per-task=<threads>`:
+//!   the launcher starts the ranks inside that allocation), its array named
+//!   `mpm-<campaign>-<batch>` and never requeued by Slurm (`--no-requeue`); the site's own
+//!   options follow ours (`--sbatch-arg`). It runs the run there as a local campaign would
 //!   (the pinning policy placed on that node's topology, the observed CPUs verified) and
 //!   writes the finished row to `json/<run id>.row.json`, which this side appends to
-//!   `runs.csv` as soon as it appears: rows arrive in the order jobs end, each at once.
+//!   `runs.csv` as soon as it appears: rows arrive in the order tasks end, each at once.
 //! * The campaign folder is `<out>/slurm-<cluster>/<campaign>`: a cluster's runs may land on
 //!   several node types, and each row names its node and that node's fingerprint.
 //! * Each run is recorded in `slurm-jobs.json` in the campaign folder ([`JobsFile`],
 //!   [`super::ledger`]) from just before `sbatch` is asked (its job id filled in when
 //!   `sbatch` answers) until the row is appended. Running the same command again collects
 //!   the jobs an earlier invocation submitted (whatever their state: pending, running or
-//!   ended meanwhile) instead of submitting their runs again; a record without a job id (an
-//!   invocation killed before it wrote `sbatch`'s answer down) is filled by finding the job
-//!   by its name (`squeue --name`, else `sacct`) and adopted. `--detach` submits and exits,
-//!   leaving the jobs to a later invocation.
+//!   ended meanwhile) instead of submitting their runs again; records without a job id (an
+//!   invocation killed before it wrote `sbatch`'s answer down) are filled by finding their
+//!   array by its name (`squeue --name`, else `sacct`) and adopted. `--detach` submits and
+//!   exits, leaving the jobs to a later invocation.
 //! * Exactly once: a job writes its run's files only while the ledger names it and its first
 //!   start ([`super::ledger::Fence`]); only the row of that job and start is appended, and
 //!   only when `runs.csv` does not hold the run's row already (read from the file).
@@ -24,37 +27,37 @@
 //!   lost, or purged from Slurm's memory) is a failed row whose reason holds Slurm's state,
 //!   reason and exit code (`scontrol show job`, else `sacct`) and the end of the job's output
 //!   (`json/<run id>.slurm.out`).
-//! * Ctrl-C (or SIGTERM / SIGHUP) cancels the jobs this invocation submitted, and only
+//! * A checkpointed run's task asks for SIGUSR1 before its time limit; a task whose solver
+//!   stopped at a complete checkpoint on it leaves `json/<run id>.stopped.json` and no row:
+//!   the run is still to do, and the next invocation continues it from its checkpoint.
+//! * Ctrl-C (or SIGTERM / SIGHUP) cancels the arrays this invocation submitted, and only
 //!   those (`scancel`): jobs of earlier invocations, and everybody else's, keep running.
 //!
 //! Slurm is driven through its commands (`sbatch`, `squeue`, `scontrol`, `scancel`,
 //! `sacct`), found on `PATH` and configured as the user's shell would (`SLURM_CONF`).
 
-use super::job::{self, JobFile};
+pub use super::array::parse_sbatch;
+use super::array::{self, expand_task_ids, Submission};
+use super::job;
 pub use super::kind::{SlurmOptions, JOBS_FILE};
-use super::ledger::job_name;
+use super::ledger::{array_of, job_name};
 pub use super::ledger::{JobRecord, JobsFile};
 use super::scheduler::Scheduler;
-use super::state::{next_run_id, solver_for, Books, CampaignState, Plan};
+use super::state::{solver_for, Books, CampaignState, Plan};
 use crate::campaign::exec::run::{planned_row, RunContext};
-use crate::campaign::exec::solver::Solver;
 use crate::campaign::exec::watch::WatchSettings;
 use crate::campaign::plan::matrix::{PlannedRun, RunKey};
 use crate::campaign::plan::memory::estimate_run_memory;
-use crate::campaign::plan::preset::OptLevel;
 use crate::campaign::store::csv::read_rows;
 use crate::campaign::store::record::{Row, Status};
 use crate::util::now_rfc3339;
 use anyhow::{anyhow, bail, Context, Result};
-use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::atomic::Ordering;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
-
-/// How often `squeue` is asked (the row files are looked for more often).
-const POLL: Duration = Duration::from_secs(2);
 
 /// How long a job Slurm calls `COMPLETED` may take to show its row (a shared filesystem's
 /// attribute cache) before it counts as having ended without one.
@@ -108,7 +111,7 @@ pub fn cancel_submitted() {
     if ids.is_empty() {
         return;
     }
-    if let Err(e) = scancel(&ids) {
+    if let Err(e) = scancel(&arrays(&ids)) {
         eprintln!("warning: {e:#}");
     }
     if let Ok(mut f) = JobsFile::load(&dir) {
@@ -152,7 +155,8 @@ pub struct QueueEntry {
     pub reason: String,
 }
 
-/// The lines `id|state|nodes|reason` of `squeue -h -o %i|%T|%N|%r`, by job id.
+/// The lines `id|state|nodes|reason` of `squeue -h -o %i|%T|%N|%r`, by job id (an array's
+/// tasks not split off yet, `123_[0-5%2]`, each by its own id).
 pub fn parse_squeue(text: &str) -> BTreeMap<String, QueueEntry> {
     text.lines()
         .filter_map(|l| {
@@ -162,20 +166,28 @@ pub fn parse_squeue(text: &str) -> BTreeMap<String, QueueEntry> {
             (!id.is_empty() && !state.is_empty()).then(|| {
                 let node = f.next().unwrap_or("").trim().to_string();
                 let reason = f.next().unwrap_or("").trim().to_string();
-                (id.to_string(), QueueEntry { state: state.to_string(), node, reason })
+                let entry = QueueEntry { state: state.to_string(), node, reason };
+                expand_task_ids(id).into_iter().map(move |id| (id, entry.clone()))
             })
         })
+        .flatten()
         .collect()
 }
 
-/// The jobs `ids` Slurm still knows (`squeue --states=all`); a job it has forgotten is
-/// absent. An error when `squeue` did not answer.
+/// The arrays (or plain jobs) of job ids `ids`, each once.
+fn arrays(ids: &[String]) -> Vec<String> {
+    ids.iter().map(|id| array_of(id).to_string()).collect::<BTreeSet<_>>().into_iter().collect()
+}
+
+/// The jobs `ids` (array tasks `123_4`, or plain jobs) Slurm still knows (`squeue -r
+/// --states=all` of their arrays); a job it has forgotten is absent. An error when `squeue`
+/// did not answer.
 fn squeue(ids: &[String]) -> Result<BTreeMap<String, QueueEntry>> {
     if ids.is_empty() {
         return Ok(BTreeMap::new());
     }
     let out = Command::new("squeue")
-        .args(["-h", "--states=all", "-o", "%i|%T|%N|%r", "-j", &ids.join(",")])
+        .args(["-h", "-r", "--states=all", "-o", "%i|%T|%N|%r", "-j", &arrays(ids).join(",")])
         .output()
         .context("cannot run squeue")?;
     let err = String::from_utf8_lossy(&out.stderr);
@@ -251,9 +263,33 @@ fn job_end(id: &str) -> Option<JobEnd> {
             .filter(|o| o.status.success())
             .map(|o| String::from_utf8_lossy(&o.stdout).into_owned())
     };
-    run("scontrol", &["show", "job", "-o", id]).and_then(|t| parse_scontrol_job(&t)).or_else(|| {
-        run("sacct", &["-n", "-P", "-X", "-j", id, "-o", "State,ExitCode,NodeList"]).and_then(|t| parse_sacct(&t))
-    })
+    run("scontrol", &["show", "job", "-o", id])
+        .and_then(|t| parse_scontrol_job(&t))
+        .or_else(|| {
+            run("sacct", &["-n", "-P", "-X", "-j", id, "-o", "State,ExitCode,NodeList"]).and_then(|t| parse_sacct(&t))
+        })
+        .or_else(|| {
+            let (array, _) = id.split_once('_')?;
+            let text = run("scontrol", &["show", "job", "-o", array])?;
+            removed_from_array(&text, id).then(|| JobEnd {
+                state: "CANCELLED".into(),
+                reason: format!("removed from array {array} while pending"),
+                ..JobEnd::default()
+            })
+        })
+}
+
+/// Whether array task `id` (`123_4`) is missing from `scontrol show job -o 123`, which lists
+/// the array's other tasks (`ArrayTaskId=0,2-3%2`): a pending task cancelled (`scancel
+/// 123_4`) leaves no record of its own, it is only taken out of the array's.
+pub fn removed_from_array(text: &str, id: &str) -> bool {
+    let Some((array, _)) = id.split_once('_') else { return false };
+    let tasks: Vec<String> = text
+        .split_whitespace()
+        .filter_map(|w| w.strip_prefix("ArrayTaskId="))
+        .flat_map(|t| expand_task_ids(&format!("{array}_[{t}]")))
+        .collect();
+    !tasks.is_empty() && !tasks.iter().any(|t| t == id)
 }
 
 /// `scancel` of `ids`.
@@ -265,23 +301,12 @@ fn scancel(ids: &[String]) -> Result<()> {
     Ok(())
 }
 
-/// The job id of `sbatch --parsable`'s answer (`123`, or `123;cluster`).
-pub fn parse_sbatch(text: &str) -> Option<String> {
-    let id = text.lines().find(|l| !l.trim().is_empty())?.trim().split(';').next()?.trim();
-    (!id.is_empty() && id.chars().all(|c| c.is_ascii_digit())).then(|| id.to_string())
-}
-
-/// `text` as one shell word.
-fn shell_quote(text: &str) -> String {
-    format!("'{}'", text.replace('\'', r"'\''"))
-}
-
 // ------------------------------------------------------------------------------------------
 // Submitting and collecting
 // ------------------------------------------------------------------------------------------
 
-/// The Slurm scheduler: one batch job per run, at most `--max-jobs` in the queue at once
-/// ([`run_jobs`]).
+/// The Slurm scheduler: one array task per run, at most `--max-jobs` tasks of an array
+/// running at once ([`run_jobs`]).
 pub struct Slurm<'o> {
     /// The options of `--scheduler slurm`.
     pub options: &'o SlurmOptions,
@@ -296,16 +321,6 @@ impl Scheduler for Slurm<'_> {
     }
 }
 
-/// What every job of one invocation is submitted with.
-struct Submission<'a> {
-    /// The options of `--scheduler slurm`.
-    options: &'a SlurmOptions,
-    /// The host watch each job keeps around its run.
-    watch: Option<WatchSettings>,
-    /// The solver binary of each optimisation level.
-    solvers: &'a HashMap<OptLevel, &'a Solver>,
-}
-
 /// A job in the queue, by this invocation or an earlier one.
 struct InFlight<'p> {
     record: JobRecord,
@@ -314,96 +329,6 @@ struct InFlight<'p> {
     own: bool,
     /// When `squeue` first said it had ended.
     ended: Option<Instant>,
-}
-
-/// Write the job file and script of `record`'s run and submit it: its job id.
-fn submit(ctx: &RunContext, sub: &Submission, exe: &Path, record: &JobRecord, run: &PlannedRun) -> Result<String> {
-    let solver = solver_for(sub.solvers, run)?;
-    let dir = &ctx.json_dir;
-    let run_id = &record.run_id;
-    let job = JobFile {
-        campaign: ctx.campaign.clone(),
-        timeout: ctx.campaign.timeout,
-        git: ctx.git.clone(),
-        solver: solver.clone(),
-        run: run.clone(),
-        order_index: record.order_index,
-        run_id: run_id.clone(),
-        watch: sub.watch,
-    };
-    let job_file = job::job_path(dir, run_id);
-    job::write_json(&job_file, &job)?;
-    let mut args = sub.options.sbatch_args(ctx.campaign.timeout);
-    args.push(format!("--job-name={}", job_name(&ctx.campaign.id, run_id)));
-    args.push(format!("--output={}", dir.join(format!("{run_id}.slurm.out")).display()));
-    args.push(format!("--chdir={}", dir.display()));
-    let script = dir.join(format!("{run_id}.slurm.sh"));
-    let text = format!(
-        "#!/bin/sh\n# {} of campaign {}, submitted by mpm-bench as\n#   sbatch {} {}\nexec {} job {}\n",
-        run.describe(),
-        ctx.campaign.id,
-        args.join(" "),
-        script.display(),
-        shell_quote(&exe.display().to_string()),
-        shell_quote(&job_file.display().to_string())
-    );
-    mpm_host::atomic::write_atomic(&script, text.as_bytes())?;
-    let out = Command::new("sbatch")
-        .args(&args)
-        .arg(&script)
-        .output()
-        .context("cannot run sbatch (Slurm's commands must be on PATH here)")?;
-    let answer = String::from_utf8_lossy(&out.stdout);
-    parse_sbatch(&answer).filter(|_| out.status.success()).ok_or_else(|| {
-        anyhow!(
-            "sbatch refused the job of {}: {}{}",
-            run.describe(),
-            String::from_utf8_lossy(&out.stderr).trim(),
-            answer.trim()
-        )
-    })
-}
-
-/// Submit `run` (at `order_index` of the seeded order) under a run id no earlier job used:
-/// recorded in the ledger before `sbatch` is asked, its job id filled in when it answers (a
-/// refused job is forgotten again).
-fn submit_recorded(
-    ctx: &RunContext,
-    sub: &Submission,
-    exe: &Path,
-    (order_index, run): (usize, &PlannedRun),
-    attempts: &mut HashMap<RunKey, usize>,
-    file: &mut JobsFile,
-) -> Result<JobRecord> {
-    let dir = ctx.json_dir.parent().unwrap_or(Path::new("."));
-    let mut run_id = next_run_id(attempts, run);
-    // A job file there: an earlier job had this id (its run forgotten, cancelled, purged).
-    while job::job_path(&ctx.json_dir, &run_id).exists() {
-        run_id = next_run_id(attempts, run);
-    }
-    let mut record = JobRecord {
-        job_id: String::new(),
-        run_key: run.key().0,
-        run_id,
-        order_index,
-        submitted: now_rfc3339(),
-        by: format!("mpm-bench pid {} on {}", std::process::id(), crate::util::hostname()),
-        restart_count: 0,
-    };
-    file.jobs.push(record.clone());
-    file.save(dir)?;
-    match submit(ctx, sub, exe, &record, run) {
-        Ok(id) => record.job_id = id,
-        Err(e) => {
-            file.forget_run(dir, &record.run_id)?;
-            return Err(e);
-        }
-    }
-    if let Some(r) = file.jobs.iter_mut().find(|j| j.run_id == record.run_id) {
-        r.job_id = record.job_id.clone();
-    }
-    file.save(dir)?;
-    Ok(record)
 }
 
 /// The failed row of a job that ended without writing one: Slurm's state, reason and exit
@@ -472,6 +397,14 @@ fn failed_row(
     Ok(row)
 }
 
+/// What the solver of `record`'s job said when it stopped at a complete checkpoint (its
+/// note, written by the job start the record names), if it did: no row, the run is still to
+/// do.
+fn stopped(json_dir: &Path, record: &JobRecord) -> Option<String> {
+    let s = job::read_stopped(json_dir, &record.run_id).ok().flatten()?;
+    (record.admits(&s.fence).is_ok() && !record.job_id.is_empty()).then_some(s.reason)
+}
+
 /// The row of `f` if its job has ended: the one it wrote, or a failed one when it ended
 /// without (`queue`: what `squeue` said, when it answered; `None` inside means Slurm no
 /// longer knows the job).
@@ -516,11 +449,11 @@ fn ended_row(
     failed_row(ctx, sub, f, q, end).map(Some)
 }
 
-/// Submit the runs of `plan` still to do as Slurm jobs (those an earlier invocation submitted
-/// are collected, not submitted again), at most `--max-jobs` in the queue at once, and append
-/// each finished job's row through `books` as it ends. Returns when every job has been
-/// collected, on Ctrl-C (after cancelling this invocation's jobs), or with `--detach` once
-/// everything that may be submitted is.
+/// Submit the runs of `plan` still to do as Slurm job arrays (those an earlier invocation
+/// submitted are collected, not submitted again), at most `--max-jobs` tasks of an array
+/// running at once, and append each finished task's row through `books` as it ends. Returns
+/// when every task has been collected, on Ctrl-C (after cancelling this invocation's
+/// arrays), or with `--detach` once everything is submitted.
 fn run_jobs(
     ctx: &RunContext,
     sub: &Submission,
@@ -541,16 +474,16 @@ fn run_jobs(
     }
     adopt_unrecorded(&ctx.campaign.id, &ctx.json_dir, &mut file, books, dir)?;
     let mut flight: Vec<InFlight> = Vec::new();
-    let mut queue: VecDeque<(usize, &PlannedRun)> = VecDeque::new();
+    let mut queue: Vec<(usize, &PlannedRun)> = Vec::new();
     for (order_index, run) in &plan.todo {
         let key = run.key();
         match file.jobs.iter().find(|j| RunKey(j.run_key.clone()).names(&key)) {
             Some(j) => flight.push(InFlight { record: j.clone(), run, own: false, ended: None }),
-            None => queue.push_back((*order_index, run)),
+            None => queue.push((*order_index, run)),
         }
     }
     if !flight.is_empty() {
-        let ids: Vec<&str> = flight.iter().map(|f| f.record.job_id.as_str()).collect();
+        let ids: Vec<String> = flight.iter().map(|f| f.record.job_id.clone()).collect();
         books.progress.say(&format!(
             "{} run(s) were submitted by an earlier invocation (jobs {}): collecting them, not submitting them again",
             flight.len(),
@@ -558,42 +491,90 @@ fn run_jobs(
         ));
     }
     *submitted() = Some((dir.clone(), Vec::new()));
-    let result = drive(ctx, sub, &exe, &mut file, &mut flight, &mut queue, attempts, books, dir);
+    let result = submit_all(ctx, sub, &exe, &mut file, &mut flight, &queue, attempts, dir)
+        .and_then(|()| drive(ctx, sub, &mut file, &mut flight, books, dir));
     *submitted() = None;
     result
 }
 
+/// Submit the runs of `queue` as one array per batch ([`array::batches`]), into `flight`.
+#[allow(clippy::too_many_arguments)]
+fn submit_all<'p>(
+    ctx: &RunContext,
+    sub: &Submission,
+    exe: &Path,
+    file: &mut JobsFile,
+    flight: &mut Vec<InFlight<'p>>,
+    queue: &[(usize, &'p PlannedRun)],
+    attempts: &mut HashMap<RunKey, usize>,
+    dir: &Path,
+) -> Result<()> {
+    for (shape, batch) in array::batches(queue) {
+        if ctx.interrupted.load(Ordering::SeqCst) {
+            break;
+        }
+        let records = array::submit_batch(ctx, sub, exe, (shape, &batch), attempts, file).with_context(|| {
+            format!(
+                "{} job(s) already submitted are kept in {}: run the same command again to collect them",
+                file.jobs.len(),
+                dir.join(JOBS_FILE).display()
+            )
+        })?;
+        if let Some((_, ids)) = submitted().as_mut() {
+            ids.extend(records.iter().map(|r| r.job_id.clone()));
+        }
+        flight.extend(records.into_iter().zip(&batch).map(|(record, (_, run))| InFlight {
+            record,
+            run,
+            own: true,
+            ended: None,
+        }));
+    }
+    Ok(())
+}
+
 /// Records without a job id: an invocation stopped between asking `sbatch` and writing its
-/// answer down. Each job is looked for by its name and working folder (`squeue`, then `sacct`)
-/// and adopted; a run whose job Slurm does not know was not submitted, and its record goes
-/// (the run is submitted again). An error when Slurm cannot be asked: guessing could submit a
-/// run twice.
+/// answer down. Each batch's array (an older harness's job of one run) is looked for by its
+/// name and working folder (`squeue`, then `sacct`) and adopted; the runs of a batch whose
+/// array Slurm does not know were not submitted, and their records go (the runs are
+/// submitted again). An error when Slurm cannot be asked: guessing could submit a run twice.
 fn adopt_unrecorded(campaign_id: &str, json_dir: &Path, file: &mut JobsFile, books: &Books, dir: &Path) -> Result<()> {
     let mut lost = Vec::new();
+    let mut found: HashMap<String, Option<String>> = HashMap::new();
     for record in file.jobs.iter_mut().filter(|j| j.job_id.is_empty()) {
-        let name = job_name(campaign_id, &record.run_id);
-        match find_job(&name, json_dir, &record.submitted)? {
-            Some(id) => {
-                books.progress.say(&format!(
-                    "adopting Slurm job {id} ({name}): submitted by an invocation that stopped before recording it"
-                ));
-                record.job_id = id;
-            }
+        let own = if record.batch.is_empty() { &record.run_id } else { &record.batch };
+        let name = job_name(campaign_id, own);
+        let array = match found.get(&name) {
+            Some(a) => a.clone(),
             None => {
-                books.progress.say(&format!("no Slurm job {name} was submitted: its run is submitted now"));
-                lost.push(record.run_id.clone());
+                let a = find_job(&name, json_dir, &record.submitted)?;
+                match &a {
+                    Some(id) => books.progress.say(&format!(
+                        "adopting Slurm job {id} ({name}): submitted by an invocation that stopped before recording it"
+                    )),
+                    None => {
+                        books.progress.say(&format!("no Slurm job {name} was submitted: its runs are submitted now"))
+                    }
+                }
+                found.insert(name.clone(), a.clone());
+                a
             }
+        };
+        match array {
+            Some(id) if record.batch.is_empty() => record.job_id = id,
+            Some(id) => record.job_id = format!("{id}_{}", record.task),
+            None => lost.push(record.run_id.clone()),
         }
     }
     file.jobs.retain(|j| !lost.contains(&j.run_id));
     file.save(dir)
 }
 
-/// The id of the job named `name` whose working folder is `workdir`: from `squeue` while
-/// slurmctld remembers it, else from `sacct` (jobs since a day before `submitted`) when the
-/// cluster keeps accounting.
+/// The (array) job id of the job named `name` whose working folder is `workdir`: from
+/// `squeue` while slurmctld remembers it, else from `sacct` (jobs since a day before
+/// `submitted`) when the cluster keeps accounting.
 fn find_job(name: &str, workdir: &Path, submitted: &str) -> Result<Option<String>> {
-    let text = slurm_command("squeue", &["-h", "--states=all", "--name", name, "-o", "%i|%Z"])?;
+    let text = slurm_command("squeue", &["-h", "--states=all", "--name", name, "-o", "%F|%Z"])?;
     if let Some(id) = job_in(&text, workdir) {
         return Ok(Some(id));
     }
@@ -606,29 +587,26 @@ fn find_job(name: &str, workdir: &Path, submitted: &str) -> Result<Option<String
     Ok(slurm_command("sacct", &sacct).ok().and_then(|t| job_in(&t, workdir)))
 }
 
-/// The first job id of lines `id|working folder` whose folder is `workdir`.
+/// The first (array) job id of lines `id|working folder` whose folder is `workdir` (`123`
+/// of an array task's `123_4` or `123_[0-5]`).
 pub fn job_in(text: &str, workdir: &Path) -> Option<String> {
     text.lines().find_map(|l| {
         let (id, wd) = l.trim().split_once('|')?;
-        (Path::new(wd.trim()) == workdir && !id.trim().is_empty()).then(|| id.trim().to_string())
+        let id = array_of(id.trim());
+        (Path::new(wd.trim()) == workdir && !id.is_empty()).then(|| id.to_string())
     })
 }
 
-/// The loop of [`run_jobs`]: submit while there is room, ask Slurm how the jobs are, append
-/// the rows of those that ended, until none is left (or Ctrl-C, or `--detach`).
-#[allow(clippy::too_many_arguments)]
-fn drive<'p>(
+/// The loop of [`run_jobs`]: ask Slurm how the jobs are, append the rows of those that
+/// ended, until none is left (or Ctrl-C, or `--detach`).
+fn drive(
     ctx: &RunContext,
     sub: &Submission,
-    exe: &Path,
     file: &mut JobsFile,
-    flight: &mut Vec<InFlight<'p>>,
-    queue: &mut VecDeque<(usize, &'p PlannedRun)>,
-    attempts: &mut HashMap<RunKey, usize>,
+    flight: &mut Vec<InFlight>,
     books: &mut Books,
     dir: &Path,
 ) -> Result<()> {
-    let max = sub.options.max_jobs.unwrap_or(usize::MAX);
     let mut done = 0;
     let mut last = String::from("waiting for the first job to end");
     let mut poll = Poll::default();
@@ -636,32 +614,15 @@ fn drive<'p>(
         if ctx.interrupted.load(Ordering::SeqCst) {
             return cancel_own(flight, file, books, dir);
         }
-        let mut submitted_now = false;
-        while flight.len() < max {
-            let Some(next) = queue.pop_front() else { break };
-            let record = submit_recorded(ctx, sub, exe, next, attempts, file).with_context(|| {
-                format!(
-                    "{} job(s) already submitted are kept in {}: run the same command again to collect them",
-                    file.jobs.len(),
-                    dir.join(JOBS_FILE).display()
-                )
-            })?;
-            let run = next.1;
-            if let Some((_, ids)) = submitted().as_mut() {
-                ids.push(record.job_id.clone());
-            }
-            flight.push(InFlight { record, run, own: true, ended: None });
-            submitted_now = true;
-        }
-        poll.ask(flight, submitted_now, books);
+        poll.ask(flight, sub.options.poll(), books);
         collect_ended(ctx, sub, flight, &poll, file, books, dir, (&mut done, &mut last))?;
         let phases: Vec<Phase> = flight.iter().map(|f| poll.phase(&f.record.job_id)).collect();
         let running = phases.iter().filter(|p| **p != Phase::Pending).count();
-        books.progress.queue(phases.len() - running + queue.len(), running, done, &last);
-        if flight.is_empty() && queue.is_empty() {
+        books.progress.queue(phases.len() - running, running, done, &last);
+        if flight.is_empty() {
             return Ok(());
         }
-        if sub.options.detach && (queue.is_empty() || flight.len() >= max) {
+        if sub.options.detach {
             books.counts.queued = flight.len();
             return Ok(());
         }
@@ -669,13 +630,14 @@ fn drive<'p>(
     }
 }
 
-/// Ctrl-C: cancel this invocation's jobs (and forget them), keep the others for a later
-/// invocation.
+/// Ctrl-C: cancel this invocation's arrays (and forget their runs), keep the others for a
+/// later invocation.
 fn cancel_own(flight: &[InFlight], file: &mut JobsFile, books: &mut Books, dir: &Path) -> Result<()> {
     let own: Vec<String> = flight.iter().filter(|f| f.own).map(|f| f.record.job_id.clone()).collect();
     if !own.is_empty() {
-        books.progress.say(&format!("interrupt: cancelling this invocation's jobs {}", own.join(" ")));
-        scancel(&own)?;
+        let arrays = arrays(&own);
+        books.progress.say(&format!("interrupt: cancelling this invocation's jobs {}", arrays.join(" ")));
+        scancel(&arrays)?;
         file.forget(dir, &own)?;
     }
     books.counts.interrupted = true;
@@ -692,10 +654,10 @@ struct Poll {
 }
 
 impl Poll {
-    /// Ask again when a job was submitted since the last answer (it is not in it) or the
-    /// answer is older than [`POLL`]; an error is said once and asked again.
-    fn ask(&mut self, flight: &[InFlight], submitted_now: bool, books: &Books) {
-        if !submitted_now && self.at.is_some_and(|t| t.elapsed() < POLL) {
+    /// Ask when there is no answer yet or the last is older than `every`; an error is said
+    /// once and asked again.
+    fn ask(&mut self, flight: &[InFlight], every: Duration, books: &Books) {
+        if self.at.is_some_and(|t| t.elapsed() < every) {
             return;
         }
         let ids: Vec<String> = flight.iter().map(|f| f.record.job_id.clone()).collect();
@@ -728,7 +690,8 @@ impl Poll {
 }
 
 /// Append the rows of the jobs in `flight` that ended (and forget them), counting them in
-/// `progress.0` and naming the last in `progress.1`.
+/// `progress.0` and naming the last in `progress.1`; forget those whose solver stopped at a
+/// complete checkpoint, saying so (their runs stay to do).
 #[allow(clippy::too_many_arguments)]
 fn collect_ended(
     ctx: &RunContext,
@@ -743,6 +706,16 @@ fn collect_ended(
     let (done, last) = progress;
     let mut i = 0;
     while i < flight.len() {
+        if let Some(why) = stopped(&ctx.json_dir, &flight[i].record) {
+            let f = flight.remove(i);
+            books.progress.say(&format!(
+                "job {} of {}: stopped at a complete checkpoint ({why}); the next invocation continues it from there",
+                f.record.job_id,
+                f.run.describe()
+            ));
+            forget_collected(file, dir, &f.record.job_id)?;
+            continue;
+        }
         let answer = poll.entry(&flight[i].record.job_id);
         match ended_row(ctx, sub, &mut flight[i], answer)? {
             Some(row) => {
@@ -758,13 +731,19 @@ fn collect_ended(
                     *done += 1;
                     *last = format!("{}: {}", f.run.describe(), row.outcome.status.as_str());
                 }
-                file.forget(dir, std::slice::from_ref(&f.record.job_id))?;
-                if let Some((_, ids)) = submitted().as_mut() {
-                    ids.retain(|id| *id != f.record.job_id);
-                }
+                forget_collected(file, dir, &f.record.job_id)?;
             }
             None => i += 1,
         }
+    }
+    Ok(())
+}
+
+/// Forget job `id`, collected: in the ledger and among the jobs a second Ctrl-C cancels.
+fn forget_collected(file: &mut JobsFile, dir: &Path, id: &str) -> Result<()> {
+    file.forget(dir, &[id.to_string()])?;
+    if let Some((_, ids)) = submitted().as_mut() {
+        ids.retain(|i| i != id);
     }
     Ok(())
 }
@@ -835,23 +814,70 @@ mod tests {
         );
     }
 
-    /// Every job gets a node of its own and is never requeued by Slurm; the time limit is the given one, else the per-run
-    /// timeout plus two minutes, in whole minutes.
+    /// Every job gets a node of its own, the tasks its ranks need (CPUs per task its threads
+    /// when several ranks), and is never requeued by Slurm; the time limit is the given one,
+    /// else the per-run timeout plus two minutes, in whole minutes; a checkpointed run asks
+    /// for SIGUSR1 before it; the site's options come last.
     #[test]
     fn sbatch_options() {
+        use super::super::kind::{check_sbatch_arg, Shape};
         let mut o = SlurmOptions { cluster: "c".into(), ..SlurmOptions::default() };
+        let one = Shape::of(1, 4);
         let base = ["--parsable", "--nodes=1", "--ntasks=1", "--exclusive", "--no-requeue"];
-        assert_eq!(o.sbatch_args(None), base);
-        assert_eq!(o.sbatch_args(Some(Duration::from_secs(300)))[5], "--time=7");
-        assert_eq!(o.sbatch_args(Some(Duration::from_secs(301)))[5], "--time=8");
+        assert_eq!(o.sbatch_args(None, one, false), base);
+        assert_eq!(
+            o.sbatch_args(None, Shape::of(2, 3), false),
+            ["--parsable", "--nodes=1", "--ntasks=2", "--cpus-per-task=3", "--exclusive", "--no-requeue"]
+        );
+        assert_eq!(o.sbatch_args(Some(Duration::from_secs(300)), one, false)[5], "--time=7");
+        assert_eq!(o.sbatch_args(Some(Duration::from_secs(301)), one, false)[5], "--time=8");
         o.partition = Some("big".into());
         o.account = Some("proj".into());
         o.time_limit = Some("1:00:00".into());
+        o.sbatch_extra = vec!["--constraint=skylake".into(), "--qos=long".into()];
         assert_eq!(
-            o.sbatch_args(Some(Duration::from_secs(300)))[5..],
-            ["--partition=big", "--account=proj", "--time=1:00:00"]
+            o.sbatch_args(Some(Duration::from_secs(300)), one, true)[5..],
+            [
+                "--partition=big",
+                "--account=proj",
+                "--time=1:00:00",
+                "--signal=B:USR1@120",
+                "--constraint=skylake",
+                "--qos=long"
+            ]
         );
         assert_eq!(o.folder(), "slurm-c");
-        assert_eq!(shell_quote("/a b/it's"), r"'/a b/it'\''s'");
+        assert_eq!(o.poll(), Duration::from_secs(30));
+        for ok in ["--constraint=skylake", "--qos=normal", "--mem=8G", "-C", "--ntasks-per-node=1", "--no-requeue"] {
+            assert_eq!(check_sbatch_arg(ok), Ok(()), "{ok}");
+        }
+        for (bad, named) in [
+            ("--array=0-3", "--array"),
+            ("-a0-3", "--array"),
+            ("--arr=1", "--array"),
+            ("--parsable", "--parsable"),
+            ("--requeue", "--requeue"),
+            ("-J", "--job-name"),
+            ("--ntasks=4", "--ntasks"),
+        ] {
+            let e = check_sbatch_arg(bad).unwrap_err();
+            assert!(e.contains(&format!("{named} is set by the harness")), "{bad}: {e}");
+        }
+        assert!(check_sbatch_arg("qos=x").unwrap_err().contains("not an sbatch option"));
+    }
+
+    /// `squeue -r` of an array: each task by its id, pending ones not split off yet too.
+    #[test]
+    fn array_tasks_in_squeue() {
+        let q = parse_squeue("12_[2-3%2]|PENDING||JobArrayTaskLimit\n12_0|RUNNING|vm|None\n12_1|COMPLETED|vm|None\n");
+        assert_eq!(q.keys().collect::<Vec<_>>(), ["12_0", "12_1", "12_2", "12_3"]);
+        assert_eq!(q["12_3"].reason, "JobArrayTaskLimit");
+        assert_eq!(arrays(&["12_0".into(), "12_3".into(), "9".into()]), ["12", "9"]);
+        assert_eq!(job_in("12_[0-1]|/c/json\n", Path::new("/c/json")), Some("12".into()));
+        let array = "JobId=12 ArrayJobId=12 ArrayTaskId=0,2-3%2 JobState=PENDING\nJobId=14 ArrayJobId=12 \
+                     ArrayTaskId=4 JobState=COMPLETED\n";
+        assert!(removed_from_array(array, "12_1"), "a pending task cancelled");
+        assert!(!removed_from_array(array, "12_3") && !removed_from_array(array, "12_4"));
+        assert!(!removed_from_array("", "12_1"), "the array unknown: nothing to say");
     }
 }
