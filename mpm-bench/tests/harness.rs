@@ -686,6 +686,14 @@ fn cli_errors_are_clear() {
         "--detach is an option of --scheduler slurm",
     );
     fails_cleanly(&["run", "--preset", "smoke", "--scheduler", "slurm", "--mock", "--out", out], "cannot go to Slurm");
+    fails_cleanly(
+        &["run", "--preset", "smoke", "--scheduler", "slurm", "--sbatch-arg=--requeue", "--out", out],
+        "--sbatch-arg '--requeue' is refused: --requeue is set by the harness",
+    );
+    fails_cleanly(
+        &["run", "--preset", "smoke", "--sbatch-arg=--qos=normal", "--mock", "--out", out],
+        "--sbatch-arg is an option of --scheduler slurm",
+    );
     fails_cleanly(&["run", "--preset", "smoke", "--scheduler", "pbs", "--out", out], "invalid value 'pbs'");
     fails_cleanly(&["topology", "--pin", "0,x"], "bad CPU list");
     fails_cleanly(&["paired", "--model", "7"], "Models 1-4");
@@ -713,6 +721,8 @@ fn cli_errors_are_clear() {
         "--partition",
         "--max-jobs",
         "--detach",
+        "--poll-interval",
+        "--sbatch-arg",
         "Examples",
     ] {
         assert!(help.contains(flag), "help lacks {flag}");
