@@ -489,13 +489,26 @@ fn mock_ranks(req: &RunRequest, s: &Summary, wrong: bool, split_wait: bool) -> V
         .collect()
 }
 
-/// A generator seeded by the run's summary path (unique per run and campaign), so that the
-/// mock's noise differs between runs but repeats for the same run.
+/// A generator seeded by the run's summary path (unique per run and campaign) less its parts
+/// that change from one test run or machine to the next ([`mock_key`]), so that the mock's
+/// noise differs between runs and campaigns but repeats for the same run: a test's verdict on
+/// the mock is the same every time and on every machine, never a coin that fails one run in
+/// forty.
 fn mock_rng(req: &RunRequest) -> crate::util::SplitMix64 {
-    let key = req.json_path.display().to_string();
+    let key = mock_key(&req.json_path);
     crate::util::SplitMix64(
         key.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)),
     )
+}
+
+/// `path` from just below its last temporary folder (`.tmp...`, as `tempfile` names them),
+/// without the machine's fingerprint (a folder of 12 hex digits): `aa/baseline/ci_r6/json/x.json`
+/// for `/tmp/.tmpAbC123/aa/baseline/0123456789ab/ci_r6/json/x.json`.
+fn mock_key(path: &Path) -> String {
+    let parts: Vec<String> = path.components().map(|c| c.as_os_str().to_string_lossy().into_owned()).collect();
+    let start = parts.iter().rposition(|p| p.starts_with(".tmp")).map_or(0, |i| i + 1);
+    let fingerprint = |p: &str| p.len() == 12 && p.bytes().all(|b| b.is_ascii_hexdigit());
+    parts[start..].iter().filter(|p| !fingerprint(p)).collect::<PathBuf>().display().to_string()
 }
 
 /// A standard normal variate (Box-Muller).
@@ -704,6 +717,21 @@ mod tests {
     use crate::machine::placement::PinPolicy;
     use mpm_spec::scenario::TaylorSpec;
     use mpm_spec::Scenario;
+
+    /// The mock's noise is keyed by the run's place in its campaign, not by where a test's
+    /// temporary folder is or which machine ran it; different campaigns and runs differ.
+    #[test]
+    fn the_mocks_noise_repeats_for_the_same_run_anywhere() {
+        let k = |p: &str| mock_key(Path::new(p));
+        assert_eq!(k("/tmp/.tmpAbC123/aa/baseline/0123456789ab/ci_r6/json/x.json"), "aa/baseline/ci_r6/json/x.json");
+        assert_eq!(
+            k("/var/tmp/.tmpZz9/aa/baseline/fedcba987654/ci_r6/json/x.json"),
+            k("/tmp/.tmpAbC123/aa/baseline/0123456789ab/ci_r6/json/x.json")
+        );
+        assert_ne!(k("/t/.tmp1/aa/baseline/ci_r6/json/x.json"), k("/t/.tmp1/aa/candidate/ci_r6/json/x.json"));
+        assert_ne!(k("/t/.tmp1/c/json/x-r0.json"), k("/t/.tmp1/c/json/x-r1.json"));
+        assert_eq!(k("/results/m/ci/json/x.json"), "/results/m/ci/json/x.json");
+    }
 
     /// The solver gets one argument, the spec file; the spec holds the run's CPUs and its
     /// summary's path. Several ranks: the launcher's words, then the binary and the same.
