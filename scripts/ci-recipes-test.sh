@@ -7,8 +7,8 @@
 #      base and the candidate: exit 0 when the candidate's code is the base's, exit 1 when
 #      the candidate carries an injected 50 % step slowdown (the time-per-step check fails).
 # The job builds the candidate and the base (from a worktree of the base commit) itself.
-# Both builds share CARGO_TARGET_DIR=target/recipe-test, with o3's link-time optimisation
-# off, so that the dependencies are built once (a few minutes the first time, then kept).
+# Both builds share CARGO_TARGET_DIR=target/recipe-test, in profile o3-test (o3 without its
+# link-time optimisation), so that the dependencies are built once.
 # The cells are one small Model 1 cell, 6 pairs, at a tolerance of 25 %: this checks the
 # recipe, not the gate's error rates (`mpm-bench calibrate --design ab` measures those).
 set -euo pipefail
@@ -33,6 +33,15 @@ if "$actionlint" "$tmp/broken.yml" >/dev/null 2>&1; then
 fi
 
 step "the GitLab efficiency gate under gitlab-ci-local, on a clone with two commits"
+# Both sides build with profile o3-test (the job's MPM_BENCH_CARGO_PROFILE_O3) into
+# target/recipe-test, seeded with a copy of this checkout's o3-test build when there is one
+# (after scripts/test.sh's tests): the dependencies are then built already, and only the
+# workspace's crates are built, once per side. A copy, never links: a build writes its
+# outputs in place.
+if [ -d target/o3-test ] && [ ! -d target/recipe-test/o3-test ]; then
+    mkdir -p target/recipe-test
+    cp -r target/o3-test target/recipe-test/o3-test
+fi
 git clone -q "$repo" "$tmp/repo"
 cd "$tmp/repo"
 git config user.email test@example.com
@@ -77,8 +86,7 @@ gate() {
         "$glci" --file .gitlab-ci.yml --force-shell-executor --no-color \
         --variable CI_PIPELINE_SOURCE=merge_request_event \
         --variable "CI_MERGE_REQUEST_DIFF_BASE_SHA=$base" \
-        --variable "CARGO_TARGET_DIR=$repo/target/recipe-test" \
-        --variable CARGO_PROFILE_O3_LTO=false --variable CARGO_PROFILE_O3_CODEGEN_UNITS=16 \
+        --variable "CARGO_TARGET_DIR=$repo/target/recipe-test" --variable MPM_BENCH_CARGO_PROFILE_O3=o3-test \
         --variable AB_PRESET=ab-test.toml --variable AB_WORK_SNAPSHOT= \
         --variable "AB_EXTRA=--tolerance 0.25 $1" \
         efficiency-gate > "$tmp/job.log" 2>&1
