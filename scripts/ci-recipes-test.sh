@@ -77,6 +77,12 @@ grep -q -- '-candidate"' Cargo.toml && [ "$(grep -c -- '-candidate"' Cargo.lock)
     || { echo "ci-recipes-test: cannot bump the candidate's version in Cargo.toml and Cargo.lock" >&2; exit 1; }
 git add .gitlab-ci.yml ab-test.toml Cargo.toml Cargo.lock
 git commit -q -m "The candidate: the gate's job and its cells, a new version"
+# The build scripts watch the index (the dirty flag). Written in the same second as the files
+# it lists, their entries are "racily clean" and the next `git status` (the harness's record
+# of the checkout) writes it again, and the second job would build the candidate again: an
+# index written a second later lists nothing racy and stays as it is.
+sleep 1
+git update-index -q --refresh --force-write-index
 base=$(git rev-parse HEAD~1)
 
 gate() {
