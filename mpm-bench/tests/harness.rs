@@ -677,22 +677,23 @@ fn cli_errors_are_clear() {
     fails_cleanly(&["run", "--preset", "smoke", "--pin", "0,x", "--mock", "--out", out], "bad CPU list");
     fails_cleanly(&["run", "--preset", "smoke", "--pin", "9999", "--mock", "--out", out], "cannot use");
     fails_cleanly(&["run", "--preset", "smoke", "--mock", "--out", "/proc/no-such-dir"], "output folder");
-    fails_cleanly(
-        &["run", "--preset", "smoke", "--partition", "p", "--mock", "--out", out],
-        "--partition is an option of --scheduler slurm",
-    );
-    fails_cleanly(
-        &["run", "--preset", "smoke", "--detach", "--mock", "--out", out],
-        "--detach is an option of --scheduler slurm",
-    );
+    // A Slurm option without Slurm: refused naming it.
+    for (flag, given) in [
+        ("--partition", &["--partition", "p"][..]),
+        ("--detach", &["--detach"]),
+        ("--sbatch-arg", &["--sbatch-arg=--qos=normal"]),
+    ] {
+        let args: Vec<&str> = ["run", "--preset", "smoke"]
+            .into_iter()
+            .chain(given.iter().copied())
+            .chain(["--mock", "--out", out])
+            .collect();
+        fails_cleanly(&args, &format!("{flag} is an option of --scheduler slurm"));
+    }
     fails_cleanly(&["run", "--preset", "smoke", "--scheduler", "slurm", "--mock", "--out", out], "cannot go to Slurm");
     fails_cleanly(
         &["run", "--preset", "smoke", "--scheduler", "slurm", "--sbatch-arg=--requeue", "--out", out],
         "--sbatch-arg '--requeue' is refused: --requeue is set by the harness",
-    );
-    fails_cleanly(
-        &["run", "--preset", "smoke", "--sbatch-arg=--qos=normal", "--mock", "--out", out],
-        "--sbatch-arg is an option of --scheduler slurm",
     );
     fails_cleanly(&["run", "--preset", "smoke", "--scheduler", "pbs", "--out", out], "invalid value 'pbs'");
     fails_cleanly(&["topology", "--pin", "0,x"], "bad CPU list");
