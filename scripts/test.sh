@@ -19,8 +19,10 @@ step() { printf '\n==> [%4d s] %s\n' "$(( $(date +%s) - start ))" "$*" >&2; }
 step "cargo fmt --check"
 cargo fmt --all -- --check
 
+# In the tests' profile: the build scripts, their outputs and the proc macros clippy builds are
+# then the test build's too.
 step "cargo clippy (all targets, -D warnings)"
-cargo clippy --workspace --all-targets --profile o3 -- -D warnings
+cargo clippy --workspace --all-targets --profile o3-test -- -D warnings
 
 step "the campaign scripts' shared steps (scripts/campaign-steps-test.sh)"
 scripts/campaign-steps-test.sh
@@ -30,12 +32,15 @@ scripts/campaign-steps-test.sh
 # run-time detection disagree (a skip on a CPU that has it).
 export MPM_CPU_HAS_AVX512=0
 if grep -qw avx512f /proc/cpuinfo 2>/dev/null && grep -qw avx2 /proc/cpuinfo; then MPM_CPU_HAS_AVX512=1; fi
-# The campaigns the harness's tests run build their `mpm` as `mpm-bench run` does; the o3
-# one with the tests' own profile (MPM_BENCH_CARGO_PROFILE_O3=o3-test: o3's optimisation
-# without its LTO), which this build has made already, instead of o3 with LTO from scratch
-# (minutes). The o0 one is built as always.
+# The campaigns the harness's tests run find or build their `mpm` as `mpm-bench run` does. The
+# o3 one is the tests' own (profile o3-test: o3's optimisation without its LTO), which this
+# build makes: named by MPM_BENCH_SOLVER_O3, with MPM_BENCH_CARGO_PROFILE_O3 saying its
+# profile, instead of o3 with LTO from scratch (minutes), or a `cargo build -p mpm-cli` of
+# o3-test, which unifies the dependencies' features otherwise and builds the MPI binding's
+# chain again. The o0 one is built by the campaign test, as `mpm-bench run` builds a level.
 step "cargo test (profile o3-test: o3 without LTO; MPM_CPU_HAS_AVX512=$MPM_CPU_HAS_AVX512)"
-MPM_BENCH_CARGO_PROFILE_O3=o3-test cargo test --workspace --profile o3-test
+MPM_BENCH_CARGO_PROFILE_O3=o3-test MPM_BENCH_SOLVER_O3="$PWD/target/o3-test/mpm" \
+    cargo test --workspace --profile o3-test
 
 # The fault-injection suite, with the programs the tests built (target/o3-test/mpm-bench,
 # target/o3-test/mpm as both solvers): the smoke campaign (three repetitions) killed with

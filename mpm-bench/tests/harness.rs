@@ -864,8 +864,9 @@ fn end_to_end_smoke_campaign_with_the_real_solver() {
     }
     let man = mpm_bench::campaign::store::manifest::read(&d.join("manifest.json")).unwrap();
     assert_eq!(man.software.binaries.len(), 2);
-    // Each level built with its Cargo profile (scripts/test.sh names o3-test for o3: the
-    // tests' own build), where the manifest says, with the variable that chose it.
+    // Each level built with its Cargo profile (scripts/test.sh names o3-test for o3, and the
+    // tests' own build of it in MPM_BENCH_SOLVER_O3; o0 is built here), where the manifest
+    // says, with the variable that chose it.
     for (level, b) in [("o3", &man.software.binaries[0]), ("o0", &man.software.binaries[1])] {
         let key = format!("MPM_BENCH_CARGO_PROFILE_{}", level.to_ascii_uppercase());
         let profile = std::env::var(&key).unwrap_or_else(|_| level.to_string());
