@@ -26,9 +26,10 @@
 # The munge socket and key are private to this instance (AuthInfo=socket=...),
 # so a machine's own munged is left alone. cred_expire=10 (Slurm's minimum is 5, its default 120):
 # a job requeued (`scontrol requeue`) may start again after that many seconds, not two minutes.
-# SchedulerParameters=batch_sched_delay=0,bf_interval=1: a job that can start, starts (Slurm
-# defers batch jobs up to 3 s by default, and starts a requeued one in its backfill pass, every
-# 30 s by default): a node of one user's tests, not a busy cluster's queue.
+# SchedulerParameters=batch_sched_delay=0,bf_interval=1,sched_interval=2: a job that can
+# start, starts (by default Slurm defers batch jobs up to 3 s, runs its backfill pass every 30 s
+# and its full pass, which starts a requeued job once its credential expired, every 60 s): a
+# node of one user's tests, not a busy cluster's queue.
 set -euo pipefail
 
 dir=${MPM_SLURM_DIR:-/tmp/mpm-slurm-local}
@@ -111,7 +112,7 @@ JobCompType=jobcomp/none
 SelectType=select/cons_tres
 SelectTypeParameters=CR_Core
 SchedulerType=sched/backfill
-SchedulerParameters=batch_sched_delay=0,bf_interval=1
+SchedulerParameters=batch_sched_delay=0,bf_interval=1,sched_interval=2
 MpiDefault=none
 SwitchType=switch/none
 ReturnToService=2
