@@ -72,7 +72,7 @@ cp target/o0/mpm "$slurm_dir/mpm-o0"
     "../$slurm_test" --nocapture) > "$slurm_dir/slurm-test.log" 2>&1 &
 slurm_pid=$!
 # Whatever fails meanwhile, the Slurm test ends (and stops its cluster) before this script does.
-trap 'wait "$slurm_pid" 2> /dev/null; rm -rf "$slurm_dir"' EXIT
+trap 'wait "$slurm_pid" 2> /dev/null || true; rm -rf "$slurm_dir"' EXIT
 
 # The self-contained bundle for a machine without a toolchain (scripts/bundle.sh), made at
 # profile o3-test from the builds above and run unpacked without cargo: its libraries, the
